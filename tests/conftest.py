@@ -1,0 +1,31 @@
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))  # data_synthetic is importable from the checkout
+
+from vmesh import realdata  # noqa: E402
+
+SYNTHETIC = ROOT / "data_synthetic"
+
+
+@pytest.fixture(scope="session")
+def real_path():
+    """``real_path(name)`` -> path of a real data file; skips (with the reason) when absent."""
+
+    def get(name):
+        p = realdata.real_file(name)
+        if p is None:
+            reason = realdata.missing_reason() if realdata.real_data_dir() is None else f"real data file {name} not found"
+            print(f"SKIP: {reason}")
+            pytest.skip(reason)
+        return p
+
+    return get
+
+
+def synthetic_case(name):
+    """(surface path, skeleton path) of a committed synthetic case."""
+    return SYNTHETIC / name / "surface.ply", SYNTHETIC / name / "skeleton.json"

@@ -1,0 +1,52 @@
+"""vmesh: block-structured hexahedral meshes of blood vessels.
+
+Every stage is a registered filter (:func:`filter_list`,
+:func:`print_filter_parameter_list`) and a :class:`FilterChain` runs them in order::
+
+    import vmesh
+    chain = vmesh.FilterChain.load("default")
+    ctx = chain.run(surface="vessel.stl", out_dir="out")
+"""
+
+__version__ = "0.1.0"
+
+from .chain import FilterChain, Step, list_presets  # noqa: E402
+from .context import Context, Report  # noqa: E402
+from .errors import ChainError, InputError, MeshingError, ParameterError, VmeshError  # noqa: E402
+from .io.skeleton import read_skeleton, write_skeleton  # noqa: E402
+from .io.surface import read_surface, write_surface  # noqa: E402
+from .registry import (  # noqa: E402
+    Parameter,
+    filter_list,
+    get_filter,
+    print_filter_list,
+    print_filter_parameter_list,
+    register_filter,
+)
+from .skeleton import Skeleton  # noqa: E402
+from .surface import SurfaceMesh  # noqa: E402
+
+__all__ = [
+    "FilterChain",
+    "Step",
+    "Context",
+    "Report",
+    "Parameter",
+    "register_filter",
+    "get_filter",
+    "filter_list",
+    "print_filter_list",
+    "print_filter_parameter_list",
+    "list_presets",
+    "read_surface",
+    "write_surface",
+    "read_skeleton",
+    "write_skeleton",
+    "SurfaceMesh",
+    "Skeleton",
+    "VmeshError",
+    "InputError",
+    "ParameterError",
+    "ChainError",
+    "MeshingError",
+]

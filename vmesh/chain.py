@@ -1,0 +1,348 @@
+"""Filter chains: ordered (filter, parameters) steps, saved and loaded as TOML."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from . import __version__
+from .context import Context, StepReport
+from .errors import ChainError, InputError, ParameterError, VmeshError
+from .monitor import ResourceMonitor
+from .registry import get_filter, suggest
+
+#: Folders searched for chain presets named without a path (``vmesh run default``).
+PRESET_DIRS = [
+    Path(__file__).resolve().parent.parent / "filters",  # a source checkout
+    Path(__file__).resolve().parent / "presets",  # an installed package
+]
+
+
+def preset_dirs() -> list[Path]:
+    extra = [Path(p) for p in os.environ.get("VMESH_CHAIN_PATH", "").split(os.pathsep) if p]
+    return [d for d in (*extra, *PRESET_DIRS) if d.is_dir()]
+
+
+def list_presets() -> dict[str, Path]:
+    """Chain presets by name (first found wins)."""
+    out: dict[str, Path] = {}
+    for d in preset_dirs():
+        for p in sorted(d.glob("*.toml")):
+            out.setdefault(p.stem, p)
+    return out
+
+
+def find_chain_file(name_or_path: str | Path) -> Path:
+    """Resolve a chain file path or a preset name to a file."""
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    if p.suffix == "" and p.parent == Path("."):
+        presets = list_presets()
+        if p.name in presets:
+            return presets[p.name]
+        raise InputError(f"no such chain file or preset" + suggest(p.name, presets) + f" (presets: {', '.join(presets)})", p)
+    raise InputError("chain file not found", p)
+
+
+@dataclass
+class Step:
+    """One step of a chain: a filter name and its (possibly partial) parameters."""
+
+    filter: str
+    params: dict = field(default_factory=dict)
+
+    def resolved(self) -> "Step":
+        return Step(self.filter, get_filter(self.filter).resolve(self.params))
+
+
+class FilterChain:
+    """An ordered list of filters with parameters.
+
+    Examples
+    --------
+    >>> chain = FilterChain(["repair_surface", ("decimate_surface", {"target_faces": 5000})])
+    >>> chain.append("build_sdf", source="coarse")          # doctest: +SKIP
+    >>> ctx = chain.run(surface="vessel.stl", out_dir="out")  # doctest: +SKIP
+    >>> chain.save("my_chain.toml")                          # doctest: +SKIP
+    """
+
+    def __init__(self, steps=(), name: str = "", description: str = ""):
+        self.name = name
+        self.description = description
+        self.steps: list[Step] = []
+        for s in steps:
+            self._add(s)
+
+    # -- building ------------------------------------------------------
+    def _add(self, s):
+        if isinstance(s, Step):
+            step = Step(s.filter, dict(s.params))
+        elif isinstance(s, str):
+            step = Step(s, {})
+        elif isinstance(s, dict):
+            step = Step(s["filter"], dict(s.get("params", {})))
+        else:
+            fname, params = s
+            step = Step(fname, dict(params or {}))
+        get_filter(step.filter)  # unknown names fail here, with a suggestion
+        self.steps.append(step)
+
+    def append(self, filter_name: str, params: dict | None = None, **kw) -> "FilterChain":
+        """Add a step; returns the chain so calls can be chained."""
+        self._add(Step(filter_name, {**(params or {}), **kw}))
+        return self
+
+    def __len__(self):
+        return len(self.steps)
+
+    def __iter__(self):
+        return iter(self.steps)
+
+    def __repr__(self):
+        lines = [f"FilterChain({self.name!r}, {len(self)} steps)"]
+        lines += [f"  {i + 1}. {s.filter} {s.params if s.params else ''}".rstrip() for i, s in enumerate(self.steps)]
+        return "\n".join(lines)
+
+    # -- parameters ----------------------------------------------------
+    def resolved(self) -> "FilterChain":
+        """A copy with every parameter validated and every default filled in."""
+        errors = []
+        steps = []
+        for i, s in enumerate(self.steps):
+            try:
+                steps.append(s.resolved())
+            except ParameterError as exc:
+                errors.append(f"step {i + 1}: {exc}")
+        if errors:
+            raise ParameterError("; ".join(errors))
+        return FilterChain(steps, name=self.name, description=self.description)
+
+    def with_overrides(self, overrides: dict) -> "FilterChain":
+        """A copy with ``{"filter.param": value}`` applied to every step of that filter."""
+        chain = FilterChain(self.steps, self.name, self.description)
+        for key, value in overrides.items():
+            fname, _, pname = key.partition(".")
+            if not pname:
+                raise ParameterError(f"override '{key}' must look like filter.param=value")
+            matches = [s for s in chain.steps if s.filter == fname]
+            if not matches:
+                raise ParameterError(
+                    f"override '{key}': filter '{fname}' is not in this chain"
+                    + suggest(fname, [s.filter for s in chain.steps])
+                )
+            get_filter(fname).parameter(pname)  # unknown parameter: suggestion
+            for s in matches:
+                s.params[pname] = value
+        return chain
+
+    def check_layers(self, available) -> None:
+        """Fail before running when a step needs a layer nothing provides."""
+        have = set(available)
+        for i, s in enumerate(self.steps):
+            f = get_filter(s.filter)
+            missing = [layer for layer in f.reads if layer not in have]
+            if missing:
+                raise ChainError(
+                    f"step {i + 1} '{s.filter}' needs the {', '.join(missing)} layer, which neither an input "
+                    f"nor an earlier step provides"
+                    + (" (give --skeleton FILE or add extract_skeleton)" if "skeleton" in missing else "")
+                )
+            have.update(f.writes)
+
+    # -- files -----------------------------------------------------------
+    def to_dict(self) -> dict:
+        d = {"chain": {"name": self.name, "description": self.description, "vmesh_version": __version__}}
+        d["step"] = [{"filter": s.filter, "params": _toml_clean(s.params)} for s in self.steps]
+        return d
+
+    def to_toml(self, header: str = "") -> str:
+        import tomli_w
+
+        text = tomli_w.dumps(self.to_dict())
+        return (header + "\n" if header else "") + text
+
+    def save(self, path) -> Path:
+        from .io.atomic import write_text_atomic
+
+        return write_text_atomic(path, self.to_toml("# vmesh filter chain (load with vmesh.FilterChain.load)"))
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "") -> "FilterChain":
+        meta = data.get("chain", {})
+        raw = data.get("step", [])
+        if not isinstance(raw, list) or not raw:
+            raise InputError("chain has no [[step]] entries", source or None)
+        steps = []
+        for i, s in enumerate(raw):
+            if not isinstance(s, dict) or "filter" not in s:
+                raise InputError(f"step {i + 1} has no 'filter' key", source or None)
+            extra = set(s) - {"filter", "params"}
+            if extra:
+                raise InputError(f"step {i + 1}: unknown key(s) {', '.join(sorted(extra))} (use a [step.params] table)", source or None)
+            steps.append(Step(s["filter"], dict(s.get("params", {}))))
+        try:
+            return cls(steps, name=meta.get("name", ""), description=meta.get("description", ""))
+        except ParameterError as exc:
+            raise InputError(str(exc), source or None) from None
+
+    @classmethod
+    def from_toml(cls, text: str, source: str = "") -> "FilterChain":
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise InputError(f"not valid TOML ({exc})", source or None) from None
+        return cls.from_dict(data, source)
+
+    @classmethod
+    def load(cls, name_or_path) -> "FilterChain":
+        """Load a chain from a TOML file, or a preset by name (``"default"``)."""
+        path = find_chain_file(name_or_path)
+        if path.stat().st_size == 0:
+            raise InputError("file is empty", path)
+        try:
+            text = path.read_text()
+        except UnicodeDecodeError:
+            raise InputError("not a text (TOML) file", path) from None
+        chain = cls.from_toml(text, str(path))
+        chain.name = chain.name or path.stem
+        return chain
+
+    # -- running ---------------------------------------------------------
+    def run(self, surface=None, skeleton=None, out_dir=None, progress: bool | object = False, context: Context | None = None) -> Context:
+        """Run every step in order and return the context.
+
+        Parameters
+        ----------
+        surface : path or SurfaceMesh, optional
+            The input surface (the *fine* surface layer).
+        skeleton : path or Skeleton, optional
+            A centerline; without it the chain must extract one.
+        out_dir : path, optional
+            Output folder. Files are staged in a hidden sibling folder and moved in only
+            when the whole chain succeeds, together with ``chain.toml`` (the chain as run,
+            every parameter resolved) and ``report.json``.
+        progress : bool or callable
+            Print per-filter progress to stderr (or call ``progress(event, **info)``).
+        """
+        from .io.skeleton import read_skeleton
+        from .io.surface import read_surface
+        from .skeleton import Skeleton
+        from .surface import SurfaceMesh
+
+        resolved = self.resolved()  # every parameter checked before anything runs
+        ctx = context or Context()
+        if surface is not None:
+            if isinstance(surface, SurfaceMesh):
+                ctx.surface = surface
+            else:
+                ctx.inputs["surface"] = str(surface)
+                ctx.surface = read_surface(surface)
+        if skeleton is not None:
+            if isinstance(skeleton, Skeleton):
+                ctx.skeleton = skeleton
+            else:
+                ctx.inputs["skeleton"] = str(skeleton)
+                ctx.skeleton = read_skeleton(skeleton)
+        resolved.check_layers([layer for layer in ("surface", "coarse_surface", "caps", "sdf", "skeleton", "blocks", "mesh") if ctx.has(layer)])
+
+        say = _printer(progress)
+        if progress:
+            ctx.progress = lambda frac, msg="": say("tick", fraction=frac, message=msg)
+        stage = None
+        if out_dir is not None:
+            out_dir = Path(out_dir)
+            out_dir.parent.mkdir(parents=True, exist_ok=True)
+            stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=out_dir.parent))
+            ctx.stage_dir, ctx.out_dir = stage, out_dir
+        t0 = time.perf_counter()
+        try:
+            n = len(resolved.steps)
+            for i, step in enumerate(resolved.steps):
+                f = get_filter(step.filter)
+                ctx._step = StepReport(step.filter, step.params)
+                say("start", index=i + 1, total=n, name=step.filter)
+                with ResourceMonitor() as mon:
+                    try:
+                        f.function(ctx, **step.params)
+                    except VmeshError as exc:
+                        raise type(exc)(f"step {i + 1} '{step.filter}': {exc}") from exc
+                    except MemoryError:
+                        raise ChainError(f"step {i + 1} '{step.filter}' ran out of memory") from None
+                    except Exception as exc:
+                        raise ChainError(f"step {i + 1} '{step.filter}' failed: {type(exc).__name__}: {exc}") from exc
+                ctx._step.seconds = mon.seconds
+                ctx._step.peak_memory_mb = mon.peak_mb
+                ctx._step.extra_memory_mb = mon.extra_mb
+                ctx.report.steps.append(ctx._step)
+                say("end", index=i + 1, total=n, name=step.filter, step=ctx._step)
+                ctx._step = None
+            ctx.report.total_s = time.perf_counter() - t0
+            if stage is not None:
+                header = "# vmesh filter chain, exactly as run (every parameter resolved)"
+                if ctx.inputs:
+                    header += "\n# inputs: " + ", ".join(f"{k}={v}" for k, v in ctx.inputs.items())
+                (stage / "chain.toml").write_text(resolved.to_toml(header))
+                report = ctx.report.to_dict()
+                report["inputs"] = dict(ctx.inputs)
+                report["chain"] = resolved.name
+                (stage / "report.json").write_text(json.dumps(report, indent=2))
+                _commit_stage(stage, out_dir)
+                ctx.stage_dir = None
+        finally:
+            ctx._step = None
+            if stage is not None and stage.exists():
+                shutil.rmtree(stage, ignore_errors=True)
+        return ctx
+
+
+def _commit_stage(stage: Path, out_dir: Path) -> None:
+    """Move every staged file into ``out_dir`` (each move is an atomic rename)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for src in sorted(stage.rglob("*")):
+        if src.is_file():
+            dst = out_dir / src.relative_to(stage)
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(src, dst)
+
+
+def _toml_clean(params: dict) -> dict:
+    """TOML has no null: unset (automatic) parameters are left out."""
+    return {k: v for k, v in params.items() if v is not None}
+
+
+def _printer(progress):
+    if callable(progress) and not isinstance(progress, bool):
+        return progress
+    if not progress:
+        return lambda event, **info: None
+    tty = sys.stderr.isatty()
+    state = {"last": -1.0}
+
+    def say(event, **info):
+        if event == "start":
+            state["last"] = -1.0
+            print(f"[{info['index']}/{info['total']}] {info['name']} ...", file=sys.stderr, flush=True)
+        elif event == "tick":
+            frac = info["fraction"]
+            if tty:
+                bar = "#" * int(30 * frac)
+                print(f"\r    [{bar:<30}] {100 * frac:5.1f}% {info['message'][:40]:<40}", end="", file=sys.stderr, flush=True)
+                if frac >= 1:
+                    print(file=sys.stderr)
+            elif frac - state["last"] >= 0.25 or frac >= 1 > state["last"]:
+                state["last"] = frac
+                print(f"    {100 * frac:5.1f}% {info['message']}", file=sys.stderr, flush=True)
+        elif event == "end":
+            s = info["step"]
+            counts = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in s.counts.items())
+            print(f"      done in {s.seconds:.2f} s, peak {s.peak_memory_mb:.0f} MB" + (f"  ({counts})" if counts else ""), file=sys.stderr, flush=True)
+
+    return say

@@ -1,0 +1,158 @@
+"""The ``vmesh`` command line.
+
+Errors in user input print one line, ``vmesh: error: <file>: <problem>``, and exit
+with status 2; nothing is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tomllib
+from pathlib import Path
+
+from . import __version__
+from .errors import VmeshError
+
+EXIT_USAGE = 2
+
+#: Sub-commands contributed by other modules: name -> (add_arguments, run)
+EXTRA_COMMANDS: dict = {}
+
+
+def parse_value(text: str):
+    """Parse ``--set`` values as TOML (numbers, booleans, lists, strings); bare words stay strings."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def parse_overrides(items) -> dict:
+    out = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or "." not in key:
+            raise VmeshError(f"--set {item!r}: expected filter.param=value")
+        out[key.strip()] = parse_value(value.strip())
+    return out
+
+
+def cmd_filters(args) -> int:
+    from .registry import filter_list_text, get_filter
+
+    if args.name:
+        print(get_filter(args.name).parameter_table())
+    else:
+        print(filter_list_text())
+        print("\n`vmesh filters NAME` prints a filter's parameters.")
+    return 0
+
+
+def cmd_chains(args) -> int:
+    from .chain import FilterChain, list_presets
+
+    for name, path in list_presets().items():
+        chain = FilterChain.load(path)
+        print(f"{name:<20} {chain.description or ''}  [{path}]")
+        if args.verbose:
+            for i, s in enumerate(chain.steps):
+                print(f"    {i + 1}. {s.filter}")
+    return 0
+
+
+def cmd_info(args) -> int:
+    from .io.surface import read_surface
+
+    for path in args.surface:
+        surface = read_surface(path)
+        print(f"{path}")
+        print("  " + str(surface.info()).replace("\n", "\n  "))
+    return 0
+
+
+def cmd_run(args) -> int:
+    from .chain import FilterChain
+
+    chain = FilterChain.load(args.chain).with_overrides(parse_overrides(args.set))
+    chain.resolved()  # parameter errors before reading any input
+    ctx = chain.run(surface=args.input, skeleton=args.skeleton, out_dir=args.out, progress=not args.quiet)
+    if not args.quiet:
+        print(ctx.report.summary_table())
+        for w in ctx.report.warnings:
+            print(f"warning: {w}")
+        if args.out:
+            print(f"results in {args.out}/")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="vmesh",
+        description="Block-structured hexahedral meshes of blood vessels, built by chains of registered filters.",
+    )
+    p.add_argument("--version", action="version", version=f"vmesh {__version__}")
+    p.add_argument("--debug", action="store_true", help="show the full traceback on errors")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+
+    s = sub.add_parser("filters", help="list the registered filters, or describe one")
+    s.add_argument("name", nargs="?", help="filter name: print its parameters")
+    s.set_defaults(func=cmd_filters)
+
+    s = sub.add_parser("chains", help="list the chain presets (filters/*.toml)")
+    s.add_argument("-v", "--verbose", action="store_true", help="also list each preset's steps")
+    s.set_defaults(func=cmd_chains)
+
+    s = sub.add_parser("info", help="diagnose surface files (triangles, open ends, manifoldness, orientation)")
+    s.add_argument("surface", nargs="+")
+    s.set_defaults(func=cmd_info)
+
+    s = sub.add_parser("run", help="run a filter chain on a surface")
+    s.add_argument("chain", help="chain file (.toml) or preset name, e.g. 'default'")
+    s.add_argument("-i", "--input", required=False, help="input surface (stl, obj, ply, vtp, vtk, vtu, off)")
+    s.add_argument("-s", "--skeleton", help="centerline file (json, swc, vtp, vtk, csv); extracted when absent")
+    s.add_argument("--set", action="append", metavar="FILTER.PARAM=VALUE", help="override a parameter (repeatable)")
+    s.add_argument("-o", "--out", help="output folder")
+    s.add_argument("-q", "--quiet", action="store_true", help="no progress or summary")
+    s.set_defaults(func=cmd_run)
+
+    for name, (add_arguments, func, help_text) in EXTRA_COMMANDS.items():
+        s = sub.add_parser(name, help=help_text)
+        add_arguments(s)
+        s.set_defaults(func=func)
+    return p
+
+
+def main(argv=None) -> int:
+    _load_extra_commands()
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return EXIT_USAGE
+    try:
+        return int(args.func(args) or 0)
+    except VmeshError as exc:
+        if args.debug:
+            raise
+        print(f"vmesh: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("vmesh: interrupted", file=sys.stderr)
+        return 130
+
+
+def _load_extra_commands():
+    """Import modules that add sub-commands (skeleton, render, export, batch)."""
+    import importlib
+
+    for mod in ("vmesh.commands",):
+        try:
+            importlib.import_module(mod)
+        except ModuleNotFoundError as exc:
+            if exc.name != mod:
+                raise
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,34 @@
+"""Exceptions with one-line, user-facing messages."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class VmeshError(Exception):
+    """Base class of every error vmesh reports to a user.
+
+    The message is one line; when a file is involved it starts with the file's path
+    so that the command line can print ``vmesh: error: <file>: <problem>``.
+    """
+
+    def __init__(self, message: str, path: str | Path | None = None):
+        self.path = None if path is None else str(path)
+        self.problem = " ".join(str(message).split())
+        super().__init__(self.problem if path is None else f"{self.path}: {self.problem}")
+
+
+class InputError(VmeshError):
+    """A user's input file is missing, empty, corrupt or of an unknown format."""
+
+
+class ParameterError(VmeshError):
+    """An unknown filter or parameter, or a value of the wrong type or out of range."""
+
+
+class ChainError(VmeshError):
+    """A filter chain that cannot run (bad file, missing layer, failed filter)."""
+
+
+class MeshingError(VmeshError):
+    """A stage could not produce a valid result (e.g. an invalid block)."""

@@ -1,0 +1,6 @@
+"""Built-in filters. Importing this package registers them all.
+
+Each module is a thin wrapper around the kernels of one stage.
+"""
+
+from . import io_filters  # noqa: F401

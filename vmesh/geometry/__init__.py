@@ -1,0 +1,1 @@
+"""Geometry kernels: pure, vectorised functions on numpy arrays."""

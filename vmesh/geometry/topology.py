@@ -1,0 +1,128 @@
+"""Topology of triangle surfaces: edges, boundary loops, manifoldness, orientation."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+
+def directed_edges(faces: np.ndarray) -> np.ndarray:
+    """Half-edges ``(3m, 2)`` of polygon faces ``(m, k)`` in face order."""
+    faces = np.asarray(faces)
+    return np.stack([faces, np.roll(faces, -1, axis=1)], axis=-1).reshape(-1, 2)
+
+
+def edge_face_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Undirected edges (sorted vertex pairs) and how many faces use each."""
+    e = np.sort(directed_edges(faces), axis=1)
+    edges, counts = np.unique(e, axis=0, return_counts=True)
+    return edges, counts
+
+
+def boundary_edges(faces: np.ndarray) -> np.ndarray:
+    """Directed boundary half-edges (used by exactly one face), oriented as in that face."""
+    he = directed_edges(faces)
+    e = np.sort(he, axis=1)
+    _, inv, counts = np.unique(e, axis=0, return_inverse=True, return_counts=True)
+    return he[counts[inv.ravel()] == 1]
+
+
+def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
+    """Ordered vertex loops of the surface boundary (one array per open end).
+
+    Walks the boundary half-edges; where several boundary loops touch at a vertex
+    the walk still closes each loop because every half-edge is used once.
+    """
+    he = boundary_edges(faces)
+    if len(he) == 0:
+        return []
+    order = np.argsort(he[:, 0], kind="stable")
+    he = he[order]
+    starts = {}
+    for i, a in enumerate(he[:, 0].tolist()):
+        starts.setdefault(a, []).append(i)
+    used = np.zeros(len(he), bool)
+    loops = []
+    for first in range(len(he)):
+        if used[first]:
+            continue
+        loop, i = [], first
+        while not used[i]:
+            used[i] = True
+            loop.append(he[i, 0])
+            nxt = [j for j in starts.get(he[i, 1], []) if not used[j]]
+            if not nxt:
+                break
+            i = nxt[0]
+        loops.append(np.asarray(loop, dtype=np.int64))
+    return loops
+
+
+def non_manifold_edges(faces: np.ndarray) -> np.ndarray:
+    """Undirected edges shared by more than two faces."""
+    edges, counts = edge_face_counts(faces)
+    return edges[counts > 2]
+
+
+def is_consistently_oriented(faces: np.ndarray) -> bool:
+    """True when no half-edge occurs twice (neighbouring faces agree on orientation)."""
+    he = directed_edges(faces)
+    return len(np.unique(he, axis=0)) == len(he)
+
+
+def face_components(faces: np.ndarray, n_vertices: int | None = None) -> tuple[int, np.ndarray]:
+    """Connected components of faces through shared vertices: ``(count, label per face)``."""
+    faces = np.asarray(faces)
+    m = len(faces)
+    if m == 0:
+        return 0, np.zeros(0, np.int64)
+    n = int(faces.max()) + 1 if n_vertices is None else n_vertices
+    k = faces.shape[1]
+    rows = np.repeat(np.arange(m), k)
+    graph = sp.coo_matrix((np.ones(m * k), (rows, faces.ravel())), shape=(m, n)).tocsr()
+    # faces and vertices in one bipartite graph
+    big = sp.bmat([[None, graph], [graph.T, None]]).tocsr()
+    count, labels = connected_components(big, directed=False)
+    labels = labels[:m]
+    _, labels = np.unique(labels, return_inverse=True)
+    return int(labels.max()) + 1, labels.ravel()
+
+
+def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Signed volume enclosed by a triangle surface (positive for outward normals).
+
+    Computed relative to the centroid so it is also a meaningful orientation
+    indicator for surfaces with small open ends.
+    """
+    v = np.asarray(vertices, float)
+    c = v.mean(axis=0)
+    a, b, d = (v[faces[:, i]] - c for i in range(3))
+    return float(np.einsum("ij,ij->i", a, np.cross(b, d)).sum() / 6.0)
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray, normalize: bool = True) -> np.ndarray:
+    """Per-face normals (unit unless ``normalize`` is False: then twice the area)."""
+    v = np.asarray(vertices, float)
+    n = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+    if normalize:
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    return n
+
+
+def euler_characteristic(faces: np.ndarray) -> int:
+    """V - E + F over the vertices used by ``faces``."""
+    edges, _ = edge_face_counts(faces)
+    return int(len(np.unique(faces)) - len(edges) + len(faces))
+
+
+def triangulate_polygons(cells: list[np.ndarray]) -> np.ndarray:
+    """Fan-triangulate blocks of polygons ``(m, k)`` into one triangle array."""
+    tris = []
+    for block in cells:
+        block = np.asarray(block, dtype=np.int64)
+        if block.ndim != 2 or block.shape[1] < 3:
+            continue
+        for j in range(1, block.shape[1] - 1):
+            tris.append(block[:, [0, j, j + 1]])
+    return np.concatenate(tris) if tris else np.zeros((0, 3), np.int64)

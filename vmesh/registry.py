@@ -1,0 +1,307 @@
+"""Filter registry: named filters with typed, documented parameters.
+
+Modelled on pymeshlab: every filter is discoverable by name
+(:func:`filter_list`, :func:`print_filter_list`), and
+:func:`print_filter_parameter_list` prints each parameter's type, default, range
+and description. Filters register themselves with :func:`register_filter`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import textwrap
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from .errors import ParameterError
+
+#: Parameter type names and the Python types a value of that type may have.
+PARAMETER_TYPES: dict[str, tuple[type, ...]] = {
+    "int": (int,),
+    "float": (float, int),
+    "bool": (bool,),
+    "str": (str,),
+    "path": (str, Path),
+    "float_list": (list, tuple),
+    "int_list": (list, tuple),
+    "str_list": (list, tuple),
+    "dict": (dict,),
+}
+
+#: Layers of a run's :class:`~vmesh.context.Context` a filter may read or write.
+LAYERS = (
+    "surface",
+    "coarse_surface",
+    "caps",
+    "sdf",
+    "skeleton",
+    "blocks",
+    "mesh",
+    "quality",
+)
+
+
+def suggest(name: str, candidates) -> str:
+    """Return ``" (did you mean 'x'?)"`` for the closest candidate, or ``""``."""
+    close = difflib.get_close_matches(str(name), list(candidates), n=1, cutoff=0.5)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One typed, documented filter parameter.
+
+    Parameters
+    ----------
+    name : str
+        snake_case name, unique within the filter.
+    type : str
+        One of :data:`PARAMETER_TYPES`.
+    default : object
+        Default value; ``None`` means "unset / automatic" (``optional`` is then implied).
+    description : str
+        One or two sentences saying what the parameter does.
+    unit : str
+        Unit of the value (``"mm"``, ``"× radius"``, ``"faces"``...), if any.
+    min, max : float, optional
+        Inclusive range for numbers (and list items).
+    choices : tuple, optional
+        Allowed values for ``str`` parameters.
+    """
+
+    name: str
+    type: str
+    default: Any
+    description: str
+    unit: str = ""
+    min: float | None = None
+    max: float | None = None
+    choices: tuple | None = None
+
+    def __post_init__(self):
+        if self.type not in PARAMETER_TYPES:
+            raise ValueError(f"parameter {self.name}: unknown type {self.type!r}")
+
+    def validate(self, value: Any, where: str) -> Any:
+        """Check ``value`` and return it converted to the parameter's type."""
+        if value is None:
+            if self.default is None:
+                return None
+            raise ParameterError(f"{where}: parameter '{self.name}' may not be empty")
+        label = f"{where}: parameter '{self.name}'"
+        allowed = PARAMETER_TYPES[self.type]
+        # bool is an int subclass: refuse it where a number is expected
+        if not isinstance(value, allowed) or (self.type in ("int", "float") and isinstance(value, bool)):
+            raise ParameterError(f"{label} must be of type {self.type}, got {type(value).__name__} {value!r}")
+        if self.type == "float":
+            value = float(value)
+            if not math.isfinite(value):
+                raise ParameterError(f"{label} must be a finite number, got {value!r}")
+        if self.type == "path":
+            value = str(value)
+        if self.type.endswith("_list"):
+            item_type = {"float_list": (float, int), "int_list": (int,), "str_list": (str,)}[self.type]
+            if any(not isinstance(v, item_type) or isinstance(v, bool) for v in value):
+                raise ParameterError(f"{label} must be a list of {self.type[:-5]}, got {value!r}")
+            value = [float(v) if self.type == "float_list" else v for v in value]
+        numbers = [value] if self.type in ("int", "float") else (value if self.type in ("int_list", "float_list") else [])
+        for v in numbers:
+            if self.min is not None and v < self.min:
+                raise ParameterError(f"{label} = {v} is below its minimum {self.min}")
+            if self.max is not None and v > self.max:
+                raise ParameterError(f"{label} = {v} is above its maximum {self.max}")
+        if self.choices is not None and value not in self.choices:
+            raise ParameterError(
+                f"{label} = {value!r} is not one of {', '.join(map(repr, self.choices))}"
+                + suggest(value, self.choices)
+            )
+        return value
+
+    def range_text(self) -> str:
+        if self.choices is not None:
+            return "{" + ", ".join(map(str, self.choices)) + "}"
+        if self.min is None and self.max is None:
+            return ""
+        lo = "-inf" if self.min is None else f"{self.min:g}"
+        hi = "inf" if self.max is None else f"{self.max:g}"
+        return f"[{lo}, {hi}]"
+
+
+@dataclass(frozen=True)
+class Filter:
+    """A registered filter: a named function over a run's context.
+
+    The function is called as ``function(ctx, **params)`` with every parameter
+    validated and filled in. ``reads`` are the context layers it needs, ``optional_reads``
+    the ones it uses when present, ``writes`` the ones it produces.
+    """
+
+    name: str
+    description: str
+    function: Callable
+    parameters: tuple[Parameter, ...] = ()
+    reads: tuple[str, ...] = ()
+    optional_reads: tuple[str, ...] = ()
+    writes: tuple[str, ...] = ()
+    category: str = "misc"
+    doc: str = ""
+
+    @property
+    def parameter_names(self) -> list[str]:
+        return [p.name for p in self.parameters]
+
+    def parameter(self, name: str) -> Parameter:
+        for p in self.parameters:
+            if p.name == name:
+                return p
+        raise ParameterError(
+            f"filter '{self.name}' has no parameter '{name}'" + suggest(name, self.parameter_names)
+        )
+
+    def resolve(self, params: dict | None = None) -> dict:
+        """Validate ``params`` and return them complete, defaults filled in."""
+        params = dict(params or {})
+        for key in params:
+            self.parameter(key)  # raises with a suggestion
+        where = f"filter '{self.name}'"
+        return {p.name: p.validate(params.get(p.name, p.default), where) for p in self.parameters}
+
+    def __call__(self, ctx, **params):
+        return self.function(ctx, **self.resolve(params))
+
+    def parameter_table(self) -> str:
+        """Text listing of the parameters, like pymeshlab's ``print_filter_parameter_list``."""
+        lines = [f"{self.name}: {self.description}"]
+        if self.doc:
+            lines += ["", textwrap.indent(textwrap.fill(self.doc, 88), "  ")]
+        lines += [
+            "",
+            f"  category: {self.category}",
+            f"  reads:    {', '.join(self.reads) or '-'}"
+            + (f" (optional: {', '.join(self.optional_reads)})" if self.optional_reads else ""),
+            f"  writes:   {', '.join(self.writes) or '-'}",
+            "",
+        ]
+        if not self.parameters:
+            lines.append("  (no parameters)")
+        for p in self.parameters:
+            default = "auto" if p.default is None else repr(p.default)
+            head = f"  {p.name} : {p.type} = {default}"
+            extras = [x for x in (p.range_text(), p.unit and f"unit: {p.unit}") if x]
+            if extras:
+                head += "   " + "  ".join(extras)
+            lines.append(head)
+            lines.append(textwrap.indent(textwrap.fill(p.description, 84), "      "))
+        return "\n".join(lines)
+
+
+_REGISTRY: dict[str, Filter] = {}
+
+
+def register_filter(
+    name: str | None = None,
+    *,
+    description: str,
+    parameters=(),
+    reads=(),
+    optional_reads=(),
+    writes=(),
+    category: str = "misc",
+):
+    """Decorator registering ``function(ctx, **params)`` as a filter.
+
+    Examples
+    --------
+    >>> @register_filter(description="Scale the input surface.",
+    ...                  parameters=[Parameter("factor", "float", 1.0, "Scale factor.", min=0)],
+    ...                  reads=("surface",), writes=("surface",))
+    ... def scale_surface(ctx, factor):
+    ...     ctx.surface = ctx.surface.scaled(factor)
+    """
+
+    def wrap(function):
+        fname = name or function.__name__
+        if fname in _REGISTRY:
+            raise ValueError(f"filter '{fname}' is registered twice")
+        for layer in (*reads, *optional_reads, *writes):
+            if layer not in LAYERS:
+                raise ValueError(f"filter '{fname}': unknown layer {layer!r}")
+        names = [p.name for p in parameters]
+        if len(set(names)) != len(names):
+            raise ValueError(f"filter '{fname}': duplicate parameter names")
+        doc = " ".join((function.__doc__ or "").strip().split("\n\n")[0].split())
+        _REGISTRY[fname] = Filter(
+            name=fname,
+            description=description,
+            function=function,
+            parameters=tuple(parameters),
+            reads=tuple(reads),
+            optional_reads=tuple(optional_reads),
+            writes=tuple(writes),
+            category=category,
+            doc=doc if doc != description else "",
+        )
+        return function
+
+    return wrap
+
+
+def _ensure_loaded():
+    from . import filters  # noqa: F401  (importing registers the built-in filters)
+
+
+def get_filter(name: str) -> Filter:
+    """Return the registered filter ``name``; unknown names suggest the closest one."""
+    _ensure_loaded()
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise ParameterError(f"unknown filter '{name}'" + suggest(name, _REGISTRY)) from None
+
+
+def filter_list() -> list[str]:
+    """Names of all registered filters, in pipeline order of their category."""
+    _ensure_loaded()
+    return [f.name for f in _sorted_filters()]
+
+
+def _sorted_filters() -> list[Filter]:
+    order = {c: i for i, c in enumerate(CATEGORY_ORDER)}
+    return sorted(_REGISTRY.values(), key=lambda f: (order.get(f.category, len(order)), f.name))
+
+
+CATEGORY_ORDER = (
+    "input",
+    "preprocessing",
+    "implicit surface",
+    "skeleton",
+    "block structure",
+    "meshing",
+    "quality",
+    "export",
+    "misc",
+)
+
+
+def filter_list_text() -> str:
+    _ensure_loaded()
+    lines, category = [], None
+    width = max(len(n) for n in _REGISTRY)
+    for f in _sorted_filters():
+        if f.category != category:
+            category = f.category
+            lines.append(f"\n{category}:")
+        lines.append(f"  {f.name:<{width}}  {f.description}")
+    return "\n".join(lines).lstrip("\n")
+
+
+def print_filter_list() -> None:
+    """Print every filter with its one-line description, grouped by stage."""
+    print(filter_list_text())
+
+
+def print_filter_parameter_list(name: str) -> None:
+    """Print the parameters of filter ``name`` (type, default, range, unit, description)."""
+    print(get_filter(name).parameter_table())
