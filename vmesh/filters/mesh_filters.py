@@ -1,0 +1,190 @@
+"""Meshing filters: transfinite hexahedra, element labels, quality, mesh output."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import MeshingError
+from ..registry import Parameter, register_filter
+
+
+@register_filter(
+    description="Fill every block with hexahedra by transfinite maps (graded boundary layer, order p = 1..4).",
+    parameters=[
+        Parameter("refinement", "int", 1, "Multiplies every element count below (1 = as given).", min=1, max=16),
+        Parameter("elements_around", "int", 2, "Elements per block edge around the circumference (and across core blocks).", min=1, max=64),
+        Parameter("elements_ring", "int", 2, "Elements radially across the ring between core and boundary layer.", min=1, max=64),
+        Parameter("elements_layer", "int", 3, "Elements radially across the boundary-layer blocks.", min=1, max=64),
+        Parameter("element_length", "float", 0.5, "Element length along the skeleton, relative to the local radius (divided by refinement).", unit="× radius", min=0.01, max=20.0),
+        Parameter("grading", "str", "first_layer", "Boundary-layer node distribution: uniform, first_layer (first element thickness given) or growth (ratio given).", choices=("uniform", "first_layer", "growth")),
+        Parameter("first_layer", "float", 0.02, "First boundary-layer element thickness relative to the local radius (grading = first_layer).", unit="× radius", min=1e-5, max=1.0),
+        Parameter("growth", "float", 1.3, "Ratio of consecutive boundary-layer element thicknesses (grading = growth).", min=1.0, max=10.0),
+        Parameter("order", "int", 1, "Mesh order p: 1 linear hexahedra, 2..4 Lagrange hexahedra.", min=1, max=4),
+        Parameter("node_distribution", "str", "gauss_lobatto", "High-order node positions inside each element.", choices=("gauss_lobatto", "equispaced")),
+        Parameter("project_to", "str", "fine", "Surface the wall nodes are projected onto: the fine (input) or the coarse surface.", choices=("fine", "coarse")),
+    ],
+    reads=("blocks", "surface"),
+    optional_reads=("coarse_surface", "caps", "skeleton"),
+    writes=("mesh",),
+    category="meshing",
+)
+def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_layer, element_length, grading, first_layer, growth, order, node_distribution, project_to):
+    """Edge nodes are projected onto the wall and re-spaced by arc length; Coons patches fill
+    block faces (wall faces projected again) and transfinite interpolation fills the blocks.
+    The boundary layer is resolved by grading, never by extra element layers: the element
+    count is the same with and without grading."""
+    from ..geometry.projection import wall_projector
+    from ..geometry.transfinite import Refinement, mesh_blocks
+    from ..mesh import HexMesh
+
+    surface = ctx.coarse_surface if project_to == "coarse" and ctx.coarse_surface is not None else ctx.surface
+    caps = ctx.caps if surface is ctx.surface else None
+    projector = wall_projector(surface, caps)
+    ref = Refinement(
+        around=elements_around * refinement,
+        core=elements_around * refinement,
+        ring=elements_ring * refinement,
+        layer=elements_layer * refinement,
+        element_length=element_length / refinement,
+        first_layer=first_layer / refinement if grading == "first_layer" else None,
+        growth=growth ** (1.0 / refinement) if grading == "growth" else None,
+        order=order,
+        nodes=node_distribution,
+    )
+    blocks = ctx.blocks
+    sm = mesh_blocks(blocks, projector, ref, progress=ctx.tick)
+    b = sm.cell_block
+    mesh = HexMesh(
+        points=sm.points,
+        cells=sm.cells,
+        order=order,
+        cell_data={
+            "block_id": b.astype(np.int64),
+            "segment_id": blocks.block_segment[b],
+            "node_id": blocks.block_node[b],
+            "layer": blocks.block_layer[b],
+        },
+        boundary_faces=sm.boundary_faces,
+        boundary_ids=sm.boundary_ids,
+        boundary_cells=sm.boundary_cells,
+        boundary_names=dict(blocks.boundary_names),
+        on_wall=sm.on_wall,
+        node_distribution=node_distribution,
+    )
+    ctx.mesh = mesh
+    ctx.mesh_refinement = ref
+    ctx.count(elements=mesh.n_cells, nodes=mesh.n_points)
+    ctx.report.counts.update(elements=mesh.n_cells, nodes=mesh.n_points, blocks=blocks.n_blocks)
+    ctx.report.sections["order"] = order
+
+
+@register_filter(
+    description="Give every element the skeleton tags of its block as labels (label id, names, one 0/1 array per tag).",
+    parameters=[
+        Parameter("untagged", "str", "vessel", "Label name of elements whose block has no tag."),
+    ],
+    reads=("mesh", "blocks"),
+    category="meshing",
+)
+def label_elements(ctx, untagged):
+    """``label`` is an integer per element; ``report.json`` and the VTU field data map it to
+    names (several tags on one block give a combined name such as ``aneurysm+neck``)."""
+    mesh, blocks = ctx.mesh, ctx.blocks
+    names = ["+".join(sorted(t)) if t else untagged for t in blocks.block_tags]
+    unique = sorted(set(names))
+    block_label = np.array([unique.index(n) for n in names], np.int64)
+    b = mesh.cell_data["block_id"]
+    mesh.cell_data["label"] = block_label[b]
+    mesh.label_names = dict(enumerate(unique))
+    tags = sorted({t for tt in blocks.block_tags for t in tt})
+    for t in tags:
+        has = np.array([t in tt for tt in blocks.block_tags])
+        mesh.cell_data[f"tag_{t}"] = has[b].astype(np.uint8)
+    counts = {unique[i]: int(c) for i, c in enumerate(np.bincount(mesh.cell_data["label"], minlength=len(unique)))}
+    bnames = mesh.boundary_names
+    bcounts = {bnames.get(int(i), f"boundary_{i}"): int(c) for i, c in zip(*np.unique(mesh.boundary_ids, return_counts=True))}
+    ctx.report.sections["labels"] = {"names": {int(k): v for k, v in mesh.label_names.items()}, "elements": counts, "boundary_faces": bcounts}
+    ctx.count(labels=len(unique), boundaries=len(bcounts))
+
+
+@register_filter(
+    description="Scaled Jacobian per element, quality statistics, histogram PNG, and distance of the boundary to the input surface.",
+    parameters=[
+        Parameter("histogram", "str", "quality_histogram.png", "File name of the histogram in the output folder ('' for none)."),
+        Parameter("fail_on_invalid", "bool", True, "Fail when some element has a scaled Jacobian <= 0."),
+        Parameter("bins", "int", 50, "Histogram bins.", min=5, max=500),
+    ],
+    reads=("mesh", "surface"),
+    optional_reads=("blocks", "skeleton"),
+    writes=("quality",),
+    category="quality",
+)
+def compute_quality(ctx, histogram, fail_on_invalid, bins):
+    """For p > 1 an element's scaled Jacobian is the minimum over its nodes. The boundary
+    distance is measured at the wall faces' nodes and centres, relative to the local radius."""
+    from ..geometry.projection import SurfaceProjector
+    from ..geometry.quality import quality_summary, scaled_jacobian
+    from ..geometry.transfinite import reference_points
+
+    mesh = ctx.mesh
+    sj = scaled_jacobian(mesh.points, mesh.cells, mesh.order, reference_points(mesh.order, mesh.node_distribution))
+    mesh.cell_data["scaled_jacobian"] = sj
+    summary = quality_summary(sj)
+    dist = boundary_distance(mesh, ctx.surface, ctx.blocks, SurfaceProjector(ctx.surface.vertices, ctx.surface.faces))
+    ctx.quality = {"scaled_jacobian": sj, "summary": summary, "boundary_distance": dist}
+    ctx.report.sections["quality"] = {"scaled_jacobian": summary}
+    ctx.report.sections["boundary_distance"] = dist
+    ctx.count(sj_min=summary["min"], sj_mean=summary["mean"], invalid=summary["n_invalid"])
+    if histogram:
+        path = ctx.output_path(histogram)
+        if path is not None:
+            from ..plots import quality_histogram
+
+            quality_histogram(sj, path, title=f"{ctx.surface.name or 'mesh'}: {mesh.n_cells} elements, p = {mesh.order}", bins=bins)
+    if fail_on_invalid and summary["n_invalid"]:
+        bad = np.flatnonzero(sj <= 0)
+        blocks = np.unique(mesh.cell_data["block_id"][bad])[:10]
+        raise MeshingError(f"{summary['n_invalid']} elements have a scaled Jacobian <= 0 (blocks {blocks.tolist()})")
+
+
+def boundary_distance(mesh, surface, blocks, projector) -> dict:
+    """Distance from wall nodes and wall-face centres to the surface, absolute and relative to the local radius."""
+    wall = mesh.boundary_ids == 0
+    faces = mesh.boundary_faces[wall]
+    if len(faces) == 0:
+        return {"max": 0.0, "mean": 0.0, "max_rel": 0.0, "mean_rel": 0.0, "node_max": 0.0, "node_max_rel_diagonal": 0.0}
+    radius = blocks.block_radius[mesh.cell_data["block_id"][mesh.boundary_cells[wall]]] if blocks is not None else np.ones(len(faces))
+    centres = mesh.points[faces].mean(axis=1)  # bilinear centre of each element face
+    d_c = projector.project(centres)[1]
+    nodes = np.unique(faces)
+    d_n = projector.project(mesh.points[nodes])[1]
+    rel = d_c / radius
+    return {
+        "max": float(d_c.max()),
+        "mean": float(d_c.mean()),
+        "max_rel": float(rel.max()),
+        "mean_rel": float(rel.mean()),
+        "node_max": float(d_n.max()),
+        "node_max_rel_diagonal": float(d_n.max() / surface.diagonal),
+    }
+
+
+@register_filter(
+    description="Write the hexahedral mesh (mesh.vtu with every cell array; boundary faces as boundary.vtp).",
+    parameters=[
+        Parameter("filename", "str", "mesh.vtu", "Mesh file name in the output folder (.vtu, or any meshio format)."),
+        Parameter("boundary", "str", "boundary.vtp", "Boundary faces file (wall/inlet/outlet ids), '' for none."),
+    ],
+    reads=("mesh",),
+    category="export",
+)
+def write_mesh(ctx, filename, boundary):
+    from ..io.mesh import write_boundary, write_mesh as write
+
+    path = ctx.output_path(filename)
+    if path is None:
+        ctx.warn(f"no output folder: {filename} not written")
+        return
+    write(path, ctx.mesh)
+    if boundary:
+        write_boundary(ctx.output_path(boundary), ctx.mesh)
