@@ -4,3 +4,4 @@ Each module is a thin wrapper around the kernels of one stage.
 """
 
 from . import io_filters  # noqa: F401
+from . import mesh_filters  # noqa: F401
