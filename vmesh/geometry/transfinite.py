@@ -341,8 +341,15 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None)
         m = len(sel)
         inner_ids = face_off[sel][:, None] + np.arange((Ns - 1) * (Nt - 1))[None, :]
         grid[:, 1:-1, 1:-1] = inner_ids.reshape(m, Ns - 1, Nt - 1)
-        P = X[grid]  # boundary known; interior NaN
-        P = coons_patch(P)
+        P = coons_patch(X[grid])  # boundary known; interior filled
+        if ref.first_layer:
+            for axis, (c0, c1) in ((1, (0, 1)), (2, (0, 2))):
+                e = _row_lookup(topo.edges, np.sort(fc[sel][:, [c0, c1]], 1))
+                layer = edge_kind[e] == AXIS_LAYER
+                if layer.any():
+                    wall_first = blocks.vertex_on_surface[fc[sel][layer, c0]]
+                    h1 = ref.first_layer * edge_radius[e[layer]]
+                    P[layer] = regrade_lines(P[layer], axis, wall_first, h1, int(n_edge[e[layer][0]]), p, ref.nodes)
         wall = wall_face[sel]
         if wall.any():
             interior = P[wall, 1:-1, 1:-1].reshape(-1, 3)
@@ -362,6 +369,15 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None)
         I, J, K = key
         if I > 1 and J > 1 and K > 1:
             P = transfinite_volume(X[L])
+            if ref.first_layer:
+                kinds = blocks.axis_kind[members]
+                for axis in range(3):
+                    layer = kinds[:, axis] == AXIS_LAYER
+                    if layer.any():
+                        c1 = [1, 3, 4][axis]  # corner next to corner 0 along this axis
+                        wall_first = blocks.vertex_on_surface[H[members[layer], 0]] & ~blocks.vertex_on_surface[H[members[layer], c1]]
+                        h1 = ref.first_layer * blocks.block_radius[members[layer]]
+                        P[layer] = regrade_lines(P[layer], axis + 1, wall_first, h1, key[axis] // p, p, ref.nodes)
             X[L[:, 1:-1, 1:-1, 1:-1].reshape(-1)] = P[:, 1:-1, 1:-1, 1:-1].reshape(-1, 3)
         lattices[key] = (members, L)
     if np.isnan(X).any():
@@ -408,6 +424,39 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None)
         on_wall=on_wall,
         block_counts=block_n,
     )
+
+
+def regrade_lines(P: np.ndarray, axis: int, wall_first: np.ndarray, h1: np.ndarray, n: int, p: int, kind: str) -> np.ndarray:
+    """Re-space the interior lattice lines of ``P`` (m, ..., 3) along ``axis`` so that the
+    first element at the wall end has thickness ``h1`` (absolute, per lattice).
+
+    Coons and transfinite interpolation carry the *relative* spacing of the block edges into
+    the interior, which thickens the first layer wherever the boundary layer is thicker than
+    at the block corners; re-spacing every line by arc length keeps it at ``h1`` everywhere.
+    Nodes only slide along their lattice lines, and the lattice boundary is left untouched.
+    """
+    if n < 2:
+        return P
+    Q = np.moveaxis(P, axis, -2)  # (m, ..., N+1, 3)
+    shape = Q.shape
+    m, k = shape[0], shape[-2]
+    lines = Q.reshape(m, -1, k, 3)
+    flip = ~np.asarray(wall_first, bool)
+    lines = np.where(flip[:, None, None, None], lines[:, :, ::-1], lines)  # wall end first
+    seg = np.linalg.norm(np.diff(lines, axis=2), axis=3)
+    s = np.concatenate([np.zeros(seg.shape[:2] + (1,)), np.cumsum(seg, axis=2)], axis=2)
+    length = s[..., -1]
+    ratio = geometric_ratio(np.repeat(h1[:, None], lines.shape[1], 1).ravel(), length.ravel(), n)
+    target = with_order(element_boundaries(n, ratio), p, kind).reshape(s.shape) * length[..., None]
+    flat = lines.reshape(-1, k, 3)
+    new = np.stack([_interp_rows(target.reshape(-1, k), s.reshape(-1, k), flat[:, :, d]) for d in range(3)], axis=-1)
+    new = new.reshape(lines.shape)
+    new = np.where(flip[:, None, None, None], new[:, :, ::-1], new)
+    out = np.moveaxis(new.reshape(shape), -2, axis)
+    res = P.copy()
+    inner = tuple([slice(None)] + [slice(None) if d == axis else slice(1, -1) for d in range(1, P.ndim - 1)])
+    res[inner] = out[inner]
+    return res
 
 
 def _row_lookup(table: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -556,16 +605,23 @@ def _project_curves(pts: np.ndarray, t: np.ndarray, project, passes: int = 2) ->
 
 
 def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
-    """Row-wise ``np.interp`` for arrays of shape (m, k)."""
-    k = xp.shape[1]
-    idx = (xp[:, None, :] <= x[:, :, None]).sum(axis=2) - 1
-    idx = np.clip(idx, 0, k - 2)
+    """Row-wise ``np.interp`` for arrays of shape (m, k); ``xp`` ascending in every row."""
+    m, k = xp.shape
+    lo = xp[:, :1]
+    span = np.maximum(xp[:, -1:] - lo, 1e-300)
+    # one sorted array for all rows: row r occupies [3 r, 3 r + 1]
+    offset = 3.0 * np.arange(m)[:, None]
+    flat_xp = ((xp - lo) / span + offset).ravel()
+    flat_x = (np.clip((x - lo) / span, 0.0, 1.0) + offset).ravel()
+    idx = np.searchsorted(flat_xp, flat_x, side="right") - 1
+    row_start = (np.arange(m) * k)[:, None]
+    idx = np.clip(idx.reshape(x.shape) - row_start, 0, k - 2)
     x0 = np.take_along_axis(xp, idx, 1)
     x1 = np.take_along_axis(xp, idx + 1, 1)
     f0 = np.take_along_axis(fp, idx, 1)
     f1 = np.take_along_axis(fp, idx + 1, 1)
     w = np.where(x1 > x0, (x - x0) / np.maximum(x1 - x0, 1e-300), 0.0)
-    return f0 + w * (f1 - f0)
+    return f0 + np.clip(w, 0.0, 1.0) * (f1 - f0)
 
 
 # ---------------------------------------------------------------------------
@@ -604,7 +660,11 @@ def coons_patch(P: np.ndarray) -> np.ndarray:
 
 
 def transfinite_volume(P: np.ndarray) -> np.ndarray:
-    """Fill lattices (m, I+1, J+1, K+1, 3) from their six faces (trilinear-blended TFI)."""
+    """Fill lattices (m, I+1, J+1, K+1, 3) from their six faces (transfinite interpolation).
+
+    Blending parameters along each axis follow the mean spacing of the block's four
+    parallel edges.
+    """
     P = P.copy()
     # blending parameters from the spacing of the four parallel edges along each axis
     ui = _edge_params(P[:, :, [0, 0, -1, -1], [0, -1, 0, -1]].transpose(0, 2, 1, 3)).mean(axis=1)  # (m, I+1)
@@ -613,20 +673,11 @@ def transfinite_volume(P: np.ndarray) -> np.ndarray:
     u = ui[:, :, None, None, None]
     v = vj[:, None, :, None, None]
     w = wk[:, None, None, :, None]
-    X0, X1 = P[:, :1], P[:, -1:]
-    Y0, Y1 = P[:, :, :1], P[:, :, -1:]
-    Z0, Z1 = P[:, :, :, :1], P[:, :, :, -1:]
-    faces = (1 - u) * X0 + u * X1 + (1 - v) * Y0 + v * Y1 + (1 - w) * Z0 + w * Z1
-    edges = (
-        (1 - u) * (1 - v) * P[:, :1, :1] + (1 - u) * v * P[:, :1, -1:] + u * (1 - v) * P[:, -1:, :1] + u * v * P[:, -1:, -1:]
-        + (1 - v) * (1 - w) * P[:, :, :1, :1] + (1 - v) * w * P[:, :, :1, -1:] + v * (1 - w) * P[:, :, -1:, :1] + v * w * P[:, :, -1:, -1:]
-        + (1 - u) * (1 - w) * P[:, :1, :, :1] + (1 - u) * w * P[:, :1, :, -1:] + u * (1 - w) * P[:, -1:, :, :1] + u * w * P[:, -1:, :, -1:]
-    )
-    corners = 0
-    for ci, wu in ((0, 1 - u), (-1, u)):
-        for cj, wv in ((0, 1 - v), (-1, v)):
-            for ck, ww in ((0, 1 - w), (-1, w)):
-                corners = corners + wu * wv * ww * P[:, ci, cj, ck][:, None, None, None, :]
-    inner = faces - edges + corners
+    # Boolean sum of the three directional projectors (equal to the full TFI formula for
+    # separable blending functions, with a third of the array operations)
+    W = (1 - u) * P[:, :1] + u * P[:, -1:]
+    W += (1 - v) * (P[:, :, :1] - W[:, :, :1]) + v * (P[:, :, -1:] - W[:, :, -1:])
+    W += (1 - w) * (P[:, :, :, :1] - W[:, :, :, :1]) + w * (P[:, :, :, -1:] - W[:, :, :, -1:])
+    inner = W
     P[:, 1:-1, 1:-1, 1:-1] = inner[:, 1:-1, 1:-1, 1:-1]
     return P
