@@ -95,12 +95,12 @@ def _read_pyvista(path: Path):
     if isinstance(mesh, pv.MultiBlock):
         mesh = mesh.combine()
     if not isinstance(mesh, pv.PolyData):
-        mesh = mesh.extract_surface()
+        mesh = mesh.extract_surface(algorithm="dataset_surface")
     # drop lines/vertices, keep polygons, triangulate quads and polygons
     if mesh.n_cells == 0 or mesh.n_points == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int64), {}
     if mesh.n_lines or mesh.n_verts:
-        mesh = mesh.extract_cells(np.flatnonzero(_polygon_mask(mesh))).extract_surface()
+        mesh = mesh.extract_cells(np.flatnonzero(_polygon_mask(mesh))).extract_surface(algorithm="dataset_surface")
     if mesh.n_cells == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int64), {}
     if not mesh.is_all_triangles:

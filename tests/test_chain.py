@@ -1,0 +1,100 @@
+"""Filter chains: building, TOML round trips, overrides, staged outputs."""
+
+import json
+
+import numpy as np
+import pytest
+
+import vmesh
+from vmesh import FilterChain
+from vmesh.errors import ChainError, InputError, ParameterError
+
+
+def tube(n=24):
+    import pyvista as pv
+
+    cyl = pv.Cylinder(radius=1.0, height=4.0, resolution=n, capping=True).triangulate().clean()
+    return vmesh.SurfaceMesh(np.asarray(cyl.points), cyl.faces.reshape(-1, 4)[:, 1:], name="tube")
+
+
+def test_build_append_and_repr():
+    chain = FilterChain(["surface_info"]).append("transform_surface", scale=2.0)
+    assert [s.filter for s in chain] == ["surface_info", "transform_surface"]
+    assert "transform_surface" in repr(chain)
+
+
+def test_unknown_filter_in_chain():
+    with pytest.raises(ParameterError, match="did you mean"):
+        FilterChain(["surface_infoo"])
+
+
+def test_bad_parameter_rejected_before_running(tmp_path):
+    chain = FilterChain([("transform_surface", {"scale": -1.0})])
+    with pytest.raises(ParameterError, match="below its minimum"):
+        chain.run(surface=tube(), out_dir=tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+def test_toml_round_trip_runs_identically(tmp_path):
+    chain = FilterChain(
+        [("transform_surface", {"scale": 10.0, "translate": [1, 2, 3]}), "surface_info", ("write_surface_layer", {"filename": "t.ply"})],
+        name="demo",
+    )
+    path = chain.save(tmp_path / "demo.toml")
+    loaded = FilterChain.load(path)
+    assert [(s.filter, s.params) for s in loaded.resolved()] == [(s.filter, s.params) for s in chain.resolved()]
+    chain.run(surface=tube(), out_dir=tmp_path / "a")
+    loaded.run(surface=tube(), out_dir=tmp_path / "b")
+    a = vmesh.read_surface(tmp_path / "a" / "t.ply")
+    b = vmesh.read_surface(tmp_path / "b" / "t.ply")
+    assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces)
+    # the resolved chain written next to the results loads and equals the original
+    again = FilterChain.load(tmp_path / "a" / "chain.toml")
+    assert [(s.filter, s.params) for s in again] == [(s.filter, s.params) for s in chain.resolved()]
+
+
+def test_run_writes_report_and_resolved_chain(tmp_path):
+    ctx = FilterChain(["surface_info"]).run(surface=tube(), out_dir=tmp_path / "o")
+    report = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert report["surface"]["closed"] is True
+    assert "surface_info" in report["timings"]
+    assert ctx.report.steps[0].peak_memory_mb > 0
+
+
+def test_overrides():
+    chain = FilterChain([("transform_surface", {"scale": 2.0})]).with_overrides({"transform_surface.scale": 3.0})
+    assert chain.steps[0].params["scale"] == 3.0
+    with pytest.raises(ParameterError, match="not in this chain"):
+        chain.with_overrides({"mesh_transfinite.order": 2})
+    with pytest.raises(ParameterError, match="did you mean 'scale'"):
+        chain.with_overrides({"transform_surface.scal": 2})
+
+
+def test_missing_layer_detected_before_running():
+    with pytest.raises(ChainError, match="needs the blocks layer"):
+        FilterChain(["mesh_transfinite"]).run(surface=tube())
+
+
+def test_failed_run_leaves_no_output(tmp_path):
+    chain = FilterChain([("write_surface_layer", {"filename": "x.ply"}), ("surface_info", {"require_closed": True})])
+    surf = tube()
+    open_surf = surf.copy(faces=surf.faces[:-5])
+    with pytest.raises(InputError, match="open boundary loops"):
+        chain.run(surface=open_surf, out_dir=tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+    assert not list(tmp_path.iterdir())  # no staging folder left behind
+
+
+def test_chain_file_errors(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[[step]\nfilter = 1")
+    with pytest.raises(InputError, match="not valid TOML"):
+        FilterChain.load(bad)
+    bad.write_text("[chain]\nname='x'\n")
+    with pytest.raises(InputError, match="no \\[\\[step\\]\\]"):
+        FilterChain.load(bad)
+    bad.write_text('[[step]]\nfilter = "nope_filter"\n')
+    with pytest.raises(InputError, match="unknown filter"):
+        FilterChain.load(bad)
+    with pytest.raises(InputError, match="no such chain file or preset"):
+        FilterChain.load("no_such_preset")

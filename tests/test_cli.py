@@ -1,0 +1,92 @@
+"""The command line: discovery, bad inputs (one line, exit 2, nothing written)."""
+
+import subprocess
+import sys
+
+import pytest
+
+import vmesh
+
+
+def vmesh_cli(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "vmesh", *map(str, args)], capture_output=True, text=True, cwd=cwd)
+
+
+def test_filters_lists_every_filter():
+    r = vmesh_cli("filters")
+    assert r.returncode == 0
+    for name in vmesh.filter_list():
+        assert name in r.stdout
+
+
+def test_filters_name_prints_parameters():
+    for name in vmesh.filter_list():
+        r = vmesh_cli("filters", name)
+        assert r.returncode == 0, r.stderr
+        f = vmesh.get_filter(name)
+        for p in f.parameters:
+            assert f"{p.name} : {p.type}" in r.stdout
+
+
+def test_unknown_filter_name():
+    r = vmesh_cli("filters", "mesh_transfinit")
+    assert r.returncode == 2
+    assert r.stderr.strip().count("\n") == 0 and "did you mean 'mesh_transfinite'" in r.stderr
+
+
+def _bad_inputs(tmp_path):
+    empty = tmp_path / "empty.stl"
+    empty.write_bytes(b"")
+    corrupt = tmp_path / "corrupt.ply"
+    corrupt.write_text("ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n")
+    unknown = tmp_path / "surface.xyz"
+    unknown.write_text("1 2 3\n")
+    return {
+        "missing": (tmp_path / "nope.stl", "file not found"),
+        "empty": (empty, "file is empty"),
+        "corrupt": (corrupt, "corrupt"),
+        "unknown": (unknown, "unknown surface format"),
+    }
+
+
+@pytest.mark.parametrize("case", ["missing", "empty", "corrupt", "unknown"])
+def test_bad_surface_inputs(tmp_path, case):
+    path, message = _bad_inputs(tmp_path)[case]
+    out = tmp_path / "out"
+    r = vmesh_cli("run", "default", "--input", path, "--out", out)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("vmesh: error:") and str(path) in lines[0] and message in lines[0], r.stderr
+    assert not out.exists()
+
+
+def test_bad_skeleton_file(tmp_path):
+    from conftest import synthetic_case
+
+    surface, _ = synthetic_case("straight_tube")
+    if not surface.exists():
+        pytest.skip("synthetic data not generated")
+    skel = tmp_path / "skel.json"
+    skel.write_text('{"nodes": [{"id": 0, "xyz": [0, 0]}], "edges": []')
+    out = tmp_path / "out"
+    r = vmesh_cli("run", "default", "--input", surface, "--skeleton", skel, "--out", out)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
+    assert str(skel) in r.stderr and "JSON" in r.stderr
+    assert not out.exists()
+
+
+def test_bad_set_values(tmp_path):
+    r = vmesh_cli("run", "default", "--input", tmp_path / "x.stl", "--set", "mesh_transfinite.order=9")
+    assert r.returncode == 2 and "above its maximum" in r.stderr
+    r = vmesh_cli("run", "default", "--set", "oops")
+    assert r.returncode == 2 and "filter.param=value" in r.stderr
+
+
+def test_info(tmp_path):
+    import numpy as np
+    import pyvista as pv
+
+    path = tmp_path / "c.stl"
+    pv.Cylinder(resolution=16).triangulate().save(path)
+    r = vmesh_cli("info", path)
+    assert r.returncode == 0 and "open boundary loops 0" in r.stdout and "outward" in r.stdout
