@@ -174,7 +174,7 @@ def block_topology(blocks: BlockStructure) -> Topology:
     fkeys, first, finv = np.unique(fkey, axis=0, return_index=True, return_inverse=True)
     block_face = finv.reshape(nb, 6)
     g4 = corner_ids.reshape(-1, 4)[first]  # a representative corner grid per unique face
-    faces = np.stack([_canonical_face(g) for g in g4]) if len(g4) else np.zeros((0, 4), np.int64)
+    faces = canonical_faces(g4)
     fb = np.full(len(fkeys), FACE_INTERIOR, np.int64)
     bf = blocks.face_boundary.reshape(-1)
     on_boundary = bf != FACE_INTERIOR
@@ -195,15 +195,21 @@ def _face_corner_grid(f: int) -> np.ndarray:
     return grid
 
 
-def _canonical_face(g: np.ndarray) -> np.ndarray:
-    """Canonical corners (origin, s-nbr, t-nbr, far) of a face given as ids at (0,0),(0,1),(1,0),(1,1)."""
-    grid = np.asarray(g).reshape(2, 2)
-    pp, qq = np.unravel_index(np.argmin(grid), (2, 2))
-    a = grid[1 - pp, qq]  # neighbour along p
-    b = grid[pp, 1 - qq]  # neighbour along q
-    far = grid[1 - pp, 1 - qq]
-    origin = grid[pp, qq]
-    return np.array([origin, a, b, far] if a < b else [origin, b, a, far], np.int64)
+def canonical_faces(g: np.ndarray) -> np.ndarray:
+    """Canonical corners (origin, s-neighbour, t-neighbour, far) of faces given as corner ids
+    at local (0,0), (0,1), (1,0), (1,1): the origin is the smallest id and the s axis points
+    to its smaller neighbour, so every block sharing a face agrees on its orientation."""
+    g = np.asarray(g, np.int64).reshape(-1, 2, 2)
+    m = len(g)
+    flat = np.argmin(g.reshape(m, 4), axis=1)
+    pp, qq = flat // 2, flat % 2
+    r = np.arange(m)
+    origin = g[r, pp, qq]
+    a = g[r, 1 - pp, qq]
+    b = g[r, pp, 1 - qq]
+    far = g[r, 1 - pp, 1 - qq]
+    s_first = a < b
+    return np.stack([origin, np.where(s_first, a, b), np.where(s_first, b, a), far], axis=1)
 
 
 # ---------------------------------------------------------------------------
@@ -259,7 +265,10 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None)
     """
     tick = progress or (lambda f, m="": None)
     p = int(ref.order)
-    V = blocks.vertices
+    V = blocks.vertices.copy()
+    # block corners may have been placed with a coarse SDF: put them on this wall
+    if blocks.vertex_on_surface.any():
+        V[blocks.vertex_on_surface] = project(V[blocks.vertex_on_surface])
     H = blocks.hexes
     nb = len(H)
     topo = block_topology(blocks)
@@ -449,7 +458,7 @@ def regrade_lines(P: np.ndarray, axis: int, wall_first: np.ndarray, h1: np.ndarr
     ratio = geometric_ratio(np.repeat(h1[:, None], lines.shape[1], 1).ravel(), length.ravel(), n)
     target = with_order(element_boundaries(n, ratio), p, kind).reshape(s.shape) * length[..., None]
     flat = lines.reshape(-1, k, 3)
-    new = np.stack([_interp_rows(target.reshape(-1, k), s.reshape(-1, k), flat[:, :, d]) for d in range(3)], axis=-1)
+    new = _interp_rows(target.reshape(-1, k), s.reshape(-1, k), flat)
     new = new.reshape(lines.shape)
     new = np.where(flip[:, None, None, None], new[:, :, ::-1], new)
     out = np.moveaxis(new.reshape(shape), -2, axis)
@@ -595,9 +604,7 @@ def _project_curves(pts: np.ndarray, t: np.ndarray, project, passes: int = 2) ->
         s = np.concatenate([np.zeros((m, 1)), np.cumsum(seg, axis=1)], axis=1)
         s /= np.maximum(s[:, -1:], 1e-300)
         # where does each target fraction t fall along the current polyline?
-        res = np.empty_like(cur)
-        for d in range(3):
-            res[:, :, d] = _interp_rows(t, s, cur[:, :, d])
+        res = _interp_rows(t, s, cur)
         res[:, 0], res[:, -1] = cur[:, 0], cur[:, -1]
         res[:, 1:-1] = project(res[:, 1:-1].reshape(-1, 3)).reshape(m, n1 - 2, 3)
         cur = res
@@ -605,7 +612,7 @@ def _project_curves(pts: np.ndarray, t: np.ndarray, project, passes: int = 2) ->
 
 
 def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
-    """Row-wise ``np.interp`` for arrays of shape (m, k); ``xp`` ascending in every row."""
+    """Row-wise ``np.interp``: x (m, j), xp (m, k) ascending per row, fp (m, k) or (m, k, d)."""
     m, k = xp.shape
     lo = xp[:, :1]
     span = np.maximum(xp[:, -1:] - lo, 1e-300)
@@ -618,10 +625,12 @@ def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     idx = np.clip(idx.reshape(x.shape) - row_start, 0, k - 2)
     x0 = np.take_along_axis(xp, idx, 1)
     x1 = np.take_along_axis(xp, idx + 1, 1)
+    w = np.clip(np.where(x1 > x0, (x - x0) / np.maximum(x1 - x0, 1e-300), 0.0), 0.0, 1.0)
+    if fp.ndim == 3:
+        idx, w = idx[..., None], w[..., None]
     f0 = np.take_along_axis(fp, idx, 1)
     f1 = np.take_along_axis(fp, idx + 1, 1)
-    w = np.where(x1 > x0, (x - x0) / np.maximum(x1 - x0, 1e-300), 0.0)
-    return f0 + np.clip(w, 0.0, 1.0) * (f1 - f0)
+    return f0 + w * (f1 - f0)
 
 
 # ---------------------------------------------------------------------------
