@@ -93,6 +93,16 @@ class Skeleton:
         adj = self.adjacency()
         return adj.indices[adj.indptr[i] : adj.indptr[i + 1]]
 
+    def edge_lengths(self) -> np.ndarray:
+        """Length of every segment ``(e,)``."""
+        return np.linalg.norm(self.points[self.edges[:, 1]] - self.points[self.edges[:, 0]], axis=1)
+
+    def branches(self) -> list:
+        """Node paths between junctions/endpoints (see :func:`vmesh.geometry.skeleton_ops.branch_paths`)."""
+        from .geometry.skeleton_ops import branch_paths
+
+        return branch_paths(self.n_nodes, self.edges)
+
     def to_networkx(self):
         """A ``networkx.Graph`` with node attributes ``xyz``, ``radius``, ``tags``."""
         import networkx as nx

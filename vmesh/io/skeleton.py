@@ -1,6 +1,8 @@
 """Read and write skeletons (centerline graphs).
 
-Formats: vmesh JSON (node-edge), more readers are registered in :data:`SKELETON_READERS`.
+Formats: vmesh JSON (node-edge) here; VTK (VMTK, SimVascular, polylines), SWC, CSV and
+PLY in :mod:`vmesh.io.skeleton_formats`. Readers and writers are registered by suffix
+in :data:`SKELETON_READERS` and :data:`SKELETON_WRITERS`.
 """
 
 from __future__ import annotations
@@ -38,6 +40,9 @@ def read_skeleton_json(path: Path) -> Skeleton:
         rad = np.array([n.get("radius", np.nan) if n.get("radius") is not None else np.nan for n in nodes], float)
         tags = [tuple(n.get("tags", ()) or ()) for n in nodes]
         raw_edges = data["edges"]
+        listed_tags = data.get("edge_tags")  # written by skeleton_to_json next to plain edges
+        if listed_tags is not None and len(listed_tags) != len(raw_edges):
+            raise InputError("'edge_tags' must have one entry per edge", path)
         edges, etags = [], []
         for e in raw_edges:
             if isinstance(e, dict):
@@ -45,7 +50,7 @@ def read_skeleton_json(path: Path) -> Skeleton:
                 etags.append(tuple(e.get("tags", ()) or ()))
             else:
                 a, b = e[:2]
-                etags.append(())
+                etags.append(tuple(listed_tags[len(edges)] or ()) if listed_tags is not None else ())
             if a not in index or b not in index:
                 raise InputError(f"edge [{a}, {b}] refers to a node id that does not exist", path)
             edges.append((index[a], index[b]))
@@ -80,18 +85,43 @@ def write_skeleton_json(path, skeleton: Skeleton) -> Path:
 SKELETON_READERS = {".json": ("vmesh JSON", read_skeleton_json)}
 SKELETON_WRITERS = {".json": ("vmesh JSON", write_skeleton_json)}
 
+from . import skeleton_formats as _formats  # noqa: E402  (registers VTK, SWC, CSV, PLY)
 
-def read_skeleton(path) -> Skeleton:
-    """Read a skeleton file; the format follows the extension."""
+SKELETON_READERS.update(_formats.READERS)
+SKELETON_WRITERS.update(_formats.WRITERS)
+
+
+def read_skeleton(path, **options) -> Skeleton:
+    """Read a skeleton file; the format follows the extension.
+
+    A folder holding ``nodes.csv`` and ``edges.csv`` is read as a CSV skeleton. Segments
+    without tags in the file get the tags both their end nodes carry. ``options`` go to
+    the format's reader (``kind=`` and ``merge_tolerance=`` for VTK centerlines).
+    """
+    p = Path(path)
+    if p.is_dir():
+        nodes, _ = _formats.csv_pair(p, reading=True)
+        if not nodes.is_file():
+            raise InputError("is a folder without nodes.csv, expected a skeleton file", p)
+        path = nodes
+    elif p.suffix.lower() == ".csv" and not p.exists() and _formats.csv_pair(p)[0].is_file():
+        path = _formats.csv_pair(p)[0]  # "x.csv" as written: x_nodes.csv + x_edges.csv
     formats = {k: v[0] for k, v in SKELETON_READERS.items()}
     path = check_input_file(path, formats, "skeleton")
     name, reader = SKELETON_READERS[path.suffix.lower()]
     try:
-        return reader(path)
+        skeleton = reader(path, **options)
     except InputError:
         raise
     except Exception as exc:
         raise InputError(f"could not read as {name}: {' '.join(str(exc).split())[:200]}", path) from None
+    if skeleton.n_nodes == 0:
+        raise InputError("skeleton has no nodes", path)
+    if not any(skeleton.edge_tags):
+        from ..geometry.skeleton_ops import derive_edge_tags
+
+        skeleton.edge_tags = derive_edge_tags(skeleton)
+    return skeleton
 
 
 def write_skeleton(path, skeleton: Skeleton) -> Path:

@@ -1,0 +1,401 @@
+"""Skeleton filters: load, estimate radii, clean, resample, tag and render a skeleton.
+
+Thin wrappers around :mod:`vmesh.geometry.skeleton_ops` and
+:mod:`vmesh.io.skeleton_formats`. Extraction from the surface is the separate
+``extract_skeleton`` filter.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..geometry import skeleton_ops as ops
+from ..registry import Parameter, register_filter
+
+
+@register_filter(
+    description="Read a centerline file (json, swc, csv, ply, or vtp/vtk from VMTK, SimVascular or plain polylines) as the skeleton.",
+    parameters=[
+        Parameter("path", "path", None, "Centerline file, or a folder holding nodes.csv and edges.csv."),
+        Parameter(
+            "vtk_kind",
+            "str",
+            "auto",
+            "What a .vtp/.vtk file holds: overlapping inlet-to-outlet lines (vmtk), a SimVascular centerline graph, "
+            "or plain polylines; auto tells from the content.",
+            choices=("auto", "vmtk", "simvascular", "polylines"),
+        ),
+        Parameter(
+            "merge_tolerance",
+            "float",
+            0.2,
+            "VMTK centerlines: points of different lines closer than this are one (their shared trunk).",
+            unit="× radius",
+            min=0.0,
+            max=2.0,
+        ),
+    ],
+    writes=("skeleton",),
+    category="skeleton",
+)
+def load_skeleton(ctx, path, vtk_kind, merge_tolerance):
+    """Read the skeleton from a file; tags in the file (JSON tags, SWC types, VTK label arrays) are kept."""
+    from ..io.skeleton import read_skeleton
+
+    if path is None:
+        raise InputError("load_skeleton needs a path (the centerline file)")
+    p = Path(path)
+    options = {"kind": vtk_kind, "merge_tolerance": merge_tolerance} if p.suffix.lower() in (".vtp", ".vtk") else {}
+    skel = read_skeleton(p, **options)
+    ctx.inputs["skeleton"] = str(p)
+    ctx.skeleton = skel
+    _count_summary(ctx, skel)
+
+
+def _count_summary(ctx, skel):
+    s = skel.summary()
+    ctx.count(nodes=s["nodes"], junctions=s["junctions"], endpoints=s["endpoints"], cycles=s["cycles"])
+    if s["components"] > 1:
+        ctx.warn(f"skeleton has {s['components']} separate pieces (clean_skeleton reconnects close ones)")
+
+
+def _sdf_functions(sdf):
+    """(distance, gradient) callables of the SDF layer; gradient may be None."""
+    grad = getattr(sdf, "gradient", None)
+    return sdf.distance, grad if callable(grad) else None
+
+
+@register_filter(
+    description="Fill missing skeleton radii from the signed distance (inscribed sphere radius), else by interpolation along branches.",
+    parameters=[
+        Parameter("overwrite", "bool", False, "Recompute every radius from the signed distance, not only the missing ones."),
+    ],
+    reads=("skeleton",),
+    optional_reads=("sdf",),
+    writes=("skeleton",),
+    category="skeleton",
+)
+def estimate_radii(ctx, overwrite):
+    """A centerline file without radii (plain polylines, CSV without a radius column) gets the
+    distance from each node to the wall; nodes outside the wall, or all nodes without an SDF,
+    get radii interpolated along their branch from the known ones."""
+    skel = ctx.skeleton
+    if ctx.sdf is None:
+        if overwrite:
+            raise InputError("estimate_radii: overwrite needs the sdf layer (add build_sdf before it)")
+        if not np.isfinite(skel.radii).any():
+            raise InputError("the skeleton has no radii and there is no sdf layer to measure them (add build_sdf before estimate_radii)")
+    distance = ctx.sdf.distance if ctx.sdf is not None else None
+    ctx.skeleton, filled = ops.estimate_radii(skel, distance, overwrite=overwrite)
+    ctx.count(radii_filled=filled, radius_min=float(np.min(ctx.skeleton.radii)), radius_max=float(np.max(ctx.skeleton.radii)))
+
+
+@register_filter(
+    description="Clean the skeleton: bring nodes back inside, reconnect pieces, merge split junctions, remove spurs, extend ends to the caps.",
+    parameters=[
+        Parameter(
+            "outside",
+            "str",
+            "pull",
+            "Nodes outside the wall: pull them up the signed distance towards the vessel axis (dropping those that "
+            "cannot be brought in), drop them, or keep them. Needs the sdf layer.",
+            choices=("pull", "drop", "keep"),
+        ),
+        Parameter("outside_tolerance", "float", 0.02, "A node is outside when its signed distance is below minus this.", unit="× radius", min=0.0),
+        Parameter(
+            "reconnect_distance",
+            "float",
+            1.0,
+            "Join an endpoint to another piece of the skeleton when that piece passes this close (0: never).",
+            unit="× radius",
+            min=0.0,
+        ),
+        Parameter(
+            "junction_distance",
+            "float",
+            0.5,
+            "Merge junctions joined by a branch shorter than this into one junction (0: never).",
+            unit="× radius",
+            min=0.0,
+        ),
+        Parameter(
+            "spur_length",
+            "float",
+            1.0,
+            "Remove side branches ending freely that are shorter than this times the radius at their junction (0: never).",
+            unit="× radius",
+            min=0.0,
+        ),
+        Parameter("extend_to_caps", "bool", True, "Trim or extend each end that belongs to a cap so that it ends on the cap (needs the caps layer)."),
+        Parameter(
+            "cap_mode",
+            "str",
+            "center",
+            "Where an extended end stops: the cap centre, or where its end direction meets the cap plane (the centre when that is off-centre).",
+            choices=("center", "plane"),
+        ),
+        Parameter("cap_distance", "float", 3.0, "An endpoint belongs to a cap when it is at most this far from the cap centre.", unit="× cap radius", min=0.0),
+    ],
+    reads=("skeleton",),
+    optional_reads=("sdf", "caps"),
+    writes=("skeleton",),
+    category="skeleton",
+)
+def clean_skeleton(
+    ctx, outside, outside_tolerance, reconnect_distance, junction_distance, spur_length, extend_to_caps, cap_mode, cap_distance
+):
+    """Steps, in order: cutting off what runs out through a cap, nodes outside the wall,
+    reconnection of separated pieces, merging of junctions split into nearby nodes, spur
+    removal (ends at caps are kept), merging again, and trimming/extending the ends to the
+    caps."""
+    skel = ctx.skeleton
+    if not np.isfinite(skel.radii).all() and ctx.sdf is not None:
+        skel, _ = ops.estimate_radii(skel, ctx.sdf.distance)
+    counts = {}
+    caps = list(ctx.caps or [])
+    if extend_to_caps and caps:  # centerlines running out through an open end stop at its cap
+        cap_arrays = (np.array([c.center for c in caps]), np.array([c.normal for c in caps]), np.array([c.radius for c in caps]))
+        skel, counts["cut_at_caps"] = ops.trim_at_caps(skel, *cap_arrays)
+    if outside != "keep":
+        if ctx.sdf is None:
+            ctx.warn("no sdf layer: nodes outside the wall are not checked")
+        else:
+            distance, gradient = _sdf_functions(ctx.sdf)
+            skel, counts["pulled"], counts["dropped"] = ops.pull_inside(skel, distance, gradient, outside_tolerance, outside)
+    ctx.tick(0.25, "reconnect")
+    skel, counts["reconnected"] = ops.reconnect_components(skel, reconnect_distance)
+    skel, merged = ops.merge_close_junctions(skel, junction_distance)
+    protected = None
+    if caps:
+        centers = np.array([c.center for c in caps], float)
+        radii = np.array([c.radius for c in caps], float)
+        near = np.linalg.norm(skel.points[:, None, :] - centers[None], axis=2) <= cap_distance * radii[None]
+        protected = near.any(axis=1)
+    ctx.tick(0.5, "spurs")
+    skel, counts["spurs_removed"] = ops.remove_spurs(skel, spur_length, protected)
+    skel, merged2 = ops.merge_close_junctions(skel, junction_distance)
+    counts["junctions_merged"] = merged + merged2
+    if extend_to_caps and caps:
+        ctx.tick(0.75, "caps")
+        skel, matched = ops.extend_to_caps(
+            skel,
+            *cap_arrays,
+            [c.name for c in caps],
+            mode=cap_mode,
+            max_distance=cap_distance,
+        )
+        counts["ends_at_caps"] = int((matched >= 0).sum())
+        missing = [c.name for c, m in zip(caps, matched) if m < 0]
+        if missing:
+            ctx.warn(f"no skeleton end near cap(s) {', '.join(missing)}")
+    skel.edge_tags = ops.derive_edge_tags(skel)  # new segments take the tags of their nodes
+    ctx.skeleton = skel
+    ctx.count(**counts)
+    _count_summary(ctx, skel)
+
+
+@register_filter(
+    description="Resample the skeleton to a coarse one: node spacing proportional to the local radius, keeping every junction and endpoint.",
+    parameters=[
+        Parameter("spacing", "float", 1.25, "Distance between nodes along a branch (1.25 gives about the node counts of the reference meshes).", unit="× radius", min=0.05, max=100.0),
+        Parameter(
+            "radius_change",
+            "float",
+            0.25,
+            "Add nodes where the radius changes faster than this per unit length (|dr/ds|: coarctation throat, "
+            "aneurysm neck); 0 adds none.",
+            min=0.0,
+        ),
+        Parameter("smooth_radii", "float", 0.0, "Gaussian smoothing of the radii along each branch (standard deviation; 0: none).", unit="× radius", min=0.0),
+        Parameter("min_segments", "int", 1, "Least number of segments per branch.", min=1, max=1000),
+    ],
+    reads=("skeleton",),
+    optional_reads=("sdf",),
+    writes=("skeleton",),
+    category="skeleton",
+)
+def resample_skeleton(ctx, spacing, radius_change, smooth_radii, min_segments):
+    """Every branch between junctions and endpoints is resampled as a curve (arc-length
+    interpolation of positions and radii); tags come from the nearest original node."""
+    skel = ctx.skeleton
+    if not (np.isfinite(skel.radii) & (skel.radii > 0)).all():
+        if ctx.sdf is None and not np.isfinite(skel.radii).any():
+            raise InputError("the skeleton has no radii (add build_sdf and estimate_radii before resample_skeleton)")
+        ctx.warn("some radii were missing: estimated first")
+        skel, _ = ops.estimate_radii(skel, ctx.sdf.distance if ctx.sdf is not None else None)
+    before = skel.n_nodes
+    ctx.skeleton = ops.resample_skeleton(skel, spacing, radius_change or None, smooth_radii, min_segments)
+    ctx.count(nodes_before=before)
+    _count_summary(ctx, ctx.skeleton)
+
+
+def _check_dict(name, value, what):
+    if not isinstance(value, dict) or not all(isinstance(k, str) and k for k in value):
+        raise InputError(f"tag_skeleton: {name} must map tag names to {what}")
+
+
+@register_filter(
+    description="Tag skeleton nodes and segments by rules: branch index, spheres around points, radius ratio (aneurysm sac), node lists.",
+    parameters=[
+        Parameter("clear", "bool", False, "Remove every existing tag first (tags read from the file are kept otherwise)."),
+        Parameter("branches", "bool", False, "Tag branch_<k> on the nodes and segments of each branch, numbered breadth-first from the inlet (junctions get all of theirs)."),
+        Parameter("regions", "dict", {}, "Spheres: tag -> [x, y, z, radius]; nodes inside get the tag.", unit="mm"),
+        Parameter(
+            "sac_ratio",
+            "float",
+            None,
+            "Flag nodes whose radius exceeds this times the median radius of their parent branch (an aneurysm sac); unset: off.",
+            min=1.0,
+        ),
+        Parameter("sac_tag", "str", "aneurysm", "Tag given by the radius-ratio rule."),
+        Parameter("nodes", "dict", {}, "Explicit node lists: tag -> [node index, ...]."),
+    ],
+    reads=("skeleton",),
+    writes=("skeleton",),
+    category="skeleton",
+)
+def tag_skeleton(ctx, clear, branches, regions, sac_ratio, sac_tag, nodes):
+    """A segment gets a rule's tag when both its end nodes do (branch tags go to the
+    segments of the branch); segments still without tags take the tags both their nodes
+    carry."""
+    skel = ctx.skeleton
+    _check_dict("regions", regions, "[x, y, z, radius]")
+    _check_dict("nodes", nodes, "lists of node indices")
+    node_tags = [()] * skel.n_nodes if clear else list(skel.node_tags)
+    edge_tags = [()] * skel.n_edges if clear else list(skel.edge_tags)
+    a, b = skel.edges.T
+    tagged = {}
+
+    def apply(mask, tag):
+        nonlocal node_tags, edge_tags
+        node_tags = ops.tag_nodes(node_tags, mask, tag)
+        edge_tags = ops.tag_nodes(edge_tags, mask[a] & mask[b], tag)
+        tagged[tag] = tagged.get(tag, 0) + int(mask.sum())
+
+    if branches:
+        tree = ops.branch_tree(skel)
+        node_tags = [tuple(t for t in x if not t.startswith("branch_")) for x in node_tags]
+        edge_tags = [tuple(t for t in x if not t.startswith("branch_")) for x in edge_tags]
+        for k, p in enumerate(tree.paths):
+            node_tags = ops.tag_nodes(node_tags, np.isin(np.arange(skel.n_nodes), p), f"branch_{k}")
+        for e, k in enumerate(tree.edge_branch.tolist()):
+            if k >= 0:
+                edge_tags[e] = ops._union(edge_tags[e], (f"branch_{k}",))
+        ctx.count(branches=len(tree.paths))
+    for tag, sphere in regions.items():
+        if not isinstance(sphere, (list, tuple)) or len(sphere) != 4 or not all(isinstance(v, (int, float)) for v in sphere):
+            raise InputError(f"tag_skeleton: region '{tag}' must be [x, y, z, radius], got {sphere!r}")
+        apply(ops.nodes_in_sphere(skel.points, sphere[:3], float(sphere[3])), tag)
+    if sac_ratio is not None:
+        apply(ops.sac_nodes(skel, sac_ratio), sac_tag)
+    for tag, ids in nodes.items():
+        ids = np.asarray(ids)
+        if ids.dtype.kind not in "iu" or (len(ids) and (ids.min() < 0 or ids.max() >= skel.n_nodes)):
+            raise InputError(f"tag_skeleton: node list '{tag}' must hold node indices 0..{skel.n_nodes - 1}")
+        mask = np.zeros(skel.n_nodes, bool)
+        mask[ids.astype(np.int64)] = True
+        apply(mask, tag)
+    out = skel.copy(node_tags=node_tags, edge_tags=edge_tags)
+    out.edge_tags = ops.derive_edge_tags(out)
+    ctx.skeleton = out
+    ctx.count(tags=len(out.tag_names()), **{f"tagged_{k}": v for k, v in tagged.items()})
+
+
+# ---------------------------------------------------------------------------
+# rendering
+# ---------------------------------------------------------------------------
+
+
+def render_skeleton_png(path, skeleton, surface=None, size=(1200, 900), opacity=0.2, title: str | None = None) -> Path:
+    """Render the skeleton (segments coloured by radius, junctions red, endpoints blue)
+    over the transparent surface, off-screen, to a PNG file (written atomically).
+
+    The camera looks along the direction in which the skeleton is thinnest (its least
+    principal axis), so planar trees are seen face-on.
+    """
+    import pyvista as pv
+
+    from ..io.atomic import atomic_path
+
+    pv.OFF_SCREEN = True
+    try:  # VTK tries an X display before falling back to EGL/OSMesa; the attempt is not an error
+        import vtk
+
+        vtk.vtkLogger.SetStderrVerbosity(vtk.vtkLogger.VERBOSITY_OFF)
+    except (ImportError, AttributeError):
+        pass
+    path = Path(path)
+    plotter = pv.Plotter(off_screen=True, window_size=list(size))
+    try:
+        plotter.set_background("white")
+        if surface is not None and surface.n_faces:
+            plotter.add_mesh(surface.to_pyvista(), color="#d8c8c0", opacity=opacity, smooth_shading=True)
+        scale = float(np.nanmedian(skeleton.radii)) if np.isfinite(skeleton.radii).any() else 1.0
+        if skeleton.n_edges:
+            lines = pv.PolyData(skeleton.points.copy(), lines=np.c_[np.full(skeleton.n_edges, 2), skeleton.edges].ravel())
+            lines.point_data["radius"] = skeleton.radii
+            plotter.add_mesh(
+                lines,
+                scalars="radius",
+                cmap="viridis",
+                line_width=5,
+                render_lines_as_tubes=True,
+                nan_color="gray",
+                scalar_bar_args={"title": "radius", "color": "black", "vertical": True},
+            )
+        deg = skeleton.degrees
+        if 0 < skeleton.n_nodes <= 5000:  # coarse skeletons: show where the nodes are
+            plotter.add_points(skeleton.points[deg == 2], color="black", point_size=6, render_points_as_spheres=True)
+        size = 0.3 * np.where(np.isfinite(skeleton.radii), skeleton.radii, scale)
+        for mask, color in ((deg >= 3, "red"), (deg == 1, "royalblue"), (deg == 0, "black")):
+            if mask.any():
+                centres = pv.PolyData(skeleton.points[mask])
+                centres.point_data["size"] = size[mask]
+                glyphs = centres.glyph(geom=pv.Sphere(radius=1.0), scale="size", orient=False)
+                plotter.add_mesh(glyphs, color=color, smooth_shading=True)
+        s = skeleton.summary()
+        text = title if title is not None else skeleton.name
+        text = f"{text}\n{s['nodes']} nodes, {s['segments']} segments, {s['junctions']} junctions, {s['endpoints']} endpoints, {s['cycles']} cycles"
+        plotter.add_text(text, font_size=10, color="black")
+        pts = skeleton.points if surface is None or not surface.n_vertices else surface.vertices
+        centre = pts.mean(axis=0)
+        if len(pts) >= 3:
+            _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
+            view, up = vt[2], vt[1]
+        else:
+            view, up = np.array([0, 0, 1.0]), np.array([0, 1.0, 0])
+        extent = float(np.ptp(pts, axis=0).max()) or 1.0
+        plotter.camera_position = [tuple(centre + 3 * extent * view), tuple(centre), tuple(up)]
+        plotter.reset_camera()
+        with atomic_path(path) as tmp:
+            plotter.screenshot(str(tmp))
+    finally:
+        plotter.close()
+    return path
+
+
+@register_filter(
+    description="Render the skeleton over the transparent surface to a PNG in the output folder (off-screen).",
+    parameters=[
+        Parameter("filename", "str", "skeleton.png", "File name in the output folder."),
+        Parameter("width", "int", 1200, "Image width.", unit="pixels", min=64, max=8192),
+        Parameter("height", "int", 900, "Image height.", unit="pixels", min=64, max=8192),
+        Parameter("surface_opacity", "float", 0.2, "Opacity of the surface (0 hides it).", min=0.0, max=1.0),
+    ],
+    reads=("skeleton",),
+    optional_reads=("surface",),
+    category="export",
+)
+def render_skeleton(ctx, filename, width, height, surface_opacity):
+    path = ctx.output_path(filename)
+    if path is None:
+        ctx.warn(f"no output folder: {filename} not written")
+        return
+    surface = ctx.surface if surface_opacity > 0 else None
+    try:
+        render_skeleton_png(path, ctx.skeleton, surface, (width, height), surface_opacity)
+    except (RuntimeError, OSError, ImportError) as exc:  # no OpenGL context on this machine
+        ctx.warn(f"could not render {filename}: {type(exc).__name__}: {exc}")
