@@ -76,6 +76,8 @@ def cmd_run(args) -> int:
 
     chain = FilterChain.load(args.chain).with_overrides(parse_overrides(args.set))
     chain.resolved()  # parameter errors before reading any input
+    if not args.input:
+        raise VmeshError("--input SURFACE is required")
     ctx = chain.run(surface=args.input, skeleton=args.skeleton, out_dir=args.out, progress=not args.quiet)
     if not args.quiet:
         print(ctx.report.summary_table())
@@ -140,6 +142,11 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("vmesh: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # output piped into `head` and the like
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 def _load_extra_commands():
