@@ -1,0 +1,201 @@
+"""Signed distance: sign convention, exact projection, gradient, two-step projection."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import synthetic_case
+from vmesh.chain import FilterChain
+from vmesh.errors import InputError
+from vmesh.geometry.sdf import SignedDistance, TwoStepSignedDistance, morton_order, vessel_query_points
+from vmesh.geometry.topology import boundary_loops
+from vmesh.realdata import REAL_CASES
+
+SYNTHETIC = [
+    "straight_tube",
+    "curved_tube",
+    "y_bifurcation",
+    "trifurcation",
+    "five_furcation",
+    "two_junctions",
+    "uneven_bifurcation",
+    "aneurysm",
+    "coarctation",
+    "cerebral_tree",
+    "ring",
+]
+
+
+def icosphere(radius=1.0, level=4):
+    """A closed triangulated sphere (subdivided icosahedron), outward oriented."""
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.create_sphere(radius=radius, subdiv=level)
+    m = ms.current_mesh()
+    return m.vertex_matrix().astype(float), m.face_matrix().astype(np.int64)
+
+
+_PREPARED = {}
+
+
+def prepared(kind, name, real_path=None):
+    """Repaired surface, capped when open (cached across tests)."""
+    key = (kind, name)
+    if key not in _PREPARED:
+        path = real_path(REAL_CASES[name][0]) if kind == "real" else synthetic_case(name)[0]
+        if kind == "synthetic" and not path.exists():
+            pytest.skip(f"synthetic case {name} not generated yet")
+        ctx = FilterChain(["repair_surface"]).run(surface=path)
+        if boundary_loops(ctx.surface.faces):
+            ctx = FilterChain(["cap_open_ends"]).run(surface=ctx.surface)
+        _PREPARED[key] = ctx.surface
+    return _PREPARED[key]
+
+
+def test_sphere_distance_sign_and_gradient():
+    v, f = icosphere(2.0)
+    sdf = SignedDistance(v, f, name="sphere")
+    rng = np.random.default_rng(0)
+    p = rng.uniform(-3, 3, (5000, 3))
+    closest, d, face = sdf.project(p)
+    r = np.linalg.norm(p, axis=1)
+    # inscribed polyhedron: distances agree with the sphere's to the chord sagitta
+    assert np.all(np.abs(d - (2.0 - r)) < 0.01)
+    assert np.all((d > 0) == (r < 2.0 - 0.01)) or np.mean((d > 0) == (r < 2.0)) > 0.999
+    far = np.abs(r - 2.0) > 0.02
+    assert np.array_equal(d[far] > 0, r[far] < 2.0)
+    g = sdf.gradient(p[far])
+    assert np.allclose(np.linalg.norm(g, axis=1), 1.0)
+    # increasing SDF means towards the centre, everywhere (inside and outside)
+    assert np.all(np.einsum("ij,ij->i", g, -p[far] / r[far, None]) > 0.99)
+    assert np.allclose(sdf.closest_points(p), closest)
+    assert face.dtype == np.int64 and face.min() >= 0 and face.max() < sdf.n_faces
+    assert sdf.sign_method == "pseudonormal" and not sdf.flipped
+
+
+def test_inward_oriented_surface_gets_the_same_signs():
+    v, f = icosphere(1.0, 3)
+    outward = SignedDistance(v, f)
+    inward = SignedDistance(v, f[:, ::-1])
+    p = np.random.default_rng(1).uniform(-1.5, 1.5, (3000, 3))
+    assert inward.flipped
+    assert np.allclose(outward.distance(p), inward.distance(p))
+    assert np.allclose(outward.gradient(p), inward.gradient(p))
+
+
+def test_gradient_on_surface_is_inward_normal():
+    v, f = icosphere(1.0, 3)
+    sdf = SignedDistance(v, f)
+    g = sdf.gradient(v)
+    assert np.all(np.einsum("ij,ij->i", g, -v / np.linalg.norm(v, axis=1)[:, None]) > 0.95)
+
+
+def test_single_point_and_bad_shapes():
+    v, f = icosphere(1.0, 2)
+    sdf = SignedDistance(v, f)
+    assert sdf.distance([0.0, 0.0, 0.0]).shape == (1,)
+    assert sdf.distance(np.zeros((0, 3))).shape == (0,)
+    with pytest.raises(ValueError):
+        sdf.distance(np.zeros((4, 2)))
+
+
+def test_open_surface_needs_winding_number_sign():
+    v, f = icosphere(1.0, 2)
+    open_f = f[1:]
+    with pytest.raises(InputError, match="open"):
+        SignedDistance(v, open_f, sign="pseudonormal")
+    sdf = SignedDistance(v, open_f)  # auto: winding number
+    assert sdf.sign_method == "winding_number"
+    assert sdf.distance([[0, 0, 0]])[0] > 0 and sdf.distance([[2, 0, 0]])[0] < 0
+
+
+def test_empty_surface_is_an_input_error():
+    with pytest.raises(InputError, match="no triangles"):
+        SignedDistance(np.zeros((3, 3)), np.zeros((0, 3), np.int64), name="empty.stl")
+
+
+def test_morton_order_is_a_permutation():
+    p = np.random.default_rng(2).random((10000, 3))
+    order = morton_order(p)
+    assert np.array_equal(np.sort(order), np.arange(len(p)))
+    # consecutive points in Morton order are much closer than in random order
+    step = np.linalg.norm(np.diff(p[order], axis=0), axis=1).mean()
+    assert step < 0.25 * np.linalg.norm(np.diff(p, axis=0), axis=1).mean()
+
+
+def _check_sign_and_projection(surface, n=20000):
+    sdf = SignedDistance.from_surface(surface)
+    lo, hi = sdf.bounds
+    rng = np.random.default_rng(3)
+    box = rng.uniform(lo, hi, (n, 3))
+    near, _ = vessel_query_points(sdf, n // 2, seed=4)
+    p = np.vstack([box, near])
+    closest, d, _ = sdf.project(p)
+    wn = sdf.winding_number(p)
+    decided = np.abs(d) > 1e-9 * sdf.diagonal
+    assert np.array_equal((d > 0)[decided], (wn > 0.5)[decided]), f"{surface.name}: sign disagrees with the winding number"
+    # projected points lie on the surface
+    assert np.abs(sdf.distance(closest)).max() <= 1e-6 * sdf.diagonal
+    assert np.allclose(np.abs(d), np.linalg.norm(p - closest, axis=1))
+
+
+@pytest.mark.parametrize("name", list(REAL_CASES))
+def test_real_signs_agree_with_winding_number(real_path, name):
+    _check_sign_and_projection(prepared("real", name, real_path), n=8000)
+
+
+@pytest.mark.parametrize("name", SYNTHETIC)
+def test_synthetic_signs_agree_with_winding_number(name):
+    _check_sign_and_projection(prepared("synthetic", name), n=4000)
+
+
+def test_two_step_projection_lies_on_fine_surface(real_path):
+    fine_surface = prepared("real", "coarctation", real_path)
+    ctx = FilterChain([("decimate_surface", {"target_faces": 5000, "backend": "fast_simplification"})]).run(surface=fine_surface)
+    fine = SignedDistance.from_surface(fine_surface)
+    coarse = SignedDistance.from_surface(ctx.coarse_surface)
+    two = TwoStepSignedDistance(coarse, fine)
+    p, radius = vessel_query_points(fine, 20000, seed=5)
+    closest, d, face = two.project(p)
+    assert np.abs(fine.distance(closest)).max() <= 1e-6 * fine.diagonal
+    _, d_fine, _ = fine.project(p)
+    _, d_coarse, _ = coarse.project(p)
+    # refining never does worse than the coarse surface, and usually matches the fine one
+    assert np.mean(np.abs(d - d_fine) / radius) < 0.5 * np.mean(np.abs(d_coarse - d_fine) / radius)
+    assert np.array_equal(d > 0, d_fine > 0) or np.mean((d > 0) == (d_fine > 0)) > 0.999
+    g = two.gradient(p[:100])
+    assert np.allclose(np.linalg.norm(g, axis=1), 1.0)
+    assert two.n_faces == fine.n_faces and two.diagonal == fine.diagonal
+
+
+def test_build_sdf_filter_variants(real_path):
+    surface = prepared("real", "aneurysm", real_path)
+    ctx = FilterChain(
+        [("decimate_surface", {"target_faces": 3000}), ("build_sdf", {"source": "coarse", "refine_on_fine": True, "check_points": 3000})]
+    ).run(surface=surface)
+    assert isinstance(ctx.sdf, TwoStepSignedDistance)
+    assert ctx.report.sections["sdf"]["sign_disagreements"] == 0
+    ctx = FilterChain([("build_sdf", {"source": "fine"})]).run(surface=surface)
+    assert isinstance(ctx.sdf, SignedDistance) and ctx.sdf.n_faces == surface.n_faces
+    with pytest.raises(InputError, match="decimate_surface"):
+        FilterChain([("build_sdf", {"source": "coarse"})]).run(surface=surface)
+
+
+def test_build_sdf_refuses_open_surface(real_path):
+    with pytest.raises(InputError, match="cap_open_ends"):
+        FilterChain(["build_sdf"]).run(surface=real_path("aneurysm_ica_aneurisk_c0015_open.vtp"))
+
+
+def test_measure_sdf_chain_preset(real_path, tmp_path):
+    chain = FilterChain.load("sdf_benchmark").with_overrides({"measure_sdf.points": [2000], "decimate_surface.target_faces": 3000})
+    ctx = chain.run(surface=real_path("aneurysm_ica_aneurisk_c0015_open.vtp"), out_dir=tmp_path / "out")
+    import json
+
+    rows = json.loads((tmp_path / "out" / "sdf_coarse_vs_fine.json").read_text())
+    keys = {"case", "triangles_fine", "triangles_coarse", "points", "build_s_fine", "build_s_coarse", "qps_fine", "qps_coarse", "speedup", "err_max_rel", "err_mean_rel"}
+    assert len(rows) == 1 and keys <= set(rows[0])
+    assert rows[0]["triangles_coarse"] == 3000 and rows[0]["points"] == 2000
+    assert 0 <= rows[0]["err_mean_rel"] <= rows[0]["err_max_rel"] < 0.2
+    assert len(ctx.caps) == 3

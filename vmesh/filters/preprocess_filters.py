@@ -1,0 +1,490 @@
+"""Preprocessing and implicit-surface filters: repair, capping, cap detection, Loop
+smoothing, decimation and the signed distance (thin wrappers of :mod:`vmesh.preprocess`
+and :mod:`vmesh.geometry.sdf`).
+
+Caps follow the surface through every filter as the per-face array
+``surface.face_data["cap_id"]`` (0 = wall, k = id of cap k); ``ctx.caps`` holds their
+geometry and names.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .. import preprocess as pre
+from ..errors import InputError, ParameterError
+from ..registry import Parameter, register_filter
+from ..surface import SurfaceMesh
+
+
+# ---------------------------------------------------------------------------
+# cap bookkeeping shared by the filters
+# ---------------------------------------------------------------------------
+def cap_labels(ctx, surface: SurfaceMesh | None = None) -> np.ndarray:
+    """Per-face cap ids of ``surface`` (default ``ctx.surface``): from its ``cap_id``
+    array, else from ``ctx.caps[i].faces``, else all zero."""
+    surface = ctx.surface if surface is None else surface
+    labels = surface.face_data.get(pre.CAP_LABEL)
+    if labels is not None and len(labels) == surface.n_faces:
+        return np.asarray(labels, np.int64)
+    labels = np.zeros(surface.n_faces, np.int64)
+    for cap in ctx.caps or []:
+        faces = np.asarray(cap.faces, np.int64)
+        if len(faces) and faces.max() < surface.n_faces:
+            labels[faces] = cap.id
+    return labels
+
+
+def set_caps(ctx, surface: SurfaceMesh, labels: np.ndarray, inlet=None, inlet_point=None, keep_names: bool = False) -> None:
+    """Compute cap geometry from face labels, name the caps, store surface and caps."""
+    caps = pre.caps_from_labels(surface.vertices, surface.faces, labels)
+    if keep_names and ctx.caps:
+        names = {c.id: c.name for c in ctx.caps}
+        for c in caps:
+            c.name = names.get(c.id, c.name)
+        mapping = {c.id: c.id for c in caps}
+    else:
+        try:
+            caps, mapping = pre.name_caps(caps, inlet=inlet, inlet_point=inlet_point)
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from None
+    labels = pre.relabel(labels, mapping) if mapping else labels
+    surface.face_data[pre.CAP_LABEL] = labels.astype(np.int32)
+    for c in caps:
+        c.faces = np.flatnonzero(labels == c.id)
+    ctx.surface = surface
+    ctx.caps = caps
+    ctx.report.sections["caps"] = [c.as_dict() for c in caps]
+
+
+def _pad_face_data(face_data: dict, n_old: int, n_new: int) -> dict:
+    """Extend per-face arrays to ``n_new`` faces (new faces: -1 for integers, NaN for floats)."""
+    out = {}
+    for key, arr in face_data.items():
+        arr = np.asarray(arr)
+        if len(arr) != n_old or key == pre.CAP_LABEL:
+            continue
+        if np.issubdtype(arr.dtype, np.integer):
+            fill = -1
+        elif np.issubdtype(arr.dtype, np.floating):
+            fill = np.nan
+        else:
+            continue
+        out[key] = np.concatenate([arr, np.full((n_new - n_old, *arr.shape[1:]), fill, arr.dtype)])
+    return out
+
+
+def _surface_name(ctx) -> str:
+    return (ctx.surface.name if ctx.surface is not None else "") or "surface"
+
+
+INLET_PARAMETERS = [
+    Parameter(
+        "inlet",
+        "int",
+        None,
+        "Which cap is the inlet: its position when caps are ordered by decreasing radius (1 = largest). "
+        "Automatic: the largest cap.",
+        min=1,
+    ),
+    Parameter("inlet_point", "float_list", None, "Name the cap whose centre is nearest to this point (x, y, z) the inlet.", unit="mm"),
+]
+
+
+def _check_point(inlet_point):
+    if inlet_point is not None and len(inlet_point) != 3:
+        raise ParameterError(f"inlet_point needs three numbers, got {inlet_point!r}")
+
+
+# ---------------------------------------------------------------------------
+# filters
+# ---------------------------------------------------------------------------
+@register_filter(
+    description="Clean the surface: weld duplicate vertices, drop degenerate and duplicate faces, keep the largest piece, orient faces consistently and outward.",
+    parameters=[
+        Parameter(
+            "merge_tolerance",
+            "float",
+            1e-7,
+            "Weld vertices closer than this fraction of the bounding-box diagonal (0: identical coordinates only).",
+            unit="× diagonal",
+            min=0.0,
+            max=0.01,
+        ),
+        Parameter("keep", "str", "largest", "Keep only the largest connected piece (by faces), or all pieces.", choices=("largest", "all")),
+        Parameter("orient", "bool", True, "Make neighbouring faces agree on orientation, then turn each piece outward (positive enclosed volume)."),
+    ],
+    reads=("surface",),
+    writes=("surface",),
+    category="preprocessing",
+)
+def repair_surface(ctx, merge_tolerance, keep, orient):
+    """Repair the input surface and report what was removed or flipped.
+
+    Open surfaces are oriented outward by their volume relative to the centroid (an
+    estimate); ``cap_open_ends`` re-checks the orientation once the surface is closed.
+    """
+    s = ctx.surface
+    v, f, data, report = pre.repair(
+        s.vertices, s.faces, merge_tolerance=merge_tolerance * s.diagonal, keep=keep, orient=orient, outward=orient, face_data=s.face_data
+    )
+    if len(f) == 0:
+        raise InputError("no faces left after removing degenerate and duplicate faces", _surface_name(ctx))
+    ctx.surface = SurfaceMesh(v, f, name=s.name, face_data=data)
+    info = report.as_dict()
+    ctx.report.sections["repair"] = info
+    ctx.count(
+        triangles=len(f),
+        merged_vertices=report.merged_vertices,
+        removed_faces=report.degenerate_faces + report.duplicate_faces + report.removed_component_faces,
+        removed_components=report.removed_components,
+        flipped_faces=report.flipped_faces,
+    )
+    if report.non_orientable:
+        ctx.warn("surface is not orientable: orientation left partly inconsistent")
+    if report.nonmanifold_edges:
+        ctx.warn(f"{report.nonmanifold_edges} non-manifold edges remain (use meshlab_filter meshing_repair_non_manifold_edges)")
+    if report.zero_area_faces:
+        ctx.warn(f"{report.zero_area_faces} zero-area faces with distinct vertices kept (they do not open the surface)")
+    if ctx.caps:
+        ctx.caps = None
+        ctx.warn("caps were dropped: run cap_open_ends or detect_caps after repair_surface")
+
+
+@register_filter(
+    description="Close every open end with a flat cap and record the caps as named inlet/outlet boundaries.",
+    parameters=[
+        Parameter(
+            "method",
+            "str",
+            "rings",
+            "'rings': concentric rings of triangles sized like the rim edges, zipped to the rim, with a centre fan; "
+            "'meshlab': pymeshlab hole filling (meshing_close_holes) with refinement.",
+            choices=("rings", "meshlab"),
+        ),
+        Parameter("rings", "int", None, "Inner rings per cap for method 'rings' (0: a plain centre fan). Automatic: about radius / rim edge length.", min=0, max=200),
+        *INLET_PARAMETERS,
+    ],
+    reads=("surface",),
+    writes=("surface", "caps"),
+    category="preprocessing",
+)
+def cap_open_ends(ctx, method, rings, inlet, inlet_point):
+    """Cap each boundary loop; the largest cap (by rim radius) becomes ``inlet``, the
+    others ``outlet_1``, ``outlet_2``, ... by decreasing radius, with ids 1..n.
+
+    After capping the surface is closed and is turned outward by its exact signed volume.
+    """
+    from ..geometry import topology
+
+    _check_point(inlet_point)
+    s = ctx.surface
+    if not topology.is_consistently_oriented(s.faces):
+        raise InputError("faces are not consistently oriented: run repair_surface before cap_open_ends", _surface_name(ctx))
+    loops = topology.boundary_loops(s.faces)
+    if not loops:
+        ctx.warn("surface has no open ends; use detect_caps to find flat caps of a closed surface")
+        set_caps(ctx, s.copy(), cap_labels(ctx), inlet, inlet_point)
+        ctx.count(caps=len(ctx.caps))
+        return
+    v, f, labels = pre.cap_boundary_loops(s.vertices, s.faces, rings=rings, method=method)
+    old = np.asarray(s.face_data.get(pre.CAP_LABEL, np.zeros(s.n_faces)), np.int64)
+    if old.any():  # keep caps found earlier, number the new ones after them
+        labels = np.where(labels > 0, labels + old.max(), np.concatenate([old, np.zeros(len(f) - s.n_faces, np.int64)]))
+    if topology.boundary_loops(f):
+        raise InputError("capping left open ends (boundary loops touch each other); try method='meshlab'", _surface_name(ctx))
+    if topology.signed_volume(v, f) < 0:
+        f = np.ascontiguousarray(f[:, ::-1])
+    face_data = _pad_face_data(s.face_data, s.n_faces, len(f)) if method == "rings" else {}
+    capped = SurfaceMesh(v, f, name=s.name, face_data=face_data)
+    set_caps(ctx, capped, labels, inlet, inlet_point)
+    ctx.count(caps=len(ctx.caps), cap_triangles=int((labels > 0).sum()), triangles=len(f))
+
+
+@register_filter(
+    description="Find the flat end caps of a closed surface (planar, round regions bounded by a crease) and name them inlet/outlets.",
+    parameters=[
+        Parameter("angle_tolerance", "float", 2.0, "Faces whose normals differ by less than this belong to the same flat region.", unit="degrees", min=0.0, max=30.0),
+        Parameter("min_crease_angle", "float", 30.0, "Mean angle between a cap and the wall faces around it.", unit="degrees", min=0.0, max=180.0),
+        Parameter("min_roundness", "float", 0.5, "Minimum 4π·area/perimeter² of a cap region (1 for a disc; long strips of a tube wall score low).", min=0.0, max=1.0),
+        Parameter("min_faces", "int", 6, "Minimum number of faces of a cap region.", min=1),
+        Parameter("planarity", "float", 0.02, "Largest distance of a cap vertex from the cap plane, relative to the cap's equivalent radius.", min=0.0, max=1.0),
+        *INLET_PARAMETERS,
+    ],
+    reads=("surface",),
+    writes=("surface", "caps"),
+    category="preprocessing",
+)
+def detect_caps(ctx, angle_tolerance, min_crease_angle, min_roundness, min_faces, planarity, inlet, inlet_point):
+    """Label the flat end caps of an already closed surface (synthetic cases, closed real
+    cases) so that later stages can name inlets and outlets as after ``cap_open_ends``."""
+    from ..geometry import topology
+
+    _check_point(inlet_point)
+    s = ctx.surface
+    if topology.boundary_loops(s.faces):
+        ctx.warn("surface has open ends: cap_open_ends closes them and records the caps")
+    f = s.faces if topology.signed_volume(s.vertices, s.faces) >= 0 else s.faces[:, ::-1]
+    labels = pre.detect_flat_caps(
+        s.vertices, f, angle_tolerance=angle_tolerance, min_crease_angle=min_crease_angle, min_roundness=min_roundness, min_faces=min_faces, planarity=planarity
+    )
+    surface = s.copy()
+    surface.face_data.pop(pre.CAP_LABEL, None)
+    set_caps(ctx, surface, labels, inlet, inlet_point)
+    # cap normals must point out of the vessel even if the faces point inward
+    if f is not s.faces:
+        for c in ctx.caps:
+            c.normal = -c.normal
+        ctx.report.sections["caps"] = [c.as_dict() for c in ctx.caps]
+    ctx.count(caps=len(ctx.caps))
+    if not ctx.caps:
+        ctx.warn("no flat caps found (rounded ends?); inlets and outlets stay unnamed")
+
+
+@register_filter(
+    description="Smooth by Loop subdivision (pymeshlab), on the whole surface or only near skeleton junctions, then optional Taubin smoothing.",
+    parameters=[
+        Parameter("iterations", "int", 1, "Loop subdivision steps (each splits every selected edge: about 4× the faces there).", min=0, max=6),
+        Parameter(
+            "region",
+            "str",
+            "auto",
+            "Where to subdivide: 'all' faces, or faces near skeleton 'junctions'; 'auto' uses junctions when a skeleton with junctions is present.",
+            choices=("auto", "all", "junctions"),
+        ),
+        Parameter("junction_distance", "float", 2.0, "Faces within this many node radii of a junction node are smoothed (region 'junctions').", unit="× radius", min=0.0),
+        Parameter("edge_threshold", "float", 0.0, "Only edges longer than this are split (0 splits all, a uniform subdivision).", unit="mm", min=0.0),
+        Parameter("weights", "str", "Loop", "pymeshlab's weighting scheme.", choices=("Loop", "Enhance regularity", "Enhance continuity")),
+        Parameter("taubin_iterations", "int", 0, "Taubin λ|μ smoothing steps after subdivision (0: none).", min=0, max=1000),
+        Parameter("taubin_lambda", "float", 0.5, "Taubin's positive step factor λ.", min=0.0, max=1.0),
+        Parameter("taubin_mu", "float", -0.53, "Taubin's negative step factor μ (μ < -λ avoids shrinkage).", min=-1.0, max=0.0),
+        Parameter("preserve_caps", "bool", True, "Leave flat caps flat: do not subdivide them, keep their vertices in their planes."),
+    ],
+    reads=("surface",),
+    optional_reads=("skeleton", "caps"),
+    writes=("surface", "caps"),
+    category="preprocessing",
+)
+def smooth_loop(ctx, iterations, region, junction_distance, edge_threshold, weights, taubin_iterations, taubin_lambda, taubin_mu, preserve_caps):
+    """Loop subdivision smoothing (``meshing_surface_subdivision_loop``), optionally local to
+    the junctions of ``ctx.skeleton``, followed by Taubin smoothing."""
+    s = ctx.surface
+    labels = cap_labels(ctx)
+    skeleton = ctx.skeleton
+    junctions = skeleton.junctions if skeleton is not None else np.zeros(0, np.int64)
+    if region == "auto":
+        region = "junctions" if len(junctions) else "all"
+    if region == "junctions":
+        if skeleton is None:
+            raise InputError("region 'junctions' needs a skeleton (give --skeleton FILE or extract one first)")
+        if not len(junctions):
+            ctx.warn("skeleton has no junctions: nothing smoothed")
+            return
+        mask = pre.faces_near_points(s.vertices, s.faces, skeleton.points[junctions], junction_distance * skeleton.radii[junctions])
+    else:
+        mask = np.ones(s.n_faces, bool)
+    if preserve_caps:
+        mask &= labels == 0
+    caps = ctx.caps or []
+    v, f, new_labels = s.vertices, s.faces, labels
+    if iterations and mask.any():
+        ctx.tick(0.1, "Loop subdivision")
+        v, f, new_labels = pre.loop_subdivide(
+            v, f, iterations=iterations, edge_threshold=edge_threshold, weights=weights, face_mask=None if mask.all() else mask, labels=labels
+        )
+    if taubin_iterations:
+        ctx.tick(0.6, "Taubin smoothing")
+        fixed = np.zeros(len(v), bool)
+        if preserve_caps:
+            fixed[f[new_labels > 0].ravel()] = True
+        if region == "junctions":
+            # smooth only around the junctions: vertices of the refined region
+            near = pre.faces_near_points(v, f, skeleton.points[junctions], junction_distance * skeleton.radii[junctions])
+            moved = np.zeros(len(v), bool)
+            moved[f[near].ravel()] = True
+            fixed |= ~moved
+        v = pre.taubin_smooth(v, f, taubin_iterations, taubin_lambda, taubin_mu, fixed=fixed)
+    if preserve_caps and caps:
+        v = pre.flatten_caps(v, f, new_labels, caps)
+    same_faces = len(f) == s.n_faces
+    face_data = {k: a for k, a in s.face_data.items() if same_faces and k != pre.CAP_LABEL}
+    smoothed = SurfaceMesh(v, f, name=s.name, face_data=face_data)
+    if caps or new_labels.any():
+        set_caps(ctx, smoothed, new_labels, keep_names=True)
+    else:
+        ctx.surface = smoothed
+    ctx.count(triangles=len(f), smoothed_faces=int(mask.sum()), region=region)
+
+
+@register_filter(
+    description="Quadric edge-collapse decimation (pymeshlab or fast-simplification) to a face count or ratio; writes the coarse surface.",
+    parameters=[
+        Parameter("backend", "str", "pymeshlab", "pymeshlab's meshing_decimation_quadric_edge_collapse (topology, boundary and normals preserved) or fast_simplification (faster).", choices=("pymeshlab", "fast_simplification")),
+        Parameter("target_faces", "int", None, "Number of triangles to reach.", unit="faces", min=4),
+        Parameter("target_ratio", "float", None, "Fraction of the triangles to keep. Without either target: 10 % of the faces, at least 20,000.", min=1e-6, max=1.0),
+        Parameter("preserve_boundary", "bool", True, "Do not move or collapse open-boundary edges."),
+        Parameter("preserve_topology", "bool", True, "pymeshlab: refuse collapses that change the topology (no new holes or handles)."),
+        Parameter("quality_threshold", "float", 0.3, "pymeshlab: penalise collapses creating triangles of lower quality than this.", min=0.0, max=1.0),
+        Parameter("aggressiveness", "float", 7.0, "fast_simplification: higher is faster but less accurate.", min=0.0, max=20.0),
+        Parameter("output", "str", "coarse_surface", "Layer receiving the result; 'surface' decimates the input in place.", choices=("coarse_surface", "surface")),
+    ],
+    reads=("surface",),
+    writes=("coarse_surface",),
+    category="preprocessing",
+)
+def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary, preserve_topology, quality_threshold, aggressiveness, output):
+    """Decimate the fine surface; the result is the *coarse* surface used for a fast signed
+    distance, while ``ctx.surface`` stays the fine one (unless ``output='surface'``).
+
+    The largest deviation of the fine vertices from the result is reported
+    (``max_deviation``, in surface units and relative to the bounding-box diagonal).
+    """
+    if target_faces is not None and target_ratio is not None:
+        raise ParameterError("give target_faces or target_ratio, not both")
+    s = ctx.surface
+    if target_faces is None:
+        target_faces = int(round(s.n_faces * target_ratio)) if target_ratio is not None else min(s.n_faces, max(20000, s.n_faces // 10))
+    v, f = pre.decimate(
+        s.vertices,
+        s.faces,
+        target_faces,
+        backend=backend,
+        preserve_boundary=preserve_boundary,
+        preserve_topology=preserve_topology,
+        quality_threshold=quality_threshold,
+        aggressiveness=aggressiveness,
+    )
+    coarse = SurfaceMesh(v, f, name=f"{s.name} (decimated)" if s.name else "decimated")
+    deviation = float(np.sqrt(_squared_distance(v, f, s.vertices).max())) if len(f) else 0.0
+    if output == "surface":
+        ctx.surface = coarse.copy(name=s.name)
+        if ctx.caps:
+            ctx.caps = None
+            ctx.warn("caps refer to the old faces and were dropped: run detect_caps again")
+    else:
+        ctx.coarse_surface = coarse
+    ctx.report.sections["decimation"] = {
+        "backend": backend,
+        "faces_in": s.n_faces,
+        "faces_out": len(f),
+        "target_faces": int(target_faces),
+        "max_deviation": deviation,
+        "max_deviation_rel_diagonal": deviation / max(s.diagonal, 1e-300),
+    }
+    ctx.count(faces_in=s.n_faces, faces_out=len(f), max_deviation=deviation)
+    if abs(len(f) - target_faces) > 0.01 * target_faces:
+        ctx.warn(f"decimation stopped at {len(f)} faces, target was {target_faces} (topology or boundary constraints)")
+
+
+def _squared_distance(vertices, faces, points):
+    import igl
+
+    tree = igl.AABB()
+    tree.init(np.ascontiguousarray(vertices, np.float64), np.ascontiguousarray(faces, np.int64))
+    return np.asarray(tree.squared_distance(vertices, faces, np.ascontiguousarray(points, np.float64))[0])
+
+
+@register_filter(
+    description="Build the signed distance (positive inside, negative outside) with closest-point projection, from the fine or the coarse surface.",
+    parameters=[
+        Parameter("source", "str", "fine", "Surface to build it from: the fine input or the decimated coarse surface.", choices=("fine", "coarse")),
+        Parameter(
+            "sign",
+            "str",
+            "auto",
+            "Inside test: angle-weighted 'pseudonormal' (exact on closed, manifold, oriented surfaces; fastest), "
+            "generalised 'winding_number' (tolerates small defects), or 'auto' (pseudonormal where the surface allows it).",
+            choices=("auto", "pseudonormal", "winding_number"),
+        ),
+        Parameter("refine_on_fine", "bool", False, "With source 'coarse': project on the coarse surface, then refine the projection on the fine surface (two-step projection)."),
+        Parameter("check_points", "int", 2000, "Random points in the bounding box whose sign is checked against the winding number (0: no check).", min=0, max=10_000_000),
+    ],
+    reads=("surface",),
+    optional_reads=("coarse_surface",),
+    writes=("sdf",),
+    category="implicit surface",
+)
+def build_sdf(ctx, source, sign, refine_on_fine, check_points):
+    """Put a :class:`~vmesh.geometry.sdf.SignedDistance` (or, with ``refine_on_fine``, a
+    :class:`~vmesh.geometry.sdf.TwoStepSignedDistance`) into ``ctx.sdf``.
+
+    The surface must be closed (``cap_open_ends``) unless the winding-number sign is
+    chosen; inward-oriented surfaces are handled (faces are flipped by signed volume).
+    """
+    from ..geometry.sdf import SignedDistance, TwoStepSignedDistance
+
+    if source == "coarse" and ctx.coarse_surface is None:
+        raise InputError("source 'coarse' needs a coarse surface: add decimate_surface before build_sdf")
+    if refine_on_fine and source != "coarse":
+        raise ParameterError("refine_on_fine needs source 'coarse'")
+    surface = ctx.coarse_surface if source == "coarse" else ctx.surface
+    if sign != "winding_number":
+        from ..geometry import topology
+
+        n_open = len(topology.boundary_loops(surface.faces))
+        if n_open:
+            raise InputError(f"surface has {n_open} open ends: add cap_open_ends before build_sdf (or use sign 'winding_number')", surface.name or "surface")
+    t0 = time.perf_counter()
+    sdf = SignedDistance.from_surface(surface, sign=sign)
+    if refine_on_fine:
+        sdf = TwoStepSignedDistance(sdf, SignedDistance.from_surface(ctx.surface, sign=sign))
+    build_s = time.perf_counter() - t0
+    base = sdf.fine if refine_on_fine else sdf
+    info = {
+        "source": source,
+        "two_step": bool(refine_on_fine),
+        "triangles": surface.n_faces,
+        "sign": base.sign_method,
+        "flipped_to_outward": base.flipped,
+        "suspect_faces": base.n_suspect_faces,
+        "build_s": build_s,
+    }
+    if check_points:
+        rng = np.random.default_rng(0)
+        lo, hi = sdf.bounds
+        pts = rng.uniform(lo, hi, size=(check_points, 3))
+        inside = sdf.distance(pts) > 0
+        wn_inside = base.winding_number(pts) > 0.5
+        disagree = int(np.sum(inside != wn_inside))
+        info["sign_check_points"] = check_points
+        info["sign_disagreements"] = disagree
+        if disagree:
+            ctx.warn(f"{disagree} of {check_points} random points get a different inside/outside answer from the winding number (surface self-intersects or has holes?)")
+    ctx.sdf = sdf
+    ctx.report.sections["sdf"] = info
+    ctx.count(triangles=surface.n_faces, sign=base.sign_method, flipped=base.flipped)
+
+
+@register_filter(
+    description="Measure the coarse signed distance against the fine one: build time, queries per second, projection error relative to the local radius.",
+    parameters=[
+        Parameter("points", "int_list", [10_000, 100_000, 1_000_000], "Numbers of query points (around the wall, from the centreline to 0.3 radii outside).", min=1),
+        Parameter("seed", "int", 0, "Random seed of the query points."),
+        Parameter("filename", "str", "sdf_coarse_vs_fine.json", "Rows written to this file in the output folder (skipped without one)."),
+    ],
+    reads=("surface", "coarse_surface"),
+    category="implicit surface",
+)
+def measure_sdf(ctx, points, seed, filename):
+    """Benchmark of the fine against the coarse (and two-step) signed distance, as in
+    ``benchmarks/sdf_coarse_vs_fine.py``; rows go to the report's ``sdf_benchmark``
+    section and to ``filename``."""
+    import json
+
+    from ..geometry import topology
+    from ..geometry.sdf import compare_coarse_fine
+    from ..io.atomic import write_text_atomic
+
+    for layer in ("surface", "coarse_surface"):
+        surface = getattr(ctx, layer)
+        if topology.boundary_loops(surface.faces):
+            raise InputError(f"the {layer} layer has open ends: add cap_open_ends before measure_sdf", surface.name or layer)
+    rows = compare_coarse_fine(ctx.surface, [ctx.coarse_surface], counts=points, seed=seed, case=ctx.surface.name)
+    ctx.report.sections["sdf_benchmark"] = rows
+    last = rows[-1]
+    ctx.count(qps_fine=last["qps_fine"], qps_coarse=last["qps_coarse"], speedup=last["speedup"], err_max_rel=last["err_max_rel"])
+    path = ctx.output_path(filename)
+    if path is not None:
+        write_text_atomic(path, json.dumps(rows, indent=2))

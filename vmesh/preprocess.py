@@ -1,0 +1,728 @@
+"""Surface preprocessing kernels: repair, capping, flat-cap detection, smoothing, decimation.
+
+Every function here works on plain numpy arrays (``vertices (n, 3)``, ``faces (m, 3)``)
+and returns new arrays; the filters in :mod:`vmesh.filters.preprocess_filters` wrap
+them. Caps are tracked through every step by a per-face integer label
+(``0`` = wall, ``k`` = cap ``k``), stored on surfaces as ``face_data["cap_id"]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from .caps import Cap
+from .geometry import topology
+
+#: Name of the per-face cap label array on capped surfaces (0 = wall, k = cap id k).
+CAP_LABEL = "cap_id"
+
+
+# ---------------------------------------------------------------------------
+# small helpers
+# ---------------------------------------------------------------------------
+def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Triangle areas ``(m,)``."""
+    return 0.5 * np.linalg.norm(topology.face_normals(vertices, faces, normalize=False), axis=1)
+
+
+def _half_edge_pairs(faces: np.ndarray):
+    """Half-edges grouped by undirected edge.
+
+    Returns
+    -------
+    edge_id : (3m,) int64
+        Undirected edge of half-edge ``3 f + k`` (corner ``k`` -> ``k+1`` of face ``f``).
+    counts : (e,) int64
+        Faces per edge.
+    a, b : (3m,) int64
+        Start and end vertex of each half-edge.
+    """
+    faces = np.asarray(faces, np.int64)
+    n = int(faces.max()) + 1 if faces.size else 0
+    a, b = faces.ravel(), np.roll(faces, -1, axis=1).ravel()
+    _, edge_id, counts = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_inverse=True, return_counts=True)
+    return edge_id.ravel(), counts, a, b
+
+
+def manifold_face_pairs(faces: np.ndarray):
+    """Pairs of faces sharing a manifold edge (used by exactly two faces).
+
+    Returns
+    -------
+    pairs : (k, 2) int64
+        The two faces of each interior manifold edge.
+    same_direction : (k,) bool
+        True when both faces traverse the shared edge in the same direction
+        (their orientations disagree).
+    half_edges : (k, 2) int64
+        The two half-edge indices (``3 f + corner``).
+    """
+    edge_id, counts, a, _ = _half_edge_pairs(faces)
+    keep = counts[edge_id] == 2
+    halves = np.flatnonzero(keep)
+    halves = halves[np.argsort(edge_id[halves], kind="stable")].reshape(-1, 2)
+    same = a[halves[:, 0]] == a[halves[:, 1]]
+    return halves // 3, same, halves
+
+
+def remove_unreferenced_vertices(vertices: np.ndarray, faces: np.ndarray):
+    """Drop vertices no face uses; returns ``(vertices, faces, kept_vertex_indices)``."""
+    used = np.unique(faces)
+    remap = np.full(len(vertices), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return vertices[used], remap[faces], used
+
+
+# ---------------------------------------------------------------------------
+# repair
+# ---------------------------------------------------------------------------
+@dataclass
+class RepairReport:
+    """What :func:`repair` changed (all counts)."""
+
+    merged_vertices: int = 0
+    degenerate_faces: int = 0
+    duplicate_faces: int = 0
+    zero_area_faces: int = 0
+    nonmanifold_edges: int = 0
+    removed_components: int = 0
+    removed_component_faces: int = 0
+    flipped_faces: int = 0
+    oriented_outward: bool = False
+    non_orientable: bool = False
+    unreferenced_vertices: int = 0
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def merge_close_vertices(vertices: np.ndarray, faces: np.ndarray, tolerance: float):
+    """Weld vertices closer than ``tolerance`` (0: identical coordinates only).
+
+    Returns
+    -------
+    vertices, faces : arrays with every cluster of close vertices replaced by its first member
+    n_merged : int
+        Number of vertices removed.
+    """
+    n = len(vertices)
+    if tolerance > 0:
+        from scipy.spatial import cKDTree
+
+        pairs = cKDTree(vertices).query_pairs(tolerance, output_type="ndarray")
+        graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        _, label = connected_components(graph, directed=False)
+    else:
+        _, label = np.unique(vertices, axis=0, return_inverse=True)
+        label = label.ravel()
+    # representative: the lowest original index of each cluster
+    first = np.full(label.max() + 1, n, np.int64)
+    np.minimum.at(first, label, np.arange(n))
+    rep = first[label]
+    faces = rep[faces]
+    v, f, _ = remove_unreferenced_vertices(vertices, faces)
+    return v, f, n - len(v)
+
+
+def orient_consistently(faces: np.ndarray) -> tuple[np.ndarray, int, bool]:
+    """Flip faces so that neighbours agree on orientation (per connected piece).
+
+    Uses the orientation double cover: node ``(f, 0)`` is face ``f`` as given, ``(f, 1)``
+    is it flipped; agreeing neighbours link equal states, disagreeing ones opposite
+    states. Within each piece every face takes the state connected to the first face
+    of the piece as given. A piece in which some face is linked to both its states is
+    non-orientable and is left unchanged.
+
+    Returns
+    -------
+    faces : (m, 3) array
+    n_flipped : int
+    orientable : bool
+    """
+    m = len(faces)
+    pairs, same, _ = manifold_face_pairs(faces)
+    f, g = pairs[:, 0], pairs[:, 1]
+    # agreeing neighbours (opposite half-edge directions): (f,s)-(g,s); disagreeing: (f,s)-(g,1-s)
+    rows = np.concatenate([f, f + m])
+    cols = np.concatenate([np.where(same, g + m, g), np.where(same, g, g + m)])
+    graph = sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(2 * m, 2 * m))
+    _, label = connected_components(graph, directed=False)
+    as_given, flipped = label[:m], label[m:]
+    orientable_face = as_given != flipped
+    # per piece of the (manifold-edge) face graph, the reference is its lowest face as given
+    piece_graph = sp.coo_matrix((np.ones(len(f)), (f, g)), shape=(m, m))
+    _, piece = connected_components(piece_graph, directed=False)
+    first = np.full(piece.max() + 1, m, np.int64)
+    np.minimum.at(first, piece, np.arange(m))
+    ref_label = label[first[piece]]
+    piece_ok = np.ones(piece.max() + 1, bool)
+    np.logical_and.at(piece_ok, piece, orientable_face)
+    flip = (flipped == ref_label) & piece_ok[piece]
+    out = faces.copy()
+    out[flip] = out[flip][:, ::-1]
+    return out, int(flip.sum()), bool(piece_ok.all())
+
+
+def repair(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    merge_tolerance: float = 0.0,
+    keep: str = "largest",
+    orient: bool = True,
+    outward: bool = True,
+    face_data: dict | None = None,
+):
+    """Clean a triangle surface.
+
+    Steps: weld duplicate vertices, drop faces with repeated vertices and duplicate
+    faces (same three vertices in any order), drop unused vertices, keep the largest
+    connected piece (by face count) when ``keep="largest"``, orient faces consistently,
+    and turn each piece outward (positive signed volume).
+
+    Parameters
+    ----------
+    vertices : (n, 3) array
+    faces : (m, 3) int array
+    merge_tolerance : float
+        Vertices closer than this are welded; 0 welds only identical coordinates.
+    keep : {"largest", "all"}
+        Which connected pieces to keep.
+    orient, outward : bool
+        Make orientation consistent; then flip pieces enclosing negative volume.
+    face_data : dict of str -> (m, ...) arrays, optional
+        Per-face arrays, filtered along with the faces.
+
+    Returns
+    -------
+    vertices, faces, face_data, report : the cleaned surface and a :class:`RepairReport`
+    """
+    report = RepairReport()
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    data = {k: np.asarray(a) for k, a in (face_data or {}).items() if len(a) == len(f)}
+    n0 = len(v)
+    v, f, report.merged_vertices = merge_close_vertices(v, f, merge_tolerance)
+
+    def keep_faces(mask):
+        nonlocal f, data
+        f = f[mask]
+        data = {k: a[mask] for k, a in data.items()}
+
+    degenerate = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
+    report.degenerate_faces = int(degenerate.sum())
+    keep_faces(~degenerate)
+    _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+    unique = np.zeros(len(f), bool)
+    unique[first] = True
+    report.duplicate_faces = int((~unique).sum())
+    keep_faces(unique)
+    if len(f) == 0:
+        return v[:0], f, data, report
+    if keep == "largest":
+        count, label = topology.face_components(f, len(v))
+        if count > 1:
+            sizes = np.bincount(label)
+            largest = int(np.argmax(sizes))
+            report.removed_components = count - 1
+            report.removed_component_faces = int(len(f) - sizes[largest])
+            keep_faces(label == largest)
+    elif keep != "all":
+        raise ValueError(f"keep must be 'largest' or 'all', got {keep!r}")
+    n_before = len(v)
+    v, f, _ = remove_unreferenced_vertices(v, f)
+    report.unreferenced_vertices = n_before - len(v)
+    diag = float(np.linalg.norm(np.ptp(v, axis=0))) if len(v) else 0.0
+    report.zero_area_faces = int(np.sum(face_areas(v, f) <= 1e-14 * diag**2))
+    report.nonmanifold_edges = int(len(topology.non_manifold_edges(f)))
+    if orient:
+        f, report.flipped_faces, orientable = orient_consistently(f)
+        report.non_orientable = not orientable
+    if outward:
+        count, label = topology.face_components(f, len(v))
+        for piece in range(count):
+            sel = label == piece
+            if topology.signed_volume(v, f[sel]) < 0:
+                f[sel] = f[sel][:, ::-1]
+                report.flipped_faces += int(sel.sum())
+        report.oriented_outward = True
+    return v, f, data, report
+
+
+# ---------------------------------------------------------------------------
+# capping
+# ---------------------------------------------------------------------------
+def _zip_rings(outer: np.ndarray, t_outer: np.ndarray, inner: np.ndarray, t_inner: np.ndarray) -> np.ndarray:
+    """Triangulate the band between two closed rings of vertex ids, matched by parameter.
+
+    ``outer`` follows the boundary direction; triangles are oriented like the fan
+    ``(outer[j+1], outer[j], inner)``, i.e. consistently with the wall the rim bounds.
+    """
+    no, ni = len(outer), len(inner)
+    nxt = np.concatenate([np.append(t_outer[1:], 1.0), np.append(t_inner[1:], 1.0)])
+    is_outer = np.concatenate([np.ones(no, bool), np.zeros(ni, bool)])
+    order = np.argsort(nxt, kind="stable")
+    is_outer = is_outer[order]
+    j = np.cumsum(is_outer) - is_outer  # outer steps taken before each event
+    i = np.cumsum(~is_outer) - ~is_outer
+    o0, o1 = outer[j % no], outer[(j + 1) % no]
+    i0, i1 = inner[i % ni], inner[(i + 1) % ni]
+    return np.where(is_outer[:, None], np.stack([o1, o0, i0], 1), np.stack([i0, i1, o0], 1))
+
+
+def cap_loop(vertices: np.ndarray, loop: np.ndarray, rings: int | None = None):
+    """Flat-ish cap of one boundary loop: concentric rings zipped together, then a fan.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array
+    loop : (k,) int array
+        Boundary vertex ids in boundary half-edge order.
+    rings : int, optional
+        Number of inner rings; ``None`` picks about one ring per rim edge length of
+        radius, ``0`` gives a plain centre fan.
+
+    Returns
+    -------
+    new_vertices : (p, 3) array
+        Vertices to append (ring points and the centre, last).
+    triangles : (q, 3) int array
+        Cap triangles; ids ``>= len(vertices)`` refer to ``new_vertices``.
+    """
+    rim = vertices[loop]
+    seg = np.linalg.norm(np.roll(rim, -1, axis=0) - rim, axis=1)
+    perimeter = seg.sum()
+    center = (0.5 * (rim + np.roll(rim, -1, axis=0)) * seg[:, None]).sum(axis=0) / max(perimeter, 1e-300)
+    radius = np.linalg.norm(rim - center, axis=1).mean()
+    h = perimeter / len(loop)
+    if rings is None:
+        rings = max(0, int(round(radius / max(h, 1e-300))) - 1)
+    t_rim = np.concatenate([[0.0], np.cumsum(seg)[:-1]]) / max(perimeter, 1e-300)
+    closed_t = np.append(t_rim, 1.0)
+    closed_rim = np.vstack([rim, rim[:1]])
+    base = len(vertices)
+    new_pts, tris = [], []
+    outer, t_outer = np.asarray(loop), t_rim
+    for k in range(1, rings + 1):
+        scale = 1.0 - k / (rings + 1)
+        count = int(round(len(loop) * scale))
+        if count < 6:
+            break
+        t = np.arange(count) / count
+        pts = np.stack([np.interp(t, closed_t, closed_rim[:, a]) for a in range(3)], axis=1)
+        ids = base + sum(len(p) for p in new_pts) + np.arange(count)
+        new_pts.append(center + scale * (pts - center))
+        tris.append(_zip_rings(outer, t_outer, ids, t))
+        outer, t_outer = ids, t
+    c_id = base + sum(len(p) for p in new_pts)
+    new_pts.append(center[None, :])
+    tris.append(np.stack([np.roll(outer, -1), outer, np.full(len(outer), c_id)], axis=1))
+    return np.vstack(new_pts), np.vstack(tris).astype(np.int64)
+
+
+def cap_boundary_loops(vertices: np.ndarray, faces: np.ndarray, rings: int | None = None, method: str = "rings"):
+    """Close every open end of a surface with a flat cap.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array
+    faces : (m, 3) int array
+        A consistently oriented surface.
+    rings : int, optional
+        Inner rings per cap for ``method="rings"`` (``None``: automatic; 0: centre fan).
+    method : {"rings", "meshlab"}
+        ``"rings"``: concentric rings plus a centre fan, sized like the rim edges;
+        ``"meshlab"``: pymeshlab's hole filling (``meshing_close_holes``) with refinement.
+
+    Returns
+    -------
+    vertices, faces : the closed surface (original faces first, in order)
+    labels : (m',) int64
+        0 for the original faces, ``k`` (1-based, in loop order) for cap ``k``'s faces.
+    """
+    loops = topology.boundary_loops(faces)
+    labels = np.zeros(len(faces), np.int64)
+    if not loops:
+        return vertices, faces, labels
+    if method == "meshlab":
+        return _cap_meshlab(vertices, faces, loops)
+    if method != "rings":
+        raise ValueError(f"unknown capping method {method!r}")
+    v_parts, f_parts, l_parts = [vertices], [faces], [labels]
+    n = len(vertices)
+    for k, loop in enumerate(loops, start=1):
+        pts, tris = cap_loop(vertices, loop, rings)
+        tris = np.where(tris >= len(vertices), tris - len(vertices) + n, tris)
+        v_parts.append(pts)
+        f_parts.append(tris)
+        l_parts.append(np.full(len(tris), k, np.int64))
+        n += len(pts)
+    return np.vstack(v_parts), np.vstack(f_parts), np.concatenate(l_parts)
+
+
+def _cap_meshlab(vertices, faces, loops):
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertices, faces))
+    longest = max(len(loop) for loop in loops)
+    ms.meshing_close_holes(maxholesize=longest + 1, newfaceselected=True, selfintersection=False, refinehole=True)
+    m = ms.current_mesh()
+    v, f = m.vertex_matrix().astype(np.float64), m.face_matrix().astype(np.int64)
+    new = np.asarray(m.face_selection_array(), bool)
+    # pymeshlab keeps the original faces in order; label new faces by the loop they close
+    labels = np.zeros(len(f), np.int64)
+    if new.any():
+        sub = np.flatnonzero(new)
+        count, comp = topology.face_components(f[sub], len(v))
+        loop_of_vertex = np.zeros(len(v), np.int64)
+        for k, loop in enumerate(loops, start=1):
+            loop_of_vertex[loop] = k
+        for c in range(count):
+            ids = sub[comp == c]
+            touched = loop_of_vertex[f[ids].ravel()]
+            labels[ids] = np.bincount(touched[touched > 0]).argmax() if np.any(touched > 0) else 0
+    return v, f, labels
+
+
+def caps_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray) -> list[Cap]:
+    """Cap geometry (centre, outward normal, radius, rim, faces) of each labelled face group.
+
+    Parameters
+    ----------
+    vertices, faces : an outward-oriented surface
+    labels : (m,) int array
+        0 for wall faces, ``k > 0`` for cap ``k``.
+
+    Returns
+    -------
+    list of :class:`~vmesh.caps.Cap` in label order, ids equal to the labels and
+    provisional names ``"cap_<k>"`` (see :func:`name_caps`).
+    """
+    caps = []
+    raw = topology.face_normals(vertices, faces, normalize=False)
+    for k in np.unique(labels[labels > 0]):
+        ids = np.flatnonzero(labels == k)
+        area2 = np.linalg.norm(raw[ids], axis=1)
+        centroid = vertices[faces[ids]].mean(axis=1)
+        center = (centroid * area2[:, None]).sum(0) / max(area2.sum(), 1e-300)
+        normal = raw[ids].sum(axis=0)
+        normal /= max(np.linalg.norm(normal), 1e-300)
+        loops = topology.boundary_loops(faces[ids])
+        rim_ids = max(loops, key=len) if loops else np.unique(faces[ids])
+        rim = vertices[rim_ids]
+        radius = float(np.linalg.norm(rim - center, axis=1).mean())
+        caps.append(Cap(id=int(k), name=f"cap_{k}", center=center, normal=normal, radius=radius, rim=rim, faces=ids))
+    return caps
+
+
+def name_caps(caps: list[Cap], inlet: int | None = None, inlet_point=None) -> tuple[list[Cap], dict]:
+    """Order caps by decreasing radius, name them, and renumber their ids 1..n.
+
+    The inlet is the largest cap unless ``inlet`` (1-based position in the order of
+    decreasing radius) or ``inlet_point`` (the cap whose centre is nearest) names
+    another. It gets id 1 and name ``"inlet"``; the others ``"outlet_1"``,
+    ``"outlet_2"``, ... in order of decreasing radius.
+
+    Returns
+    -------
+    caps : list of Cap, inlet first
+    relabel : dict old id -> new id
+    """
+    if not caps:
+        return [], {}
+    by_radius = sorted(caps, key=lambda c: -c.radius)
+    if inlet_point is not None:
+        pt = np.asarray(inlet_point, float).reshape(3)
+        chosen = min(range(len(by_radius)), key=lambda i: np.linalg.norm(by_radius[i].center - pt))
+    elif inlet is not None:
+        if not 1 <= inlet <= len(by_radius):
+            raise ValueError(f"inlet = {inlet} but there are {len(by_radius)} caps (1 = largest)")
+        chosen = inlet - 1
+    else:
+        chosen = 0
+    ordered = [by_radius[chosen]] + [c for i, c in enumerate(by_radius) if i != chosen]
+    out, relabel = [], {}
+    for new_id, c in enumerate(ordered, start=1):
+        relabel[c.id] = new_id
+        name = "inlet" if new_id == 1 else f"outlet_{new_id - 1}"
+        out.append(Cap(id=new_id, name=name, center=c.center, normal=c.normal, radius=c.radius, rim=c.rim, faces=c.faces))
+    return out, relabel
+
+
+def relabel(labels: np.ndarray, mapping: dict) -> np.ndarray:
+    """Apply ``{old id: new id}`` to a label array (0 stays 0)."""
+    lut = np.zeros(max([0, *mapping, int(labels.max(initial=0))]) + 1, np.int64)
+    for old, new in mapping.items():
+        lut[old] = new
+    return lut[labels]
+
+
+# ---------------------------------------------------------------------------
+# flat-cap detection on closed surfaces
+# ---------------------------------------------------------------------------
+def detect_flat_caps(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    angle_tolerance: float = 2.0,
+    min_crease_angle: float = 30.0,
+    min_roundness: float = 0.5,
+    min_faces: int = 6,
+    planarity: float = 0.02,
+) -> np.ndarray:
+    """Find flat end caps of a closed surface: planar, disc-like regions bounded by a crease.
+
+    A face region is grown across edges whose two faces deviate by less than
+    ``angle_tolerance`` degrees. A region is a cap when it has at least ``min_faces``
+    faces, all its vertices lie within ``planarity`` × its equivalent radius of its
+    plane, it is round (``4 π area / perimeter² >= min_roundness``; strips along a
+    tube are not), its boundary is a single loop, and the wall meets it at a crease of
+    at least ``min_crease_angle`` degrees on average.
+
+    Returns
+    -------
+    labels : (m,) int64
+        0 for wall faces, ``k = 1..n`` for the faces of the ``k``-th cap found.
+    """
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    m = len(f)
+    raw = topology.face_normals(v, f, normalize=False)
+    area2 = np.linalg.norm(raw, axis=1)
+    unit = raw / np.maximum(area2, 1e-300)[:, None]
+    pairs, _, halves = manifold_face_pairs(f)
+    cos = np.einsum("ij,ij->i", unit[pairs[:, 0]], unit[pairs[:, 1]])
+    flat = cos > np.cos(np.radians(angle_tolerance))
+    graph = sp.coo_matrix((np.ones(flat.sum()), (pairs[flat, 0], pairs[flat, 1])), shape=(m, m))
+    _, region = connected_components(graph, directed=False)
+    n_reg = region.max() + 1
+    size = np.bincount(region, minlength=n_reg)
+    area = 0.5 * np.bincount(region, weights=area2, minlength=n_reg)
+    normal = np.stack([np.bincount(region, weights=raw[:, a], minlength=n_reg) for a in range(3)], 1)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    centroid_f = v[f].mean(axis=1)
+    centre = np.stack([np.bincount(region, weights=centroid_f[:, a] * area2, minlength=n_reg) for a in range(3)], 1)
+    centre /= np.maximum(2 * area, 1e-300)[:, None]
+    # planarity: largest vertex distance from the region plane
+    corner_region = np.repeat(region, 3)
+    off = np.abs(np.einsum("ij,ij->i", v[f.ravel()] - centre[corner_region], normal[corner_region]))
+    deviation = np.zeros(n_reg)
+    np.maximum.at(deviation, corner_region, off)
+    # boundary between regions: perimeter and crease angle (length weighted)
+    cross = region[pairs[:, 0]] != region[pairs[:, 1]]
+    a_v = f.ravel()[halves[cross, 0]]
+    b_v = np.roll(f, -1, axis=1).ravel()[halves[cross, 0]]
+    length = np.linalg.norm(v[a_v] - v[b_v], axis=1)
+    crease = np.degrees(np.arccos(np.clip(cos[cross], -1, 1)))
+    r0, r1 = region[pairs[cross, 0]], region[pairs[cross, 1]]
+    perimeter = np.bincount(r0, weights=length, minlength=n_reg) + np.bincount(r1, weights=length, minlength=n_reg)
+    crease_sum = np.bincount(r0, weights=length * crease, minlength=n_reg) + np.bincount(r1, weights=length * crease, minlength=n_reg)
+    mean_crease = crease_sum / np.maximum(perimeter, 1e-300)
+    roundness = 4 * np.pi * area / np.maximum(perimeter, 1e-300) ** 2
+    eq_radius = np.sqrt(area / np.pi)
+    candidate = (
+        (size >= min_faces)
+        & (deviation <= planarity * eq_radius)
+        & (roundness >= min_roundness)
+        & (mean_crease >= min_crease_angle)
+    )
+    labels = np.zeros(m, np.int64)
+    k = 0
+    for r in np.flatnonzero(candidate):
+        ids = np.flatnonzero(region == r)
+        if len(topology.boundary_loops(f[ids])) != 1:
+            continue
+        k += 1
+        labels[ids] = k
+    return labels
+
+
+# ---------------------------------------------------------------------------
+# smoothing
+# ---------------------------------------------------------------------------
+def uniform_laplacian(n_vertices: int, faces: np.ndarray) -> sp.csr_matrix:
+    """Row-normalised umbrella operator ``L = A D^-1 - I`` as a sparse matrix."""
+    a, b = faces.ravel(), np.roll(faces, -1, axis=1).ravel()
+    adj = sp.coo_matrix((np.ones(2 * len(a)), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n_vertices, n_vertices)).tocsr()
+    adj.data[:] = 1.0  # duplicate entries from two faces per edge
+    deg = np.asarray(adj.sum(axis=1)).ravel()
+    inv = sp.diags(1.0 / np.maximum(deg, 1))
+    return (inv @ adj - sp.identity(n_vertices, format="csr")).tocsr()
+
+
+def taubin_smooth(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    iterations: int = 10,
+    lambda_: float = 0.5,
+    mu: float = -0.53,
+    fixed: np.ndarray | None = None,
+) -> np.ndarray:
+    """Taubin λ|μ smoothing (low-pass, no shrinkage) with optional fixed vertices.
+
+    Parameters
+    ----------
+    vertices : (n, 3) array
+    faces : (m, 3) int array
+    iterations : int
+        Number of λ/μ step pairs.
+    lambda_, mu : float
+        Positive and negative step factors (``mu < -lambda_``).
+    fixed : (n,) bool array, optional
+        Vertices that must not move (e.g. those of flat caps).
+
+    Returns
+    -------
+    (n, 3) array of smoothed vertex positions.
+    """
+    x = np.array(vertices, np.float64)
+    lap = uniform_laplacian(len(x), faces)
+    free = np.ones(len(x)) if fixed is None else (~np.asarray(fixed, bool)).astype(float)
+    for _ in range(iterations):
+        for factor in (lambda_, mu):
+            x += factor * free[:, None] * (lap @ x)
+    return x
+
+
+def loop_subdivide(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    iterations: int = 1,
+    edge_threshold: float = 0.0,
+    weights: str = "Loop",
+    face_mask: np.ndarray | None = None,
+    labels: np.ndarray | None = None,
+):
+    """Loop subdivision through pymeshlab (``meshing_surface_subdivision_loop``).
+
+    Parameters
+    ----------
+    vertices, faces : the surface
+    iterations : int
+    edge_threshold : float
+        Only edges longer than this are split (absolute length; 0 splits all).
+    weights : {"Loop", "Enhance regularity", "Enhance continuity"}
+        pymeshlab's weighting scheme.
+    face_mask : (m,) bool array, optional
+        Subdivide only these faces (their neighbours are split just enough to stay conforming).
+    labels : (m,) int array, optional
+        Per-face labels carried to the child faces (e.g. cap ids).
+
+    Returns
+    -------
+    vertices, faces, labels (``None`` when none were given)
+    """
+    import pymeshlab
+
+    scheme = {"Loop": 0, "Enhance regularity": 1, "Enhance continuity": 2}[weights]
+    # face quality drives the selection; the labels ride along as a custom attribute
+    select = np.ones(len(faces)) if face_mask is None else np.asarray(face_mask, float)
+    mesh = pymeshlab.Mesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int64), f_scalar_array=select)
+    carry = np.zeros(len(faces)) if labels is None else np.asarray(labels, float)
+    mesh.add_face_custom_scalar_attribute(carry, "vmesh_label")
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(mesh)
+    if face_mask is not None:
+        ms.compute_selection_by_condition_per_face(condselect="fq > 0.5")
+    ms.meshing_surface_subdivision_loop(
+        loopweight=scheme,
+        iterations=iterations,
+        threshold=pymeshlab.PureValue(edge_threshold),
+        selected=face_mask is not None,
+    )
+    out = ms.current_mesh()
+    v, f = out.vertex_matrix().astype(np.float64), out.face_matrix().astype(np.int64)
+    new_labels = None if labels is None else np.rint(out.face_custom_scalar_attribute_array("vmesh_label")).astype(np.int64)
+    return v, f, new_labels
+
+
+def flatten_caps(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, caps: list[Cap]) -> np.ndarray:
+    """Project the vertices of each cap's faces back onto that cap's plane."""
+    v = np.array(vertices, np.float64)
+    for cap in caps:
+        ids = np.unique(faces[labels == cap.id])
+        n = np.asarray(cap.normal, float)
+        v[ids] -= np.outer((v[ids] - cap.center) @ n, n)
+    return v
+
+
+def faces_near_points(vertices: np.ndarray, faces: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """Boolean ``(m,)``: faces with a vertex within ``radii[i]`` of some ``centers[i]``."""
+    from scipy.spatial import cKDTree
+
+    near = np.zeros(len(vertices), bool)
+    if len(centers):
+        hits = cKDTree(vertices).query_ball_point(np.asarray(centers, float), np.asarray(radii, float))
+        idx = np.concatenate([np.asarray(h, np.int64) for h in hits]) if len(hits) else np.zeros(0, np.int64)
+        near[idx] = True
+    return near[faces].any(axis=1)
+
+
+# ---------------------------------------------------------------------------
+# decimation
+# ---------------------------------------------------------------------------
+def decimate(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    target_faces: int,
+    backend: str = "pymeshlab",
+    preserve_boundary: bool = True,
+    preserve_topology: bool = True,
+    preserve_normal: bool = True,
+    quality_threshold: float = 0.3,
+    aggressiveness: float = 7.0,
+):
+    """Quadric edge-collapse decimation to ``target_faces`` triangles.
+
+    Parameters
+    ----------
+    vertices, faces : the surface
+    target_faces : int
+    backend : {"pymeshlab", "fast_simplification"}
+        pymeshlab's ``meshing_decimation_quadric_edge_collapse`` (topology, boundary
+        and normals preserved, optimal vertex placement) or fast-simplification
+        (Garland–Heckbert in C++, several times faster).
+    preserve_boundary, preserve_topology, preserve_normal : bool
+        pymeshlab options (``preserve_boundary`` also for fast-simplification).
+    quality_threshold : float
+        pymeshlab: penalise collapses producing triangles of quality below this (0..1).
+    aggressiveness : float
+        fast-simplification's ``agg`` (higher is faster, coarser quality).
+
+    Returns
+    -------
+    vertices, faces : the decimated surface
+    """
+    f = np.asarray(faces, np.int64)
+    target = int(min(max(target_faces, 4), len(f)))
+    if target >= len(f):
+        return np.array(vertices, np.float64), f.copy()
+    if backend == "pymeshlab":
+        import pymeshlab
+
+        ms = pymeshlab.MeshSet()
+        ms.add_mesh(pymeshlab.Mesh(np.asarray(vertices, np.float64), f))
+        ms.meshing_decimation_quadric_edge_collapse(
+            targetfacenum=target,
+            qualitythr=quality_threshold,
+            preserveboundary=preserve_boundary,
+            preservenormal=preserve_normal,
+            preservetopology=preserve_topology,
+            optimalplacement=True,
+            planarquadric=True,
+            autoclean=True,
+        )
+        m = ms.current_mesh()
+        return m.vertex_matrix().astype(np.float64), m.face_matrix().astype(np.int64)
+    if backend == "fast_simplification":
+        import fast_simplification
+
+        v, f2 = fast_simplification.simplify(
+            np.asarray(vertices, np.float64), f.astype(np.int32), target_count=target, agg=aggressiveness, preserve_border=preserve_boundary
+        )
+        v, f2, _ = remove_unreferenced_vertices(np.asarray(v, np.float64), np.asarray(f2, np.int64))
+        return v, f2
+    raise ValueError(f"unknown decimation backend {backend!r}")
