@@ -165,13 +165,14 @@ def repair_surface(ctx, merge_tolerance, keep, orient):
             choices=("rings", "meshlab"),
         ),
         Parameter("rings", "int", None, "Inner rings per cap for method 'rings' (0: a plain centre fan). Automatic: about radius / rim edge length.", min=0, max=200),
+        Parameter("detect_if_closed", "bool", True, "On a surface without open ends, find its flat end caps instead (as detect_caps with default settings)."),
         *INLET_PARAMETERS,
     ],
     reads=("surface",),
     writes=("surface", "caps"),
     category="preprocessing",
 )
-def cap_open_ends(ctx, method, rings, inlet, inlet_point):
+def cap_open_ends(ctx, method, rings, detect_if_closed, inlet, inlet_point):
     """Cap each boundary loop; the largest cap (by rim radius) becomes ``inlet``, the
     others ``outlet_1``, ``outlet_2``, ... by decreasing radius, with ids 1..n.
 
@@ -184,6 +185,11 @@ def cap_open_ends(ctx, method, rings, inlet, inlet_point):
     if not topology.is_consistently_oriented(s.faces):
         raise InputError("faces are not consistently oriented: run repair_surface before cap_open_ends", _surface_name(ctx))
     loops = topology.boundary_loops(s.faces)
+    if not loops and detect_if_closed:
+        from ..registry import get_filter
+
+        get_filter("detect_caps")(ctx, inlet=inlet, inlet_point=inlet_point)
+        return
     if not loops:
         ctx.warn("surface has no open ends; use detect_caps to find flat caps of a closed surface")
         set_caps(ctx, s.copy(), cap_labels(ctx), inlet, inlet_point)
