@@ -52,7 +52,12 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         nodes=node_distribution,
     )
     blocks = ctx.blocks
-    sm = mesh_blocks(blocks, projector, ref, progress=ctx.tick)
+    sdf = ctx.sdf if ctx.sdf is not None and getattr(ctx.sdf, "n_faces", -1) == surface.n_faces else None
+    if sdf is None:
+        from ..geometry.sdf import SignedDistance
+
+        sdf = SignedDistance.from_surface(surface)
+    sm = mesh_blocks(blocks, projector, ref, progress=ctx.tick, signed_distance=sdf.distance)
     b = sm.cell_block
     mesh = HexMesh(
         points=sm.points,

@@ -251,7 +251,7 @@ def requested_counts(blocks: BlockStructure, topo: Topology, ref: Refinement) ->
     return counts
 
 
-def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None) -> StructuredMesh:
+def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None, signed_distance=None) -> StructuredMesh:
     """Fill every block with a transfinite lattice of nodes; see the module docstring.
 
     Parameters
@@ -262,6 +262,11 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None)
     ref : Refinement
     progress : callable, optional
         ``progress(fraction, message)``.
+    signed_distance : callable, optional
+        ``signed_distance(points) -> (n,)``, positive inside. When given, the interior nodes
+        of wall faces are moved onto the wall along the patch normal (a ray) before the final
+        closest-point projection: closest points fold at concave places such as the crotch
+        of a junction, rays along the normal do not.
     """
     tick = progress or (lambda f, m="": None)
     p = int(ref.order)
@@ -317,6 +322,7 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None)
     axis_of_edge = np.repeat(np.arange(3), 4)
     edge_kind[topo.block_edge.ravel()] = blocks.axis_kind[:, axis_of_edge].ravel()
     edge_radius[topo.block_edge.ravel()] = np.repeat(blocks.block_radius, 12)
+    edge_normal = _wall_edge_normals(blocks, topo, V, wall_face) if signed_distance is not None else None
     for n in np.unique(n_edge):
         sel = np.flatnonzero(n_edge == n)
         a, b = V[topo.edges[sel, 0]], V[topo.edges[sel, 1]]
@@ -334,6 +340,13 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None)
         pts = a[:, None, :] + t[:, :, None] * (b - a)[:, None, :]
         wall = edge_on_wall[sel]
         if wall.any():
+            if edge_normal is not None:
+                inner_pts = pts[wall, 1:-1]
+                k = inner_pts.shape[1]
+                moved = ray_to_surface(
+                    inner_pts.reshape(-1, 3), np.repeat(edge_normal[sel[wall]], k, axis=0), signed_distance, np.repeat(edge_radius[sel[wall]], k)
+                )
+                pts[wall, 1:-1] = moved.reshape(-1, k, 3)
             pts[wall] = _project_curves(pts[wall], t[wall], project)
         inner = pts[:, 1:-1].reshape(-1, 3)
         ids = (edge_off[sel][:, None] + np.arange(int(n) * p - 1)[None, :]).ravel()
@@ -341,6 +354,8 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None)
         on_wall[ids] = np.repeat(wall, int(n) * p - 1)
 
     # --- faces (Coons patches) --------------------------------------------------
+    face_radius = np.zeros(F)
+    face_radius[topo.block_face.ravel()] = np.repeat(blocks.block_radius, 6)
     tick(0.3, "faces")
     for Ns, Nt in sorted(set(zip(face_Ns.tolist(), face_Nt.tolist()))):
         sel = np.flatnonzero((face_Ns == Ns) & (face_Nt == Nt))
@@ -361,7 +376,12 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None)
                     P[layer] = regrade_lines(P[layer], axis, wall_first, h1, int(n_edge[e[layer][0]]), p, ref.nodes)
         wall = wall_face[sel]
         if wall.any():
-            interior = P[wall, 1:-1, 1:-1].reshape(-1, 3)
+            Pw = P[wall]
+            interior = Pw[:, 1:-1, 1:-1].reshape(-1, 3)
+            if signed_distance is not None:
+                normal = _patch_normals(Pw)  # (k, Ns-1, Nt-1, 3), orientation irrelevant
+                reach = np.repeat(face_radius[sel][wall], (Ns - 1) * (Nt - 1))
+                interior = ray_to_surface(interior, normal.reshape(-1, 3), signed_distance, reach)
             P[wall, 1:-1, 1:-1] = project(interior).reshape(-1, Ns - 1, Nt - 1, 3)
         X[inner_ids.ravel()] = P[:, 1:-1, 1:-1].reshape(-1, 3)
         on_wall[inner_ids.ravel()] = np.repeat(wall, (Ns - 1) * (Nt - 1))
@@ -591,6 +611,74 @@ def _element_faces(L, elem_index, f, p, n3):
     # elem_index axes are (m, ek, ej, ei)
     elems = elem_index[:, e_idx[2], e_idx[1], e_idx[0]].reshape(-1)
     return nodes, elems
+
+
+def _wall_edge_normals(blocks, topo, V, wall_face) -> np.ndarray:
+    """Outward unit normal per unique edge: the mean of the adjacent wall faces' normals
+    (zero for edges not on the wall). Rays along it keep wall edges in their cross-section."""
+    b, f = np.nonzero(blocks.face_boundary == FACE_WALL)
+    fid = topo.block_face[b, f]
+    c = topo.faces[fid]  # origin, s-nbr, t-nbr, far
+    n = np.cross(V[c[:, 3]] - V[c[:, 0]], V[c[:, 2]] - V[c[:, 1]])
+    out = V[c].mean(axis=1) - V[blocks.hexes[b]].mean(axis=1)
+    n *= np.where(np.einsum("ij,ij->i", n, out) < 0, -1.0, 1.0)[:, None]
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    acc = np.zeros((len(topo.edges), 3))
+    for u, v in ((0, 1), (2, 3), (0, 2), (1, 3)):
+        e = _row_lookup(topo.edges, np.sort(c[:, [u, v]], 1))
+        np.add.at(acc, e, n)
+    return acc / np.maximum(np.linalg.norm(acc, axis=1, keepdims=True), 1e-300)
+
+
+def _patch_normals(P: np.ndarray) -> np.ndarray:
+    """Unit normals at the interior nodes of lattices (m, Ns+1, Nt+1, 3) (central differences)."""
+    ds = P[:, 2:, 1:-1] - P[:, :-2, 1:-1]
+    dt = P[:, 1:-1, 2:] - P[:, 1:-1, :-2]
+    n = np.cross(ds, dt)
+    return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300)
+
+
+def ray_to_surface(points: np.ndarray, directions: np.ndarray, signed_distance, reach: np.ndarray, iterations: int = 12) -> np.ndarray:
+    """Move ``points`` along the lines ``points + t * directions`` to the zero of the signed
+    distance nearest to t = 0, within ``|t| <= reach`` (secant steps inside a bracket).
+
+    Points whose line has no zero within reach are returned unchanged (the caller's
+    closest-point projection then takes over).
+    """
+    x = np.asarray(points, float)
+    d = np.asarray(directions, float)
+    reach = np.asarray(reach, float)
+    f0 = signed_distance(x)
+    # a first step along +d by the signed distance: the zero is at t ~ f0 when d points outward
+    probe = signed_distance(x + 0.5 * np.minimum(np.abs(f0), reach)[:, None] * d)
+    outward = np.where(f0 >= 0, probe < f0, probe > f0)
+    sgn = np.where(outward, 1.0, -1.0)  # direction in which t moves towards the wall
+    lo = np.zeros(len(x))
+    flo = f0
+    hi = np.minimum(2.0 * np.abs(f0) + 1e-9, reach)
+    fhi = signed_distance(x + (sgn * hi)[:, None] * d)
+    # grow the bracket (bounded by reach) until the sign changes
+    for _ in range(4):
+        grow = (np.sign(fhi) == np.sign(flo)) & (hi < reach)
+        if not grow.any():
+            break
+        hi = np.where(grow, np.minimum(2 * hi, reach), hi)
+        fhi[grow] = signed_distance(x[grow] + (sgn[grow] * hi[grow])[:, None] * d[grow])
+    ok = np.sign(fhi) != np.sign(flo)
+    for _ in range(iterations):
+        # secant (regula falsi, Illinois-free but bracketed) step
+        t = np.where(ok, lo - flo * (hi - lo) / np.where(fhi != flo, fhi - flo, 1e-300), lo)
+        t = np.clip(t, np.minimum(lo, hi), np.maximum(lo, hi))
+        mid = 0.5 * (lo + hi)
+        t = np.where(np.abs(t - lo) < 1e-12 * np.maximum(hi, 1e-12), mid, t)
+        ft = signed_distance(x + (sgn * t)[:, None] * d)
+        same = np.sign(ft) == np.sign(flo)
+        lo = np.where(ok & same, t, lo)
+        flo = np.where(ok & same, ft, flo)
+        hi = np.where(ok & ~same, t, hi)
+        fhi = np.where(ok & ~same, ft, fhi)
+    t = np.where(np.abs(flo) < np.abs(fhi), lo, hi)
+    return np.where(ok[:, None], x + (sgn * t)[:, None] * d, x)
 
 
 def _project_curves(pts: np.ndarray, t: np.ndarray, project, passes: int = 2) -> np.ndarray:

@@ -1,0 +1,330 @@
+"""Skeleton extraction from the surface (issue 4): kernels on analytic shapes, every
+synthetic case against its ground-truth skeleton, every real surface against its caps."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from conftest import synthetic_case
+from vmesh.errors import InputError
+from vmesh.geometry import skeleton_extract as se
+from vmesh.skeleton import Skeleton
+
+SYNTHETIC_CASES = [
+    "straight_tube",
+    "curved_tube",
+    "y_bifurcation",
+    "trifurcation",
+    "five_furcation",
+    "two_junctions",
+    "uneven_bifurcation",
+    "aneurysm",
+    "coarctation",
+    "ring",
+    "cerebral_tree",
+]
+
+
+# ---------------------------------------------------------------------------
+# helpers
+# ---------------------------------------------------------------------------
+
+
+def torus_sdf(major: float, minor: float):
+    def sdf(p):
+        q = np.hypot(p[:, 0], p[:, 1]) - major
+        return minor - np.hypot(q, p[:, 2])
+
+    return sdf
+
+
+def capsule_sdf(a, b, radius: float):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+
+    def sdf(p):
+        ab = b - a
+        t = np.clip((p - a) @ ab / (ab @ ab), 0.0, 1.0)
+        return radius - np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
+
+    return sdf
+
+
+def cylinder_sdf(length: float, radius: float):
+    """Flat-ended cylinder along x, centred at the origin: exact inside, a lower
+    bound of the distance outside (enough for the hierarchical voxelisation)."""
+
+    def sdf(p):
+        return np.minimum(radius - np.hypot(p[:, 1], p[:, 2]), 0.5 * length - np.abs(p[:, 0]))
+
+    return sdf
+
+
+def distance_to_polyline(points: np.ndarray, skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
+    """Distance from each point to the segments of ``skeleton`` and the radius there."""
+    a, b = skeleton.points[skeleton.edges[:, 0]], skeleton.points[skeleton.edges[:, 1]]
+    ra, rb = skeleton.radii[skeleton.edges[:, 0]], skeleton.radii[skeleton.edges[:, 1]]
+    ab = b - a
+    t = np.clip(np.einsum("pej,ej->pe", points[:, None] - a[None], ab) / np.einsum("ej,ej->e", ab, ab), 0, 1)
+    d = np.linalg.norm(points[:, None] - (a[None] + t[..., None] * ab[None]), axis=2)
+    nearest = d.argmin(axis=1)
+    rows = np.arange(len(points))
+    return d[rows, nearest], ra[nearest] + t[rows, nearest] * (rb[nearest] - ra[nearest])
+
+
+def topology(skeleton: Skeleton) -> dict:
+    s = skeleton.summary()
+    return {k: s[k] for k in ("endpoints", "junctions", "cycles", "components", "max_degree")}
+
+
+# ---------------------------------------------------------------------------
+# kernels
+# ---------------------------------------------------------------------------
+
+
+def test_simple_point_test_matches_its_definition():
+    """T26 = 1 and T6bar = 1, checked against connected-component labelling."""
+    rng = np.random.default_rng(1)
+    dense = rng.integers(0, 1 << 26, 1500).astype(np.uint32)
+    sparse = dense & rng.integers(0, 1 << 26, 1500).astype(np.uint32) & rng.integers(0, 1 << 26, 1500).astype(np.uint32)
+    codes = np.concatenate([dense, sparse])
+    l1 = np.abs(np.indices((3, 3, 3)) - 1).sum(axis=0)
+    faces = [(0, 1, 1), (2, 1, 1), (1, 0, 1), (1, 2, 1), (1, 1, 0), (1, 1, 2)]
+    expected = []
+    for code in codes:
+        cube = np.zeros((3, 3, 3), bool)
+        bits = (int(code) >> np.arange(26)) & 1
+        cube[tuple((se._OFFSETS26 + 1).T)] = bits.astype(bool)
+        _, n_objects = ndimage.label(cube, np.ones((3, 3, 3)))
+        holes, _ = ndimage.label(~cube & (l1 <= 2) & (l1 > 0), ndimage.generate_binary_structure(3, 1))
+        n_holes = len({holes[f] for f in faces if holes[f] > 0})
+        expected.append(n_objects == 1 and n_holes == 1)
+    assert np.array_equal(se.simple_points(codes), np.array(expected))
+
+
+def test_thinning_keeps_a_grid_aligned_bar():
+    """The 4x4-voxel bar of scikit-image issue #3757 (Lee's thinning deletes it)."""
+    mask = np.zeros((12, 12, 60), bool)
+    mask[4:8, 4:8, 3:57] = True
+    idx = np.argwhere(mask)
+    distance = np.minimum.reduce([idx[:, 0] - 3.5, 7.5 - idx[:, 0], idx[:, 1] - 3.5, 7.5 - idx[:, 1], idx[:, 2] - 2.5, 56.5 - idx[:, 2]])
+    thin = se.thin_to_curves(mask, distance, step=0.5, keep_end_above=1.0)
+    kept = np.argwhere(thin)
+    assert len(kept) >= 45
+    assert np.ptp(kept[:, 2]) >= 45
+    adjacency = se.voxel_adjacency(kept)
+    degree = np.diff(adjacency.indptr)
+    assert (degree == 1).sum() == 2 and degree.max() == 2
+
+
+def test_thinning_preserves_a_ring():
+    sdf = torus_sdf(8.0, 2.0)
+    grid = se.grid_for_bounds(([-10.5, -10.5, -2.5], [10.5, 10.5, 2.5]), 0.5)
+    mask, _ = se.inside_mask(sdf, grid)
+    ijk = se.voxel_skeleton(mask, sdf, grid)
+    adjacency = se.voxel_adjacency(ijk)
+    n_comp = se.connected_components(adjacency, directed=False)[0]
+    assert n_comp == 1
+    assert adjacency.nnz // 2 - len(ijk) + n_comp == 1  # one cycle
+    radius_in_plane = np.hypot(*grid.points(ijk)[:, :2].T)
+    assert np.all(np.abs(radius_in_plane - 8.0) < 0.75)
+
+
+def test_hierarchical_mask_equals_dense_sampling_with_fewer_evaluations():
+    sdf = torus_sdf(8.0, 1.5)
+    grid = se.grid_for_bounds(([-10, -10, -2], [10, 10, 2]), 0.25)
+    mask, evaluations = se.inside_mask(sdf, grid)
+    dense = sdf(grid.points(np.argwhere(np.ones(grid.shape, bool)))).reshape(grid.shape) > 0
+    assert np.array_equal(mask, dense)
+    assert evaluations < 0.35 * grid.n_voxels
+
+
+def test_trace_branches_orders_a_y():
+    trunk = [(i, 10, 5) for i in range(0, 11)]
+    up = [(10 + k, 10 + k, 5) for k in range(1, 8)]
+    down = [(10 + k, 10 - k, 5) for k in range(1, 6)]
+    ijk = np.array(trunk + up + down)
+    traced = se.trace_branches(se.voxel_adjacency(ijk))
+    sizes = sorted(len(v) for v in traced.node_voxels)
+    assert len(traced.node_voxels) == 4 and sizes[-1] >= 1
+    ends = [n for n, v in enumerate(traced.node_voxels) if len(v) == 1 and tuple(ijk[v[0]]) in {trunk[0], up[-1], down[-1]}]
+    assert len(ends) == 3
+    assert len(traced.branch_ends) == 3
+    for (u, v), voxels in zip(traced.branch_ends, traced.branch_voxels):
+        path = np.concatenate([traced.node_voxels[u][:1], voxels, traced.node_voxels[v][:1]])
+        steps = np.abs(np.diff(ijk[path], axis=0)).max(axis=1)
+        assert np.all(steps <= 1)  # consecutive voxels touch: the branch is ordered
+
+
+def test_centring_in_cross_sections_finds_the_axis():
+    axis = np.array([1.0, 2.0, 0.5]) / np.linalg.norm([1.0, 2.0, 0.5])
+    sdf = capsule_sdf(-40 * axis, 40 * axis, 2.0)
+    rng = np.random.default_rng(3)
+    along = rng.uniform(-20, 20, 50)
+    e1, e2 = se.plane_basis(np.tile(axis, (50, 1)))
+    angle = rng.uniform(0, 2 * np.pi, 50)
+    offset = 0.8 * (np.cos(angle)[:, None] * e1 + np.sin(angle)[:, None] * e2)
+    start = along[:, None] * axis + offset
+    centres, section = se.center_in_cross_sections(sdf, start, np.tile(axis, (50, 1)), np.full(50, 1.5))
+    off_axis = np.linalg.norm(centres - (centres @ axis)[:, None] * axis, axis=1)
+    assert off_axis.max() < 0.01
+    assert np.allclose(section, 2.0, atol=0.01)
+
+
+def test_pure_ring_has_one_cycle_and_no_ends():
+    skeleton, stats = se.extract_skeleton(torus_sdf(10.0, 1.5), ([-12, -12, -2], [12, 12, 2]), min_radius=1.5)
+    assert topology(skeleton) == {"endpoints": 0, "junctions": 0, "cycles": 1, "components": 1, "max_degree": 2}
+    assert np.all(np.abs(np.hypot(*skeleton.points[:, :2].T) - 10.0) < 0.1)
+    assert np.allclose(skeleton.radii, 1.5, atol=0.1)
+
+
+def test_grid_aligned_cylinder_ends_on_its_end_faces():
+    skeleton, stats = se.extract_skeleton(cylinder_sdf(40.0, 3.0), ([-20, -3, -3], [20, 3, 3]), min_radius=3.0)
+    assert topology(skeleton)["endpoints"] == 2 and topology(skeleton)["junctions"] == 0
+    ends = skeleton.points[skeleton.endpoints]
+    assert np.allclose(np.sort(ends[:, 0]), [-20.0, 20.0], atol=0.05)
+    assert np.all(np.hypot(skeleton.points[:, 1], skeleton.points[:, 2]) < 0.05)
+    assert np.allclose(skeleton.radii, 3.0, atol=0.1)
+    assert all("flat_end" in skeleton.node_tags[e] for e in skeleton.endpoints)
+    assert stats["ends"]["flat"] == 2
+
+
+def test_rounded_ends_stop_at_half_the_radius():
+    a, b = np.array([-15.0, 1.0, 2.0]), np.array([15.0, -2.0, 4.0])
+    skeleton, stats = se.extract_skeleton(capsule_sdf(a, b, 2.0), (np.minimum(a, b) - 2, np.maximum(a, b) + 2), min_radius=2.0)
+    assert topology(skeleton)["endpoints"] == 2
+    axis = (b - a) / np.linalg.norm(b - a)
+    ends = skeleton.points[skeleton.endpoints]
+    expected = np.array([a - 1.0 * axis, b + 1.0 * axis])  # where the inscribed radius is 0.5 x 2
+    gap = np.linalg.norm(ends[:, None] - expected[None], axis=2).min(axis=1)
+    assert gap.max() < 0.1
+    assert stats["ends"]["rounded"] == 2
+
+
+def test_caps_place_the_ends():
+    class Cap:
+        def __init__(self, center, normal, radius):
+            self.center, self.normal, self.radius = np.asarray(center, float), np.asarray(normal, float), radius
+
+    caps = [Cap([-20, 0, 0], [-1, 0, 0], 3.0), Cap([20, 0, 0], [1, 0, 0], 3.0)]
+    skeleton, stats = se.extract_skeleton(cylinder_sdf(40.0, 3.0), ([-20, -3, -3], [20, 3, 3]), min_radius=3.0, caps=caps)
+    assert stats["ends"]["cap"] == 2
+    ends = skeleton.points[skeleton.endpoints]
+    assert np.allclose(np.sort(ends[:, 0]), [-20.0, 20.0], atol=1e-9)
+    assert np.allclose(skeleton.radii[skeleton.endpoints], 3.0)
+
+
+# ---------------------------------------------------------------------------
+# synthetic cases against their ground truth
+# ---------------------------------------------------------------------------
+
+
+def _synthetic(case):
+    from vmesh.geometry.sdf import SignedDistance
+    from vmesh.io.skeleton import read_skeleton_json
+    from vmesh.io.surface import read_surface
+
+    surface_path, skeleton_path = synthetic_case(case)
+    if not surface_path.exists():
+        pytest.skip(f"synthetic case {case} not generated (python data_synthetic/generate.py)")
+    surface = read_surface(surface_path)
+    return surface, read_skeleton_json(skeleton_path), SignedDistance(surface.vertices, surface.faces)
+
+
+@pytest.mark.parametrize("case", SYNTHETIC_CASES)
+def test_synthetic_case_topology_and_positions(case):
+    surface, truth, sdf = _synthetic(case)
+    skeleton, stats = se.extract_skeleton(sdf.distance, surface.bounds, surface=(surface.vertices, surface.faces))
+    assert topology(skeleton) == topology(truth), f"{case}: {skeleton!r} vs ground truth {truth!r}"
+    distance, radius = distance_to_polyline(skeleton.points, truth)
+    assert np.max(distance / radius) <= 0.25, f"{case}: node {np.argmax(distance / radius)} is {np.max(distance / radius):.3f} radii off"
+    # every node is inside (end nodes lie on their end faces)
+    depth = sdf.distance(skeleton.points)
+    assert np.all(depth > -1e-3 * radius)
+    interior = skeleton.degrees == 2
+    assert np.all(depth[interior] > 0.5 * radius[interior])
+    # radii: the vessel radius, except across an aneurysm neck or a narrowing
+    relative = np.abs(skeleton.radii - radius) / radius
+    assert np.percentile(relative, 90) < 0.08
+    assert stats["spacing"] < truth.radii.min() / 2
+
+
+def test_min_radius_estimate_finds_the_thin_side_branch():
+    surface, truth, sdf = _synthetic("uneven_bifurcation")
+    estimate = se.estimate_min_radius(sdf.distance, surface.vertices, surface.faces)
+    assert 0.85 * truth.radii.min() < estimate < 1.15 * truth.radii.min()
+
+
+# ---------------------------------------------------------------------------
+# the filter
+# ---------------------------------------------------------------------------
+
+
+def _chain_on(surface, steps, **kwargs):
+    from vmesh.chain import FilterChain
+
+    return FilterChain(steps).run(surface=surface, **kwargs)
+
+
+def test_filter_extracts_with_report_and_keeps_a_given_skeleton():
+    surface, truth, _ = _synthetic("y_bifurcation")
+    ctx = _chain_on(surface, ["build_sdf", "extract_skeleton"])
+    assert topology(ctx.skeleton) == topology(truth)
+    section = ctx.report.sections["skeleton_extraction"]
+    assert section["sdf_evaluations"] > 0 and set(section["timings"]) >= {"voxelise", "thin", "trace", "clean", "ends", "resample"}
+    assert ctx.report.steps[-1].counts["endpoints"] == 3
+    ctx = _chain_on(surface, ["build_sdf", "extract_skeleton"], skeleton=truth)
+    assert ctx.skeleton is truth
+    ctx = _chain_on(surface, ["build_sdf", ("extract_skeleton", {"only_if_missing": False})], skeleton=truth)
+    assert ctx.skeleton is not truth and ctx.skeleton.name.startswith("extracted from")
+
+
+def test_filter_reports_a_surface_too_thin_for_the_grid():
+    from vmesh.context import Context
+    from vmesh.registry import get_filter
+
+    surface, _, sdf = _synthetic("straight_tube")
+    ctx = Context(surface=surface.copy(name="tube.ply"), sdf=sdf)
+    with pytest.raises(InputError) as err:
+        get_filter("extract_skeleton")(ctx, voxel_size=50.0)
+    message = str(err.value)
+    assert message.startswith("tube.ply: ") and "\n" not in message
+
+
+# ---------------------------------------------------------------------------
+# real surfaces: one connected skeleton, one end per cap (or per reference end)
+# ---------------------------------------------------------------------------
+
+from vmesh.realdata import REAL_CASES  # noqa: E402
+
+
+@pytest.mark.parametrize("case", sorted(REAL_CASES))
+def test_real_surface_gives_one_skeleton_with_an_end_at_every_cap(case, real_path):
+    from vmesh.io.surface import read_surface
+
+    surface_file, centerline_file, n_open = REAL_CASES[case]
+    surface = read_surface(real_path(surface_file))
+    ctx = _chain_on(surface, ["repair_surface", "cap_open_ends" if n_open else "detect_caps", "build_sdf", "extract_skeleton"])
+    skeleton = ctx.skeleton
+    assert skeleton.n_components == 1
+    assert np.all(np.isfinite(skeleton.radii)) and np.all(skeleton.radii > 0)
+    assert np.all(ctx.sdf.distance(skeleton.points) > -1e-3 * skeleton.radii)
+    ends = skeleton.points[skeleton.endpoints]
+    if ctx.caps:
+        assert len(ends) == len(ctx.caps)
+        for cap in ctx.caps:
+            gap = np.linalg.norm(ends - cap.center, axis=1)
+            nearest = skeleton.endpoints[np.argmin(gap)]
+            assert gap.min() < 0.05 * cap.radius
+            assert ("inlet" if cap.name == "inlet" else "outlet") in skeleton.node_tags[nearest]
+    else:
+        # closed surface without flat caps: compare with the reference centerline's ends
+        from vmesh.io.skeleton import read_skeleton
+
+        reference = read_skeleton(real_path(centerline_file))
+        assert len(ends) == len(reference.endpoints)
+        for e in reference.endpoints:
+            gap = np.linalg.norm(ends - reference.points[e], axis=1)
+            nearest = skeleton.endpoints[np.argmin(gap)]
+            assert gap.min() < 1.25 * max(reference.radii[e], skeleton.radii[nearest])

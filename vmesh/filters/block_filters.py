@@ -1,0 +1,209 @@
+"""Block-structure filters: build the hexahedral block structure and write it out.
+
+Thin wrappers around :mod:`vmesh.geometry.block_builder` (assembly, validity fixes) and
+:mod:`vmesh.geometry.cross_sections` (templates, planes, frames, junction schemes).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ChainError, ParameterError
+from ..registry import Parameter, register_filter
+
+
+@register_filter(
+    description="Build the hexahedral block structure from the skeleton: O-grid cross-sections, junction half-sections, twist-free frames, valid blocks.",
+    parameters=[
+        Parameter("blocks_around", "int", 8, "Blocks around the circumference (even; the core is a x b with 2(a+b) of them: 6 -> 1x2, 8 -> 2x2, 10 -> 3x2). 4 (a 1x1 core) only for skeletons without junctions.", min=4, max=64),
+        Parameter("core_size", "float", 0.3, "Half-width of the core relative to the distance from the section centre to the wall.", unit="× wall distance", min=0.05, max=0.6),
+        Parameter("layer_thickness", "float", 0.3, "Thickness of the boundary-layer block ring relative to the distance to the wall.", unit="× wall distance", min=0.02, max=0.6),
+        Parameter("plane_bias", "float", 1.0, "Turn bisecting planes towards perpendicular to the shorter of their two segments: weights (radius / length) ** bias (0: plain bisector).", min=0.0, max=4.0),
+        Parameter("junction_rotation", "str", "closest", "Rotation of each junction half-plane about the junction axis: 'closest' keeps the half cross-section closest to the junction node on average (within room for the branches' first blocks), 'bisector' keeps the bisector.", choices=("closest", "bisector")),
+        Parameter("rotation_range", "float", 0.6, "How far a half-plane may turn from the bisector towards a branch, as a fraction of half the angle between the two branches.", min=0.0, max=0.95),
+        Parameter("max_out_of_plane", "float", 60.0, "Largest angle between a junction's branch and the junction plane (the plane normal to its axis).", unit="degrees", min=5.0, max=85.0),
+        Parameter("min_branch_gap", "float", 12.0, "Smallest angle between consecutive branches around a junction axis.", unit="degrees", min=1.0, max=90.0),
+        Parameter("split_nonplanar", "bool", False, "Split junctions of 4 or more branches that are too far from planar into chains of 3-junctions (new nodes 1.2 radii along the two closest branches) instead of failing."),
+        Parameter("clear_ray_factor", "float", 1.8, "Near a junction, a branch's cross-section is clear of the other branches when no ray from its centre to the wall is longer than this many branch radii.", unit="× radius", min=1.1, max=10.0),
+        Parameter("junction_margin", "float", 0.3, "Least distance between a junction's half cross-sections and a branch's first cross-section.", unit="× radius", min=0.0, max=5.0),
+        Parameter("cap_distance", "float", 1.0, "An endpoint is the open end of a cap when it lies within this many radii of the cap centre.", unit="× radius", min=0.0, max=20.0),
+        Parameter("max_fix_rounds", "int", 16, "Rounds of repairs of invalid blocks before failing.", min=0, max=100),
+        Parameter("check_wall_projection", "bool", True, "Also check boundary-layer blocks with their wall faces projected onto the wall, and thicken the layer (up to 0.5) where they would fold."),
+    ],
+    reads=("skeleton", "sdf"),
+    optional_reads=("caps", "surface"),
+    writes=("blocks", "skeleton"),
+    category="block structure",
+)
+def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_bias, junction_rotation, rotation_range,
+                          max_out_of_plane, min_branch_gap, split_nonplanar, clear_ray_factor, junction_margin, cap_distance,
+                          max_fix_rounds, check_wall_projection):
+    """One O-grid cross-section per skeleton node (a core of a x b blocks, a ring and a
+    boundary-layer ring whose outer corners are found on the wall by ray casting in the
+    section plane), half cross-sections on half-planes through each junction's axis shared
+    by neighbouring branches, frames transported along branches with the remaining twist
+    spread evenly, and every block checked for positive corner Jacobians (fixed by moving
+    sections, re-rotating junction half-planes, straightening planes and shrinking the
+    core; a block that stays invalid fails with its skeleton node and a VTU of the bad
+    blocks), then boundary-layer blocks checked with their wall faces projected onto the
+    wall and thickened where they would fold. Endpoints near a cap end on the cap plane with the cap's name; endpoints
+    without a cap are closed on the wall; without caps every endpoint is open."""
+    from ..geometry.block_builder import BlockOptions, block_structure_checks, build_blocks
+
+    if blocks_around % 2:
+        raise ParameterError(f"filter 'build_block_structure': parameter 'blocks_around' must be even, got {blocks_around}")
+    options = BlockOptions(
+        blocks_around=blocks_around,
+        core_size=core_size,
+        layer_thickness=layer_thickness,
+        plane_bias=plane_bias,
+        junction_rotation=junction_rotation,
+        rotation_range=rotation_range,
+        max_out_of_plane=max_out_of_plane,
+        min_branch_gap=min_branch_gap,
+        split_nonplanar=split_nonplanar,
+        clear_ray_factor=clear_ray_factor,
+        junction_margin=junction_margin,
+        cap_distance=cap_distance,
+        max_fix_rounds=max_fix_rounds,
+    )
+    sdf = ctx.sdf
+    distance = sdf.distance if hasattr(sdf, "distance") else sdf
+    bad_path = ctx.output_path("invalid_blocks.vtu")
+    if bad_path is None:
+        bad_path = Path(tempfile.gettempdir()) / f"vmesh_invalid_blocks_{os.getpid()}.vtu"
+    project = None
+    if check_wall_projection:
+        if ctx.surface is not None:
+            from ..geometry.projection import wall_projector
+
+            project = wall_projector(ctx.surface, ctx.caps)
+        elif hasattr(sdf, "closest_points"):
+            project = sdf.closest_points
+    blocks = build_blocks(ctx.skeleton, distance, ctx.caps, options, bad_blocks_path=bad_path, warn=ctx.warn, progress=ctx.tick, project=project)
+    skeleton = blocks.info.pop("skeleton", None)
+    if skeleton is not None and skeleton is not ctx.skeleton:
+        ctx.skeleton = skeleton  # junctions were split
+    checks = block_structure_checks(blocks)
+    if checks["face_use_errors"]:
+        raise ChainError(f"block structure is not conforming: {checks['face_use_errors']} faces are shared wrongly (a bug; please report it)")
+    ctx.blocks = blocks
+    info = blocks.info
+    ctx.count(
+        blocks=blocks.n_blocks,
+        vertices=len(blocks.vertices),
+        junctions=len(info.get("junctions", {})),
+        max_twist_deg=float(info.get("max_twist_deg", 0.0)),
+        fixes=len(info.get("fixes", [])),
+    )
+    ctx.report.sections["blocks"] = {
+        "blocks": blocks.n_blocks,
+        "vertices": int(len(blocks.vertices)),
+        "blocks_around": info["blocks_around"],
+        "core": info["core"],
+        "max_twist_deg": info["max_twist_deg"],
+        "fixes": info.get("fixes", []),
+        "junctions": info.get("junctions", {}),
+        "boundary_names": {int(k): v for k, v in blocks.boundary_names.items()},
+        "checks": checks,
+        "blocks_folding_on_wall": info.get("blocks_folding_on_wall"),
+        "min_projected_wall_quality": info.get("min_projected_wall_quality"),
+    }
+    if checks["boundary_components"] != 1:
+        ctx.warn(f"the outer block faces form {checks['boundary_components']} pieces (is the skeleton connected?)")
+
+
+def write_edge_ply(path, vertices: np.ndarray, edges: np.ndarray, edge_data: dict | None = None) -> Path:
+    """Write a binary PLY with vertices and edges (``element edge``, read by MeshLab).
+
+    ``edge_data`` maps names to (ne,) integer arrays written as edge properties.
+    """
+    from ..io.atomic import atomic_path
+
+    vertices = np.asarray(vertices, np.float64).reshape(-1, 3)
+    edges = np.asarray(edges, np.int64).reshape(-1, 2)
+    edge_data = edge_data or {}
+    vdt = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+    edt = np.dtype([("vertex1", "<i4"), ("vertex2", "<i4")] + [(k, "<i4") for k in edge_data])
+    v = np.empty(len(vertices), vdt)
+    v["x"], v["y"], v["z"] = vertices.T
+    e = np.empty(len(edges), edt)
+    e["vertex1"], e["vertex2"] = edges.T
+    for k, val in edge_data.items():
+        e[k] = np.asarray(val).astype(np.int32)
+    header = [
+        "ply",
+        "format binary_little_endian 1.0",
+        "comment vmesh block edges",
+        f"element vertex {len(v)}",
+        "property float x",
+        "property float y",
+        "property float z",
+        f"element edge {len(e)}",
+        "property int vertex1",
+        "property int vertex2",
+    ] + [f"property int {k}" for k in edge_data] + ["end_header"]
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(("\n".join(header) + "\n").encode("ascii"))
+            fh.write(v.tobytes())
+            fh.write(e.tobytes())
+    return path
+
+
+def block_edges(blocks) -> tuple[np.ndarray, np.ndarray]:
+    """Unique block edges ``(ne, 2)`` and whether each lies on the wall."""
+    from ..blocks import HEX_EDGES
+
+    e = np.unique(np.sort(blocks.hexes[:, HEX_EDGES].reshape(-1, 2), axis=1), axis=0)
+    wall = blocks.surface_edges()
+    on_wall = np.zeros(len(e), bool)
+    if len(wall):
+        n = len(blocks.vertices)
+        key = e[:, 0] * n + e[:, 1]
+        wkey = np.sort(wall, axis=1)
+        on_wall = np.isin(key, wkey[:, 0] * n + wkey[:, 1])
+    return e, on_wall
+
+
+@register_filter(
+    description="Write the block structure: hexahedra with block/segment/node/layer data (VTU, for ParaView) and the block edges (PLY edge mesh, for MeshLab).",
+    parameters=[
+        Parameter("filename", "str", "blocks.vtu", "VTU file name in the output folder."),
+        Parameter("edges_filename", "str", "blocks_edges.ply", "PLY edge-mesh file name in the output folder ('' for none)."),
+    ],
+    reads=("blocks",),
+    category="export",
+)
+def write_blocks(ctx, filename, edges_filename):
+    """The VTU carries per block ``block_id``, ``segment_id``, ``node_id``, ``layer`` (0 core,
+    1 ring, 2 boundary layer), ``min_corner_jacobian`` and per corner ``on_surface``; the PLY
+    holds every block edge once with ``wall`` = 1 on the vessel wall."""
+    from ..io.atomic import atomic_path
+
+    blocks = ctx.blocks
+    path = ctx.output_path(filename)
+    if path is None:
+        ctx.warn(f"no output folder: {filename} not written")
+        return
+    if not filename.lower().endswith(".vtu"):
+        raise ParameterError(f"filter 'write_blocks': parameter 'filename' must end in .vtu, got {filename!r}")
+    grid = blocks.to_pyvista()
+    boundary = blocks.face_boundary
+    grid.cell_data["wall_faces"] = (boundary == 0).sum(axis=1).astype(np.uint8)
+    grid.cell_data["open_end"] = np.where(boundary > 0, boundary, 0).max(axis=1).astype(np.int32)
+    with atomic_path(path) as tmp:
+        grid.save(str(tmp), binary=True)
+    written = [str(path.name)]
+    if edges_filename:
+        if not edges_filename.lower().endswith(".ply"):
+            raise ParameterError(f"filter 'write_blocks': parameter 'edges_filename' must end in .ply, got {edges_filename!r}")
+        e, wall = block_edges(blocks)
+        write_edge_ply(ctx.output_path(edges_filename), blocks.vertices, e, {"wall": wall.astype(np.int32)})
+        written.append(edges_filename)
+    ctx.count(files=len(written))

@@ -1,0 +1,169 @@
+"""Skeleton extraction from the surface (issue 4): a thin wrapper around
+:mod:`vmesh.geometry.skeleton_extract`."""
+
+from __future__ import annotations
+
+from ..errors import InputError
+from ..registry import Parameter, register_filter
+
+
+@register_filter(
+    description="Extract the centerline skeleton from the signed distance: voxelise, thin, trace and clean a graph, put the ends at the caps, centre and resample the nodes.",
+    parameters=[
+        Parameter(
+            "only_if_missing",
+            "bool",
+            True,
+            "Do nothing when a skeleton is already present (read from a file), so that a default chain can always contain this step.",
+        ),
+        Parameter("voxel_size", "float", None, "Edge of the voxels of the medial-axis grid. Automatic: smallest vessel radius / voxels_per_radius.", unit="mm", min=1e-6),
+        Parameter("voxels_per_radius", "float", 3.0, "Voxels across the radius of the thinnest vessel (with an automatic voxel size).", min=1.5, max=20.0),
+        Parameter(
+            "min_radius",
+            "float",
+            None,
+            "Radius of the thinnest vessel to resolve. Automatic: a low quantile of half the inward chords from the wall.",
+            unit="mm",
+            min=1e-6,
+        ),
+        Parameter("max_voxels", "int", 60_000_000, "Largest voxel grid (bounding box); the voxel size grows to stay below it, bounding memory.", min=1000),
+        Parameter(
+            "spur_ratio",
+            "float",
+            2.0,
+            "A terminal branch is a spur, and removed, when (distance from its junction to its tip + tip radius) < spur_ratio x junction radius.",
+            unit="× radius",
+            min=0.0,
+        ),
+        Parameter(
+            "merge_ratio",
+            "float",
+            1.0,
+            "Junctions whose centres (where their branch axes meet) are closer than merge_ratio x radius become one node of higher degree.",
+            unit="× radius",
+            min=0.0,
+        ),
+        Parameter("cycle_ratio", "float", 6.0, "Cycles shorter than cycle_ratio x their largest radius are voxel noise and collapsed; longer ones are kept.", unit="× radius", min=0.0),
+        Parameter("node_spacing", "float", 1.0, "Distance between skeleton nodes along a branch.", unit="× radius", min=0.05, max=100.0),
+        Parameter(
+            "junction_clearance",
+            "float",
+            1.5,
+            "No node closer than this to a junction (inside a crotch the medial axis is not the vessel axis).",
+            unit="× radius",
+            min=0.0,
+            max=10.0,
+        ),
+        Parameter(
+            "end_depth",
+            "float",
+            0.5,
+            "A rounded end (aneurysm dome) ends where the inscribed radius has dropped to end_depth x the radius at the medial end (0: on the wall).",
+            min=0.0,
+            max=1.0,
+        ),
+        Parameter("use_caps", "bool", True, "Put the ends at the centres of the caps of open ends (layer 'caps') when present."),
+    ],
+    reads=("sdf",),
+    optional_reads=("skeleton", "caps", "surface"),
+    writes=("skeleton",),
+    category="skeleton",
+)
+def extract_skeleton(
+    ctx,
+    only_if_missing,
+    voxel_size,
+    voxels_per_radius,
+    min_radius,
+    max_voxels,
+    spur_ratio,
+    merge_ratio,
+    cycle_ratio,
+    node_spacing,
+    junction_clearance,
+    end_depth,
+    use_caps,
+):
+    """Voxelise the inside of the SDF (hierarchically, only cells near the wall are
+    refined), thin it in distance order to curves, turn the curves into a graph and
+    clean it (spurs, split junctions, noise cycles), extend the ends to the caps
+    (or to flat / rounded end faces), then resample every branch with nodes centred
+    in their cross-sections. The report section ``skeleton_extraction`` holds the
+    voxel size, grid, distance evaluations, what the cleaning removed and stage times."""
+    from ..geometry import skeleton_extract as se
+
+    if only_if_missing and ctx.skeleton is not None:
+        ctx.count(extracted=0)
+        return
+    sdf = ctx.sdf
+    name = (ctx.surface.name if ctx.surface is not None else "") or "surface"
+    surface = None
+    if ctx.surface is not None:
+        surface = (ctx.surface.vertices, ctx.surface.faces)
+        bounds = ctx.surface.bounds
+    elif getattr(sdf, "bounds", None) is not None:
+        bounds = sdf.bounds
+    else:
+        raise InputError("extract_skeleton needs the surface layer (or an SDF that knows its bounds)")
+    if surface is None and voxel_size is None and min_radius is None:
+        vertices, faces = getattr(sdf, "vertices", None), getattr(sdf, "faces", None)
+        if vertices is None or faces is None:
+            raise InputError("extract_skeleton without a surface needs voxel_size or min_radius")
+        surface = (vertices, faces)
+    settings = se.ExtractionSettings(
+        spacing=voxel_size,
+        voxels_per_radius=voxels_per_radius,
+        max_voxels=max_voxels,
+        spur_ratio=spur_ratio,
+        merge_ratio=merge_ratio,
+        cycle_ratio=cycle_ratio,
+        node_spacing=node_spacing,
+        junction_clearance=junction_clearance,
+        end_depth=end_depth,
+    )
+    caps = ctx.caps if (use_caps and ctx.caps) else None
+    try:
+        skeleton, stats = se.extract_skeleton(
+            sdf.distance,
+            bounds,
+            min_radius=min_radius,
+            surface=surface,
+            caps=caps,
+            settings=settings,
+            progress=ctx.tick,
+        )
+    except ValueError as exc:
+        raise InputError(f"skeleton extraction failed: {exc}", name) from None
+    skeleton.name = f"extracted from {name}"
+    if caps:
+        names = {i: c.name for i, c in enumerate(caps)}
+        _tag_cap_ends(skeleton, stats.pop("cap_of_node", {}), names)
+    else:
+        stats.pop("cap_of_node", None)
+    ctx.skeleton = skeleton
+    ctx.report.sections["skeleton_extraction"] = stats
+    if stats.get("spacing_limited"):
+        ctx.warn(f"voxel size raised to {stats['spacing']:.4g} to stay within max_voxels={max_voxels}: thin vessels may be lost")
+    if stats["components"] > 1:
+        ctx.warn(f"the skeleton has {stats['components']} separate pieces")
+    if caps and stats["ends"]["added"]:
+        ctx.warn(f"{stats['ends']['added']} caps had no skeleton end nearby; a branch was added to each")
+    ctx.count(
+        nodes=skeleton.n_nodes,
+        junctions=stats["junctions"],
+        endpoints=stats["endpoints"],
+        cycles=stats["cycles"],
+        voxel_size=float(stats["spacing"]),
+        sdf_evaluations=int(stats["sdf_evaluations"]),
+    )
+
+
+def _tag_cap_ends(skeleton, cap_of_node: dict, names: dict) -> None:
+    """Tag the ends at caps ``inlet`` / ``outlet`` and with the cap's name."""
+    tags = list(skeleton.node_tags)
+    for node, cap in cap_of_node.items():
+        cap_name = names.get(cap, "")
+        kind = "inlet" if cap_name.startswith("inlet") else "outlet"
+        extra = [kind] + ([cap_name] if cap_name and cap_name != kind else [])
+        tags[node] = tuple(dict.fromkeys([*tags[node], *extra]))
+    skeleton.node_tags = tags

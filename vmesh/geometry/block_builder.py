@@ -1,0 +1,1344 @@
+"""Assemble a conforming hexahedral block structure from a skeleton and a signed distance.
+
+Method (see :mod:`vmesh.geometry.cross_sections` for the kernels)
+----------------------------------------------------------------
+1. **Junctions.** Every node with three or more neighbours gets a reference line
+   ``(c, u)``; its neighbours are ordered around ``u`` and the space around it is split by
+   half-planes through the line, one between each pair of consecutive neighbours. Each
+   half-plane carries a *half cross-section* (half O-grid) whose outer corners are found by
+   casting rays from the junction node within the half-plane; the diameter on the line is
+   shared by all of them. Each half-plane may be rotated about ``u``: by default the
+   rotation keeping the half-section closest to the junction node on average, among those
+   that leave the neighbouring branches room for their first blocks.
+2. **Branches.** The skeleton is cut into branches between junctions and endpoints
+   (cycles without junctions are branches that close on themselves). Every other node gets
+   a full cross-section: the bisecting plane of its two segments, the cap plane at an open
+   end, the plane normal to the segment at a closed end (whose section is then projected
+   onto the dome along the segment). Near a junction, sections that would still reach
+   into the other branches (rays much longer than the branch radius) or sit behind the
+   half-sections' reach are moved along the branch until they are clear.
+3. **Frames.** The reference direction of each section is transported along its branch
+   by rotation-minimising frames (double reflection) from one end; the twist left at the
+   other end (modulo the template's symmetry) is spread evenly by arc length.
+4. **Blocks.** Consecutive sections of a branch are joined quad by quad into hexahedra.
+   A branch's end section at a junction is the union of its two adjacent half-sections,
+   folded along ``u``; neighbouring branches share the half-section vertices, so the
+   structure is conforming by construction.
+5. **Validity.** Every block must have positive Jacobians at its eight corners. Failing
+   blocks are fixed by moving sections further from junctions, re-rotating junction
+   half-planes, straightening tilted planes and shrinking the core; a block that stays
+   invalid raises :class:`~vmesh.errors.MeshingError` naming its skeleton node.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..blocks import (
+    AXIS_ALONG,
+    FACE_INTERIOR,
+    FACE_WALL,
+    HEX_FACES,
+    LAYER_BOUNDARY,
+    BlockStructure,
+)
+from ..errors import MeshingError
+from ..skeleton import Skeleton
+from . import cross_sections as cs
+
+JUNCTION, OPEN, CLOSED, CYCLE = "junction", "open", "closed", "cycle"
+
+
+@dataclass
+class BlockOptions:
+    """Parameters of :func:`build_blocks` (see the filter ``build_block_structure``)."""
+
+    blocks_around: int = 8
+    core_size: float = 0.3
+    layer_thickness: float = 0.3
+    plane_bias: float = 1.0
+    junction_rotation: str = "closest"  # or "bisector"
+    rotation_range: float = 0.6
+    rotation_candidates: int = 9
+    max_out_of_plane: float = 60.0  # degrees
+    min_branch_gap: float = 12.0  # degrees
+    split_nonplanar: bool = False
+    clear_ray_factor: float = 1.8
+    junction_margin: float = 0.3  # × branch radius, between half-sections and the first section
+    cap_distance: float = 1.0  # × radius
+    max_fix_rounds: int = 16
+    wall_quality: float = 0.05  # least scaled Jacobian of boundary-layer blocks with projected wall faces
+
+
+@dataclass
+class _Junction:
+    node: int
+    center: np.ndarray
+    radius: float
+    u: np.ndarray
+    p: np.ndarray  # basis of the plane ⟂ u
+    q: np.ndarray
+    neighbors: np.ndarray  # ordered around u
+    branch_angle: np.ndarray  # (m,) ordered
+    separator: np.ndarray  # (m,) base angles (bisectors), separator h between neighbors h and h+1
+    gap: np.ndarray  # (m,)
+    psi: np.ndarray  # (m,) chosen rotation of each separator
+    ends: list = field(default_factory=list)  # (branch, side) per ordered neighbour
+    allowed: list = field(default_factory=list)  # per separator: bool mask over candidates
+    spine_ids: np.ndarray | None = None  # (nv,) global ids of spine vertices (-1 elsewhere)
+    half_ids: np.ndarray | None = None  # (m, nv) global ids of upper-half vertices per separator
+
+    def separator_dir(self, h, psi=None) -> np.ndarray:
+        ang = self.separator[h] + (self.psi[h] if psi is None else psi)
+        return np.cos(ang)[..., None] * self.p + np.sin(ang)[..., None] * self.q
+
+
+@dataclass
+class _Branch:
+    nodes: np.ndarray  # (K+1,)
+    edges: np.ndarray  # (K,)
+    kinds: list  # [start kind, end kind]
+    caps: list  # cap id per end (0 none)
+    arc: np.ndarray  # (K+1,) arc length at nodes
+    s: np.ndarray  # (K+1,) section positions (arc length)
+    margin: np.ndarray = field(default_factory=lambda: np.zeros(2))  # extra clearance per end (× radius)
+    straighten: np.ndarray | None = None  # (K+1,) blend of section normals towards the chord
+
+
+class _State:
+    """Everything the builder knows; rebuilt pieces are recomputed from it."""
+
+
+def _fail_path(path) -> Path | None:
+    return None if path is None else Path(path)
+
+
+def build_blocks(
+    skeleton: Skeleton,
+    distance,
+    caps=None,
+    options: BlockOptions | None = None,
+    bad_blocks_path=None,
+    warn=None,
+    progress=None,
+    project=None,
+) -> BlockStructure:
+    """Build the block structure of a vessel.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+        Centerline graph with radii, coarsely resampled (node spacing ~1-2 radii).
+    distance : callable
+        ``distance(points (n, 3)) -> (n,)`` signed distance, positive inside the vessel.
+    caps : list of vmesh.caps.Cap, optional
+        Flat open ends. Endpoints near a cap end on its plane with their end faces named
+        after it; endpoints without a cap are closed (their ends lie on the wall). Without
+        any caps every endpoint is an open end, named by decreasing radius.
+    options : BlockOptions
+    bad_blocks_path : path, optional
+        Where invalid blocks are written (VTU) before failing.
+    warn, progress : callable, optional
+        ``warn(message)`` and ``progress(fraction, message)``.
+    project : callable, optional
+        ``project(points) -> closest wall points``: when given, boundary-layer blocks are
+        also checked with their wall faces projected onto the wall and thickened where they
+        would fold (:func:`projected_wall_quality`).
+
+    Returns
+    -------
+    BlockStructure
+        With ``info`` holding ``max_twist_deg``, ``fixes`` and per-junction details.
+    """
+    options = options or BlockOptions()
+    try:
+        return _Builder(skeleton, distance, caps, options, warn, progress, project).run(bad_blocks_path)
+    except _SplitAndRetry as retry:
+        # n-furcations whose blocks could not be fixed: split them and start again
+        split = split_nonplanar_junctions(skeleton, retry.nodes, distance=distance)
+        if warn:
+            warn(f"split junction node(s) {retry.nodes} into 3-junctions after their blocks stayed invalid")
+        blocks = _Builder(split, distance, caps, options, warn, progress, project).run(bad_blocks_path)
+        blocks.info["fixes"].insert(0, f"split junction node(s) {retry.nodes} into 3-junctions after their blocks stayed invalid")
+        return blocks
+
+
+class _SplitAndRetry(Exception):
+    def __init__(self, nodes):
+        super().__init__(f"split {nodes}")
+        self.nodes = nodes
+
+
+# ---------------------------------------------------------------------------
+# skeleton preparation
+# ---------------------------------------------------------------------------
+def split_nonplanar_junctions(skeleton: Skeleton, nodes, length: float = 1.2, distance=None, inside: float = 0.5) -> Skeleton:
+    """Split junctions into chains of 3-junctions.
+
+    At each node of degree ``m > 3`` the two neighbours whose directions are closest are
+    moved onto a new node placed ``length × radius`` along their mean direction and
+    joined to the original node by a new segment; repeated until every node has at most
+    three neighbours. Tags are inherited. With ``distance`` (signed, positive inside) the new
+    node goes no further than where it is still ``inside × radius`` inside the vessel.
+    """
+    sk = skeleton
+    pts = list(sk.points)
+    rad = list(sk.radii)
+    ntags = list(sk.node_tags)
+    edges = [tuple(e) for e in sk.edges.tolist()]
+    etags = list(sk.edge_tags)
+    todo = [int(n) for n in nodes]
+    while todo:
+        c = todo.pop()
+        inc = [k for k, e in enumerate(edges) if c in e]
+        if len(inc) <= 3:
+            continue
+        nb = [edges[k][0] if edges[k][1] == c else edges[k][1] for k in inc]
+        d = cs.unit(np.asarray([pts[j] for j in nb]) - pts[c])
+        cosm = d @ d.T
+        np.fill_diagonal(cosm, -2)
+        i, j = np.unravel_index(np.argmax(cosm), cosm.shape)
+        new = len(pts)
+        w = cs.unit(d[i] + d[j])
+        t = length * rad[c]
+        if distance is not None:
+            ts = np.linspace(0.25, 1.0, 16) * length * rad[c]
+            ok = np.asarray(distance(np.asarray(pts[c]) + ts[:, None] * w)) >= inside * rad[c]
+            t = ts[ok].max() if ok.any() else ts[0]
+        pts.append(np.asarray(pts[c]) + t * w)
+        rad.append(rad[c])
+        ntags.append(ntags[c])
+        for k in (inc[i], inc[j]):
+            a, b = edges[k]
+            edges[k] = (new if a == c else a, new if b == c else b)
+        edges.append((c, new))
+        etags.append(tuple(sorted(set(etags[inc[i]]) | set(etags[inc[j]]))))
+        todo.append(c)
+    return Skeleton(np.asarray(pts), np.asarray(rad), np.asarray(edges), ntags, etags, name=sk.name)
+
+
+def endpoint_caps(points: np.ndarray, radii: np.ndarray, endpoints: np.ndarray, caps, cap_distance: float = 1.0) -> dict:
+    """Match endpoints to caps: ``{endpoint node: cap}`` for endpoints within
+    ``cap_distance × max(node radius, cap radius)`` of a cap centre (nearest first, one
+    endpoint per cap)."""
+    if not caps or len(endpoints) == 0:
+        return {}
+    centers = np.asarray([c.center for c in caps], float)
+    crad = np.asarray([c.radius for c in caps], float)
+    d = np.linalg.norm(points[endpoints][:, None, :] - centers[None, :, :], axis=2)
+    limit = cap_distance * np.maximum(radii[endpoints][:, None], crad[None, :])
+    pairs = sorted((d[i, j], i, j) for i, j in zip(*np.nonzero(d <= limit)))
+    out, used_e, used_c = {}, set(), set()
+    for _, i, j in pairs:
+        if i in used_e or j in used_c:
+            continue
+        out[int(endpoints[i])] = caps[j]
+        used_e.add(i)
+        used_c.add(j)
+    return out
+
+
+def redistribute_sections(arc: np.ndarray, lo: float, hi: float, min_spacing: float = 0.6) -> tuple[np.ndarray, bool]:
+    """Move the interior sections of a branch into ``[lo, hi]``.
+
+    Sections closer to the start than ``lo`` are pushed beyond it together with as many
+    following ones as needed to keep their spacing at least ``min_spacing`` times the
+    branch's mean spacing (evenly spaced, the first at ``lo``); likewise from the end. When
+    the pushes meet, all interior sections are spread evenly over ``[lo, hi]``.
+
+    Returns
+    -------
+    s : (K+1,) new positions (ends unchanged)
+    ok : False when ``lo >= hi`` with interior sections to place.
+    """
+    s = np.asarray(arc, float).copy()
+    K = len(s) - 1
+    if K < 2:
+        return s, True
+    if lo >= hi:
+        return s, False
+    h = (s[-1] - s[0]) / K * min_spacing
+
+    def push(x, lim):
+        m0 = int(np.sum(x[1:-1] < lim))
+        if m0 == 0:
+            return x
+        for m in range(m0, K):
+            end = x[m + 1]
+            if (end - lim) / m >= h or m + 1 == K:
+                break
+        x = x.copy()
+        x[1 : m + 1] = lim + np.arange(m) * (end - lim) / m
+        return x
+
+    s = push(s, lo)
+    s = (s[-1] + s[0]) - push((s[-1] + s[0]) - s[::-1], (s[-1] + s[0]) - hi)[::-1]
+    inner = s[1:-1]
+    if np.any(np.diff(s) <= 0) or inner.min() < lo - 1e-9 or inner.max() > hi + 1e-9:
+        n = K - 1
+        s[1:-1] = (lo + hi) / 2 if n == 1 else np.linspace(lo, hi, n)
+    return s, True
+
+
+def polyline_at(points: np.ndarray, arc: np.ndarray, s: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position on a polyline and linearly interpolated per-node ``values`` at arc lengths ``s``."""
+    s = np.clip(s, arc[0], arc[-1])
+    k = np.clip(np.searchsorted(arc, s, side="right") - 1, 0, len(arc) - 2)
+    t = ((s - arc[k]) / np.maximum(arc[k + 1] - arc[k], 1e-300))[:, None]
+    pos = points[k] * (1 - t) + points[k + 1] * t
+    val = values[k] * (1 - t.reshape((-1,) + (1,) * (values.ndim - 1))) + values[k + 1] * t.reshape((-1,) + (1,) * (values.ndim - 1))
+    return pos, val
+
+
+# ---------------------------------------------------------------------------
+# the builder
+# ---------------------------------------------------------------------------
+class _Builder:
+    def __init__(self, skeleton: Skeleton, distance, caps, options: BlockOptions, warn, progress, project=None):
+        self.opt = options
+        self.sdf = distance
+        self.project = project
+        self.caps = list(caps or [])
+        self.warn = warn or (lambda msg: None)
+        self.tick = progress or (lambda f, m="": None)
+        self.template = cs.o_grid_template(options.blocks_around)
+        self.sk = skeleton
+        self.fixes: list[str] = []
+        self.core_scale: dict = {}
+        self.layer_scale: dict = {}
+        self.lookahead: dict = {}
+
+    # -- entry ------------------------------------------------------------------
+    def run(self, bad_blocks_path) -> BlockStructure:
+        self.check_skeleton()
+        self.tick(0.05, "junctions")
+        self.split_if_needed()
+        self.pos = self.sk.points.copy()
+        self.make_branches()
+        self.build_junctions()
+        self.classify_ends()
+        self.tick(0.15, "junction planes")
+        self.moves = {}
+        self.choose_rotations()
+        self.tick(0.3, "sections")
+        self.place_sections()
+        blocks = None
+        for round_ in range(self.opt.max_fix_rounds + 1):
+            self.tick(0.4 + 0.5 * round_ / (self.opt.max_fix_rounds + 1), "blocks")
+            blocks = self.assemble()
+            J = blocks.corner_jacobians()
+            bad = np.flatnonzero(J.min(axis=1) <= 0)
+            if len(bad) == 0:
+                break
+            if round_ == self.opt.max_fix_rounds or not self.fix(bad, J):
+                self.fail(blocks, bad, bad_blocks_path)
+        if self.project is not None:
+            blocks = self.thicken_layers(blocks)
+        blocks.info.update(self.info)
+        blocks.info["fixes"] = list(self.fixes)
+        self.tick(1.0, "done")
+        return blocks
+
+    # -- 1. skeleton -------------------------------------------------------------
+    def check_skeleton(self):
+        sk = self.sk
+        if sk.n_edges == 0:
+            raise MeshingError("skeleton has no segments: nothing to build blocks along")
+        if np.any(sk.edges[:, 0] == sk.edges[:, 1]):
+            k = int(np.flatnonzero(sk.edges[:, 0] == sk.edges[:, 1])[0])
+            raise MeshingError(f"skeleton segment {k} joins node {sk.edges[k, 0]} to itself")
+        key = np.sort(sk.edges, axis=1)
+        if len(np.unique(key, axis=0)) != len(key):
+            raise MeshingError("skeleton has duplicate segments between the same two nodes")
+        if not np.all(np.isfinite(sk.radii)) or np.any(sk.radii <= 0):
+            bad = int(np.flatnonzero(~np.isfinite(sk.radii) | (sk.radii <= 0))[0])
+            raise MeshingError(f"skeleton node {bad} has no positive radius (run estimate_radii)")
+        length = np.linalg.norm(sk.points[sk.edges[:, 1]] - sk.points[sk.edges[:, 0]], axis=1)
+        if np.any(length <= 1e-9 * max(1.0, sk.radii.max())):
+            k = int(np.argmin(length))
+            raise MeshingError(f"skeleton segment {k} between nodes {sk.edges[k, 0]} and {sk.edges[k, 1]} has zero length")
+        deg = sk.degrees
+        if np.any(deg >= 3) and not self.template.splittable:
+            j = sk.junctions[:3].tolist()
+            raise MeshingError(
+                f"blocks_around = {self.opt.blocks_around} gives a 1 x 1 core without a grid line through its centre, "
+                f"so junctions (nodes {j}) cannot be split into half cross-sections: use 6, 8 (default), 10 ... blocks around"
+            )
+        d = np.asarray(self.sdf(sk.points))
+        inner = (deg >= 2) & (d <= 0)
+        if inner.any():
+            k = int(np.flatnonzero(inner)[0])
+            raise MeshingError(
+                f"skeleton node {k} lies outside the surface (signed distance {d[k]:.3g}); "
+                f"{int(inner.sum())} node(s) outside: run clean_skeleton to pull them inside"
+            )
+        if np.any(deg == 0):
+            self.warn(f"{int((deg == 0).sum())} isolated skeleton node(s) ignored")
+        if sk.n_components > 1:
+            self.warn(f"skeleton has {sk.n_components} components: the block structure will too")
+
+    # -- 2. junctions ------------------------------------------------------------
+    def junction_problem(self, c: int, d: np.ndarray):
+        """The junction axis of node ``c`` with neighbour directions ``d``, or why the scheme cannot take it."""
+        opt = self.opt
+        u, gap, elev = cs.junction_axis(d, np.radians(opt.max_out_of_plane))
+        if elev > np.radians(opt.max_out_of_plane):
+            k = int(np.argmax(np.abs(d @ u)))
+            return u, (k, f"one of its branches leaves the junction plane by {np.degrees(elev):.0f} degrees (more than max_out_of_plane = {opt.max_out_of_plane:g})")
+        if gap < np.radians(opt.min_branch_gap):
+            return u, (None, f"two of its branches are only {np.degrees(gap):.0f} degrees apart around the junction axis (less than min_branch_gap = {opt.min_branch_gap:g})")
+        return u, None
+
+    def split_if_needed(self):
+        """With ``split_nonplanar``: split n-furcations (4+ branches) that are too far from planar
+        into chains of 3-junctions. Other problems are reported by :meth:`build_junctions`."""
+        if not self.opt.split_nonplanar:
+            return
+        sk = self.sk
+        split = []
+        for c in sk.junctions.tolist():
+            nb = sk.neighbors(c)
+            if len(nb) <= 3:
+                continue
+            _, problem = self.junction_problem(c, cs.unit(sk.points[nb] - sk.points[c]))
+            if problem:
+                split.append(c)
+        if split:
+            self.sk = split_nonplanar_junctions(sk, split, distance=self.sdf)
+            self.fixes.append(f"split non-planar junction node(s) {split} into 3-junctions")
+            self.warn(f"split non-planar junction node(s) {split} into 3-junctions")
+            self.check_skeleton()
+
+    def _branch_direction(self, bi: int, side: int, length: float) -> np.ndarray:
+        """Unit direction from a branch end (its current position) to the point ``length``
+        further along the branch's nodes (at least its first neighbour)."""
+        br = self.branches[bi]
+        nodes = br.nodes if side == 0 else br.nodes[::-1]
+        P = self.sk.points[nodes]
+        arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))]
+        s = np.array([max(min(length, arc[-1]), arc[1])])
+        target, _ = polyline_at(P, arc, s, np.zeros((len(P), 1)))
+        return cs.unit(target[0] - self.pos[nodes[0]])
+
+    def build_junctions(self, nodes=None):
+        """Junction axes, neighbour order and separators (from the current positions), for
+        all junctions or only ``nodes``."""
+        sk = self.sk
+        if nodes is None:
+            self.junctions: dict[int, _Junction] = {}
+        ends = {}
+        for bi, br in enumerate(self.branches):
+            for side in (0, 1):
+                if br.kinds[side] == JUNCTION:
+                    c = int(br.nodes[0] if side == 0 else br.nodes[-1])
+                    ends.setdefault(c, []).append((bi, side))
+        for c, lst in ends.items():
+            if nodes is not None and c not in nodes:
+                continue
+            moved = float(np.linalg.norm(self.pos[c] - sk.points[c]))
+            rc = float(sk.radii[c])
+            # directions to the first neighbours; further along the branches when those are
+            # nearly parallel (a junction node placed before the vessels really part)
+            first = None
+            for ahead in (0.0, 1.5, 2.0, 3.0, 4.0):
+                length = max(moved + 0.5 * rc, ahead * rc) if (moved > 0 or ahead > 0) else 0.0
+                d = np.stack([self._branch_direction(bi, side, length) for bi, side in lst])
+                u, problem = self.junction_problem(c, d)
+                if first is None:
+                    first = problem
+                if problem is None:
+                    if ahead > 0 and c not in self.lookahead:
+                        self.lookahead[c] = ahead
+                        self.fixes.append(f"junction node {c}: branch directions taken {ahead:g} radii along its branches ({first[1]} at its first neighbours)")
+                    break
+            if problem:
+                k, why = first
+                m = len(lst)
+                if k is not None:
+                    nb = int(self.branches[lst[k][0]].nodes[1] if lst[k][1] == 0 else self.branches[lst[k][0]].nodes[-2])
+                    why = why.replace("one of its branches", f"its branch towards node {nb}")
+                hint = (
+                    "; set split_nonplanar = true to split it into 3-junctions"
+                    if m > 3
+                    else "; move the junction node or resample the skeleton so that its branches spread around it"
+                )
+                raise MeshingError(f"junction at skeleton node {c} ({m} branches) is beyond the junction scheme: {why}{hint}")
+            ang, p, q = cs.order_around(u, d)
+            order, sep, gap = cs.separator_angles(ang)
+            self.junctions[c] = _Junction(
+                node=c, center=self.pos[c].copy(), radius=float(sk.radii[c]), u=u, p=p, q=q,
+                neighbors=np.array([int(self.branches[bi].nodes[1] if side == 0 else self.branches[bi].nodes[-2]) for bi, side in lst])[order],
+                branch_angle=ang[order], separator=sep, gap=gap, psi=np.zeros(len(lst)),
+                ends=[lst[i] for i in order],
+            )
+            self.junctions[c].dirs = d[order]
+
+    # -- 3. branches -------------------------------------------------------------
+    def make_branches(self):
+        from .skeleton_ops import branch_paths, path_edge_ids
+
+        sk = self.sk
+        if not hasattr(self, "_paths"):
+            paths = branch_paths(sk.n_nodes, sk.edges)
+            self._paths = (paths, path_edge_ids(sk.n_nodes, sk.edges, paths))
+        paths, eids = self._paths
+        deg = sk.degrees
+        old = getattr(self, "branches", None)
+        self.branches: list[_Branch] = []
+        for n, (nodes, edges) in enumerate(zip(paths, eids)):
+            nodes = np.asarray(nodes)
+            edges = np.asarray(edges)
+            if nodes[0] == nodes[-1] and deg[nodes[0]] == 2:
+                kinds = [CYCLE, CYCLE]
+            else:
+                kinds = [JUNCTION if deg[nodes[0]] >= 3 else "end", JUNCTION if deg[nodes[-1]] >= 3 else "end"]
+                if kinds[0] != JUNCTION and kinds[1] == JUNCTION:
+                    nodes, edges, kinds = nodes[::-1].copy(), edges[::-1].copy(), kinds[::-1]
+            seg = np.linalg.norm(np.diff(self.pos[nodes], axis=0), axis=1)
+            arc = np.r_[0.0, np.cumsum(seg)]
+            br = _Branch(nodes, edges, kinds, [0, 0], arc, arc.copy(), straighten=np.zeros(len(nodes)))
+            if old is not None:
+                br.margin = old[n].margin
+                br.straighten = old[n].straighten
+            self.branches.append(br)
+
+    def classify_ends(self):
+        sk = self.sk
+        ends = sk.endpoints
+        self.cap_of = endpoint_caps(sk.points, sk.radii, ends, self.caps, self.opt.cap_distance)
+        names = {FACE_WALL: "wall"}
+        if not self.caps:
+            # every endpoint is an open end, named by decreasing radius
+            order = ends[np.argsort(-sk.radii[ends], kind="stable")]
+            self.end_id = {int(e): k + 1 for k, e in enumerate(order.tolist())}
+            for k, e in enumerate(order.tolist()):
+                names[k + 1] = "inlet" if k == 0 else f"outlet_{k}"
+        else:
+            self.end_id = {e: cap.id for e, cap in self.cap_of.items()}
+            for cap in self.cap_of.values():
+                names[int(cap.id)] = cap.name
+            unused = [c.name for c in self.caps if all(c is not v for v in self.cap_of.values())]
+            if unused and not getattr(self, "_warned_caps", False):
+                self.warn(f"no skeleton endpoint near cap(s) {', '.join(unused)}: those open ends are not meshed")
+                self._warned_caps = True
+        self.boundary_names = names
+        for br in self.branches:
+            for side in (0, 1):
+                if br.kinds[side] in ("end", OPEN, CLOSED):
+                    e = int(br.nodes[0] if side == 0 else br.nodes[-1])
+                    if e in self.end_id:
+                        br.kinds[side], br.caps[side] = OPEN, self.end_id[e]
+                    else:
+                        br.kinds[side] = CLOSED
+
+    def _slack(self, bi: int) -> float:
+        """Room left on a branch between two junctions once both half-sections are in."""
+        br = self.branches[bi]
+        L = float(np.linalg.norm(self.pos[br.nodes[-1]] - self.pos[br.nodes[0]])) if len(br.nodes) == 2 else br.arc[-1]
+        return L - self._junction_reach(bi, 0) - self._junction_reach(bi, 1)
+
+    def separate_junctions(self, bi: int) -> bool:
+        """Move one end junction of a branch between two junctions away from the other.
+
+        Each end is tried (half a branch radius along the branch, into the wedge of the
+        junction's other branches, staying well inside and within 1.5 radii of its node);
+        the move that leaves the branch most room is kept."""
+        sk = self.sk
+        br = self.branches[bi]
+        if br.kinds != [JUNCTION, JUNCTION] or br.nodes[0] == br.nodes[-1]:
+            return False
+        rb = float(np.median(sk.radii[br.nodes]))
+        base = self._slack(bi)
+        best = None
+        for side in (0, 1):
+            c = int(br.nodes[0] if side == 0 else br.nodes[-1])
+            other = int(br.nodes[-1] if side == 0 else br.nodes[0])
+            w = cs.unit(self.pos[c] - self.pos[other])
+            new = self.pos[c] + 0.5 * rb * w
+            if np.linalg.norm(new - sk.points[c]) > 1.5 * sk.radii[c]:
+                continue
+            if float(np.asarray(self.sdf(new[None]))[0]) < 0.4 * sk.radii[c]:
+                continue
+            old_pos, old_j = self.pos[c].copy(), self.junctions[c]
+            self.pos[c] = new
+            try:
+                self._rebuild_junction(c)
+                gain = self._slack(bi) - base
+            except MeshingError:
+                gain = -np.inf
+            self.pos[c] = old_pos
+            self.junctions[c] = old_j
+            self._rebuild_branches()
+            if best is None or gain > best[0]:
+                best = (gain, c, new)
+        if best is None or best[0] <= 1e-9 * rb:
+            return False
+        _, c, new = best
+        self.pos[c] = new
+        self._rebuild_junction(c)
+        self.moves[c] = float(np.linalg.norm(new - sk.points[c]))
+        self.fixes.append(f"moved junction node {c} by {self.moves[c]:.3g} along its branch to node {int(br.nodes[0] if c == br.nodes[-1] else br.nodes[-1])}")
+        return True
+
+    def _rebuild_branches(self):
+        self.make_branches()
+        self.classify_ends()
+
+    def _rebuild_junction(self, c: int):
+        self._rebuild_branches()
+        self.build_junctions({c})
+        self.choose_rotations({c})
+
+    # -- 4. junction half-planes --------------------------------------------------
+    def _neighbour_room(self, j: _Junction) -> np.ndarray:
+        """How far (along each ordered neighbour's branch) sections may be pushed."""
+        room = np.empty(len(j.neighbors))
+        for h, (bi, side) in enumerate(j.ends):
+            br = self.branches[bi]
+            L = br.arc[-1]
+            other = br.kinds[1 - side]
+            room[h] = (0.45 if other == JUNCTION else 0.8) * L if len(br.nodes) > 2 else 0.85 * L
+        return room
+
+    def _half_rays(self, j: _Junction, sdirs: np.ndarray) -> np.ndarray:
+        """Ray lengths (k, nr) of half-sections with in-plane directions ``sdirs`` (k, 3);
+        angles in (π, 2π) mirror the upper half, 0 and π are the spine."""
+        t = self.template
+        ang = t.ray_angles
+        up = (ang > 1e-9) & (ang < np.pi - 1e-9)
+        k = len(sdirs)
+        e1 = np.repeat(j.u[None, :], k, axis=0)
+        dirs = cs.ray_directions(e1, sdirs, ang[up])
+        o = np.repeat(j.center[None, :], dirs.shape[0] * dirs.shape[1], axis=0)
+        R_up = self.cast(o, dirs.reshape(-1, 3), np.full(len(o), j.radius)).reshape(k, -1)
+        R = np.empty((k, len(ang)))
+        R[:, up] = R_up
+        idx_up = np.flatnonzero(up)
+        lower = np.flatnonzero(ang > np.pi + 1e-9)
+        mirror_of = cs.ray_index(t, cs._TWO_PI - ang[lower])
+        pos = {int(v): n for n, v in enumerate(idx_up)}
+        R[:, lower] = R_up[:, [pos[int(v)] for v in mirror_of]]
+        spine = self.spine_rays(j)
+        R[:, cs.ray_index(t, 0.0)] = spine[0]
+        R[:, cs.ray_index(t, np.pi)] = spine[1]
+        return R
+
+    def spine_rays(self, j: _Junction) -> np.ndarray:
+        o = np.repeat(j.center[None, :], 2, axis=0)
+        return self.cast(o, np.stack([j.u, -j.u]), np.full(2, j.radius))
+
+    def _half_vertices(self, j: _Junction, sdirs: np.ndarray, R: np.ndarray, core=None, layer=None) -> np.ndarray:
+        k = len(sdirs)
+        e1 = np.repeat(j.u[None, :], k, axis=0)
+        c = np.repeat(j.center[None, :], k, axis=0)
+        core = self.opt.core_size if core is None else core
+        layer = self.opt.layer_thickness if layer is None else layer
+        return cs.section_vertices(self.template, c, e1, sdirs, R, core, layer)
+
+    def _layer_and_core(self, key):
+        """Boundary-layer thickness and core size of a section (after local fixes)."""
+        layer = min(0.5, self.opt.layer_thickness * self.layer_scale.get(key, 1.0))
+        core = self.opt.core_size * self.core_scale.get(key, 1.0)
+        # keep the core corner inside the ring with some room
+        core = min(core, 0.8 * (1.0 - layer) / np.sqrt(2.0))
+        return layer, core
+
+    def choose_rotations(self, nodes=None):
+        opt = self.opt
+        ncand = max(1, int(opt.rotation_candidates))
+        for c, j in self.junctions.items():
+            if nodes is not None and c not in nodes:
+                continue
+            m = len(j.neighbors)
+            spine = self.spine_rays(j)
+            if np.any(~np.isfinite(spine)):
+                raise MeshingError(f"junction at skeleton node {c}: no wall found along its reference line (is the node inside the vessel?)")
+            # candidate offsets per separator, symmetric about the bisector
+            frac = np.linspace(-1.0, 1.0, ncand) if ncand > 1 else np.zeros(1)
+            psi = (opt.rotation_range * 0.5 * j.gap)[:, None] * frac[None, :]  # (m, ncand)
+            ang = j.separator[:, None] + psi
+            sdirs = np.cos(ang)[..., None] * j.p + np.sin(ang)[..., None] * j.q  # (m, ncand, 3)
+            R = self._half_rays(j, sdirs.reshape(-1, 3))
+            if np.any(~np.isfinite(R)):
+                bad = ~np.all(np.isfinite(R), axis=1).reshape(m, ncand)
+                if bad.all(axis=1).any():
+                    raise MeshingError(f"junction at skeleton node {c}: a half cross-section finds no wall within reach")
+            V = self._half_vertices(j, sdirs.reshape(-1, 3), np.nan_to_num(R, nan=1e6)).reshape(m, ncand, -1, 3)
+            upper = self.template.upper
+            rel = V[:, :, upper] - j.center
+            mean_dist = np.linalg.norm(rel, axis=3).mean(axis=2)  # (m, ncand)
+            # reach of each half-section along its two neighbours' directions
+            dirs = j.dirs
+            room = self._neighbour_room(j)
+            rad = self.sk.radii[j.neighbors]
+            reach_a = (rel @ dirs.T)  # (m, ncand, nv_up, m)
+            over = np.zeros((m, ncand))
+            for h in range(m):
+                for nbh in (h, (h + 1) % m):
+                    r = reach_a[h, :, :, nbh].max(axis=1)
+                    over[h] += np.maximum(0.0, r + opt.junction_margin * rad[nbh] - room[nbh]) / rad[nbh]
+            j.reach_table = reach_a.max(axis=2)  # (m, ncand, m)
+            j.cand_psi = psi
+            j.cand_cost = mean_dist / j.radius + 10.0 * over + 0.05 * frac[None, :] ** 2
+            j.cand_cost[~np.isfinite(R).all(axis=1).reshape(m, ncand)] = np.inf
+            if opt.junction_rotation == "bisector":
+                pick = np.full(m, ncand // 2)
+            else:
+                pick = np.argmin(j.cand_cost, axis=1)
+            j.pick = pick
+            j.psi = psi[np.arange(m), pick]
+
+    # -- 5. sections ----------------------------------------------------------------
+    def _node_normals(self, br: _Branch) -> np.ndarray:
+        """Section normal at each node of a branch (pointing along the branch)."""
+        sk = self.sk
+        P = self.pos[br.nodes]
+        K = len(P) - 1
+        seg = cs.unit(np.diff(P, axis=0))
+        n = np.empty((K + 1, 3))
+        n[0], n[K] = seg[0], seg[-1]
+        if K >= 2:
+            n[1:K] = cs.bisector_normals(P[:-2], P[1:-1], P[2:], sk.radii[br.nodes[1:-1]], self.opt.plane_bias)
+        if br.kinds[0] == CYCLE:
+            n[0] = n[K] = cs.bisector_normals(P[-2:-1], P[:1], P[1:2], sk.radii[br.nodes[:1]], self.opt.plane_bias)[0]
+        for side, k in ((0, 0), (1, K)):
+            if br.kinds[side] == OPEN and br.caps[side] and self.caps:
+                cap = self.cap_of[int(br.nodes[k])]
+                out = cs.unit(np.asarray(cap.normal, float))
+                n[k] = -out if side == 0 else out
+        return n
+
+    def _clearance(self):
+        """Arc length from each junction along each of its branches where sections are clear."""
+        opt, sk, t = self.opt, self.sk, self.template
+        jobs = []
+        for c, j in self.junctions.items():
+            for h, (bi, side) in enumerate(j.ends):
+                br = self.branches[bi]
+                rb = float(np.median(sk.radii[br.nodes]))
+                L = br.arc[-1]
+                limit = min((0.45 if br.kinds[1 - side] == JUNCTION else 0.8) * L, 3.0 * j.radius + 2.0 * rb)
+                s = 0.25 * rb * np.arange(1, int(limit / (0.25 * rb)) + 1)
+                s = s[s < limit]
+                if len(s) == 0:
+                    continue
+                jobs.append((c, h, bi, side, s))
+        if not jobs:
+            return {}
+        centers, normals, radii, owner = [], [], [], []
+        for n_job, (c, h, bi, side, s) in enumerate(jobs):
+            br = self.branches[bi]
+            arc = br.arc if side == 0 else br.arc[-1] - br.arc[::-1]
+            nodes = br.nodes if side == 0 else br.nodes[::-1]
+            P = self.pos[nodes]
+            N = self._node_normals(br)
+            N = N if side == 0 else -N[::-1]
+            pos, nrm = polyline_at(P, arc, s, N)
+            _, rad = polyline_at(P, arc, s, sk.radii[nodes])
+            centers.append(pos)
+            normals.append(cs.unit(nrm))
+            radii.append(rad)
+            owner.append(np.full(len(s), n_job))
+        centers, normals, radii, owner = map(np.concatenate, (centers, normals, radii, owner))
+        e1 = cs.any_perpendicular(normals)
+        e2 = np.cross(normals, e1)
+        ang = t.loop_angle
+        dirs = cs.ray_directions(e1, e2, ang)
+        R = self.cast(np.repeat(centers, len(ang), axis=0), dirs.reshape(-1, 3), np.repeat(radii, len(ang)), reach=4.0 * opt.clear_ray_factor)
+        R = R.reshape(len(centers), len(ang))
+        clean = np.all(np.isfinite(R) & (R <= opt.clear_ray_factor * radii[:, None]), axis=1)
+        out = {}
+        for n_job, (c, h, bi, side, s) in enumerate(jobs):
+            ok = clean[owner == n_job]
+            # first candidate from which on every later one is clean
+            bad = np.flatnonzero(~ok)
+            first = 0 if len(bad) == 0 else bad[-1] + 1
+            out[(bi, side)] = 0.0 if first == 0 else (s[first] if first < len(s) else s[-1])
+        return out
+
+    def place_sections(self):
+        """Section positions along each branch: clear of junctions, otherwise at the nodes."""
+        opt, sk = self.opt, self.sk
+        clear = self._clearance()
+        self.clear = clear
+        for br in self.branches:
+            br.s = br.arc.copy()
+        self._apply_clearance()
+
+    def _junction_reach(self, bi: int, side: int) -> float:
+        """How far the half-sections of the junction at a branch's end reach along it."""
+        br = self.branches[bi]
+        c = int(br.nodes[0] if side == 0 else br.nodes[-1])
+        j = self.junctions[c]
+        h = next(h for h, e in enumerate(j.ends) if e == (bi, side))
+        m = len(j.neighbors)
+        seps = [(h - 1) % m, h]
+        return float(max(j.reach_table[sp, j.pick[sp], h] for sp in seps))
+
+    def _apply_clearance(self):
+        opt, sk = self.opt, self.sk
+        self.infeasible = []
+        for bi, br in enumerate(self.branches):
+            lo, hi = 0.0, br.arc[-1]
+            rb = float(np.median(sk.radii[br.nodes]))
+            for side in (0, 1):
+                if br.kinds[side] != JUNCTION:
+                    continue
+                need = max(self.clear.get((bi, side), 0.0), self._junction_reach(bi, side) + (opt.junction_margin + br.margin[side]) * rb)
+                if side == 0:
+                    lo = need
+                else:
+                    hi = br.arc[-1] - need
+            if br.kinds[1] in (OPEN, CLOSED):
+                hi = br.arc[-1] - 0.3 * rb
+            if br.kinds[0] in (OPEN, CLOSED):
+                lo = max(lo, 0.3 * rb)
+            br.s, ok = redistribute_sections(br.arc, lo, hi)
+            if not ok:
+                self.infeasible.append(bi)
+
+    # -- 6. frames and ray casting ------------------------------------------------------
+    def section_geometry(self):
+        """Centres, normals, frames and radii of every section (flat arrays) and the
+        per-branch index of its sections."""
+        sk, t = self.sk, self.template
+        sym = t.symmetry_angle
+        rows = []  # per branch: (centers, normals, radii) at sections
+        B = len(self.branches)
+        Kmax = max(len(br.nodes) for br in self.branches)
+        X = np.zeros((B, Kmax, 3))
+        T = np.zeros((B, Kmax, 3))
+        first = np.zeros((B, 3))
+        counts = np.zeros(B, np.int64)
+        for bi, br in enumerate(self.branches):
+            P = self.pos[br.nodes].copy()
+            N = self._node_normals(br)
+            pos, nrm = polyline_at(P, br.arc, br.s, N)
+            # positions exactly at unmoved nodes, and end sections on their caps
+            for side, k in ((0, 0), (1, len(P) - 1)):
+                if br.kinds[side] == OPEN and br.caps[side] and self.caps:
+                    pos[k] = np.asarray(self.cap_of[int(br.nodes[k])].center, float)
+            if br.straighten is not None and br.straighten.any():
+                chord = cs.unit(np.gradient(pos, axis=0))
+                nrm = (1 - br.straighten[:, None]) * nrm + br.straighten[:, None] * chord
+            nrm = cs.unit(nrm)
+            _, rad = polyline_at(P, br.arc, br.s, sk.radii[br.nodes])
+            K = len(P)
+            X[bi, :K], T[bi, :K], counts[bi] = pos, nrm, K
+            if br.kinds[0] == JUNCTION:
+                T[bi, 0] = cs.unit(pos[1] - pos[0])
+                first[bi] = self.junctions[int(br.nodes[0])].u
+            else:
+                first[bi] = cs.any_perpendicular(nrm[:1])[0]
+            if br.kinds[1] == JUNCTION:
+                T[bi, K - 1] = cs.unit(pos[-1] - pos[-2])
+            rows.append(rad)
+        E1 = cs.transport_frames(X, T, first, counts)
+        twist_total = np.zeros(B)
+        self.end_turn = {}
+        for bi, br in enumerate(self.branches):
+            K = counts[bi]
+            if br.kinds[1] == JUNCTION or br.kinds[1] == CYCLE:
+                target = self.junctions[int(br.nodes[-1])].u if br.kinds[1] == JUNCTION else E1[bi, 0]
+                phi, _ = cs.residual_twist(E1[bi, K - 1][None], target[None], T[bi, K - 1][None], sym)
+                twist_total[bi] = phi[0]
+                s = br.s - br.s[0]
+                frac = s / max(s[-1], 1e-300)
+                E1[bi, :K] = cs.rotate_about(E1[bi, :K], T[bi, :K], twist_total[bi] * frac)
+        self.X, self.T, self.E1, self.counts, self.R_node = X, T, E1, counts, rows
+        self.twist_total = twist_total
+        # twist between consecutive sections (after spreading) for the report
+        tw = []
+        for bi, br in enumerate(self.branches):
+            K = counts[bi]
+            if K >= 2:
+                s = br.s - br.s[0]
+                tw.append(np.abs(twist_total[bi]) * np.diff(s) / max(s[-1], 1e-300))
+        self.max_twist = float(np.degrees(np.concatenate(tw).max())) if tw else 0.0
+
+    def cast(self, origins, directions, scale, reach: float = 12.0) -> np.ndarray:
+        return cs.cast_rays(self.sdf, origins, directions, scale, reach=reach)
+
+    def regular_sections(self):
+        """Vertices of every regular (non-junction) section."""
+        t, opt = self.template, self.opt
+        idx = []  # (branch, k)
+        for bi, br in enumerate(self.branches):
+            K = len(br.nodes)
+            for k in range(K):
+                side = 0 if k == 0 else (1 if k == K - 1 else -1)
+                if side >= 0 and br.kinds[side] == JUNCTION:
+                    continue
+                if k == K - 1 and br.kinds[1] == CYCLE:
+                    continue  # the same section as k = 0
+                idx.append((bi, k))
+        bi_arr = np.array([i for i, _ in idx])
+        k_arr = np.array([k for _, k in idx])
+        C = self.X[bi_arr, k_arr]
+        Nn = self.T[bi_arr, k_arr]
+        E1 = cs.unit(cs.reject(self.E1[bi_arr, k_arr], Nn))
+        E2 = np.cross(Nn, E1)
+        rad = np.array([self.R_node[b][k] for b, k in idx])
+        # which way is out at end sections
+        outward = np.zeros(len(idx))
+        for n, (b, k) in enumerate(idx):
+            br = self.branches[b]
+            if k == 0 and br.kinds[0] in (OPEN, CLOSED):
+                outward[n] = -1.0
+            elif k == len(br.nodes) - 1 and br.kinds[1] in (OPEN, CLOSED):
+                outward[n] = 1.0
+        # flat caps give the signed distance no sign on their plane: cast from just inside
+        is_open = np.array([(k == 0 and self.branches[b].kinds[0] == OPEN) or
+                            (k == len(self.branches[b].nodes) - 1 and self.branches[b].kinds[1] == OPEN) for b, k in idx])
+        shift = (0.05 * rad * outward * is_open)[:, None] * Nn
+        origin = C - shift
+        ang = t.ray_angles
+        dirs = cs.ray_directions(E1, E2, ang)
+        R = self.cast(np.repeat(origin, len(ang), axis=0), dirs.reshape(-1, 3), np.repeat(rad, len(ang))).reshape(len(idx), -1)
+        if np.any(~np.isfinite(R)):
+            n = int(np.flatnonzero(~np.all(np.isfinite(R), axis=1))[0])
+            b, k = idx[n]
+            node = int(self.branches[b].nodes[k])
+            raise MeshingError(f"cross-section at skeleton node {node} finds no wall within reach (is the node inside the vessel?)")
+        lc = np.array([self._layer_and_core((b, k)) for b, k in idx]).reshape(-1, 2)
+        V = cs.section_vertices(t, C, E1, E2, R, lc[:, 1], lc[:, 0])
+        on_surface = np.zeros(V.shape[:2], bool)
+        on_surface[:, t.kind == cs.VERTEX_OUTER] = True
+        # closed ends: the section's inner vertices go onto the dome along the axis
+        for n, (b, k) in enumerate(idx):
+            br = self.branches[b]
+            end = (k == 0 and br.kinds[0] == CLOSED) or (k == len(br.nodes) - 1 and br.kinds[1] == CLOSED)
+            if not end:
+                continue
+            inner = t.kind != cs.VERTEX_OUTER
+            d = Nn[n] * outward[n]
+            o = V[n, inner] - 0.02 * rad[n] * d
+            tt = self.cast(o, np.repeat(d[None], len(o), 0), np.full(len(o), rad[n]))
+            if np.any(~np.isfinite(tt)):
+                node = int(br.nodes[k])
+                raise MeshingError(f"closed end at skeleton node {node}: no wall found ahead of its cross-section")
+            V[n, inner] = o + tt[:, None] * d
+            on_surface[n] = True
+        return idx, V, on_surface, R
+
+    # -- 7. assembly ------------------------------------------------------------------
+    def assemble(self) -> BlockStructure:
+        t, sk = self.template, self.sk
+        self.section_geometry()
+        nv_t = t.n_vertices
+        verts, on_surf = [], []
+        n_vert = 0
+        # regular sections
+        idx, V, S, _ = self.regular_sections()
+        sec_ids = {}
+        for n, key in enumerate(idx):
+            sec_ids[key] = n_vert + np.arange(nv_t)
+            n_vert += nv_t
+        verts.append(V.reshape(-1, 3))
+        on_surf.append(S.reshape(-1))
+        # junctions: spine + upper halves
+        upper, spine = t.upper, t.spine
+        for c, j in self.junctions.items():
+            m = len(j.neighbors)
+            sdirs = j.separator_dir(np.arange(m))
+            R = self._half_rays(j, sdirs)
+            layer, core = self._layer_and_core(("J", c))
+            HV = self._half_vertices(j, sdirs, R, core, layer)
+            j.spine_ids = np.full(nv_t, -1, np.int64)
+            j.spine_ids[spine] = n_vert + np.arange(spine.sum())
+            verts.append(HV[0, spine])
+            on_surf.append(t.kind[spine] == cs.VERTEX_OUTER)
+            n_vert += int(spine.sum())
+            only_up = upper & ~spine
+            j.half_ids = np.full((m, nv_t), -1, np.int64)
+            for h in range(m):
+                j.half_ids[h, spine] = j.spine_ids[spine]
+                j.half_ids[h, only_up] = n_vert + np.arange(only_up.sum())
+                n_vert += int(only_up.sum())
+                verts.append(HV[h, only_up])
+                on_surf.append(t.kind[only_up] == cs.VERTEX_OUTER)
+            j.half_vertices = HV
+        vertices = np.vstack(verts)
+        on_surface = np.concatenate(on_surf)
+
+        hexes, fb, ak, radius, bnode, bseg, blayer, btags, where = [], [], [], [], [], [], [], [], []
+        q = t.quads
+        nq = len(q)
+        for bi, br in enumerate(self.branches):
+            K = len(br.nodes)
+            ids = [None] * K
+            for k in range(K):
+                side = 0 if k == 0 else (1 if k == K - 1 else -1)
+                if side >= 0 and br.kinds[side] == JUNCTION:
+                    ids[k] = self._folded_ids(bi, side)
+                elif k == K - 1 and br.kinds[1] == CYCLE:
+                    ids[k] = self._cycle_close_ids(bi, sec_ids[(bi, 0)])
+                else:
+                    ids[k] = sec_ids[(bi, k)]
+            for k in range(K - 1):
+                a, b = ids[k][q], ids[k + 1][q]
+                hexes.append(np.hstack([a, b]))
+                f = np.full((nq, 6), FACE_INTERIOR, np.int64)
+                f[t.quad_wall, 1] = FACE_WALL
+                if k == 0 and br.kinds[0] in (OPEN, CLOSED):
+                    f[:, 4] = br.caps[0] if br.kinds[0] == OPEN else FACE_WALL
+                if k == K - 2 and br.kinds[1] in (OPEN, CLOSED):
+                    f[:, 5] = br.caps[1] if br.kinds[1] == OPEN else FACE_WALL
+                fb.append(f)
+                ak.append(np.c_[t.quad_axes, np.full(nq, AXIS_ALONG)])
+                n0, n1 = int(br.nodes[k]), int(br.nodes[k + 1])
+                e = int(br.edges[k])
+                radius.append(np.full(nq, 0.5 * (self.R_node[bi][k] + self.R_node[bi][k + 1])))
+                bnode.append(np.full(nq, n0))
+                bseg.append(np.full(nq, e))
+                blayer.append(t.quad_layer)
+                tags = tuple(sorted(set(sk.node_tags[n0]) | set(sk.node_tags[n1]) | set(sk.edge_tags[e])))
+                btags.extend([tags] * nq)
+                where.append(np.c_[np.full(nq, bi), np.full(nq, k)])
+        hexes = np.vstack(hexes)
+        fb = np.vstack(fb)
+        ak = np.vstack(ak)
+        # blocks whose every corner is negative are only mirrored: flip them along k
+        J = BlockStructure(vertices, hexes, on_surface, fb, ak, np.concatenate(radius), np.concatenate(bnode),
+                           np.concatenate(bseg), np.concatenate(blayer), btags).corner_jacobians()
+        flip = np.all(J < 0, axis=1)
+        if flip.any():
+            hexes[flip] = hexes[flip][:, [4, 5, 6, 7, 0, 1, 2, 3]]
+            fb[flip] = fb[flip][:, [0, 1, 2, 3, 5, 4]]
+        self.block_where = np.vstack(where)
+        blocks = BlockStructure(
+            vertices=vertices,
+            hexes=hexes,
+            vertex_on_surface=on_surface,
+            face_boundary=fb,
+            axis_kind=ak,
+            block_radius=np.concatenate(radius),
+            block_node=np.concatenate(bnode),
+            block_segment=np.concatenate(bseg),
+            block_layer=np.concatenate(blayer),
+            block_tags=btags,
+            boundary_names=dict(self.boundary_names),
+        )
+        self.info = {
+            "blocks_around": t.n_around,
+            "core": [t.a, t.b],
+            "max_twist_deg": round(self.max_twist, 3),
+            "branches": len(self.branches),
+            "junctions": {int(c): {"neighbors": j.neighbors.tolist(), "axis": j.u.round(6).tolist(),
+                                   "rotation_deg": np.degrees(j.psi).round(2).tolist()} for c, j in self.junctions.items()},
+            "flipped_blocks": int(flip.sum()),
+            "skeleton": self.sk,
+        }
+        return blocks
+
+    def _folded_ids(self, bi: int, side: int) -> np.ndarray:
+        """Global vertex id of each template vertex of a branch's end section at a junction."""
+        t = self.template
+        br = self.branches[bi]
+        K = len(br.nodes)
+        k = 0 if side == 0 else K - 1
+        c = int(br.nodes[k])
+        j = self.junctions[c]
+        h = next(h for h, e in enumerate(j.ends) if e == (bi, side))
+        m = len(j.neighbors)
+        n = self.T[bi, k]
+        e1 = self.E1[bi, k]
+        E1 = cs.unit(cs.reject(j.u[None], n[None]))[0]
+        E2 = np.cross(n, E1)
+        rho = cs.signed_angle(E1[None], e1[None], n[None])[0]
+        perm = min(t.symmetries, key=lambda s: abs(np.angle(np.exp(1j * (s[0] - rho)))))[1]
+        canon = perm  # template vertex -> canonical vertex
+        seps = [(h - 1) % m, h]
+        s_dirs = j.separator_dir(np.array(seps))
+        up_first = (s_dirs[0] @ E2) >= (s_dirs[1] @ E2)
+        h_up, h_low = (seps[0], seps[1]) if up_first else (seps[1], seps[0])
+        y = t.xy[canon, 1]
+        ids = np.where(y > 1e-12, j.half_ids[h_up, canon], j.half_ids[h_low, t.mirror[canon]])
+        ids = np.where(np.abs(y) <= 1e-12, j.spine_ids[canon], ids)
+        return ids
+
+    def _cycle_close_ids(self, bi: int, first_ids: np.ndarray) -> np.ndarray:
+        """Ids of a cycle's closing section: its first section seen in the transported frame."""
+        t = self.template
+        K = self.counts[bi]
+        n = self.T[bi, K - 1]
+        rho = cs.signed_angle(cs.reject(self.E1[bi, 0][None], n[None]), self.E1[bi, K - 1][None], n[None])[0]
+        perm = min(t.symmetries, key=lambda s: abs(np.angle(np.exp(1j * (s[0] - rho)))))[1]
+        return first_ids[perm]
+
+    # -- 8. validity -----------------------------------------------------------------------
+    def thicken_layers(self, blocks: BlockStructure) -> BlockStructure:
+        """Thicken the boundary layer at sections whose boundary-layer blocks would fold when
+        their wall faces are projected onto the wall (:func:`projected_wall_quality`), as
+        long as every block stays valid; what is left is reported in ``info``."""
+        opt = self.opt
+        quality = projected_wall_quality(blocks, self.project)
+        thickened = set()
+        for _ in range(4):
+            bad = np.flatnonzero(quality <= opt.wall_quality)
+            if len(bad) == 0:
+                break
+            keys = {self._section_key(bi, kk) for bi, k in self.block_where[bad].tolist() for kk in (k, k + 1)}
+            keys = {key for key in keys if opt.layer_thickness * self.layer_scale.get(key, 1.0) < 0.5 - 1e-9}
+            if not keys:
+                break
+            old = dict(self.layer_scale)
+            for key in keys:
+                self.layer_scale[key] = self.layer_scale.get(key, 1.0) * 1.25
+            trial = self.assemble()
+            if trial.corner_jacobians().min() <= 0:
+                self.layer_scale = old
+                break
+            thickened |= keys
+            blocks, quality = trial, projected_wall_quality(trial, self.project)
+        if thickened:
+            self.fixes.append(f"thickened the boundary layer at {len(thickened)} cross-section(s) where projecting the wall would fold it")
+            blocks.info.update(self.info)
+        self.info["min_projected_wall_quality"] = round(float(quality.min()), 4)
+        self.info["blocks_folding_on_wall"] = int(np.sum(quality <= 0))
+        if self.info["blocks_folding_on_wall"]:
+            nodes = sorted(set(blocks.block_node[quality <= 0].tolist()))
+            self.warn(f"{self.info['blocks_folding_on_wall']} boundary-layer block(s) next to skeleton node(s) {nodes[:8]} may fold when their faces are projected onto the wall")
+        return blocks
+
+    def fix(self, bad: np.ndarray, J: np.ndarray) -> bool:
+        """Change the state so that the blocks ``bad`` may become valid; False when out of ideas.
+
+        Per failing segment, in this order: shrink the core where only core and ring blocks
+        fail; near a junction, move the branch's sections further away, then re-rotate the
+        junction's half-planes; between two ordinary sections, straighten their planes
+        towards the segment."""
+        where = self.block_where[bad]
+        layer = self._last_layers(bad)
+        changed = moved = False
+        for bi, k in np.unique(where, axis=0).tolist():
+            br = self.branches[bi]
+            K = len(br.nodes)
+            sel = (where[:, 0] == bi) & (where[:, 1] == k)
+            if np.all(layer[sel] != LAYER_BOUNDARY):
+                shrunk = False
+                for kk in (k, k + 1):
+                    key = self._section_key(bi, kk)
+                    sc = self.core_scale.get(key, 1.0)
+                    if sc > 0.45:
+                        self.core_scale[key] = sc * 0.8
+                        shrunk = True
+                if shrunk:
+                    self.fixes.append(f"shrank the core at skeleton node {int(br.nodes[k])}")
+                    changed = True
+                    continue
+            ends = [side for side, at in ((0, k == 0), (1, k + 1 == K - 1)) if at and br.kinds[side] == JUNCTION]
+            if ends:
+                for side in ends:
+                    node = int(br.nodes[0 if side == 0 else -1])
+                    if br.margin[side] < 2.0 and K > 2:
+                        br.margin[side] += 0.5
+                        self.fixes.append(f"moved the cross-sections next to junction node {node} further along its branch")
+                        changed = True
+                    elif self._rerotate(bi, side):
+                        self.fixes.append(f"re-rotated the half-planes of junction node {node}")
+                        changed = True
+                    elif self.separate_junctions(bi):
+                        changed = moved = True
+                        break
+                continue
+            straightened = False
+            for kk in (k, k + 1):
+                if br.straighten[kk] < 0.99:
+                    br.straighten[kk] = min(1.0, br.straighten[kk] + 0.34)
+                    straightened = True
+            if straightened:
+                self.fixes.append(f"straightened the cross-sections at skeleton nodes {int(br.nodes[k])}-{int(br.nodes[k + 1])}")
+                changed = True
+        if moved:
+            self.clear = self._clearance()
+        if changed:
+            self._apply_clearance()
+        return changed
+
+    def _last_layers(self, bad):
+        t = self.template
+        return t.quad_layer[np.asarray(bad) % t.n_quads]
+
+    def _section_key(self, bi: int, k: int):
+        br = self.branches[bi]
+        K = len(br.nodes)
+        if (k == 0 and br.kinds[0] == JUNCTION) or (k == K - 1 and br.kinds[1] == JUNCTION):
+            return ("J", int(br.nodes[k]))
+        if k == K - 1 and br.kinds[1] == CYCLE:
+            return (bi, 0)
+        return (bi, k)
+
+    def _rerotate(self, bi: int, side: int) -> bool:
+        """Turn the two half-planes next to a branch so that they reach less far along it."""
+        br = self.branches[bi]
+        c = int(br.nodes[0] if side == 0 else br.nodes[-1])
+        j = self.junctions[c]
+        h = next(h for h, e in enumerate(j.ends) if e == (bi, side))
+        m = len(j.neighbors)
+        changed = False
+        for sp in ((h - 1) % m, h):
+            reach = j.reach_table[sp, :, h]
+            better = np.flatnonzero(reach < reach[j.pick[sp]] - 1e-9 * j.radius)
+            better = better[np.isfinite(j.cand_cost[sp, better])]
+            if len(better):
+                # the least costly of those reaching clearly less far
+                target = reach[j.pick[sp]] - 0.25 * (reach[j.pick[sp]] - reach[better].min())
+                pool = better[reach[better] <= target + 1e-12]
+                pick = pool[np.argmin(j.cand_cost[sp, pool])]
+                j.pick[sp] = pick
+                j.psi[sp] = j.cand_psi[sp, pick]
+                changed = True
+        return changed
+
+    def fail(self, blocks: BlockStructure, bad: np.ndarray, path):
+        J = blocks.corner_jacobians()
+        worst = bad[np.argmin(J[bad].min(axis=1))]
+        node = int(blocks.block_node[worst])
+        # n-furcations next to the bad blocks may be split into 3-junctions
+        ends = np.unique(self.sk.edges[blocks.block_segment[bad]])
+        nfurc = [int(c) for c in ends if self.sk.degrees[c] > 3]
+        if nfurc and self.opt.split_nonplanar:
+            raise _SplitAndRetry(nfurc)
+        hint = f"; set split_nonplanar = true to split junction node(s) {nfurc} into 3-junctions" if nfurc else ""
+        written = ""
+        if path is not None:
+            try:
+                written = f"; the {len(bad)} invalid block(s) are in {write_bad_blocks(blocks, bad, path)}"
+            except Exception as exc:  # the error itself matters more than the picture
+                written = f" (could not write the invalid blocks: {exc})"
+        where = f" (segment {int(blocks.block_segment[worst])})"
+        raise MeshingError(
+            f"{len(bad)} block(s) stay invalid after {len(self.fixes)} fix(es); the worst starts at skeleton node {node}{where} "
+            f"with corner Jacobian {J[worst].min():.3g}{written}{hint}"
+        )
+
+
+def projected_wall_quality(blocks: BlockStructure, project, samples: int = 4) -> np.ndarray:
+    """Scaled Jacobian of boundary-layer blocks once their wall faces are projected onto the wall.
+
+    The wall face of every block with a wall face is sampled bilinearly on a
+    ``samples × samples`` grid and projected with ``project``; the sub-hexahedra between
+    the projected wall grid and the matching grid on the opposite face must stay valid, or
+    the meshed boundary layer will fold there (the wall bulging through the layer).
+
+    Parameters
+    ----------
+    blocks : BlockStructure
+    project : callable
+        ``project(points (n, 3)) -> closest wall points (n, 3)``.
+    samples : int
+        Sub-faces per side of a wall face.
+
+    Returns
+    -------
+    (nb,) float: the smallest scaled corner Jacobian per block (1 for blocks off the wall).
+    """
+    from ..blocks import HEX_FACES, scaled_corner_jacobians
+
+    out = np.ones(blocks.n_blocks)
+    b, f = np.nonzero(blocks.face_boundary == FACE_WALL)
+    # faces 0..3 (i, j sides): the opposite face across the layer; end faces (k) are skipped
+    keep = f < 4
+    b, f = b[keep], f[keep]
+    if len(b) == 0:
+        return out
+    wall = blocks.vertices[blocks.hexes[b[:, None], HEX_FACES[f]]]  # (m, 4, 3), outward order
+    # the opposite face in the same corner order: reversed orientation, matched corner by corner
+    match = {0: [1, 5, 6, 2], 1: [0, 3, 7, 4], 2: [3, 2, 6, 7], 3: [0, 4, 5, 1]}
+    inner = blocks.vertices[blocks.hexes[b[:, None], np.array([match[int(x)] for x in f])]]
+    s = np.linspace(0.0, 1.0, samples + 1)
+    U, V = np.meshgrid(s, s, indexing="ij")
+    w = np.stack([(1 - U) * (1 - V), U * (1 - V), U * V, (1 - U) * V], axis=-1)  # (n+1, n+1, 4)
+    outer_grid = np.einsum("abc,mcd->mabd", w, wall)
+    inner_grid = np.einsum("abc,mcd->mabd", w, inner)
+    shape = outer_grid.shape
+    outer_grid = np.asarray(project(outer_grid.reshape(-1, 3))).reshape(shape)
+    o, i = outer_grid, inner_grid
+    # sub-hexes: bottom = inner cell, top = projected wall cell (outward along the layer)
+    H = np.stack([i[:, :-1, :-1], i[:, 1:, :-1], i[:, 1:, 1:], i[:, :-1, 1:],
+                  o[:, :-1, :-1], o[:, 1:, :-1], o[:, 1:, 1:], o[:, :-1, 1:]], axis=3)
+    sj = scaled_corner_jacobians(H.reshape(-1, 8, 3)).min(axis=1).reshape(len(b), -1)
+    # wall corners run outward: the inner cell (bottom) faces the projected wall (top)
+    sj = sj.min(axis=1)
+    np.minimum.at(out, b, sj)
+    return out
+
+
+def write_bad_blocks(blocks: BlockStructure, bad: np.ndarray, path) -> Path:
+    """Write the given blocks (with their neighbours for context) to a VTU file."""
+    from ..io.atomic import atomic_path
+
+    path = Path(path)
+    grid = blocks.to_pyvista()
+    bad = np.asarray(bad)
+    mark = np.zeros(blocks.n_blocks, np.uint8)
+    mark[bad] = 1
+    grid.cell_data["invalid"] = mark
+    # the invalid blocks and every block touching them
+    touch = np.isin(blocks.hexes, blocks.hexes[bad]).any(axis=1)
+    sub = grid.extract_cells(np.flatnonzero(touch))
+    with atomic_path(path) as tmp:
+        sub.save(str(tmp), binary=True)
+    return path
+
+
+def block_structure_checks(blocks: BlockStructure) -> dict:
+    """Topological checks of a block structure.
+
+    Returns
+    -------
+    dict with
+        ``invalid_blocks``: blocks with a non-positive corner Jacobian;
+        ``min_corner_jacobian``: the smallest corner Jacobian;
+        ``face_use_errors``: unique faces used by more than two blocks, interior faces used
+        by one block, or boundary faces used by two;
+        ``boundary_quads``: number of outer faces (wall and open ends);
+        ``boundary_components``: connected pieces of the outer quad surface;
+        ``boundary_euler``: its Euler characteristic V - E + F;
+        ``nonmanifold_boundary_edges``: outer edges not shared by exactly two outer quads;
+        ``block_components``: connected pieces of blocks sharing faces.
+    """
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    H = blocks.hexes
+    nb = len(H)
+    faces = H[:, HEX_FACES].reshape(-1, 4)
+    key = np.sort(faces, axis=1)
+    uniq, inv, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    fb = blocks.face_boundary.reshape(-1)
+    use = count[inv]
+    errors = int(np.sum(count > 2)) + int(np.sum((fb == FACE_INTERIOR) & (use != 2))) + int(np.sum((fb != FACE_INTERIOR) & (use != 1)))
+    # block adjacency through shared faces
+    owner = np.repeat(np.arange(nb), 6)
+    order = np.argsort(inv, kind="stable")
+    same = inv[order][1:] == inv[order][:-1]
+    a, b = owner[order][:-1][same], owner[order][1:][same]
+    adj = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(nb, nb))
+    n_blocks_comp = connected_components(adj, directed=False)[0] if nb else 0
+    quads, _ = blocks.boundary_quads()
+    edges = np.sort(np.stack([quads, np.roll(quads, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
+    ue, ecount = np.unique(edges, axis=0, return_counts=True)
+    qv = np.unique(quads)
+    n_comp = 0
+    if len(quads):
+        qi = np.repeat(np.arange(len(quads)), 4)
+        vid = np.searchsorted(qv, quads.reshape(-1))
+        inc = sp.coo_matrix((np.ones(len(qi)), (qi, vid)), shape=(len(quads), len(qv))).tocsr()
+        n_comp = connected_components(inc @ inc.T, directed=False)[0]
+    J = blocks.corner_jacobians()
+    return {
+        "invalid_blocks": int(np.sum(J.min(axis=1) <= 0)),
+        "min_corner_jacobian": float(J.min()) if nb else 0.0,
+        "face_use_errors": errors,
+        "boundary_quads": int(len(quads)),
+        "boundary_components": int(n_comp),
+        "boundary_euler": int(len(qv) - len(ue) + len(quads)),
+        "nonmanifold_boundary_edges": int(np.sum(ecount != 2)),
+        "block_components": int(n_blocks_comp),
+    }
