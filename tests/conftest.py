@@ -29,3 +29,14 @@ def real_path():
 def synthetic_case(name):
     """(surface path, skeleton path) of a committed synthetic case."""
     return SYNTHETIC / name / "surface.ply", SYNTHETIC / name / "skeleton.json"
+
+
+@pytest.fixture(scope="session")
+def y_run(tmp_path_factory):
+    """A finished run folder of the default chain on the synthetic Y-bifurcation (p = 1)."""
+    from vmesh.chain import FilterChain
+
+    surface, skeleton = synthetic_case("y_bifurcation")
+    out = tmp_path_factory.mktemp("y_run") / "run"
+    FilterChain.load("default").run(surface=surface, skeleton=skeleton, out_dir=out)
+    return out

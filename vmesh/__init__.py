@@ -50,3 +50,5 @@ __all__ = [
     "ChainError",
     "MeshingError",
 ]
+
+from . import batch  # noqa: E402,F401  (vmesh.batch.run; dask is imported only when a batch runs)

@@ -216,7 +216,7 @@ class FilterChain:
         return chain
 
     # -- running ---------------------------------------------------------
-    def run(self, surface=None, skeleton=None, out_dir=None, progress: bool | object = False, context: Context | None = None) -> Context:
+    def run(self, surface=None, skeleton=None, out_dir=None, progress: bool | object = False, context: Context | None = None, cache=None) -> Context:
         """Run every step in order and return the context.
 
         Parameters
@@ -231,6 +231,11 @@ class FilterChain:
             every parameter resolved) and ``report.json``.
         progress : bool or callable
             Print per-filter progress to stderr (or call ``progress(event, **info)``).
+        context : Context, optional
+            Run in this context (its layers count as inputs).
+        cache : vmesh.cache.PrefixCache, optional
+            Reuse the steps through ``build_sdf`` from earlier runs on the same input
+            with the same parameters (sets ``context.cache``).
         """
         from .io.skeleton import read_skeleton
         from .io.surface import read_surface
@@ -239,6 +244,8 @@ class FilterChain:
 
         resolved = self.resolved()  # every parameter checked before anything runs
         ctx = context or Context()
+        if cache is not None:
+            ctx.cache = cache
         if surface is not None:
             if isinstance(surface, SurfaceMesh):
                 ctx.surface = surface
@@ -265,7 +272,11 @@ class FilterChain:
         t0 = time.perf_counter()
         try:
             n = len(resolved.steps)
+            # a prefix cache (batches) restores the steps up to the signed distance when it can
+            plan = ctx.cache.plan(ctx, resolved.steps) if ctx.cache is not None else None
             for i, step in enumerate(resolved.steps):
+                if plan is not None and i < plan.skip:
+                    continue
                 f = get_filter(step.filter)
                 ctx._step = StepReport(step.filter, step.params)
                 say("start", index=i + 1, total=n, name=step.filter)
@@ -284,6 +295,8 @@ class FilterChain:
                 ctx.report.steps.append(ctx._step)
                 say("end", index=i + 1, total=n, name=step.filter, step=ctx._step)
                 ctx._step = None
+                if plan is not None and i + 1 == plan.store_after:
+                    plan.store(ctx)
             ctx.report.total_s = time.perf_counter() - t0
             if stage is not None:
                 header = "# vmesh filter chain, exactly as run (every parameter resolved)"

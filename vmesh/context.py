@@ -21,6 +21,8 @@ class StepReport:
     extra_memory_mb: float = 0.0
     counts: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
+    #: restored from a :class:`~vmesh.cache.PrefixCache` instead of run
+    cached: bool = False
 
 
 @dataclass
@@ -60,6 +62,7 @@ class Report:
                 "extra_memory_mb": round(s.extra_memory_mb, 1),
                 "counts": _plain(s.counts),
                 "warnings": list(s.warnings),
+                **({"cached": True} if s.cached else {}),
             }
             for s in self.steps
         ]
@@ -69,7 +72,7 @@ class Report:
         """Per-filter table printed at the end of a command-line run."""
         rows = [("filter", "seconds", "peak MB", "+MB", "results")]
         for s in self.steps:
-            counts = ", ".join(f"{k}={_fmt(v)}" for k, v in s.counts.items())
+            counts = ("(cached) " if s.cached else "") + ", ".join(f"{k}={_fmt(v)}" for k, v in s.counts.items())
             rows.append((s.filter, f"{s.seconds:.3f}", f"{s.peak_memory_mb:.0f}", f"{s.extra_memory_mb:.0f}", counts))
         rows.append(("total", f"{self.total_s:.3f}", "", "", ""))
         w = [max(len(r[i]) for r in rows) for i in range(4)]
@@ -138,6 +141,8 @@ class Context:
     out_dir: Path | None = None
     inputs: dict = field(default_factory=dict)
     progress: Callable | None = None
+    #: a :class:`~vmesh.cache.PrefixCache`: steps up to the signed distance are reused from it
+    cache: Any = None
     _step: StepReport | None = None
 
     def has(self, layer: str) -> bool:

@@ -9,3 +9,5 @@ from . import skeleton_filters  # noqa: F401
 from . import block_filters  # noqa: F401
 from . import extract_filters  # noqa: F401
 from . import mesh_filters  # noqa: F401
+from . import export_filters  # noqa: F401
+from . import variation_filters  # noqa: F401

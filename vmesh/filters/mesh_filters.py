@@ -22,13 +22,15 @@ from ..registry import Parameter, register_filter
         Parameter("order", "int", 1, "Mesh order p: 1 linear hexahedra, 2..4 Lagrange hexahedra.", min=1, max=4),
         Parameter("node_distribution", "str", "gauss_lobatto", "High-order node positions inside each element.", choices=("gauss_lobatto", "equispaced")),
         Parameter("project_to", "str", "fine", "Surface the wall nodes are projected onto: the fine (input) or the coarse surface.", choices=("fine", "coarse")),
+        Parameter("untangle", "bool", True, "Move the nodes around elements of low scaled Jacobian (folds at junction crotches) to make them valid: wall nodes slide on the wall, cap nodes in the cap plane."),
+        Parameter("untangle_below", "float", 0.3, "Elements whose scaled Jacobian (of their sub-hexahedra for p > 1) is below this are optimised, with two rings of neighbours.", min=0.0, max=0.9),
     ],
     reads=("blocks", "surface"),
     optional_reads=("coarse_surface", "caps", "skeleton"),
     writes=("mesh",),
     category="meshing",
 )
-def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_layer, element_length, grading, first_layer, growth, order, node_distribution, project_to):
+def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_layer, element_length, grading, first_layer, growth, order, node_distribution, project_to, untangle, untangle_below):
     """Edge nodes are projected onto the wall and re-spaced by arc length; Coons patches fill
     block faces (wall faces projected again) and transfinite interpolation fills the blocks.
     The boundary layer is resolved by grading, never by extra element layers: the element
@@ -58,6 +60,8 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
 
         sdf = SignedDistance.from_surface(surface)
     sm = mesh_blocks(blocks, projector, ref, progress=ctx.tick, signed_distance=sdf.distance)
+    if untangle:
+        _untangle(ctx, sm, projector, sdf, untangle_below)
     b = sm.cell_block
     mesh = HexMesh(
         points=sm.points,
@@ -81,6 +85,33 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
     ctx.count(elements=mesh.n_cells, nodes=mesh.n_points)
     ctx.report.counts.update(elements=mesh.n_cells, nodes=mesh.n_points, blocks=blocks.n_blocks)
     ctx.report.sections["order"] = order
+
+
+def _untangle(ctx, sm, projector, sdf, below):
+    """Optimise the nodes around low-quality elements in place (see :mod:`vmesh.geometry.untangle`)."""
+    from ..geometry.untangle import untangle
+
+    n = len(sm.points)
+    cap_nodes = np.zeros(n, bool)
+    cap_normals = np.zeros((n, 3))
+    p = sm.order
+    corners = sm.boundary_faces[:, [0, p, (p + 1) ** 2 - 1, p * (p + 1)]]
+    for bid in np.unique(sm.boundary_ids[sm.boundary_ids > 0]):
+        sel = sm.boundary_ids == bid
+        q = sm.points[corners[sel]]
+        normal = np.cross(q[:, 2] - q[:, 0], q[:, 3] - q[:, 1]).sum(axis=0)
+        ids = np.unique(sm.boundary_faces[sel])
+        cap_nodes[ids] = True
+        cap_normals[ids] = normal / max(np.linalg.norm(normal), 1e-300)
+    wall = sm.on_wall.copy()
+    ctx.tick(0.95, "untangling")
+    X, info = untangle(
+        sm.points, sm.cells, p, wall=wall, wall_normals=sdf.gradient, project=projector, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=below
+    )
+    sm.points[:] = X
+    if info["rounds"]:
+        ctx.count(untangled_nodes=info["moved"])
+        ctx.report.sections["untangle"] = info
 
 
 @register_filter(

@@ -340,7 +340,7 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
         pts = a[:, None, :] + t[:, :, None] * (b - a)[:, None, :]
         wall = edge_on_wall[sel]
         if wall.any():
-            if edge_normal is not None:
+            if edge_normal is not None and pts.shape[1] > 2:  # edges of one linear element have no inner nodes
                 inner_pts = pts[wall, 1:-1]
                 k = inner_pts.shape[1]
                 moved = ray_to_surface(

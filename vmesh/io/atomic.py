@@ -23,6 +23,10 @@ def atomic_path(path: str | Path):
     tmp = Path(tmp)
     try:
         yield tmp
+        if tmp.is_file():  # mkstemp makes files private (0600): give them the usual umask mode
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)
         if tmp.is_dir():  # writers that produce folders (e.g. OpenFOAM cases)
             if path.exists():
                 import shutil

@@ -1,0 +1,841 @@
+"""Batch meshing on Dask: many geometries and parameter sweeps.
+
+A *manifest* lists the rows to mesh: a surface, an optional skeleton, an optional name
+and any number of ``filter.param`` overrides. :func:`run` validates every row, then
+meshes the rows on a Dask cluster (a local one by default, or an existing scheduler),
+each into its own output folder, and writes ``summary.csv`` (and ``summary.parquet``
+when pyarrow is installed) with one row per manifest row.
+
+* **Atomic rows**: a row is run into a hidden staging folder and renamed to
+  ``OUT/<name>/`` only when it succeeded; ``OUT/<name>/row.json`` marks it finished.
+* **Resume**: re-running the same batch skips finished rows whose inputs and resolved
+  chain are unchanged (a changed parameter or surface is recomputed).
+* **Failures**: a failed row (an error, or a worker that died) is retried once
+  (``retries``), then reported with its error; the other rows go on.
+* **Memory**: each worker process keeps a :class:`~vmesh.cache.PrefixCache`, so the
+  steps up to the signed distance run once per worker for each distinct surface and
+  preprocessing, not once per row.
+
+Examples
+--------
+>>> import vmesh.batch
+>>> result = vmesh.batch.run("sweep.toml", "batch_sweep", out="out/sweep")   # doctest: +SKIP
+>>> from distributed import Client
+>>> result = vmesh.batch.run("patients.csv", "default", out="out/p", client=Client("tcp://head:8786"))  # doctest: +SKIP
+>>> result.n_ok, result.summary_csv                                          # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import itertools
+import json
+import os
+import re
+import shutil
+import sys
+import time
+import tomllib
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError, VmeshError
+
+#: Columns of the summary every row has, in order (override columns follow).
+SUMMARY_COLUMNS = ("name", "status", "elements", "sj_min", "sj_mean", "seconds", "error", "attempts", "resumed", "sdf_reused", "worker", "cpu_seconds", "surface", "skeleton")
+#: Manifest columns that are not parameter overrides.
+RESERVED = ("surface", "skeleton", "name")
+#: Hidden folder inside the output folder where rows are staged.
+STAGING = ".vmesh-batch"
+#: Marker file of a finished row.
+ROW_FILE = "row.json"
+#: Seconds between rewrites of the summary while a batch runs.
+_SUMMARY_EVERY_S = 10.0
+_NAME_OK = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.=+,-]*$")
+
+
+# ---------------------------------------------------------------------------
+# manifests
+# ---------------------------------------------------------------------------
+@dataclass
+class ManifestRow:
+    """One mesh to make: input files, output name and parameter overrides."""
+
+    name: str | None
+    surface: str
+    skeleton: str | None = None
+    overrides: dict = field(default_factory=dict)
+    where: str = ""  # "row 3" / "sweep 1, row 4": for messages
+
+
+@dataclass
+class Manifest:
+    """The rows of a batch; ``chain`` is the chain a TOML manifest names (if any)."""
+
+    rows: list
+    path: Path | None = None
+    chain: str | None = None
+    #: override columns of a CSV header (checked even where every cell is empty)
+    columns: list = field(default_factory=list)
+
+    def __len__(self):
+        return len(self.rows)
+
+    @property
+    def override_columns(self) -> list[str]:
+        cols: list[str] = []
+        for r in self.rows:
+            cols += [k for k in r.overrides if k not in cols]
+        return cols
+
+
+def read_manifest(path) -> Manifest:
+    """Read a CSV or TOML manifest.
+
+    CSV: a header with ``surface`` (required), ``skeleton`` and ``name`` (optional) and
+    one column per override named ``filter.param``; cells are parsed like ``--set``
+    values (numbers, booleans, TOML lists), an empty cell leaves the parameter alone,
+    lines starting with ``#`` are comments.
+
+    TOML: ``chain = "..."`` (optional), a ``[defaults]`` table applied to every row,
+    ``[[row]]`` tables (one row each) and ``[[sweep]]`` tables, each expanding to many
+    rows (:func:`expand_sweep`).
+
+    Relative paths are relative to the manifest's folder.
+
+    Raises
+    ------
+    InputError
+        ``<manifest>: <problem>`` for a missing, empty or malformed manifest.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("manifest not found" if not path.exists() else "manifest is not a file", path)
+    if path.stat().st_size == 0:
+        raise InputError("manifest is empty", path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")  # spreadsheets save a byte-order mark
+    except UnicodeDecodeError:
+        raise InputError("manifest is not a text file", path) from None
+    suffix = path.suffix.lower()
+    if suffix == ".toml":
+        manifest = _read_toml_manifest(text, path)
+    elif suffix in (".csv", ".tsv", ".txt"):
+        manifest = _read_csv_manifest(text, path, delimiter="\t" if suffix == ".tsv" else ",")
+    else:
+        raise InputError(f"unknown manifest format '{path.suffix}' (use .csv or .toml)", path)
+    if not manifest.rows:
+        raise InputError("manifest has no rows", path)
+    base = path.resolve().parent
+    for r in manifest.rows:
+        r.surface = _resolve(r.surface, base)
+        r.skeleton = _resolve(r.skeleton, base) if r.skeleton else None
+    manifest.path = path
+    return manifest
+
+
+def _resolve(p, base: Path) -> str:
+    p = Path(os.path.expanduser(str(p)))
+    return str(p if p.is_absolute() else base / p)
+
+
+def _read_csv_manifest(text: str, path: Path, delimiter: str = ",") -> Manifest:
+    from .cli import parse_value
+
+    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise InputError("manifest has no header line", path)
+    reader = csv.reader(io.StringIO("\n".join(lines)), delimiter=delimiter)
+    header = [h.strip() for h in next(reader)]
+    if "surface" not in header:
+        raise InputError(f"missing column 'surface' (columns: {', '.join(header)})", path)
+    dup = sorted({h for h in header if header.count(h) > 1})
+    if dup:
+        raise InputError(f"duplicate column(s) {', '.join(dup)}", path)
+    for h in header:
+        if h not in RESERVED and "." not in h:
+            raise InputError(f"unknown column '{h}' (columns are surface, skeleton, name and filter.param overrides)", path)
+    rows = []
+    for k, cells in enumerate(reader, start=1):
+        if len(cells) > len(header):
+            raise InputError(f"row {k} has {len(cells)} cells, the header {len(header)}", path)
+        cells = [c.strip() for c in cells] + [""] * (len(header) - len(cells))
+        d = dict(zip(header, cells))
+        if not d["surface"]:
+            raise InputError(f"row {k}: empty surface", path)
+        overrides = {h: parse_value(v) for h, v in d.items() if h not in RESERVED and v != ""}
+        rows.append(ManifestRow(d.get("name") or None, d["surface"], d.get("skeleton") or None, overrides, f"row {k}"))
+    return Manifest(rows, columns=[h for h in header if h not in RESERVED])
+
+
+def _flatten(table: dict, path: Path, where: str, keep=RESERVED) -> dict:
+    """``{"mesh_transfinite": {"order": 2}}`` (TOML dotted keys) -> ``{"mesh_transfinite.order": 2}``."""
+    out = {}
+    for k, v in table.items():
+        if k in keep or "." in k:
+            out[k] = v
+        elif isinstance(v, dict):
+            for pk, pv in v.items():
+                out[f"{k}.{pk}"] = pv
+        else:
+            raise InputError(f"{where}: unknown key '{k}' (keys are surface, skeleton, name and filter.param overrides)", path)
+    return out
+
+
+def _read_toml_manifest(text: str, path: Path) -> Manifest:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"not valid TOML ({exc})", path) from None
+    unknown = set(data) - {"chain", "defaults", "row", "sweep"}
+    if unknown:
+        raise InputError(f"unknown top-level key(s) {', '.join(sorted(unknown))} (use chain, [defaults], [[row]], [[sweep]])", path)
+    chain = data.get("chain")
+    if chain is not None and not isinstance(chain, str):
+        raise InputError("'chain' must be a preset name or file path", path)
+    defaults = _flatten(data.get("defaults", {}), path, "[defaults]")
+    if "name" in defaults:
+        raise InputError("[defaults] cannot set a name", path)
+    rows = []
+    for k, table in enumerate(_tables(data.get("row", []), path, "row"), start=1):
+        rows.append(_make_row({**defaults, **_flatten(table, path, f"row {k}")}, path, f"row {k}"))
+    for k, table in enumerate(_tables(data.get("sweep", []), path, "sweep"), start=1):
+        rows += expand_sweep(table, defaults, path, f"sweep {k}")
+    if chain is not None and not Path(chain).is_absolute() and (path.resolve().parent / chain).is_file():
+        chain = str(path.resolve().parent / chain)
+    return Manifest(rows, chain=chain)
+
+
+def _tables(value, path, key):
+    if isinstance(value, dict):
+        value = [value]
+    if not isinstance(value, list) or not all(isinstance(t, dict) for t in value):
+        raise InputError(f"'{key}' must be an array of tables ([[{key}]])", path)
+    return value
+
+
+def _make_row(d: dict, path: Path, where: str) -> ManifestRow:
+    if not d.get("surface"):
+        raise InputError(f"{where}: no surface", path)
+    for key in RESERVED:
+        if key in d and d[key] is not None and not isinstance(d[key], str):
+            raise InputError(f"{where}: '{key}' must be a string, got {d[key]!r}", path)
+    overrides = {k: v for k, v in d.items() if k not in RESERVED}
+    return ManifestRow(d.get("name"), d["surface"], d.get("skeleton"), overrides, where)
+
+
+def sweep_values(spec, path: Path | None = None, where: str = "") -> list:
+    """The values of one sweep axis.
+
+    A list is taken as it is; a table is a range:
+
+    * ``{values = [...]}``
+    * ``{start = a, stop = b, num = n}``: ``n`` evenly spaced values, both ends included
+      (add ``log = true`` for geometric spacing);
+    * ``{start = a, stop = b, step = h}``: ``a, a + h, ...`` up to and including ``b``
+      (integers stay integers).
+    """
+    if isinstance(spec, list):
+        values = spec
+    elif isinstance(spec, dict):
+        keys = set(spec)
+        if keys == {"values"}:
+            values = spec["values"]
+        elif {"start", "stop"} <= keys and keys <= {"start", "stop", "num", "step", "log"} and (("num" in keys) != ("step" in keys)):
+            a, b = spec["start"], spec["stop"]
+            if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in (a, b)):
+                raise InputError(f"{where}: start and stop must be numbers", path)
+            if "num" in keys:
+                n = spec["num"]
+                if not isinstance(n, int) or n < 1:
+                    raise InputError(f"{where}: num must be a positive integer", path)
+                if spec.get("log"):
+                    if a <= 0 or b <= 0:
+                        raise InputError(f"{where}: a log range needs positive start and stop", path)
+                    values = np.geomspace(a, b, n).tolist()
+                else:
+                    values = np.linspace(a, b, n).tolist()
+                values = [round(v, 12) for v in values]  # 0.1 * 3 prints as 0.3
+            else:
+                h = spec["step"]
+                if not isinstance(h, (int, float)) or isinstance(h, bool) or h == 0 or (b - a) / h < 0:
+                    raise InputError(f"{where}: step must be a non-zero number going from start towards stop", path)
+                n = int(np.floor((b - a) / h + 1e-9)) + 1
+                values = [a + i * h for i in range(n)]
+                if not all(isinstance(x, int) for x in (a, b, h)):
+                    values = [round(float(v), 12) for v in values]
+        else:
+            raise InputError(f"{where}: a range is {{start, stop, num}} or {{start, stop, step}} (or {{values = [...]}}), got {sorted(keys)}", path)
+    else:
+        raise InputError(f"{where}: a sweep axis is a list or a range table, got {spec!r}", path)
+    if not values:
+        raise InputError(f"{where}: no values", path)
+    return list(values)
+
+
+def expand_sweep(table: dict, defaults: dict | None = None, path: Path | None = None, where: str = "sweep") -> list[ManifestRow]:
+    """Rows of one ``[[sweep]]`` table.
+
+    Keys: ``surface``, ``skeleton``, ``name`` (a template: ``{filter.param}``, ``{i}``
+    the 1-based row number in the sweep, ``{stem}`` the surface file's stem), fixed
+    ``filter.param`` values, and the sweep axes in ``[sweep.product]`` (every
+    combination) and ``[sweep.zip]`` (axes of equal length varied together). An axis is
+    a list or a range (:func:`sweep_values`); ``surface`` and ``skeleton`` may be axes
+    too. The product's last axis varies fastest.
+    """
+    table = dict(table)
+    product = _flatten(table.pop("product", {}), path, f"{where}.product")
+    zipped = _flatten(table.pop("zip", {}), path, f"{where}.zip")
+    fixed = {**(defaults or {}), **_flatten(table, path, where)}
+    both = set(product) & set(zipped)
+    if both:
+        raise InputError(f"{where}: {', '.join(sorted(both))} in both product and zip", path)
+    axes = [(k, sweep_values(v, path, f"{where}.product.{k}")) for k, v in product.items()]
+    zip_axes = [(k, sweep_values(v, path, f"{where}.zip.{k}")) for k, v in zipped.items()]
+    if zip_axes and len({len(v) for _, v in zip_axes}) > 1:
+        raise InputError(f"{where}: the zip axes have different lengths ({', '.join(f'{k}: {len(v)}' for k, v in zip_axes)})", path)
+    zip_rows = [dict(zip([k for k, _ in zip_axes], vals)) for vals in zip(*[v for _, v in zip_axes])] if zip_axes else [{}]
+    template = fixed.pop("name", None)
+    rows = []
+    combos = itertools.product(zip_rows, *[v for _, v in axes]) if axes else ((z,) for z in zip_rows)
+    for i, combo in enumerate(combos, start=1):
+        d = {**fixed, **combo[0], **{k: v for (k, _), v in zip(axes, combo[1:])}}
+        if template is not None:
+            d["name"] = _fill_name(template, d, i, path, where)
+        rows.append(_make_row(d, path, f"{where}, row {i}"))
+    return rows
+
+
+def _fill_name(template: str, d: dict, i: int, path, where: str) -> str:
+    def value(m):
+        key = m.group(1)
+        if key == "i":
+            return str(i)
+        if key == "stem":
+            return Path(str(d.get("surface", ""))).stem
+        if key not in d:
+            raise InputError(f"{where}: name template '{template}' uses '{{{key}}}', which the sweep does not set", path)
+        v = d[key]
+        return f"{v:g}" if isinstance(v, float) else str(v)
+
+    return re.sub(r"\{([^{}]+)\}", value, template)
+
+
+# ---------------------------------------------------------------------------
+# validation: every problem before anything runs
+# ---------------------------------------------------------------------------
+@dataclass
+class _Task:
+    row: ManifestRow
+    name: str
+    chain_toml: str
+    key: str
+    overrides: dict
+
+
+def _file_digest(path: str, memo: dict) -> str:
+    st = os.stat(path)
+    sig = (path, st.st_size, st.st_mtime_ns)
+    if sig not in memo:
+        h = hashlib.blake2b(digest_size=16)
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+        memo[sig] = h.hexdigest()
+    return memo[sig]
+
+
+def _default_name(row: ManifestRow) -> str:
+    # a content hash keeps default names stable when rows are added or reordered
+    text = json.dumps([row.surface, row.skeleton, row.overrides], sort_keys=True, default=str)
+    return f"{Path(row.surface).stem}-{hashlib.blake2b(text.encode(), digest_size=4).hexdigest()}"
+
+
+def prepare(manifest: Manifest, chain, overrides: dict | None = None) -> list[_Task]:
+    """Check every row and return the tasks to run.
+
+    Checks: input files exist, names are unique and usable as folder names, every
+    override names a filter of the chain and one of its parameters with a valid value,
+    and the chain has every layer it needs (a row without a skeleton needs a chain that
+    extracts one).
+
+    Raises
+    ------
+    InputError
+        ``<manifest>: <row>: <problem>``.
+    """
+    from .chain import FilterChain
+    from .registry import get_filter, suggest
+
+    where_file = manifest.path or "manifest"
+    chain = chain if isinstance(chain, FilterChain) else FilterChain.load(chain)
+    base = chain.with_overrides(overrides or {}) if overrides else chain
+    for col in dict.fromkeys([*manifest.columns, *manifest.override_columns]):
+        fname, _, pname = col.partition(".")
+        steps = [s.filter for s in base.steps]
+        if not pname or fname not in steps:
+            raise InputError(f"column '{col}': no filter '{fname}' in chain '{base.name}'" + suggest(fname, steps), where_file)
+        try:
+            get_filter(fname).parameter(pname)
+        except VmeshError as exc:
+            raise InputError(f"column '{col}': {exc}", where_file) from None
+    memo: dict = {}
+    tasks, names = [], {}
+    resolved_cache: dict = {}
+    for r in manifest.rows:
+        for label, p in (("surface", r.surface), ("skeleton", r.skeleton)):
+            if p is not None and not Path(p).is_file():
+                raise InputError(f"{r.where}: {label} file not found: {p}", where_file)
+        name = r.name or _default_name(r)
+        if not _NAME_OK.match(name) or len(name) > 200:
+            raise InputError(f"{r.where}: name {name!r} is not usable as a folder name (letters, digits and _ . = + , -; not starting with . or -)", where_file)
+        if name in names:
+            raise InputError(f"{r.where}: name '{name}' is used by {names[name]} too", where_file)
+        if name.lower() in ("summary.csv", "summary.parquet"):
+            raise InputError(f"{r.where}: name '{name}' is the summary's file name", where_file)
+        names[name] = r.where
+        sig = json.dumps(r.overrides, sort_keys=True, default=str) + f"|{r.skeleton is not None}"
+        if sig not in resolved_cache:
+            try:
+                row_chain = base.with_overrides(r.overrides).resolved()
+                row_chain.check_layers(["surface"] + (["skeleton"] if r.skeleton else []))
+            except VmeshError as exc:
+                raise InputError(f"{r.where}: {exc}", where_file) from None
+            resolved_cache[sig] = row_chain.to_toml("# vmesh batch row chain")
+        text = resolved_cache[sig]
+        ident = [text, _file_digest(r.surface, memo), _file_digest(r.skeleton, memo) if r.skeleton else None]
+        key = hashlib.blake2b(json.dumps(ident).encode(), digest_size=16).hexdigest()
+        tasks.append(_Task(r, name, text, key, {**(overrides or {}), **r.overrides}))
+    return tasks
+
+
+# ---------------------------------------------------------------------------
+# the task a worker runs
+# ---------------------------------------------------------------------------
+_WORKER_CACHE = None
+
+
+def worker_cache(max_entries: int = 2):
+    """This process's :class:`~vmesh.cache.PrefixCache` (one per Dask worker process)."""
+    global _WORKER_CACHE
+    from .cache import PrefixCache
+
+    if _WORKER_CACHE is None:
+        _WORKER_CACHE = PrefixCache(max_entries)
+    else:
+        _WORKER_CACHE.max_entries = max_entries
+    return _WORKER_CACHE
+
+
+def _worker_name() -> str:
+    try:
+        from distributed import get_worker
+
+        w = get_worker()
+        return str(w.name) if w.name is not None else w.address
+    except (ImportError, ValueError):
+        import socket
+
+        return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def read_row(folder) -> dict | None:
+    """The ``row.json`` of a finished row folder, or ``None``."""
+    try:
+        return json.loads((Path(folder) / ROW_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def mesh_row(task: dict) -> dict:
+    """Mesh one manifest row (runs on a worker) and return its summary row.
+
+    The chain runs into ``OUT/.vmesh-batch/<name>.<random>/``, which is renamed to
+    ``OUT/<name>/`` only after the mesh and ``row.json`` are written: a row folder is
+    either complete or absent. Errors are returned as ``status = "failed"``, not raised,
+    so that one bad row never stops a batch.
+    """
+    from .chain import FilterChain
+
+    t0, c0 = time.perf_counter(), time.thread_time()
+    out = Path(task["out"])
+    name = task["name"]
+    final = out / name
+    staging = out / STAGING
+    tmp = staging / f"{name}.{uuid.uuid4().hex[:10]}"
+    result = {"name": name, "status": "failed", "elements": None, "sj_min": None, "sj_mean": None, "seconds": None, "cpu_seconds": None, "error": "", "sdf_reused": False, "worker": _worker_name(), "key": task["key"]}
+    try:
+        staging.mkdir(parents=True, exist_ok=True)
+        chain = FilterChain.from_toml(task["chain"], source=f"row {name}")
+        ctx = chain.run(surface=task["surface"], skeleton=task["skeleton"], out_dir=tmp, cache=worker_cache(task.get("cache_entries", 2)))
+        rep = ctx.report.to_dict()
+        sj = rep.get("quality", {}).get("scaled_jacobian", {})
+        elements = rep.get("counts", {}).get("elements")
+        if elements is None and ctx.mesh is not None:
+            elements = int(getattr(ctx.mesh, "n_cells", 0)) or None
+        result.update(
+            status="ok",
+            elements=elements,
+            sj_min=sj.get("min"),
+            sj_mean=sj.get("mean"),
+            sdf_reused=any(s.cached and s.filter == "build_sdf" for s in ctx.report.steps),
+        )
+        # CPU time of this thread (the mesher's own threads excluded): wall time on a busy
+        # machine says little about the work a row needs
+        result["seconds"], result["cpu_seconds"] = round(time.perf_counter() - t0, 3), round(time.thread_time() - c0, 3)
+        record = {**result, "surface": task["surface"], "skeleton": task["skeleton"], "overrides": task["overrides"], "warnings": rep.get("warnings", [])}
+        tmp.mkdir(parents=True, exist_ok=True)  # a chain without output files still gets its folder
+        (tmp / ROW_FILE).write_text(json.dumps(record, indent=2, default=str))
+        _commit_row(tmp, final, staging, task["key"])
+        done = read_row(final)
+        if done is not None and done.get("key") == task["key"] and done.get("status") == "ok":
+            return {k: done.get(k, v) for k, v in result.items()}  # a twin attempt may have finished first
+        return result
+    except Exception as exc:  # reported in the summary; the batch goes on
+        shutil.rmtree(tmp, ignore_errors=True)
+        result["status"] = "failed"
+        result["error"] = " ".join(f"{exc}".split()) if isinstance(exc, VmeshError) else " ".join(f"{type(exc).__name__}: {exc}".split())
+        result["seconds"], result["cpu_seconds"] = round(time.perf_counter() - t0, 3), round(time.thread_time() - c0, 3)
+        return result
+
+
+def _commit_row(tmp: Path, final: Path, staging: Path, key: str) -> None:
+    """Rename ``tmp`` to ``final`` (one atomic rename). When ``final`` exists: keep it
+    if it already holds this row's result (a rescheduled twin finished first), else it
+    is an outdated result and is replaced."""
+    try:
+        os.rename(tmp, final)
+        return
+    except OSError:
+        if not final.exists():
+            raise
+    prev = read_row(final)
+    if prev is not None and prev.get("key") == key and prev.get("status") == "ok":
+        shutil.rmtree(tmp, ignore_errors=True)
+        return
+    old = staging / f"{final.name}.old.{uuid.uuid4().hex[:10]}"
+    os.rename(final, old)
+    os.rename(tmp, final)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+# ---------------------------------------------------------------------------
+# the batch
+# ---------------------------------------------------------------------------
+@dataclass
+class BatchResult:
+    """What :func:`run` did: the summary rows (manifest order) and where they are."""
+
+    rows: list
+    out: Path
+    summary_csv: Path
+    summary_parquet: Path | None
+    seconds: float
+    interrupted: bool = False
+
+    @property
+    def n_ok(self) -> int:
+        return sum(r["status"] == "ok" for r in self.rows)
+
+    @property
+    def n_failed(self) -> int:
+        return sum(r["status"] == "failed" for r in self.rows)
+
+    @property
+    def n_resumed(self) -> int:
+        return sum(bool(r["resumed"]) for r in self.rows)
+
+    def __repr__(self):
+        return f"BatchResult({len(self.rows)} rows: {self.n_ok} ok, {self.n_failed} failed, {self.n_resumed} resumed; {self.summary_csv})"
+
+
+def run(manifest, chain="default", out=None, *, client=None, scheduler: str | None = None, workers: int | None = None, overrides: dict | None = None, retries: int = 1, progress=True, parquet: bool | str = "auto", cache_entries: int = 2, connect_timeout: float = 30.0) -> BatchResult:
+    """Mesh every row of a manifest on Dask.
+
+    Parameters
+    ----------
+    manifest : path, Manifest or list of dict
+        A CSV/TOML manifest (:func:`read_manifest`), or rows as dicts with ``surface``,
+        optional ``skeleton``/``name`` and ``filter.param`` keys.
+    chain : str, path or FilterChain
+        The chain every row runs (a preset name such as ``"batch_sweep"``).
+    out : path
+        Output folder: ``OUT/<name>/`` per row and ``OUT/summary.csv``. Default:
+        ``<manifest stem>_out`` beside a manifest file.
+    client : distributed.Client, optional
+        Run on this client's cluster (it is left open).
+    scheduler : str, optional
+        Address of a running Dask scheduler (``tcp://host:8786``) to connect to.
+    workers : int, optional
+        Without ``client``/``scheduler``: worker processes of the local cluster
+        (default: one per CPU core, at most one per row). With ``scheduler``: wait
+        until that many workers are connected.
+    overrides : dict, optional
+        ``{"filter.param": value}`` for every row (rows' own columns win).
+    retries : int
+        Extra attempts of a failed row (an error or a lost worker) before it is
+        reported as failed.
+    progress : bool or callable
+        Print a progress line/bar to stderr, or call ``progress(done, total, row)`` after
+        each row (``row`` is the summary row; ``{"resumed_rows": n}`` once for the rows
+        skipped as finished, ``None`` at the end).
+    parquet : bool or "auto"
+        Also write ``summary.parquet`` ("auto": when pyarrow is installed).
+    cache_entries : int
+        Prefixes (preprocessed surface + signed distance) each worker keeps.
+
+    Returns
+    -------
+    BatchResult
+
+    Raises
+    ------
+    InputError
+        A bad manifest, chain or override (before anything runs).
+    """
+    from .chain import FilterChain
+
+    if not isinstance(manifest, Manifest):
+        if isinstance(manifest, (list, tuple)):
+            manifest = Manifest([_make_row(dict(d), None, f"row {k}") for k, d in enumerate(manifest, start=1)])
+            for r in manifest.rows:
+                r.surface = _resolve(r.surface, Path.cwd())
+                r.skeleton = _resolve(r.skeleton, Path.cwd()) if r.skeleton else None
+        else:
+            manifest = read_manifest(manifest)
+    if chain is None:
+        chain = manifest.chain or "default"
+    chain = chain if isinstance(chain, FilterChain) else FilterChain.load(chain)
+    tasks = prepare(manifest, chain, overrides)
+    if out is None:
+        if manifest.path is None:
+            raise InputError("give an output folder (out=...)")
+        out = manifest.path.resolve().parent / f"{manifest.path.stem}_out"
+    out = Path(out).resolve()
+    if out.exists() and not out.is_dir():
+        raise InputError("output folder is a file", out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    t_start = time.perf_counter()
+    rows: dict[str, dict] = {}
+    pending = []
+    for t in tasks:
+        prev = read_row(out / t.name)
+        if prev is not None and prev.get("status") == "ok" and prev.get("key") == t.key:
+            rows[t.name] = _summary_row(prev, t, attempts=0, resumed=True)
+        else:
+            pending.append(t)
+    say = _progress(progress, len(tasks))
+    if rows:
+        say({"resumed_rows": len(rows)}, len(rows))
+    interrupted = False
+    try:
+        if pending:
+            _run_pending(pending, rows, out, client, scheduler, workers, retries, cache_entries, connect_timeout, say, lambda: _write_summary(tasks, rows, out, manifest, parquet, final=False))
+    except KeyboardInterrupt:
+        interrupted = True
+        raise
+    finally:
+        csv_path, pq_path = _write_summary(tasks, rows, out, manifest, parquet, final=True)
+        if not interrupted:
+            shutil.rmtree(out / STAGING, ignore_errors=True)  # leftovers of lost workers
+        say(None, len(rows))
+    return BatchResult([rows.get(t.name) or _pending_row(t) for t in tasks], out, csv_path, pq_path, time.perf_counter() - t_start, interrupted)
+
+
+def _run_pending(pending, rows, out, client, scheduler, workers, retries, cache_entries, connect_timeout, say, checkpoint):
+    try:
+        from distributed import Client, as_completed
+    except ImportError:  # pragma: no cover - dask is a dependency
+        raise VmeshError("vmesh batch needs dask[distributed]: python3 -m pip install 'dask[distributed]'") from None
+
+    own_client = own_cluster = None
+    if client is None:
+        if scheduler:
+            try:
+                client = own_client = Client(scheduler, timeout=connect_timeout)
+            except (OSError, TimeoutError) as exc:
+                raise VmeshError(f"cannot reach the Dask scheduler at {scheduler} ({type(exc).__name__}: {exc})") from None
+            if workers:
+                client.wait_for_workers(int(workers), timeout=connect_timeout)
+        else:
+            own_cluster = _local_cluster(workers or max(1, min(os.cpu_count() or 1, len(pending))))
+            client = own_client = Client(own_cluster)
+    by_name = {t.name: t for t in pending}
+    attempts = {t.name: 0 for t in pending}
+    futures = {}
+
+    def submit(t):
+        attempts[t.name] += 1
+        payload = {"name": t.name, "out": str(out), "surface": t.row.surface, "skeleton": t.row.skeleton, "chain": t.chain_toml, "key": t.key, "overrides": t.overrides, "cache_entries": cache_entries}
+        f = client.submit(mesh_row, payload, key=f"vmesh-row-{t.name}-{attempts[t.name]}-{uuid.uuid4().hex[:8]}", pure=False)
+        futures[f] = t.name
+        return f
+
+    try:
+        queue = as_completed([submit(t) for t in pending])
+        last = time.monotonic()
+        for f in queue:
+            name = futures.pop(f)
+            try:
+                res = f.result()
+            except Exception as exc:  # lost worker (KilledWorker), cancelled...
+                res = {"name": name, "status": "failed", "error": " ".join(f"{type(exc).__name__}: {exc}".split()), "worker": ""}
+            f.release()
+            if res.get("status") != "ok" and attempts[name] <= retries:
+                queue.add(submit(by_name[name]))
+                continue
+            rows[name] = _summary_row(res, by_name[name], attempts=attempts[name], resumed=False)
+            say(rows[name], len(rows))
+            if time.monotonic() - last > _SUMMARY_EVERY_S:
+                checkpoint()
+                last = time.monotonic()
+    except BaseException:
+        if futures:
+            try:
+                client.cancel(list(futures))
+            except Exception:
+                pass
+        raise
+    finally:
+        if own_client is not None:
+            own_client.close()
+        if own_cluster is not None:
+            own_cluster.close()
+
+
+def _local_cluster(n: int):
+    """A Dask cluster of ``n`` single-threaded worker processes on this machine."""
+    import logging
+
+    from distributed import LocalCluster
+
+    # one thread per process: the mesher's numpy/igl work releases the GIL unevenly,
+    # processes scale; each keeps its own prefix cache
+    return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
+
+
+def _summary_row(res: dict, t: _Task, attempts: int, resumed: bool) -> dict:
+    row = {
+        "name": t.name,
+        "status": res.get("status", "failed"),
+        "elements": res.get("elements"),
+        "sj_min": _round(res.get("sj_min"), 6),
+        "sj_mean": _round(res.get("sj_mean"), 6),
+        "seconds": _round(res.get("seconds"), 3),
+        "error": res.get("error") or "",
+        "attempts": attempts,
+        "resumed": resumed,
+        "sdf_reused": bool(res.get("sdf_reused")),
+        "worker": res.get("worker") or "",
+        "cpu_seconds": _round(res.get("cpu_seconds"), 3),
+        "surface": t.row.surface,
+        "skeleton": t.row.skeleton or "",
+    }
+    row.update(t.overrides)
+    return row
+
+
+def _round(v, digits):
+    return round(float(v), digits) if v is not None else None
+
+
+def _pending_row(t: _Task) -> dict:
+    return _summary_row({"status": "pending", "error": "not run (the batch stopped first)"}, t, attempts=0, resumed=False)
+
+
+def _write_summary(tasks, rows, out: Path, manifest: Manifest, parquet, final: bool):
+    """Write ``summary.csv`` (always) and ``summary.parquet`` (pyarrow) atomically."""
+    from .io.atomic import atomic_path
+
+    extra = []
+    for t in tasks:
+        extra += [k for k in t.overrides if k not in extra]
+    columns = list(SUMMARY_COLUMNS) + extra
+    table = [rows.get(t.name) or _pending_row(t) for t in tasks]
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for r in table:
+        w.writerow({c: _cell(r.get(c)) for c in columns})
+    csv_path = out / "summary.csv"
+    with atomic_path(csv_path) as tmp:
+        tmp.write_text(buf.getvalue())
+    pq_path = None
+    if parquet and final:
+        try:
+            import pyarrow as pa
+            import pyarrow.parquet as pq
+        except ImportError:
+            if parquet is True:
+                print("warning: pyarrow is not installed: summary.parquet not written", file=sys.stderr)
+        else:
+            cols = {c: [_parquet_cell(r.get(c)) for r in table] for c in columns}
+            pq_path = out / "summary.parquet"
+            with atomic_path(pq_path) as tmp:
+                pq.write_table(pa.table(cols), tmp)
+    return csv_path, pq_path
+
+
+def _cell(v):
+    if v is None:
+        return ""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        return repr(v)
+    if isinstance(v, (list, dict)):
+        return json.dumps(v)
+    return v
+
+
+def _parquet_cell(v):
+    return json.dumps(v) if isinstance(v, (list, dict)) else v
+
+
+def read_summary(path) -> list[dict]:
+    """Rows of a ``summary.csv`` as dicts of strings."""
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _progress(progress, total: int):
+    """``say(row, done)``: print one line per finished row (or a bar on a terminal)."""
+    if callable(progress) and not isinstance(progress, bool):
+        return lambda row, done: progress(done, total, row)
+    if not progress:
+        return lambda row, done: None
+    tty = sys.stderr.isatty()
+    t0 = time.perf_counter()
+    state = {"failed": 0, "resumed": 0, "closed": False}
+
+    def say(row, done):
+        if row is None:  # the end
+            if tty and not state["closed"]:
+                print(file=sys.stderr, flush=True)
+            state["closed"] = True
+            return
+        if "resumed_rows" in row:  # one line for every row finished by an earlier run
+            state["resumed"] = row["resumed_rows"]
+            print(f"[{done}/{total}] {done} rows finished by an earlier run: skipped", file=sys.stderr, flush=True)
+            return
+        state["failed"] += row["status"] == "failed"
+        state["resumed"] += bool(row["resumed"])
+        elapsed = time.perf_counter() - t0
+        if tty:
+            bar = "#" * int(30 * done / max(total, 1))
+            print(f"\r[{bar:<30}] {done}/{total} rows  {state['failed']} failed  {state['resumed']} resumed  {elapsed:6.1f} s", end="", file=sys.stderr, flush=True)
+        else:
+            what = "resumed" if row["resumed"] else row["status"]
+            if row["status"] == "ok":
+                detail = f"{row['elements']} elements" + (f", sj_min {row['sj_min']:.3f}" if row["sj_min"] is not None else "") + (f", {row['seconds']:.1f} s" if row["seconds"] is not None else "")
+            else:
+                detail = row["error"]
+            print(f"[{done}/{total}] {what:<7} {row['name']}: {detail}", file=sys.stderr, flush=True)
+
+    return say

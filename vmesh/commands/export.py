@@ -1,0 +1,81 @@
+"""``vmesh export``: convert a finished run folder's mesh to solver formats or MeshLab layers.
+
+Examples
+--------
+::
+
+    vmesh export out/y --format msh                 # out/y/mesh.msh (Gmsh 4.1, physical groups)
+    vmesh export out/y --format inp,exo,openfoam    # several at once
+    vmesh export out/y --format xdmf -o case/vessel.xdmf
+    vmesh export out/y --format meshlab             # out/y/meshlab/ with vmesh.mlp
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..cli import EXTRA_COMMANDS
+from ..errors import ParameterError
+
+HELP = "convert a run folder's mesh: vtu, msh (Gmsh 4.1), inp (Abaqus), exo (Exodus II), mesh (Medit), xdmf, openfoam, meshlab"
+
+
+def add_arguments(p) -> None:
+    from ..io.export import EXPORT_FORMATS
+
+    p.add_argument("run_dir", metavar="RUN_DIR", help="a finished run folder (vmesh run ... -o RUN_DIR)")
+    p.add_argument("-f", "--format", required=True, metavar="FMT",
+                   help="format name or extension, comma-separated for several: " + ", ".join(EXPORT_FORMATS) + ", meshlab (aliases: msh, inp, exo, mesh)")
+    p.add_argument("-o", "--out", metavar="PATH", help="output file or folder (one format only; default RUN_DIR/mesh.<ext>, RUN_DIR/openfoam, RUN_DIR/meshlab)")
+    p.add_argument("--linearize", action="store_true", help="write only element corners to formats that cannot hold the mesh order")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+
+
+def run(args) -> int:
+    from ..io.export import default_filename, export_mesh, resolve_format
+    from ..io.run_folder import check_run_dir, read_run_mesh
+
+    run_dir = check_run_dir(args.run_dir)
+    names = [f.strip() for f in args.format.split(",") if f.strip()]
+    if not names:
+        raise ParameterError("--format is empty", run_dir)
+    if args.out and len(names) > 1:
+        raise ParameterError("--out takes one format only", args.out)
+    # every format checked, and every order refusal found, before anything is written
+    targets = []
+    for name in names:
+        if name.lower() == "meshlab":
+            targets.append(("meshlab", Path(args.out) if args.out else run_dir / "meshlab"))
+            continue
+        fmt = resolve_format(run_dir, name)
+        targets.append((fmt, Path(args.out) if args.out else run_dir / default_filename(fmt)))
+    mesh = read_run_mesh(run_dir)
+    for fmt, path in targets:
+        if fmt != "meshlab" and mesh.order > fmt.max_order and not args.linearize:
+            export_mesh(path, mesh, fmt.name)  # raises the one-line refusal
+    for fmt, path in targets:
+        if fmt == "meshlab":
+            _export_meshlab(run_dir, mesh, path)
+        else:
+            export_mesh(path, mesh, fmt.name, linearize=args.linearize)
+        if not args.quiet:
+            print(f"wrote {path}{'/' if path.is_dir() else ''} ({'meshlab' if fmt == 'meshlab' else fmt.name}: {mesh.n_cells} elements, {mesh.n_points} nodes, p = {mesh.order})")
+    return 0
+
+
+def _export_meshlab(run_dir: Path, mesh, path: Path) -> None:
+    from ..io.meshlab import write_meshlab_folder
+    from ..io.run_folder import run_surface_path
+    from ..io.skeleton import read_skeleton
+    from ..io.surface import read_surface
+
+    surfaces = {}
+    for layer in ("surface", "coarse_surface"):
+        p = run_surface_path(run_dir, layer)
+        surfaces[layer] = read_surface(p) if p is not None else None
+    skeleton = read_skeleton(run_dir / "skeleton.json") if (run_dir / "skeleton.json").is_file() else None
+    edges = run_dir / "blocks_edges.ply"
+    write_meshlab_folder(path, mesh, surfaces["surface"], surfaces["coarse_surface"], skeleton, edges if edges.is_file() else None)
+
+
+EXTRA_COMMANDS["export"] = (add_arguments, run, HELP)
