@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -136,7 +137,8 @@ def mesh_row(case: str, surface, skeleton=None, overrides: dict | None = None, e
     except Exception as exc:  # every failure is a row
         row["status"] = "failed"
         msg = str(exc).strip().splitlines()
-        row["error"] = f"{type(exc).__name__}: {msg[0] if msg else ''}"[:400]
+        first = re.sub(r"\S*vmesh-bench-[^ /]+/(\.[^ /]+/)?", "", msg[0] if msg else "")  # the deleted temp folder
+        row["error"] = f"{type(exc).__name__}: {first}"[:400]
         row["traceback_tail"] = traceback.format_exc().strip().splitlines()[-3:]
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -173,6 +175,10 @@ def _fill_from_context(row: dict, ctx) -> None:
     if row["status"] == "failed":
         names = [s.filter for s in ctx.report.steps]
         row["failed_step"] = f"after {names[-1]}" if names else "first step"
+    unt = ctx.report.sections.get("untangle")
+    if isinstance(unt, dict):
+        row["untangle"] = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in unt.items()
+                           if isinstance(v, (int, float, str, bool, np.generic))}
     if ctx.skeleton is not None:
         row["skeleton_used"] = skeleton_counts(ctx.skeleton)
     if ctx.blocks is not None:

@@ -1,7 +1,7 @@
 """One gmsh (or TetGen) tetrahedral mesh, run in a subprocess by vs_unstructured.py (so a hang or
 crash of the mesher is bounded by a timeout and becomes a row). Prints one JSON line.
 
-    python benchmarks/_gmsh_worker.py tet  SURFACE.stl  H  THREADS  [OUT_SURF.npz]
+    python benchmarks/_gmsh_worker.py tet  WALL.stl     H  THREADS  [OUT_SURF.npz]
     python benchmarks/_gmsh_worker.py bl   WALL.stl     H  THREADS  HEIGHTS(comma, cumulative, signed)
     python benchmarks/_gmsh_worker.py tetgen SURF.npz   H
 """
@@ -15,11 +15,13 @@ import time
 
 import numpy as np
 
+ALGO2D = 6
+
 
 def _setup(h: float, threads: int):
     import gmsh
 
-    gmsh.initialize(["gmsh", "-v", "1"])
+    gmsh.initialize(["gmsh", "-v", "2"])
     gmsh.option.setNumber("General.Terminal", 0)
     gmsh.option.setNumber("General.NumThreads", threads)
     gmsh.option.setNumber("Mesh.MaxNumThreads1D", threads)
@@ -30,7 +32,7 @@ def _setup(h: float, threads: int):
     gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
     gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
     gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
-    gmsh.option.setNumber("Mesh.Algorithm", 6)  # Frontal-Delaunay 2D on the reparametrised patches
+    gmsh.option.setNumber("Mesh.Algorithm", ALGO2D)  # 6 Frontal-Delaunay, 1 MeshAdapt (rougher patches)
     gmsh.option.setNumber("Mesh.Algorithm3D", 10)  # HXT (parallel Delaunay)
     return gmsh
 
@@ -72,59 +74,47 @@ def _surface_arrays(gmsh):
     return pts[used], remap[f]
 
 
-def tet(path: str, h: float, threads: int, surf_out: str | None = None) -> dict:
+def volume_mesh(path: str, h: float, threads: int, heights: list[float] | None = None, surf_out: str | None = None) -> dict:
+    """Tetrahedra (and, with ``heights``, inward boundary-layer prisms) inside an open wall surface.
+
+    The wall is classified and reparametrised (``classifySurfaces`` + ``createGeometry``),
+    remeshed at size ``h``; with ``heights`` a boundary layer is extruded inward along the
+    mesh normals first (``extrudeBoundaryLayer``, recombined to prisms); the open ends
+    (of the wall, or of the layer's top surface) are closed with plane surfaces, as in
+    gmsh's examples/api/aneurysm.py.
+    """
     gmsh = _setup(h, threads)
     t0 = time.perf_counter()
     gmsh.merge(path)
-    # caps are flat and meet the wall at a crease: split there, reparametrise every patch
-    gmsh.model.mesh.classifySurfaces(40 * math.pi / 180, True, True, math.pi)
+    gmsh.model.mesh.classifySurfaces(math.pi, True, True)
     gmsh.model.mesh.createGeometry()
-    surfaces = [s[1] for s in gmsh.model.getEntities(2)]
+    if heights:
+        gmsh.option.setNumber("Geometry.ExtrudeReturnLateralEntities", 0)
+        e = gmsh.model.geo.extrudeBoundaryLayer(gmsh.model.getEntities(2), [1] * len(heights), heights, True)
+        top = [s for s in e if s[0] == 2]
+    else:
+        top = gmsh.model.getEntities(2)
+    surfaces = [s[1] for s in top]
+    gmsh.model.geo.synchronize()
+    bnd = [c[1] for c in gmsh.model.getBoundary(top)]
+    for loop in gmsh.model.geo.addCurveLoops(bnd):
+        surfaces.append(gmsh.model.geo.addPlaneSurface([loop]))
     gmsh.model.geo.addVolume([gmsh.model.geo.addSurfaceLoop(surfaces)])
     gmsh.model.geo.synchronize()
     t1 = time.perf_counter()
     gmsh.model.mesh.generate(3)
     t2 = time.perf_counter()
     out = {"geometry_s": round(t1 - t0, 3), "mesh_s": round(t2 - t1, 3), "seconds": round(t2 - t0, 3), **_counts(gmsh)}
+    if heights:  # prisms of positive volume: the layer went inward
+        try:
+            q = gmsh.model.mesh.getElementQualities(gmsh.model.mesh.getElementsByType(6)[0], "minSJ")
+            out["prism_minSJ_min"] = float(np.min(q)) if len(q) else None
+            out["prism_invalid"] = int(np.sum(q <= 0)) if len(q) else 0
+        except Exception as exc:
+            out["prism_check"] = str(exc)
     if surf_out:
         v, f = _surface_arrays(gmsh)
         np.savez(surf_out, v=v, f=f)
-    gmsh.finalize()
-    return out
-
-
-def bl(path: str, h: float, threads: int, heights: list[float]) -> dict:
-    gmsh = _setup(h, threads)
-    t0 = time.perf_counter()
-    gmsh.merge(path)
-    gmsh.model.mesh.classifySurfaces(math.pi, True, True)
-    gmsh.model.mesh.createGeometry()
-    gmsh.option.setNumber("Geometry.ExtrudeReturnLateralEntities", 0)
-    e = gmsh.model.geo.extrudeBoundaryLayer(gmsh.model.getEntities(2), [1] * len(heights), heights, True)
-    top = [s for s in e if s[0] == 2]
-    top_surf = [s[1] for s in top]
-    gmsh.model.geo.synchronize()
-    bnd = [c[1] for c in gmsh.model.getBoundary(top)]
-    for loop in gmsh.model.geo.addCurveLoops(bnd):
-        top_surf.append(gmsh.model.geo.addPlaneSurface([loop]))
-    gmsh.model.geo.addVolume([gmsh.model.geo.addSurfaceLoop(top_surf)])
-    gmsh.model.geo.synchronize()
-    t1 = time.perf_counter()
-    gmsh.model.mesh.generate(3)
-    t2 = time.perf_counter()
-    out = {"geometry_s": round(t1 - t0, 3), "mesh_s": round(t2 - t1, 3), "seconds": round(t2 - t0, 3), **_counts(gmsh)}
-    # orientation check: prisms must have positive volume (an outward extrusion gives a shell outside the wall)
-    try:
-        q = gmsh.model.mesh.getElementQualities(gmsh.model.mesh.getElementsByType(6)[0], "minSJ")
-        out["prism_minSJ_min"] = float(np.min(q)) if len(q) else None
-        out["prism_invalid"] = int(np.sum(q <= 0)) if len(q) else 0
-    except Exception as exc:  # older gmsh without element qualities
-        out["prism_check"] = str(exc)
-    try:
-        q = gmsh.model.mesh.getElementQualities(gmsh.model.mesh.getElementsByType(4)[0], "minSJ")
-        out["tet_minSJ_min"] = float(np.min(q)) if len(q) else None
-    except Exception:
-        pass
     gmsh.finalize()
     return out
 
@@ -144,9 +134,9 @@ def tetgen_mesh(npz: str, h: float) -> dict:
 def main(argv):
     mode = argv[0]
     if mode == "tet":
-        res = tet(argv[1], float(argv[2]), int(argv[3]), argv[4] if len(argv) > 4 else None)
+        res = volume_mesh(argv[1], float(argv[2]), int(argv[3]), None, argv[4] if len(argv) > 4 else None)
     elif mode == "bl":
-        res = bl(argv[1], float(argv[2]), int(argv[3]), [float(x) for x in argv[4].split(",")])
+        res = volume_mesh(argv[1], float(argv[2]), int(argv[3]), [float(x) for x in argv[4].split(",")])
     elif mode == "tetgen":
         res = tetgen_mesh(argv[1], float(argv[2]))
     else:

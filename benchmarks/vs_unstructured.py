@@ -12,11 +12,14 @@ every real surface) vmesh's default chain runs first and gives the resolution to
 
 Then, on vmesh's repaired and capped fine surface:
 
-* ``gmsh tet``: classifySurfaces (40° crease, caps separate) + createGeometry, one volume,
-  mesh size ``h`` everywhere, Frontal-Delaunay 2D + HXT 3D, ``General.NumThreads`` 2;
-* ``gmsh BL+tet``: the wall alone (caps removed), ``extrudeBoundaryLayer`` inward with the
-  prism layers above (recombined: prisms), the holes closed by plane surfaces, tetrahedra
-  inside (gmsh's ``BoundaryLayer`` *field* is 2D-only, so extrusion is the way for 3D
+* ``gmsh tet``: the wall alone (vmesh's caps removed: on some real surfaces they cut
+  the wall), classifySurfaces + createGeometry, the open ends closed by gmsh plane
+  surfaces, one volume, mesh size ``h`` everywhere, Frontal-Delaunay 2D + HXT 3D,
+  ``General.NumThreads`` 2;
+* ``gmsh BL+tet``: the same wall, ``extrudeBoundaryLayer`` inward with the prism layers
+  above (recombined: prisms), the holes closed by plane surfaces, tetrahedra inside; when
+  the extruded layer folds (the 3D mesher reports intersecting facets) it is retried once
+  with half the total thickness and the same first layer (``half thickness``) (gmsh's ``BoundaryLayer`` *field* is 2D-only, so extrusion is the way for 3D
   discrete geometry, as in gmsh's examples/api/aneurysm.py);
 * ``TetGen``: tetgen (pyvista's wrapper) on gmsh's surface triangles of the ``gmsh tet``
   run, quality ``-q1.5`` and max volume of a regular tetrahedron of edge ``h``; no
@@ -92,8 +95,10 @@ def run_worker(args: list[str], timeout: float) -> dict:
     for line in p.stdout.splitlines()[::-1]:
         if line.startswith("RESULT "):
             return {"status": "ok", "wall_s": wall, **json.loads(line[7:])}
-    tail = (p.stderr or p.stdout).strip().splitlines()
-    err = next((ln for ln in tail[::-1] if "Error" in ln or "error" in ln), tail[-1] if tail else f"exit status {p.returncode}")
+    tail = [ln.strip() for ln in (p.stderr + "\n" + p.stdout).strip().splitlines() if ln.strip()]
+    final = next((ln for ln in tail[::-1] if ln.startswith(("Exception:", "Error", "RuntimeError", "MemoryError"))), tail[-1] if tail else "")
+    cause = next((ln for ln in tail if ln.startswith(("PLC Error", "Error   :", "Error:"))), "")
+    err = final + (f" ({cause})" if cause and cause not in final else "") or f"exit status {p.returncode}"
     return {"status": "failed", "error": f"exit {p.returncode}: {err[:300]}", "wall_s": wall}
 
 
@@ -132,16 +137,21 @@ def compare(name: str, surface, skeleton, args, tmp: Path) -> list[dict]:
     cap_faces = np.concatenate([c.faces for c in ctx.caps]) if ctx.caps else np.zeros(0, np.int64)
     keep = np.ones(s.n_faces, bool)
     keep[cap_faces] = False
-    capped = write_stl(tmp / f"{name}_capped.stl", s.vertices, s.faces)
     wall = write_stl(tmp / f"{name}_wall.stl", s.vertices, s.faces[keep])
     surf_npz = tmp / f"{name}_gmsh_surface.npz"
-    jobs = [("gmsh tet", ["tet", capped, h, args.threads, surf_npz]),
-            ("gmsh BL+tet", ["bl", wall, h, args.threads, ",".join(f"{-x:.6g}" for x in heights)])]
-    for label, job in jobs:
+    jobs = [("gmsh tet", ["tet", wall, h, args.threads, surf_npz], setting),
+            ("gmsh BL+tet", ["bl", wall, h, args.threads, ",".join(f"{-x:.6g}" for x in heights)], setting)]
+    while jobs:
+        label, job, st = jobs.pop(0)
         print(f"    {label} (h = {h:.3g}) ...", flush=True)
-        r = {"case": name, "mesher": label, **setting, **run_worker(job, args.timeout)}
+        r = {"case": name, "mesher": label, **st, **run_worker(job, args.timeout)}
         rows.append(r)
         print(f"      {r['status']}: {r.get('elements', '-')} elements, {r.get('nodes', '-')} nodes, {r['wall_s']} s {r.get('error', '')}", flush=True)
+        if label == "gmsh BL+tet" and r["status"] != "ok":
+            # the extruded layer folded (thin or tightly curved vessels): same first layer, half the total thickness
+            half = layer_heights(first, total / 2, n_layers)
+            st2 = {**setting, "bl_total": round(total / 2, 4), "bl_heights": [round(x, 5) for x in half]}
+            jobs.append(("gmsh BL+tet (half thickness)", ["bl", wall, h, args.threads, ",".join(f"{-x:.6g}" for x in half)], st2))
     why = tetgen_available()
     if why:
         rows.append({"case": name, "mesher": "TetGen", "status": "skipped", "error": why})
@@ -192,7 +202,7 @@ def main(argv=None) -> int:
         b = base.get(r["case"])
         el, nd = r.get("elements"), r.get("nodes")
         kinds = f"{C.fmt(r.get('hexahedra', 0))}/{C.fmt(r.get('prisms', 0))}/{C.fmt(r.get('tetrahedra', 0))}" if el else "-"
-        bl = "graded hex" if r["mesher"].startswith("vmesh") else ("prisms" if r["mesher"] == "gmsh BL+tet" else "none")
+        bl = "graded hex" if r["mesher"].startswith("vmesh") else ("prisms" if r["mesher"].startswith("gmsh BL") else "none")
         if "bl_first" in r and bl != "none":
             bl += f" {r['bl_layers']}: {r['bl_first']:.3g}/{r['bl_total']:.3g}"
         lines.append([
@@ -205,9 +215,9 @@ def main(argv=None) -> int:
     md = C.table(head, lines)
     claim = []
     for name, b in base.items():
-        blr = next((r for r in rows if r["case"] == name and r["mesher"] == "gmsh BL+tet" and r["status"] == "ok"), None)
+        blr = next((r for r in rows if r["case"] == name and r["mesher"].startswith("gmsh BL") and r["status"] == "ok"), None)
         if blr:
-            claim.append(f"- {name}: gmsh BL+tet needs {blr['elements'] / b['elements']:.1f}x the elements and "
+            claim.append(f"- {name}: {blr['mesher']} needs {blr['elements'] / b['elements']:.1f}x the elements and "
                          f"{blr['nodes'] / b['nodes']:.1f}x the nodes of vmesh for the same first-layer thickness and layer count")
         else:
             claim.append(f"- {name}: no boundary-layer tetrahedral mesh to compare with")

@@ -18,7 +18,7 @@ untouched:
   flat caps slide in the cap plane; nodes on a wall/cap rim stay fixed.
 
 High-order meshes are optimised through their lattice of sub-hexahedra (every node).
-All work is vectorised over corners; the minimisation is scipy's L-BFGS.
+All work is vectorised over corners; the minimisation is a limited-memory BFGS.
 """
 
 from __future__ import annotations
@@ -32,6 +32,8 @@ import scipy.sparse as sp
 _CORNER_BITS = np.array([[c & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)])
 _NBR = np.array([[c ^ (1 << a) for a in range(3)] for c in range(8)])
 _SGN = np.where(_CORNER_BITS == 0, 1.0, -1.0)  # (8, 3): sign of the step to each neighbour
+#: the six faces of a tensor-order hexahedron (corner indices)
+_HEX_FACES = np.array([[0, 2, 4, 6], [1, 3, 5, 7], [0, 1, 4, 5], [2, 3, 6, 7], [0, 1, 2, 3], [4, 5, 6, 7]])
 
 
 def sub_hexahedra(cells: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
@@ -122,20 +124,69 @@ def _objective(points: np.ndarray, prob: _Problem, want_grad: bool = True):
     return float(f.sum()), grad
 
 
-def _minimise(points: np.ndarray, prob: _Problem, iterations: int) -> np.ndarray:
-    from scipy.optimize import minimize
+def lbfgs(fun, x0: np.ndarray, iterations: int = 200, memory: int = 8, first_step: float = 1.0, rtol: float = 1e-7) -> np.ndarray:
+    """Minimise ``fun(x) -> (f, grad)`` by limited-memory BFGS with a backtracking (Armijo)
+    line search. Plain numpy: for these problems scipy's L-BFGS-B spends more time in its
+    bound handling than in the objective."""
+    x = np.array(x0, float)
+    f, g = fun(x)
+    S, Y = [], []
+    for _ in range(iterations):
+        q = g.copy()
+        alphas = []
+        for s_, y_ in zip(reversed(S), reversed(Y)):
+            rho = 1.0 / float(y_ @ s_)
+            a = rho * float(s_ @ q)
+            q -= a * y_
+            alphas.append((rho, a))
+        if S:
+            q *= float(S[-1] @ Y[-1]) / max(float(Y[-1] @ Y[-1]), 1e-300)
+        else:
+            q *= first_step / max(float(np.abs(g).max()), 1e-300)
+        for (s_, y_), (rho, a) in zip(zip(S, Y), reversed(alphas)):
+            q += s_ * (a - rho * float(y_ @ q))
+        d = -q
+        slope = float(g @ d)
+        if slope >= 0:  # not a descent direction: restart from steepest descent
+            S, Y = [], []
+            d = -g * (first_step / max(float(np.abs(g).max()), 1e-300))
+            slope = float(g @ d)
+        t = 1.0
+        while True:
+            fn, gn = fun(x + t * d)
+            if fn <= f + 1e-4 * t * slope or t < 1e-8:
+                break
+            t *= 0.5
+        if fn > f:
+            break
+        step, dg = t * d, gn - g
+        if float(dg @ step) > 1e-300:
+            S.append(step)
+            Y.append(dg)
+            if len(S) > memory:
+                S.pop(0)
+                Y.pop(0)
+        x += step
+        done = f - fn <= rtol * abs(f)
+        f, g = fn, gn
+        if done:
+            break
+    return x
 
+
+def _minimise(points: np.ndarray, prob: _Problem, iterations: int) -> np.ndarray:
     k = prob.basis.shape[2]
     X = points.copy()
 
     def fun(u):
         X[prob.free] = prob.x0 + np.einsum("nik,nk->ni", prob.basis, u.reshape(-1, k))
         f, g = _objective(X, prob)
-        gu = np.einsum("nik,ni->nk", prob.basis, g[prob.free])
-        return f, gu.ravel()
+        return f, np.einsum("nik,ni->nk", prob.basis, g[prob.free]).ravel()
 
-    res = minimize(fun, np.zeros(len(prob.free) * k), jac=True, method="L-BFGS-B", options={"maxiter": iterations, "maxcor": 10})
-    X[prob.free] = prob.x0 + np.einsum("nik,nk->ni", prob.basis, res.x.reshape(-1, k))
+    # first step: move the node with the steepest gradient by a tenth of a target edge
+    h = 0.1 / float(np.median(prob.scale))
+    u = lbfgs(fun, np.zeros(len(prob.free) * k), iterations, first_step=h)
+    X[prob.free] = prob.x0 + np.einsum("nik,nk->ni", prob.basis, u.reshape(-1, k))
     return X
 
 
@@ -241,7 +292,13 @@ def untangle(
     sub, _parent = sub_hexahedra(cells, order)
     wall = np.zeros(n, bool) if wall is None else np.asarray(wall, bool)
     cap_nodes = np.zeros(n, bool) if cap_nodes is None else np.asarray(cap_nodes, bool)
-    rim = wall & cap_nodes
+    # nodes on the mesh boundary that are neither wall nor cap nodes never move (without a
+    # fixed boundary the regularised functional could shrink the region towards a point)
+    faces = np.sort(sub[:, _HEX_FACES].reshape(-1, 4), axis=1)
+    uniq, counts = np.unique(faces, axis=0, return_counts=True)
+    on_boundary = np.zeros(n, bool)
+    on_boundary[uniq[counts == 1].ravel()] = True
+    rim = (wall & cap_nodes) | (on_boundary & ~wall & ~cap_nodes)
     q = linear_scaled_jacobian(X, sub)
     info = {"before": float(q.min()) if len(q) else 1.0, "moved": 0, "rounds": 0, "elements": 0}
     # targets: initial edge lengths at every corner (keeps graded layers graded)

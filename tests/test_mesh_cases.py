@@ -1,0 +1,146 @@
+"""The default chain end to end on every synthetic case: valid, conforming, watertight meshes
+whose wall nodes lie on the surface and whose elements carry the skeleton's tags; and the
+untangling kernel on its own."""
+
+import numpy as np
+import pytest
+
+import vmesh
+from conftest import synthetic_case
+from vmesh.blocks import HEX_FACES
+from vmesh.geometry.projection import SurfaceProjector
+from vmesh.geometry.untangle import linear_scaled_jacobian, sub_hexahedra, untangle
+
+CASES = [
+    "straight_tube",
+    "curved_tube",
+    "y_bifurcation",
+    "uneven_bifurcation",
+    "trifurcation",
+    "five_furcation",
+    "two_junctions",
+    "ring",
+    "coarctation",
+    "aneurysm",
+    "cerebral_tree",
+]
+
+
+def run_default(surface, skeleton=None, **overrides):
+    chain = vmesh.FilterChain.load("default").with_overrides({"compute_quality.histogram": "", **overrides})
+    chain.steps = [s for s in chain.steps if not s.filter.startswith(("write", "export"))]
+    return chain.run(surface=surface, skeleton=skeleton)
+
+
+def check_mesh(ctx):
+    """Assert validity, conformity, watertightness and wall nodes on the fine surface."""
+    mesh = ctx.mesh
+    sj = mesh.cell_data["scaled_jacobian"]
+    assert (sj > 0).all(), f"{(sj <= 0).sum()} invalid elements, min {sj.min():.3f}"
+    # conformity: every element face is shared by two elements or lies on the boundary
+    faces = np.sort(mesh.corner_cells()[:, HEX_FACES].reshape(-1, 4), axis=1)
+    _, counts = np.unique(faces, axis=0, return_counts=True)
+    assert set(counts.tolist()) <= {1, 2}
+    assert (counts == 1).sum() == len(mesh.boundary_faces)
+    # watertight: every boundary quad edge is shared by exactly two boundary quads
+    q = mesh.corner_boundary_faces()
+    e = np.sort(np.stack([q, np.roll(q, -1, 1)], -1).reshape(-1, 2), 1)
+    _, ec = np.unique(e, axis=0, return_counts=True)
+    assert (ec == 2).all()
+    # wall nodes on the fine (input) surface
+    surface = ctx.surface
+    wall = np.unique(mesh.boundary_faces[mesh.boundary_ids == 0])
+    d = SurfaceProjector(surface.vertices, surface.faces).project(mesh.points[wall])[1]
+    assert d.max() < 1e-6 * surface.diagonal
+    # named open ends
+    names = set(mesh.boundary_names.values())
+    assert "wall" in names and "inlet" in names
+    return sj
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", CASES)
+def test_default_chain_on_synthetic_case(case):
+    surface, skeleton = synthetic_case(case)
+    ctx = run_default(surface, skeleton)
+    sj = check_mesh(ctx)
+    assert sj.mean() > 0.85
+    # element labels follow the skeleton tags
+    mesh = ctx.mesh
+    tags = {t for tt in ctx.blocks.block_tags for t in tt}
+    for t in tags:
+        assert mesh.cell_data[f"tag_{t}"].sum() > 0
+    assert set(mesh.label_names.values()) == {"+".join(sorted(t)) if t else "vessel" for t in ctx.blocks.block_tags}
+
+
+def test_aneurysm_tagged_elements_form_the_sac():
+    surface, skeleton = synthetic_case("aneurysm")
+    ctx = run_default(surface, skeleton)
+    mesh, sk = ctx.mesh, ctx.skeleton
+    sac = mesh.cell_data["tag_aneurysm"].astype(bool)
+    assert 0 < sac.sum() < 0.5 * mesh.n_cells
+    centres = mesh.points[mesh.corner_cells()].mean(axis=1)
+    node_is_sac = np.array([bool({"aneurysm", "neck"} & set(t)) for t in sk.node_tags])
+    nearest = np.argmin(((centres[:, None, :] - sk.points[None, :, :]) ** 2).sum(-1), axis=1)
+    # the tagged elements sit around the sac's skeleton nodes, the others around the vessel's
+    assert node_is_sac[nearest[sac]].mean() > 0.95
+    assert (~node_is_sac[nearest[~sac]]).mean() > 0.9  # the junction blocks next to the neck are vessel
+
+
+def test_junction_folds_are_untangled():
+    """Without untangling the crotches of two close junctions fold; with it every element is valid."""
+    surface, skeleton = synthetic_case("two_junctions")
+    raw = run_default(surface, skeleton, **{"mesh_transfinite.untangle": False, "compute_quality.fail_on_invalid": False})
+    assert (raw.mesh.cell_data["scaled_jacobian"] <= 0).any()
+    ctx = run_default(surface, skeleton)
+    sj = check_mesh(ctx)
+    assert sj.min() > 0.2
+    assert ctx.report.sections["untangle"]["moved"] > 0
+    # untouched elements keep their nodes
+    moved = np.linalg.norm(ctx.mesh.points - raw.mesh.points, axis=1) > 1e-12
+    assert moved.mean() < 0.2
+
+
+def _lattice(n=5, h=1.0):
+    g = np.arange(n + 1) * h
+    P = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).transpose(2, 1, 0, 3).reshape(-1, 3)  # i fastest
+    idx = np.arange((n + 1) ** 3).reshape(n + 1, n + 1, n + 1)  # [k, j, i]
+    a = np.arange(n)
+    k, j, i = np.meshgrid(a, a, a, indexing="ij")
+    corners = [idx[k + ck, j + cj, i + ci] for ck in (0, 1) for cj in (0, 1) for ci in (0, 1)]
+    return P, np.stack([c.ravel() for c in corners], axis=1)
+
+
+def test_untangle_kernel_on_an_inverted_lattice():
+    P, H = _lattice()
+    assert linear_scaled_jacobian(P, H).min() > 0.999
+    Q = P.copy()
+    centre = np.argmin(np.linalg.norm(P - 2.0, axis=1))  # an interior node
+    Q[centre] += [1.4, 1.3, 1.2]  # push it through its neighbours: elements invert
+    assert (linear_scaled_jacobian(Q, H) <= 0).any()
+    X, info = untangle(Q, H, 1, threshold=0.5)
+    sj = linear_scaled_jacobian(X, H)
+    assert sj.min() > 0.5 and info["after"] > 0.5 and info["before"] < 0
+    # boundary nodes of the lattice never move
+    boundary = (P == 0).any(1) | (P == 5).any(1)
+    assert np.allclose(X[boundary], Q[boundary])
+
+
+def test_untangle_keeps_graded_layers_thin():
+    """Targets are the initial edge lengths: flat elements stay flat, not pulled to cubes."""
+    P, H = _lattice()
+    P[:, 2] = P[:, 2] ** 2 / 5.0  # graded along k: the first layer is 25 times thinner
+    before = P.copy()
+    centre = np.argmin(np.linalg.norm(P - [2.0, 2.0, before[:, 2][P[:, 2] > 0].min()], axis=1))
+    P[centre, 2] += 1.0  # through the next layers
+    X, info = untangle(P, H, 1, threshold=0.2)
+    assert linear_scaled_jacobian(X, H).min() > 0.2
+    assert abs(X[centre, 2] - before[centre, 2]) < 0.5
+
+
+def test_sub_hexahedra_of_high_order_cells():
+    P, H = _lattice(n=2)
+    cell = np.array([[i + 3 * (j + 3 * k) for k in range(3) for j in range(3) for i in range(3)]])
+    sub, parent = sub_hexahedra(cell, 2)
+    assert sub.shape == (8, 8) and (parent == 0).all()
+    assert np.array_equal(np.sort(sub, axis=0), np.sort(H, axis=0))
