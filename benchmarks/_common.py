@@ -100,6 +100,11 @@ def wall_edge_length(mesh) -> dict:
     return {"mean": float(e.mean()), "median": float(np.median(e)), "min": float(e.min()), "max": float(e.max()), "wall_faces": int(len(q))}
 
 
+def _cpu() -> float:
+    t = os.times()
+    return t.user + t.system
+
+
 def mesh_row(case: str, surface, skeleton=None, overrides: dict | None = None, exports: bool = True,
              keep_context: bool = False, label: str = "") -> dict:
     """Run the default chain on one surface (and centerline) and summarise it as one row.
@@ -114,7 +119,7 @@ def mesh_row(case: str, surface, skeleton=None, overrides: dict | None = None, e
 
     row = {"case": case, "run": label, "status": "ok", "error": "",
            "overrides": dict(overrides or {}), "skeleton_source": "given" if skeleton is not None else "extracted"}
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu()
     tmp = Path(tempfile.mkdtemp(prefix="vmesh-bench-"))
     ctx = None
     try:
@@ -143,6 +148,7 @@ def mesh_row(case: str, surface, skeleton=None, overrides: dict | None = None, e
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     row["wall_s"] = round(time.perf_counter() - t0, 3)
+    row["cpu_s"] = round(_cpu() - c0, 3)  # CPU seconds of this process (all threads): less sensitive to other jobs
     if ctx is not None:
         _fill_from_context(row, ctx)
         if keep_context:
@@ -255,10 +261,22 @@ def write_results(name: str, rows: list[dict], markdown: str, header: str, extra
     js = RESULTS / f"{name}.json"
     md = RESULTS / f"{name}.md"
     payload = {"benchmark": name, "when": time.strftime("%Y-%m-%d %H:%M:%S"), "load": load_line(),
-               "python": sys.version.split()[0], **(extra or {}), "rows": clean_rows(rows)}
+               "python": sys.version.split()[0], "vmesh_source_sha1": source_fingerprint(), **(extra or {}), "rows": clean_rows(rows)}
     write_text_atomic(js, json.dumps(payload, indent=1, default=_json_default))
-    write_text_atomic(md, header.rstrip() + "\n\n" + markdown.rstrip() + "\n")
+    write_text_atomic(md, header.rstrip() + f" Source fingerprint `{payload['vmesh_source_sha1']}` (SHA-1 of vmesh/**/*.py and filters/*.toml; "
+                      "the meshing code was being changed by others while these ran).\n\n" + markdown.rstrip() + "\n")
     return js, md
+
+
+def source_fingerprint() -> str:
+    """SHA-1 of vmesh/**/*.py and filters/*.toml (the meshing code may change between runs)."""
+    import hashlib
+
+    h = hashlib.sha1()
+    for p in sorted([*(ROOT / "vmesh").rglob("*.py"), *(ROOT / "filters").glob("*.toml")]):
+        h.update(p.relative_to(ROOT).as_posix().encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()[:12]
 
 
 def _json_default(o):

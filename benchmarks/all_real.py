@@ -81,7 +81,7 @@ def main(argv=None) -> int:
         si, su = (r.get("skeleton_in") or {}).get("nodes"), (r.get("skeleton_used") or {}).get("nodes")
         status = "ok" if r["status"] == "ok" else ("n/a: " if r["status"] == "n/a" else "FAILED: ") + r["error"][:140]
         lines.append([
-            r["case"], r["run"].split("=")[-1], r.get("surface_file", ""), f"{si if si is not None else 'extr.'}→{su if su is not None else '-'}",
+            r["case"], r["run"].split("=")[-1], r.get("surface_file", ""), "-" if r["status"] == "n/a" else f"{si if si is not None else 'extr.'}→{su if su is not None else '-'}",
             C.fmt(r.get("surface_nodes")), C.fmt(r.get("surface_elements")), C.fmt(r.get("blocks")), C.fmt(r.get("elements")),
             C.fmt(r.get("nodes")), *[C.fmt(st.get(k), ".2f") for k in C.STAGE_ORDER], C.fmt(r.get("chain_s"), ".1f"),
             C.fmt(r.get("sj_min"), ".3f"), C.fmt(r.get("sj_mean"), ".3f"), C.fmt(r.get("sj_p01"), ".3f"), C.fmt(r.get("invalid")),

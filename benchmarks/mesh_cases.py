@@ -92,7 +92,7 @@ def main(argv=None) -> int:
         print(C.progress_line(bare), flush=True)
 
     head = ["case", "run", "skel nodes in→used", "blocks", "elements", "nodes", "pre s", "sdf s", "skel s", "blocks s",
-            "hex s", "quality s", "export s", "chain s", "untangled nodes", "SJ min", "SJ mean", "SJ p1", "invalid", "bdist max/mean %R", "status"]
+            "hex s", "quality s", "export s", "chain s", "cpu s", "untangled nodes", "SJ min", "SJ mean", "SJ p1", "invalid", "bdist max/mean %R", "status"]
     lines = []
     for r in rows:
         st = r.get("stage_s", {})
@@ -100,7 +100,7 @@ def main(argv=None) -> int:
         lines.append([
             r["case"], r["run"], f"{si if si is not None else 'extr.'}→{su if su is not None else '-'}",
             C.fmt(r.get("blocks")), C.fmt(r.get("elements")), C.fmt(r.get("nodes")),
-            *[C.fmt(st.get(k), ".2f") for k in C.STAGE_ORDER], C.fmt(r.get("chain_s"), ".1f"),
+            *[C.fmt(st.get(k), ".2f") for k in C.STAGE_ORDER], C.fmt(r.get("chain_s"), ".1f"), C.fmt(r.get("cpu_s"), ".1f"),
             C.fmt((r.get("untangle") or {}).get("moved", 0) if "elements" in r else None),
             C.fmt(r.get("sj_min"), ".3f"), C.fmt(r.get("sj_mean"), ".3f"), C.fmt(r.get("sj_p01"), ".3f"), C.fmt(r.get("invalid")),
             f"{C.fmt(100 * r['bdist_max_rel'], '.2f')}/{C.fmt(100 * r['bdist_mean_rel'], '.2f')}" if "bdist_max_rel" in r else "-",
@@ -140,7 +140,8 @@ def main(argv=None) -> int:
               "(other jobs ran concurrently: times are noisy). Default chain, `compute_quality.fail_on_invalid=false`. "
               "Stages: pre = repair + cap + decimate, sdf = build_sdf, skel = load/extract + radii + clean + resample, "
               "blocks = build_block_structure, hex = mesh_transfinite, quality = labels + compute_quality, export = file writers. "
-              "`chain s` = sum of the filters' seconds; bdist = wall-face centre distance to the input surface / local radius.\n")
+              "`chain s` = sum of the filters' wall seconds, `cpu s` = CPU seconds of the run (all threads, less sensitive to the other jobs); "
+              "`untangled nodes` = nodes moved by mesh_transfinite's untangling pass; bdist = wall-face centre distance to the input surface / local radius.\n")
     footer = "\n\n## Targets\n\n" + "\n".join(tlines) + "\n\nQuality (0 invalid, min SJ ≥ 0.2, mean ≥ 0.85): " + \
              ("all rows pass.\n" if not qlines else "\n\n" + "\n".join(qlines) + "\n")
     js, mdp = C.write_results(args.name, rows, md + footer + (f"\n![histograms]({png.name})\n" if png else ""), header,

@@ -17,6 +17,7 @@ from vmesh.geometry.block_builder import (
     build_blocks,
     projected_wall_quality,
     redistribute_sections,
+    merge_junction_pair,
     split_nonplanar_junctions,
 )
 from vmesh.skeleton import Skeleton
@@ -350,11 +351,11 @@ def test_nonplanar_junction_error_and_split():
     sk = star_skeleton(d, length=10.0)
     dist = star_distance(d, length=10.0)
     with pytest.raises(MeshingError, match=r"junction at skeleton node 0 \(4 branches\).*split_nonplanar"):
-        build_blocks(sk, dist, None, BlockOptions(max_out_of_plane=10.0))
+        build_blocks(sk, dist, None, BlockOptions(max_out_of_plane=10.0, split_nonplanar=False))
     # within the planarity limit the 4-junction is tried directly; its blocks cannot be fixed
     with pytest.raises(MeshingError, match=r"split_nonplanar = true to split junction node\(s\) \[0\]"):
-        build_blocks(sk, dist, None, BlockOptions())
-    for options in (BlockOptions(max_out_of_plane=10.0, split_nonplanar=True), BlockOptions(split_nonplanar=True)):
+        build_blocks(sk, dist, None, BlockOptions(split_nonplanar=False))
+    for options in (BlockOptions(max_out_of_plane=10.0, split_nonplanar=True), BlockOptions()):
         blocks = build_blocks(sk, dist, None, options)
         split = blocks.info["skeleton"]
         assert split.n_nodes == sk.n_nodes + 1 and split.degrees.max() == 3
@@ -452,3 +453,71 @@ def test_real_case_with_centerline(real_path, surface_name, centerline_name):
     assert checks["boundary_components"] == 1 and checks["boundary_euler"] == 2 - 2 * ctx.skeleton.n_cycles
     assert ctx.blocks.n_blocks == expected_blocks(ctx.skeleton)
     assert ctx.blocks.face_boundary[ctx.blocks.face_boundary != FACE_INTERIOR].size > 0
+
+
+def test_split_ranks_pairs_by_depth_then_closeness():
+    # a trunk along x with two side branches 35 degrees apart
+    d = np.array([[-1, 0, 0], [1, 0, 0], [0.3, 0.95, 0.0], [-0.3, 0.95, 0.0]])
+    sk = star_skeleton(d, length=10.0)
+    dist = star_distance(d, length=10.0)
+    new = sk.n_nodes
+
+    def paired(out):
+        nb = [n for n in out.neighbors(new).tolist() if n != 0]
+        return tuple(sorted(int(np.argmax(cs.unit(d) @ cs.unit(sk.points[n]))) for n in nb))
+
+    assert paired(split_nonplanar_junctions(sk, [0])) == (2, 3)  # without a distance: the closest pair
+    outs = [split_nonplanar_junctions(sk, [0], distance=dist, rank=k) for k in range(6)]
+    depth = [float(dist(o.points[[new]])[0]) for o in outs[:5]]
+    assert all(a >= b - 0.011 for a, b in zip(depth, depth[1:]))
+    assert len({paired(o) for o in outs}) == 6 and paired(outs[-1]) == (0, 1)  # opposite pair last
+    for o in outs[:5]:
+        assert o.degrees.max() == 3 and np.linalg.norm(o.points[new] - o.points[0]) > 0.2
+
+
+def test_merge_junction_pair_makes_one_nfurcation():
+    pts = np.array([[0, 0, 0], [2, 0, 0], [1, 0, 0], [-5, 0, 0], [0, 5, 0], [7, 0, 0], [2, -5, 0.0]])
+    edges = np.array([[0, 2], [2, 1], [0, 3], [0, 4], [1, 5], [1, 6]])
+    sk = Skeleton(pts, np.array([1.0, 0.8, 1, 1, 1, 1, 1]), edges, [("a",), ("b",), (), (), (), (), ()])
+    out, node = merge_junction_pair(sk, 0, 1)
+    assert node == 0 and out.n_nodes == sk.n_nodes - 2 and out.degrees[node] == 4
+    assert np.allclose(out.points[node], [1, 0, 0]) and out.radii[node] == 1.0
+    assert set(out.node_tags[node]) == {"a", "b"}
+
+
+def _extracted_blocks(surface):
+    from vmesh.chain import FilterChain
+
+    chain = FilterChain.load("default")
+    steps = [s.filter for s in chain.steps]
+    return FilterChain(chain.steps[: steps.index("build_block_structure") + 1]).run(surface=surface)
+
+
+def _check_real_blocks(ctx):
+    checks = block_structure_checks(ctx.blocks)
+    assert checks["invalid_blocks"] == checks["face_use_errors"] == 0
+    assert checks["boundary_components"] == 1 and checks["boundary_euler"] == 2
+    assert ctx.blocks.n_blocks == expected_blocks(ctx.skeleton)
+    return ctx.blocks.info["fixes"]
+
+
+def test_real_coarctation_extracted_merges_crowded_junctions(real_path):
+    # the brachiocephalic trunk and the left carotid leave the arch so close together that
+    # the half cross-sections of the first junction reach past the second: merged into a
+    # 4-junction and split again along the arch
+    fixes = _check_real_blocks(_extracted_blocks(real_path("coarctation_bpm120_open.stl")))
+    assert fixes[0].startswith("merged junction nodes") and any(f.startswith("split junction node") for f in fixes)
+
+
+def test_real_thoracic_aorta_extracted_splits_its_nfurcation(real_path):
+    # the arch's 4-junction (two branches leaving 45-50 degrees out of its plane) is split
+    # along the aorta, not into a common trunk of the two branches pushed into the wall
+    fixes = _check_real_blocks(_extracted_blocks(real_path("thoracic_aorta_open.vtp")))
+    assert fixes[0].startswith("split junction node(s)")
+
+
+def test_real_carotid_extracted_builds(real_path):
+    # the CCA end sat half a radius off the axis of its rough end face (see
+    # test_skeleton_extract.py): its end section crossed the wall
+    fixes = _check_real_blocks(_extracted_blocks(real_path("carotid_vmtk.vtp")))
+    assert not any("split" in f or "merged" in f for f in fixes)

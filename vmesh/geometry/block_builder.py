@@ -65,7 +65,8 @@ class BlockOptions:
     rotation_candidates: int = 9
     max_out_of_plane: float = 60.0  # degrees
     min_branch_gap: float = 12.0  # degrees
-    split_nonplanar: bool = False
+    split_nonplanar: bool = True
+    max_retopology_tries: int = 8  # whole rebuilds with merged or split junctions
     clear_ray_factor: float = 1.8
     junction_margin: float = 0.3  # × branch radius, between half-sections and the first section
     cap_distance: float = 1.0  # × radius
@@ -154,35 +155,104 @@ def build_blocks(
         With ``info`` holding ``max_twist_deg``, ``fixes`` and per-junction details.
     """
     options = options or BlockOptions()
-    try:
-        return _Builder(skeleton, distance, caps, options, warn, progress, project).run(bad_blocks_path)
-    except _SplitAndRetry as retry:
-        # n-furcations whose blocks could not be fixed: split them and start again
-        split = split_nonplanar_junctions(skeleton, retry.nodes, distance=distance)
-        if warn:
-            warn(f"split junction node(s) {retry.nodes} into 3-junctions after their blocks stayed invalid")
-        blocks = _Builder(split, distance, caps, options, warn, progress, project).run(bad_blocks_path)
-        blocks.info["fixes"].insert(0, f"split junction node(s) {retry.nodes} into 3-junctions after their blocks stayed invalid")
+    # Each try either succeeds or fails with what might help: splitting n-furcations
+    # (alternative pairings in turn) or merging two junctions too close for their own
+    # half-sections. Tries are depth-first and bounded; the first failure is reported.
+    queue = [(skeleton, [])]
+    first = None
+    tries = 0
+    while queue and tries < options.max_retopology_tries:
+        sk, notes = queue.pop(0)
+        tries += 1
+        try:
+            blocks = _Builder(sk, distance, caps, options, warn, progress, project).run()
+        except _Failure as failure:
+            first = first or failure
+            queue[:0] = _retopology_options(failure, notes, distance, options)
+            continue
+        except MeshingError:
+            if first is None:
+                raise  # the skeleton as given is beyond the scheme: say why
+            continue  # a changed skeleton that does not work either
+        for note in notes:
+            if warn:
+                warn(note)
+        blocks.info["fixes"][:0] = notes
         return blocks
+    raise first.error(bad_blocks_path, tries)
 
 
-class _SplitAndRetry(Exception):
-    def __init__(self, nodes):
-        super().__init__(f"split {nodes}")
-        self.nodes = nodes
+def _retopology_options(failure: "_Failure", notes: list, distance, options: BlockOptions) -> list:
+    """Skeletons to try after ``failure``, most promising first: with two junctions merged
+    (when the branch between them has no room for their half-sections), or with the
+    failing n-furcations split into 3-junctions, one pairing of branches after another."""
+    out = []
+    sk = failure.skeleton
+    if options.split_nonplanar:
+        for a, b in failure.crowded:
+            merged, node = merge_junction_pair(sk, a, b)
+            out.append((merged, notes + [f"merged junction nodes {a} and {b} (their half cross-sections left the branch between them no room) into node {node}"]))
+        if failure.nfurcations:
+            degree = int(max(sk.degrees[c] for c in failure.nfurcations))
+            for rank in range(degree * (degree - 1) // 2):
+                split = split_nonplanar_junctions(sk, failure.nfurcations, distance=distance, rank=rank)
+                out.append((split, notes + [f"split junction node(s) {failure.nfurcations} into 3-junctions (pairing {rank + 1}) after their blocks stayed invalid"]))
+    return out
+
+
+class _Failure(Exception):
+    """Blocks that stay invalid, with what a changed skeleton might fix."""
+
+    def __init__(self, message, blocks, bad, skeleton, nfurcations, crowded, hint):
+        super().__init__(message)
+        self.message, self.blocks, self.bad = message, blocks, bad
+        self.skeleton, self.nfurcations, self.crowded, self.hint = skeleton, nfurcations, crowded, hint
+
+    def error(self, path, tries: int = 1) -> MeshingError:
+        written = ""
+        if path is not None:
+            try:
+                written = f"; the {len(self.bad)} invalid block(s) are in {write_bad_blocks(self.blocks, self.bad, path)}"
+            except Exception as exc:  # the error itself matters more than the picture
+                written = f" (could not write the invalid blocks: {exc})"
+        tried = f" ({tries - 1} changed skeleton(s) tried too)" if tries > 1 else ""
+        return MeshingError(self.message + written + tried + self.hint)
 
 
 # ---------------------------------------------------------------------------
 # skeleton preparation
 # ---------------------------------------------------------------------------
-def split_nonplanar_junctions(skeleton: Skeleton, nodes, length: float = 1.2, distance=None, inside: float = 0.5) -> Skeleton:
+def split_nonplanar_junctions(skeleton: Skeleton, nodes, length: float = 1.2, distance=None, inside: float = 0.5, rank: int = 0) -> Skeleton:
     """Split junctions into chains of 3-junctions.
 
-    At each node of degree ``m > 3`` the two neighbours whose directions are closest are
-    moved onto a new node placed ``length × radius`` along their mean direction and
-    joined to the original node by a new segment; repeated until every node has at most
-    three neighbours. Tags are inherited. With ``distance`` (signed, positive inside) the new
-    node goes no further than where it is still ``inside × radius`` inside the vessel.
+    At each node of degree ``m > 3`` two neighbours are moved onto a new node placed
+    ``length × radius`` along their mean direction and joined to the original node by a
+    new segment; repeated until every node has at most three neighbours. Tags are
+    inherited. With ``distance`` (signed, positive inside) the new node goes no further
+    than where it is still ``inside × radius`` inside the vessel, and the pairs are ranked
+    by how deep inside their new node lies (a node pushed into the wall between two
+    ostia makes blocks that cannot be fixed), then by how close their directions are;
+    without it by closeness alone. Nearly opposite pairs come last.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+    nodes : sequence of int
+        Junctions to split.
+    length : float
+        Distance of a new node from its junction (× the junction radius).
+    distance : callable, optional
+        Signed distance, positive inside.
+    inside : float
+        Least depth of a new node (× the junction radius).
+    rank : int
+        Which pair to split off at each step (0: the best ranked; alternatives when the
+        best one's blocks cannot be made valid).
+
+    Returns
+    -------
+    Skeleton
+        The split skeleton (the original nodes keep their numbers).
     """
     sk = skeleton
     pts = list(sk.points)
@@ -198,17 +268,25 @@ def split_nonplanar_junctions(skeleton: Skeleton, nodes, length: float = 1.2, di
             continue
         nb = [edges[k][0] if edges[k][1] == c else edges[k][1] for k in inc]
         d = cs.unit(np.asarray([pts[j] for j in nb]) - pts[c])
-        cosm = d @ d.T
-        np.fill_diagonal(cosm, -2)
-        i, j = np.unravel_index(np.argmax(cosm), cosm.shape)
-        new = len(pts)
-        w = cs.unit(d[i] + d[j])
-        t = length * rad[c]
+        pi, pj = np.triu_indices(len(nb), 1)
+        w = cs.unit(d[pi] + d[pj])  # (pairs, 3)
+        t = np.full(len(pi), length * rad[c])
+        depth = np.zeros(len(pi))
         if distance is not None:
             ts = np.linspace(0.25, 1.0, 16) * length * rad[c]
-            ok = np.asarray(distance(np.asarray(pts[c]) + ts[:, None] * w)) >= inside * rad[c]
-            t = ts[ok].max() if ok.any() else ts[0]
-        pts.append(np.asarray(pts[c]) + t * w)
+            probe = np.asarray(pts[c]) + ts[None, :, None] * w[:, None, :]
+            ok = np.asarray(distance(probe.reshape(-1, 3))).reshape(len(pi), -1) >= inside * rad[c]
+            t = np.where(ok.any(axis=1), np.where(ok, ts[None, :], 0.0).max(axis=1), ts[0])
+            depth = np.asarray(distance(np.asarray(pts[c]) + t[:, None] * w)) / rad[c]
+        closeness = np.sum(d[pi] * d[pj], axis=1)
+        # deeper first (to 1 % of the radius), then closer directions; nearly opposite
+        # branches have no mean direction to put a node on: last
+        degenerate = np.linalg.norm(d[pi] + d[pj], axis=1) < 0.2
+        order = np.lexsort((-closeness, -np.round(depth, 2), degenerate))
+        best = order[min(int(rank), len(order) - 1)]
+        i, j = int(pi[best]), int(pj[best])
+        new = len(pts)
+        pts.append(np.asarray(pts[c]) + t[best] * w[best])
         rad.append(rad[c])
         ntags.append(ntags[c])
         for k in (inc[i], inc[j]):
@@ -218,6 +296,32 @@ def split_nonplanar_junctions(skeleton: Skeleton, nodes, length: float = 1.2, di
         etags.append(tuple(sorted(set(etags[inc[i]]) | set(etags[inc[j]]))))
         todo.append(c)
     return Skeleton(np.asarray(pts), np.asarray(rad), np.asarray(edges), ntags, etags, name=sk.name)
+
+
+def merge_junction_pair(skeleton: Skeleton, a: int, b: int) -> tuple[Skeleton, int]:
+    """Merge junctions ``a`` and ``b`` and the branch between them into one junction.
+
+    The merged junction sits at the mean of the two with the larger radius; the other
+    nodes keep their order.
+
+    Returns
+    -------
+    skeleton : Skeleton
+    node : int
+        The merged junction's number in the new skeleton.
+    """
+    from .skeleton_ops import branch_paths, contract_nodes
+
+    sk = skeleton
+    path = next(p for p in branch_paths(sk.n_nodes, sk.edges) if {int(p[0]), int(p[-1])} == {a, b})
+    keep = min(a, b)
+    group = np.arange(sk.n_nodes)
+    group[np.asarray(path)] = keep
+    labels = np.unique(group)
+    positions = sk.points[labels].copy()
+    positions[np.searchsorted(labels, keep)] = 0.5 * (sk.points[a] + sk.points[b])
+    merged = contract_nodes(sk, group, positions)
+    return merged, int(np.searchsorted(labels, keep))
 
 
 def endpoint_caps(points: np.ndarray, radii: np.ndarray, endpoints: np.ndarray, caps, cap_distance: float = 1.0) -> dict:
@@ -312,7 +416,7 @@ class _Builder:
         self.lookahead: dict = {}
 
     # -- entry ------------------------------------------------------------------
-    def run(self, bad_blocks_path) -> BlockStructure:
+    def run(self) -> BlockStructure:
         self.check_skeleton()
         self.tick(0.05, "junctions")
         self.split_if_needed()
@@ -334,7 +438,7 @@ class _Builder:
             if len(bad) == 0:
                 break
             if round_ == self.opt.max_fix_rounds or not self.fix(bad, J):
-                self.fail(blocks, bad, bad_blocks_path)
+                self.fail(blocks, bad)
         if self.project is not None:
             blocks = self.thicken_layers(blocks)
         blocks.info.update(self.info)
@@ -781,7 +885,11 @@ class _Builder:
     def _apply_clearance(self):
         opt, sk = self.opt, self.sk
         self.infeasible = []
+        if not hasattr(self, "crowded"):
+            self.crowded = set()  # branches between two junctions that ever lacked room
         for bi, br in enumerate(self.branches):
+            if br.kinds == [JUNCTION, JUNCTION] and br.nodes[0] != br.nodes[-1] and self._slack(bi) < 0:
+                self.crowded.add(bi)
             lo, hi = 0.0, br.arc[-1]
             rb = float(np.median(sk.radii[br.nodes]))
             for side in (0, 1):
@@ -1194,27 +1302,28 @@ class _Builder:
                 changed = True
         return changed
 
-    def fail(self, blocks: BlockStructure, bad: np.ndarray, path):
+    def fail(self, blocks: BlockStructure, bad: np.ndarray):
+        """Raise :class:`_Failure` for the blocks ``bad``, naming the worst one's skeleton node
+        and what a changed skeleton might fix: n-furcations next to the bad blocks, and
+        pairs of junctions whose half cross-sections leave the branch between them no room."""
         J = blocks.corner_jacobians()
         worst = bad[np.argmin(J[bad].min(axis=1))]
         node = int(blocks.block_node[worst])
-        # n-furcations next to the bad blocks may be split into 3-junctions
         ends = np.unique(self.sk.edges[blocks.block_segment[bad]])
         nfurc = [int(c) for c in ends if self.sk.degrees[c] > 3]
-        if nfurc and self.opt.split_nonplanar:
-            raise _SplitAndRetry(nfurc)
-        hint = f"; set split_nonplanar = true to split junction node(s) {nfurc} into 3-junctions" if nfurc else ""
-        written = ""
-        if path is not None:
-            try:
-                written = f"; the {len(bad)} invalid block(s) are in {write_bad_blocks(blocks, bad, path)}"
-            except Exception as exc:  # the error itself matters more than the picture
-                written = f" (could not write the invalid blocks: {exc})"
+        crowded = []
+        for bi in np.unique(self.block_where[bad, 0]).tolist():
+            br = self.branches[bi]
+            a, b = int(br.nodes[0]), int(br.nodes[-1])
+            if bi in self.crowded and (min(a, b), max(a, b)) not in crowded:
+                crowded.append((min(a, b), max(a, b)))
+        hint = f"; set split_nonplanar = true to split junction node(s) {nfurc} into 3-junctions" if nfurc and not self.opt.split_nonplanar else ""
         where = f" (segment {int(blocks.block_segment[worst])})"
-        raise MeshingError(
+        message = (
             f"{len(bad)} block(s) stay invalid after {len(self.fixes)} fix(es); the worst starts at skeleton node {node}{where} "
-            f"with corner Jacobian {J[worst].min():.3g}{written}{hint}"
+            f"with corner Jacobian {J[worst].min():.3g}"
         )
+        raise _Failure(message, blocks, bad, self.sk, nfurc, crowded, hint)
 
 
 def projected_wall_quality(blocks: BlockStructure, project, samples: int = 4) -> np.ndarray:

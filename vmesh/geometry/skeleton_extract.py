@@ -1271,6 +1271,60 @@ def _extend(graph: BranchGraph, node: int, target: np.ndarray, radius: float, sp
     graph.graph.nodes[node]["r"] = float(radius)
 
 
+def end_face_normals(sdf: SdfFunction, centres: np.ndarray, tangents: np.ndarray, radii: np.ndarray, reach: np.ndarray, rings: int = 2, per_ring: int = 8) -> np.ndarray:
+    """Outward normals of the end faces ahead of points on the vessel axis.
+
+    From a disc of points around each centre (up to half a radius from the axis, half a
+    radius behind it) rays are cast along the axis; a least-squares plane through the
+    wall points they meet gives the normal, pointing along ``tangents``. Where fewer
+    than five rays meet the wall the SDF gradient at the axis' wall point is used.
+
+    Parameters
+    ----------
+    sdf : callable
+        Signed distance, positive inside.
+    centres, tangents : (n, 3)
+        Points on the vessel axis near its end and the unit axis directions (outward).
+    radii : (n,)
+        Vessel radii.
+    reach : (n,)
+        How far ahead the rays look for the wall.
+    rings, per_ring : int
+        Rings of the disc of ray origins and rays per ring (plus one on the axis).
+
+    Returns
+    -------
+    (n, 3) unit normals.
+    """
+    c = np.asarray(centres, float).reshape(-1, 3)
+    t = np.asarray(tangents, float).reshape(-1, 3)
+    r = np.asarray(radii, float).reshape(-1)
+    n = len(c)
+    e1, e2 = plane_basis(t)
+    ang = 2 * np.pi * np.arange(per_ring) / per_ring
+    frac = np.r_[0.0, np.repeat(np.arange(1, rings + 1) / rings * 0.5, per_ring)]  # × radius off the axis
+    cos = np.r_[0.0, np.tile(np.cos(ang), rings)]
+    sin = np.r_[0.0, np.tile(np.sin(ang), rings)]
+    k = len(frac)
+    offset = (frac * cos)[None, :, None] * e1[:, None, :] + (frac * sin)[None, :, None] * e2[:, None, :]
+    origins = c[:, None, :] + r[:, None, None] * (offset - 0.5 * t[:, None, :])
+    dirs = np.repeat(t[:, None, :], k, axis=1)
+    hit = distance_to_wall(sdf, origins.reshape(-1, 3), dirs.reshape(-1, 3), np.repeat(np.asarray(reach, float) + 0.5 * r, k), samples=24).reshape(n, k)
+    good = np.isfinite(hit) & (hit > 0)
+    points = origins + np.where(good, hit, 0.0)[..., None] * dirs
+    # fallback: the gradient where the axis meets the wall
+    axis_hit = np.where(good[:, 0], hit[:, 0], 0.5 * r)
+    normal = -sdf_gradient(sdf, origins[:, 0] + (axis_hit - 0.1 * r)[:, None] * t, 0.05 * r)
+    w = good.astype(float)
+    count = w.sum(axis=1)
+    mean = (points * w[..., None]).sum(axis=1) / np.maximum(count, 1)[:, None]
+    rel = (points - mean[:, None, :]) * w[..., None]
+    cov = np.einsum("nki,nkj->nij", rel, rel)
+    fit = np.linalg.eigh(cov)[1][:, :, 0]  # smallest principal axis
+    fit *= np.where(np.einsum("ij,ij->i", fit, t) < 0, -1.0, 1.0)[:, None]
+    return np.where((count >= 5)[:, None], fit, normal)
+
+
 def _extend_to_wall(graph: BranchGraph, sdf: SdfFunction, free, spacing: float, end_depth: float, caps=(), taken=None) -> dict:
     """Extend free ends along their tangent: onto a flat end face, or into a rounded end.
 
@@ -1296,7 +1350,10 @@ def _extend_to_wall(graph: BranchGraph, sdf: SdfFunction, free, spacing: float, 
     to_wall = distance_to_wall(sdf, centre0, tangent, reach)
     to_wall = np.where(np.isfinite(to_wall), to_wall, 0.3 * r_ref)
     wall_point = centre0 + to_wall[:, None] * tangent
-    normal = -sdf_gradient(sdf, wall_point - 0.1 * r_ref[:, None] * tangent, 0.05 * r_ref)
+    # the end face's normal from a plane through many face points: the gradient at one
+    # point follows every bump of a rough (clipped, smoothed) end face and, tilted, would
+    # put the end off the axis
+    normal = end_face_normals(sdf, centre0, tangent, r_ref, reach)
     # flat end: facing the axis, and the section a quarter radius inside is still full
     probe = wall_point - 0.25 * r_ref[:, None] * normal
     centre, section = center_in_cross_sections(sdf, probe, normal, r_ref)

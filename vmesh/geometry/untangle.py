@@ -333,9 +333,10 @@ def untangle(
                 best = (Y, qy, changed)
             if qy.min() >= threshold or _score(qy, threshold) > _score(q, threshold):
                 break  # the interior-only variant is the fallback when sliding on the wall does not help
-        if _score(best[1], threshold) > _score(q, threshold):  # else keep what we had and try a larger region
-            X, q = best[0], best[1]
-            moved |= best[2]
+        if _score(best[1], threshold) <= _score(q, threshold):
+            break  # a larger region rarely rescues a round that gained nothing: stop early
+        X, q = best[0], best[1]
+        moved |= best[2]
     info["after"] = float(q.min()) if len(q) else 1.0
     info["moved"] = int(moved.sum())
     return X, info
