@@ -173,7 +173,14 @@ def main(argv=None) -> int:
     ap.add_argument("--timeout", type=float, default=240.0, help="seconds per mesher run")
     ap.add_argument("--threads", type=int, default=2, help="gmsh General.NumThreads")
     ap.add_argument("--name", default="vs_unstructured")
+    ap.add_argument("--from-json", help="only re-render the tables of an earlier results JSON (no meshing)")
     args = ap.parse_args(argv)
+    if args.from_json:
+        import json
+
+        data = json.loads(Path(args.from_json).read_text())
+        render(data["rows"], args.name, data.get("load", ""))
+        return 0
     cases = [(n, make, sk) for n, paper, how, make, sk in paper_cases.case_list()]
     if args.real:
         done = {"aneurysm", "coarctation"}  # their real surfaces are already paper-case analogues
@@ -194,8 +201,14 @@ def main(argv=None) -> int:
                 continue
             rows += compare(name, surface, skeleton, args, Path(tmpd))
 
+    render(rows, args.name)
+    return 0
+
+
+def render(rows: list[dict], name: str, load: str = "") -> None:
+    """Print the table and write the JSON and Markdown results."""
     head = ["case", "mesher", "elements", "nodes", "hex/prism/tet", "elements / vmesh", "nodes / vmesh", "seconds",
-            "h", "BL layers: first/total", "status"]
+            "h", "BL layers: first/total", "inverted (SJ ≤ 0)", "status"]
     lines = []
     base = {r["case"]: r for r in rows if r["mesher"].startswith("vmesh") and r["status"] == "ok"}
     for r in rows:
@@ -209,27 +222,33 @@ def main(argv=None) -> int:
             r["case"], r["mesher"], C.fmt(el), C.fmt(nd), kinds,
             f"{el / b['elements']:.2f}" if el and b else "-", f"{nd / b['nodes']:.2f}" if nd and b else "-",
             C.fmt(r.get("seconds"), ".1f"), C.fmt(r.get("h"), ".3g"), bl,
+            C.fmt(r.get("invalid") if r["mesher"].startswith("vmesh") else r.get("prism_invalid", "-" if r.get("status") != "ok" else "n/c")),
             r["status"] + (f": {r['error'][:120]}" if r.get("error") else ""),
         ])
     print()
     md = C.table(head, lines)
     claim = []
-    for name, b in base.items():
-        blr = next((r for r in rows if r["case"] == name and r["mesher"].startswith("gmsh BL") and r["status"] == "ok"), None)
+    for case, b in base.items():
+        blr = next((r for r in rows if r["case"] == case and r["mesher"].startswith("gmsh BL") and r["status"] == "ok"), None)
+        tet = next((r for r in rows if r["case"] == case and r["mesher"] == "gmsh tet" and r["status"] == "ok"), None)
+        text = f"- {case}: "
         if blr:
-            claim.append(f"- {name}: {blr['mesher']} needs {blr['elements'] / b['elements']:.1f}x the elements and "
-                         f"{blr['nodes'] / b['nodes']:.1f}x the nodes of vmesh for the same first-layer thickness and layer count")
+            text += (f"{blr['mesher']} needs {blr['elements'] / b['elements']:.1f}x the elements and "
+                     f"{blr['nodes'] / b['nodes']:.1f}x the nodes of vmesh for the same first-layer thickness and layer count"
+                     + (f" ({blr['prism_invalid']} of its prisms inverted)" if blr.get("prism_invalid") else ""))
         else:
-            claim.append(f"- {name}: no boundary-layer tetrahedral mesh to compare with")
+            text += "no boundary-layer tetrahedral mesh to compare with (gmsh's extruded layer folded)"
+        if tet:
+            text += f"; without a boundary layer gmsh needs {tet['elements'] / b['elements']:.1f}x the elements, {tet['nodes'] / b['nodes']:.2f}x the nodes"
+        claim.append(text)
     print("\n" + "\n".join(claim))
-    header = (f"# vs_unstructured\n\n`python benchmarks/vs_unstructured.py` — {time.strftime('%Y-%m-%d %H:%M')}, {C.load_line()} "
+    header = (f"# vs_unstructured\n\n`python benchmarks/vs_unstructured.py` — {time.strftime('%Y-%m-%d %H:%M')}, {load or C.load_line()} "
               "(other jobs ran concurrently: times are noisy). `h` = mean edge of vmesh's wall faces, used as gmsh's mesh size "
               "and for TetGen's max volume; the prism layers have vmesh's layer count, first-layer thickness and total "
               "thickness at the median skeleton radius. `seconds`: vmesh = sum of the default chain's filters; gmsh = "
               "classification + geometry + 2D + 3D meshing (2 threads); TetGen = tetrahedralisation of gmsh's surface mesh.\n")
-    js, mdp = C.write_results(args.name, rows, md + "\n\n## The paper's claim\n\n" + "\n".join(claim) + "\n", header)
+    js, mdp = C.write_results(name, rows, md + "\n\n## The paper's claim\n\n" + "\n".join(claim) + "\n", header)
     print(f"\nwritten {js.relative_to(C.ROOT)}, {mdp.name}")
-    return 0
 
 
 if __name__ == "__main__":

@@ -10,6 +10,8 @@ from vmesh import realdata  # noqa: E402
 
 SYNTHETIC = ROOT / "data_synthetic"
 
+from data_synthetic.generate import CASES as SYNTHETIC_CASES  # noqa: E402  (every synthetic case, by name)
+
 
 @pytest.fixture(scope="session")
 def real_path():

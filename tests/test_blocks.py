@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import synthetic_case
+from conftest import SYNTHETIC_CASES, synthetic_case
 from vmesh.blocks import FACE_INTERIOR, FACE_WALL, HEX_FACES, LAYER_BOUNDARY
 from vmesh.errors import MeshingError, ParameterError
 from vmesh.geometry import cross_sections as cs
@@ -22,19 +22,7 @@ from vmesh.geometry.block_builder import (
 )
 from vmesh.skeleton import Skeleton
 
-ALL_CASES = [
-    "straight_tube",
-    "curved_tube",
-    "y_bifurcation",
-    "trifurcation",
-    "five_furcation",
-    "two_junctions",
-    "uneven_bifurcation",
-    "aneurysm",
-    "coarctation",
-    "ring",
-    "cerebral_tree",
-]
+ALL_CASES = list(SYNTHETIC_CASES)
 
 
 # ---------------------------------------------------------------------------

@@ -6,24 +6,12 @@ import numpy as np
 import pytest
 
 import vmesh
-from conftest import synthetic_case
+from conftest import SYNTHETIC_CASES, synthetic_case
 from vmesh.blocks import HEX_FACES
 from vmesh.geometry.projection import SurfaceProjector
 from vmesh.geometry.untangle import linear_scaled_jacobian, sub_hexahedra, untangle
 
-CASES = [
-    "straight_tube",
-    "curved_tube",
-    "y_bifurcation",
-    "uneven_bifurcation",
-    "trifurcation",
-    "five_furcation",
-    "two_junctions",
-    "ring",
-    "coarctation",
-    "aneurysm",
-    "cerebral_tree",
-]
+CASES = list(SYNTHETIC_CASES)
 
 
 def run_default(surface, skeleton=None, **overrides):
@@ -144,3 +132,20 @@ def test_sub_hexahedra_of_high_order_cells():
     sub, parent = sub_hexahedra(cell, 2)
     assert sub.shape == (8, 8) and (parent == 0).all()
     assert np.array_equal(np.sort(sub, axis=0), np.sort(H, axis=0))
+
+
+@pytest.mark.parametrize("order", [2, 3])
+def test_high_order_bifurcation_reads_back_in_pyvista(tmp_path, order):
+    pv = pytest.importorskip("pyvista")
+    from vmesh.io.mesh import write_mesh
+
+    surface, skeleton = synthetic_case("y_bifurcation")
+    ctx = run_default(surface, skeleton, **{"mesh_transfinite.order": order})
+    mesh = ctx.mesh
+    assert mesh.order == order and (mesh.cell_data["scaled_jacobian"] > 0).all()
+    grid = pv.read(write_mesh(tmp_path / "mesh.vtu", mesh))
+    assert grid.n_points == mesh.n_points and grid.n_cells == mesh.n_cells
+    assert mesh.cells.shape[1] == (order + 1) ** 3
+    # VTK's own volumes of the Lagrange cells are positive (node order is VTK's)
+    vol = grid.compute_cell_sizes(length=False, area=False, volume=True).cell_data["Volume"]
+    assert (vol > 0).all()

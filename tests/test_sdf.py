@@ -5,26 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import synthetic_case
+from conftest import SYNTHETIC_CASES, synthetic_case
 from vmesh.chain import FilterChain
 from vmesh.errors import InputError
 from vmesh.geometry.sdf import SignedDistance, TwoStepSignedDistance, morton_order, vessel_query_points
 from vmesh.geometry.topology import boundary_loops
 from vmesh.realdata import REAL_CASES
 
-SYNTHETIC = [
-    "straight_tube",
-    "curved_tube",
-    "y_bifurcation",
-    "trifurcation",
-    "five_furcation",
-    "two_junctions",
-    "uneven_bifurcation",
-    "aneurysm",
-    "coarctation",
-    "cerebral_tree",
-    "ring",
-]
+SYNTHETIC = list(SYNTHETIC_CASES)
 
 
 def icosphere(radius=1.0, level=4):

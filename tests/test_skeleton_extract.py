@@ -7,24 +7,11 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from conftest import synthetic_case
+from conftest import SYNTHETIC_CASES, synthetic_case
 from vmesh.errors import InputError
 from vmesh.geometry import skeleton_extract as se
 from vmesh.skeleton import Skeleton
 
-SYNTHETIC_CASES = [
-    "straight_tube",
-    "curved_tube",
-    "y_bifurcation",
-    "trifurcation",
-    "five_furcation",
-    "two_junctions",
-    "uneven_bifurcation",
-    "aneurysm",
-    "coarctation",
-    "ring",
-    "cerebral_tree",
-]
 
 
 # ---------------------------------------------------------------------------
