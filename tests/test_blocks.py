@@ -425,7 +425,15 @@ def test_filter_rejects_odd_blocks_around():
 # ---------------------------------------------------------------------------
 # real cases (skipped without ../shared/data/real or without the VTK centerline reader)
 # ---------------------------------------------------------------------------
-@pytest.mark.parametrize("surface_name,centerline_name", [("carotid_vmtk.vtp", "carotid_vmtk_centerline.vtp"), ("ica_swc_surface.vtp", "ica_centerline.swc")])
+@pytest.mark.parametrize(
+    "surface_name,centerline_name",
+    [
+        ("carotid_vmtk.vtp", "carotid_vmtk_centerline.vtp"),
+        ("ica_swc_surface.vtp", "ica_centerline.swc"),
+        ("aorta_simvascular_demo.vtp", "aorta_simvascular_demo_centerlines.vtp"),
+        ("thoracic_aorta_open.vtp", "thoracic_aorta_centerlines.vtp"),
+    ],
+)
 def test_real_case_with_centerline(real_path, surface_name, centerline_name):
     from vmesh.io.skeleton import SKELETON_READERS
 
@@ -509,3 +517,8 @@ def test_real_carotid_extracted_builds(real_path):
     # test_skeleton_extract.py): its end section crossed the wall
     fixes = _check_real_blocks(_extracted_blocks(real_path("carotid_vmtk.vtp")))
     assert not any("split" in f or "merged" in f for f in fixes)
+
+
+@pytest.mark.parametrize("surface_name", ["aneurysm_ica_aneurisk_c0015_open.vtp", "aorta_simvascular_demo.vtp", "ica_swc_surface.vtp"])
+def test_real_extracted_builds(real_path, surface_name):
+    _check_real_blocks(_extracted_blocks(real_path(surface_name)))
