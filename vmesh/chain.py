@@ -160,14 +160,23 @@ class FilterChain:
     # -- files -----------------------------------------------------------
     def to_dict(self) -> dict:
         d = {"chain": {"name": self.name, "description": self.description, "vmesh_version": __version__}}
-        d["step"] = [{"filter": s.filter, "params": _toml_clean(s.params)} for s in self.steps]
+        # a [step.params] table only where there are parameters, so tomli_w writes [[step]] tables
+        d["step"] = [{"filter": s.filter, **({"params": _toml_clean(s.params)} if _toml_clean(s.params) else {})} for s in self.steps]
         return d
 
     def to_toml(self, header: str = "") -> str:
+        """The chain as TOML: a ``[chain]`` table, then one ``[[step]]`` table per step with
+        its parameters in a ``[step.params]`` table (the layout of the presets in filters/)."""
         import tomli_w
 
-        text = tomli_w.dumps(self.to_dict())
-        return (header + "\n" if header else "") + text
+        d = self.to_dict()
+        parts = [tomli_w.dumps({"chain": d["chain"]})]
+        for step in d["step"]:
+            text = f"[[step]]\nfilter = {tomli_w.dumps({'f': step['filter']}).split('=', 1)[1].strip()}\n"
+            if step.get("params"):
+                text += "\n" + tomli_w.dumps({"step": {"params": step["params"]}})
+            parts.append(text)
+        return (header + "\n" if header else "") + "\n".join(parts)
 
     def save(self, path) -> Path:
         from .io.atomic import write_text_atomic

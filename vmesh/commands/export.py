@@ -12,6 +12,8 @@ Examples
 
 from __future__ import annotations
 
+import numpy as np
+
 from pathlib import Path
 
 from ..cli import EXTRA_COMMANDS
@@ -59,7 +61,9 @@ def run(args) -> int:
         else:
             export_mesh(path, mesh, fmt.name, linearize=args.linearize)
         if not args.quiet:
-            print(f"wrote {path}{'/' if path.is_dir() else ''} ({'meshlab' if fmt == 'meshlab' else fmt.name}: {mesh.n_cells} elements, {mesh.n_points} nodes, p = {mesh.order})")
+            linear = fmt != "meshlab" and args.linearize and mesh.order > fmt.max_order
+            nodes = len(np.unique(mesh.corner_cells())) if linear else mesh.n_points
+            print(f"wrote {path}{'/' if path.is_dir() else ''} ({'meshlab' if fmt == 'meshlab' else fmt.name}: {mesh.n_cells} elements, {nodes} nodes, p = {1 if linear else mesh.order})")
     return 0
 
 

@@ -380,7 +380,9 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
         "max_deviation_rel_diagonal": deviation / max(s.diagonal, 1e-300),
     }
     ctx.count(faces_in=s.n_faces, faces_out=len(f), max_deviation=deviation)
-    if abs(len(f) - target_faces) > 0.01 * target_faces:
+    if target_faces >= s.n_faces:
+        ctx.warn(f"the surface has {s.n_faces} faces, no more than the target {target_faces}: kept as it is")
+    elif abs(len(f) - target_faces) > 0.01 * target_faces:
         ctx.warn(f"decimation stopped at {len(f)} faces, target was {target_faces} (topology or boundary constraints)")
 
 

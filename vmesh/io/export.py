@@ -68,7 +68,8 @@ def resolve_format(path, fmt: str | None = None) -> ExportFormat:
     if fmt:
         key = FORMAT_ALIASES.get(fmt.lower().lstrip("."), fmt.lower().lstrip("."))
         if key not in EXPORT_FORMATS:
-            raise ParameterError(f"unknown export format '{fmt}' (supported: {', '.join(EXPORT_FORMATS)})", path)
+            names = sorted({*EXPORT_FORMATS, *FORMAT_ALIASES})
+            raise ParameterError(f"unknown export format '{fmt}' (supported: {', '.join(names)}, and meshlab for 'vmesh export')", path)
         return EXPORT_FORMATS[key]
     suffix = path.suffix.lower()
     for f in EXPORT_FORMATS.values():
