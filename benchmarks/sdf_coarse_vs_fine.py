@@ -14,7 +14,9 @@ Columns: ``qps`` = points per wall-clock second (2 cores), ``cpu_qps`` = points 
 CPU-second (less sensitive to other jobs on the machine), ``err`` = distance of the
 coarse projection from the fine surface divided by the local radius (max / mean),
 ``dist_err`` = difference of signed distances / local radius, two-step = coarse
-projection refined on the fine surface.
+projection refined on the fine surface, grid = the coarse distance sampled on a narrow-band
+grid around the wall and interpolated (``build_sdf grid = true``; projection by two
+Newton steps on the interpolated distance).
 
 Usage::
 
@@ -87,7 +89,7 @@ def default_cases() -> list[tuple[str, Path]]:
 
 
 def print_table(rows) -> str:
-    head = ("case", "tri fine", "tri coarse", "points", "build f/c s", "qps fine", "qps coarse", "speedup", "cpu qps c", "err max %R", "err mean %R", "dist max %R", "2-step qps", "2-step dist max %R")
+    head = ("case", "tri fine", "tri coarse", "points", "build f/c s", "qps fine", "qps coarse", "speedup", "cpu qps c", "err max %R", "err mean %R", "dist max %R", "2-step qps", "2-step dist max %R", "grid build s", "grid qps", "grid speedup", "grid err max %R", "grid err mean %R")
     lines = [head]
     for r in rows:
         lines.append(
@@ -106,6 +108,11 @@ def print_table(rows) -> str:
                 f"{100 * r['dist_err_max_rel']:.2f}",
                 f"{r['qps_two_step']:,}",
                 f"{100 * r['two_step_dist_err_max_rel']:.2f}",
+                f"{r['grid_build_s']:.2f}",
+                f"{r['qps_grid_project']:,}",
+                f"{r['grid_speedup']:.1f}",
+                f"{100 * r['grid_err_max_rel']:.2f}",
+                f"{100 * r['grid_err_mean_rel']:.3f}",
             )
         )
     widths = [max(len(line[i]) for line in lines) for i in range(len(head))]

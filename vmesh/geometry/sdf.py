@@ -618,7 +618,10 @@ def compare_coarse_fine(fine_surface, coarse_surfaces, counts=(10_000, 100_000, 
     ``err_max_abs, err_mean_abs, dist_err_max_rel, dist_err_mean_rel, cpu_qps_fine,
     cpu_qps_coarse`` (points per CPU-second, less sensitive to other load), ``qps_two_step,
     two_step_err_max_rel, two_step_dist_err_max_rel, two_step_dist_err_mean_rel,
-    radius_median``.
+    radius_median``, and for a :class:`~vmesh.geometry.sdf_grid.GridSignedDistance` of each
+    coarse surface ``grid_build_s, grid_voxel, qps_grid_project, cpu_qps_grid_project,
+    qps_grid_distance, grid_speedup`` (grid projection against fine), ``grid_err_max_rel,
+    grid_err_mean_rel, grid_dist_err_max_rel``.
     """
     import time
 
@@ -633,13 +636,19 @@ def compare_coarse_fine(fine_surface, coarse_surfaces, counts=(10_000, 100_000, 
     labels = fine_surface.face_data.get("cap_id")
     wall = None if labels is None or len(labels) != fine_surface.n_faces else np.asarray(labels) == 0
     fine.project(fine.vertices[:16])  # warm-up (thread pool, page faults)
+    from .sdf_grid import GridSignedDistance
+
+    grids = [GridSignedDistance(sdf) for sdf, _ in coarse]
     rows = []
     for n in counts:
         points, radius = vessel_query_points(fine, int(n), seed=seed, wall_faces=wall)
         ref, (wall_s, cpu_s) = _timed(fine.project, points)
         qps_fine, cpu_qps_fine = n / wall_s, n / cpu_s
-        for sdf, build_s in coarse:
+        for (sdf, build_s), grid in zip(coarse, grids):
             res, (wall_s, cpu_s) = _timed(sdf.project, points)
+            resg, (wall_g, cpu_g) = _timed(grid.project, points)
+            offg, derrg = projection_errors(fine, resg, ref)
+            _, (wall_gd, _) = _timed(grid.distance, points)
             qps_coarse, cpu_qps_coarse = n / wall_s, n / cpu_s
             two = TwoStepSignedDistance(sdf, fine)
             res2, (wall_s, _) = _timed(two.project, points)
@@ -670,6 +679,15 @@ def compare_coarse_fine(fine_surface, coarse_surfaces, counts=(10_000, 100_000, 
                     "two_step_dist_err_max_rel": float(np.max(derr2 / radius)),
                     "two_step_dist_err_mean_rel": float(np.mean(derr2 / radius)),
                     "radius_median": float(np.median(radius)),
+                    "grid_build_s": round(grid.build_s, 3),
+                    "grid_voxel": grid.voxel_size,
+                    "qps_grid_project": round(n / wall_g),
+                    "cpu_qps_grid_project": round(n / cpu_g),
+                    "qps_grid_distance": round(n / wall_gd),
+                    "grid_speedup": round((n / wall_g) / qps_fine, 2),
+                    "grid_err_max_rel": float(np.max(offg / radius)),
+                    "grid_err_mean_rel": float(np.mean(offg / radius)),
+                    "grid_dist_err_max_rel": float(np.max(derrg / radius)),
                 }
             )
     return rows
