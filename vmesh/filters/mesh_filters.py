@@ -104,9 +104,12 @@ def _untangle(ctx, sm, projector, sdf, below):
         cap_nodes[ids] = True
         cap_normals[ids] = normal / max(np.linalg.norm(normal), 1e-300)
     wall = sm.on_wall.copy()
+    boundary = np.zeros(n, bool)
+    boundary[sm.boundary_faces.ravel()] = True
     ctx.tick(0.95, "untangling")
     X, info = untangle(
-        sm.points, sm.cells, p, wall=wall, wall_normals=sdf.gradient, project=projector, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=below
+        sm.points, sm.cells, p, wall=wall, wall_normals=sdf.gradient, project=projector, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=below,
+        boundary=boundary,
     )
     sm.points[:] = X
     if info["rounds"]:

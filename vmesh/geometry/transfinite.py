@@ -41,6 +41,12 @@ from ..blocks import (
 
 # local faces in HEX_FACES order: (fixed axis, fixed value); free axes are the other two, ascending
 FACE_AXES = [(0, 0), (0, 1), (1, 0), (1, 1), (2, 0), (2, 1)]
+#: wall edge nodes follow their ray to the wall only when it is at most this many times
+#: longer than their distance to the wall (otherwise the closest point is used)
+RAY_TRUST = 1.5
+#: wall-face nodes whose ray finds no wall within a radius are projected only when they are
+#: closer to the wall than this fraction of the radius (otherwise they span an opening)
+OPENING_DEPTH = 0.25
 _CORNER_INDEX = {tuple(c): n for n, c in enumerate(HEX_CORNERS.tolist())}
 
 
@@ -266,7 +272,10 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
         ``signed_distance(points) -> (n,)``, positive inside. When given, the interior nodes
         of wall faces are moved onto the wall along the patch normal (a ray) before the final
         closest-point projection: closest points fold at concave places such as the crotch
-        of a junction, rays along the normal do not.
+        of a junction, rays along the normal do not. Face nodes whose ray finds no wall
+        within a radius (a face over the mouth of a vessel without skeleton) stay on their
+        patch and are not marked as wall nodes; edge nodes whose ray runs past a concavity
+        (much longer than their wall distance) use the closest point.
     """
     tick = progress or (lambda f, m="": None)
     p = int(ref.order)
@@ -343,9 +352,13 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
             if edge_normal is not None and pts.shape[1] > 2:  # edges of one linear element have no inner nodes
                 inner_pts = pts[wall, 1:-1]
                 k = inner_pts.shape[1]
-                moved = ray_to_surface(
-                    inner_pts.reshape(-1, 3), np.repeat(edge_normal[sel[wall]], k, axis=0), signed_distance, np.repeat(edge_radius[sel[wall]], k)
-                )
+                flat = inner_pts.reshape(-1, 3)
+                moved = ray_to_surface(flat, np.repeat(edge_normal[sel[wall]], k, axis=0), signed_distance, np.repeat(edge_radius[sel[wall]], k))
+                # A ray much longer than the distance to the wall has passed a concave place (the
+                # saddle beside a junction, a vessel mouth) and lands far from where the edge
+                # runs; the closest point is nearer and keeps the edge on its side of the fold.
+                far = np.linalg.norm(moved - flat, axis=1) > RAY_TRUST * np.abs(signed_distance(flat)) + 1e-9
+                moved[far] = flat[far]
                 pts[wall, 1:-1] = moved.reshape(-1, k, 3)
             pts[wall] = _project_curves(pts[wall], t[wall], project)
         inner = pts[:, 1:-1].reshape(-1, 3)
@@ -378,13 +391,23 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
         if wall.any():
             Pw = P[wall]
             interior = Pw[:, 1:-1, 1:-1].reshape(-1, 3)
+            hit = np.ones(len(interior), bool)
             if signed_distance is not None:
                 normal = _patch_normals(Pw)  # (k, Ns-1, Nt-1, 3), orientation irrelevant
                 reach = np.repeat(face_radius[sel][wall], (Ns - 1) * (Nt - 1))
-                interior = ray_to_surface(interior, normal.reshape(-1, 3), signed_distance, reach)
-            P[wall, 1:-1, 1:-1] = project(interior).reshape(-1, Ns - 1, Nt - 1, 3)
+                interior, hit = ray_to_surface(interior, normal.reshape(-1, 3), signed_distance, reach, return_hit=True)
+                # no wall along the normal within a radius: the face spans an opening (the mouth
+                # of a vessel without skeleton). The closest wall point is then on the opening's
+                # rim, far to the side, and would fold the layer: keep the patch point instead.
+                # Points already close to the wall are projected as before.
+                hit |= np.abs(signed_distance(interior)) < OPENING_DEPTH * reach
+            projected = project(interior)
+            P[wall, 1:-1, 1:-1] = np.where(hit[:, None], projected, interior).reshape(-1, Ns - 1, Nt - 1, 3)
         X[inner_ids.ravel()] = P[:, 1:-1, 1:-1].reshape(-1, 3)
-        on_wall[inner_ids.ravel()] = np.repeat(wall, (Ns - 1) * (Nt - 1))
+        wall_nodes = np.repeat(wall, (Ns - 1) * (Nt - 1))
+        if wall.any():
+            wall_nodes[wall_nodes] = hit
+        on_wall[inner_ids.ravel()] = wall_nodes
 
     # --- blocks (transfinite interpolation) --------------------------------------
     tick(0.6, "blocks")
@@ -638,12 +661,13 @@ def _patch_normals(P: np.ndarray) -> np.ndarray:
     return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300)
 
 
-def ray_to_surface(points: np.ndarray, directions: np.ndarray, signed_distance, reach: np.ndarray, iterations: int = 12) -> np.ndarray:
+def ray_to_surface(points: np.ndarray, directions: np.ndarray, signed_distance, reach: np.ndarray, iterations: int = 12, return_hit: bool = False):
     """Move ``points`` along the lines ``points + t * directions`` to the zero of the signed
     distance nearest to t = 0, within ``|t| <= reach`` (secant steps inside a bracket).
 
     Points whose line has no zero within reach are returned unchanged (the caller's
-    closest-point projection then takes over).
+    closest-point projection then takes over). With ``return_hit`` a second array says
+    which points found the wall.
     """
     x = np.asarray(points, float)
     d = np.asarray(directions, float)
@@ -678,7 +702,8 @@ def ray_to_surface(points: np.ndarray, directions: np.ndarray, signed_distance, 
         hi = np.where(ok & ~same, t, hi)
         fhi = np.where(ok & ~same, ft, fhi)
     t = np.where(np.abs(flo) < np.abs(fhi), lo, hi)
-    return np.where(ok[:, None], x + (sgn * t)[:, None] * d, x)
+    out = np.where(ok[:, None], x + (sgn * t)[:, None] * d, x)
+    return (out, ok) if return_hit else out
 
 
 def _project_curves(pts: np.ndarray, t: np.ndarray, project, passes: int = 2) -> np.ndarray:

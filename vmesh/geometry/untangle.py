@@ -226,7 +226,7 @@ def _optimise_nodes(X, sub, target, ids, wall, cap_nodes, wall_normals, cap_norm
     use = touched[sub].any(axis=1)
     qmin = float(linear_scaled_jacobian(X, sub[use]).min())
     delta = 1e-3 if qmin > 1e-3 else float(np.sqrt(1e-3 * (1e-3 - min(qmin, 0.0)) + 1e-6))
-    scale = (1.0 / target[use]).reshape(-1, 2, 2, 2, 3)
+    scale = (1.0 / target(use)).reshape(-1, 2, 2, 2, 3)
     prob = _Problem(sub[use], scale, ids, B, X[ids].copy(), delta)
     Y = _minimise(X, prob, iterations)
     if project is not None:
@@ -234,6 +234,18 @@ def _optimise_nodes(X, sub, target, ids, wall, cap_nodes, wall_normals, cap_norm
         if len(w):
             Y[w] = project(Y[w])
     return Y
+
+
+class _TargetLengths:
+    """Initial corner edge lengths of the sub-hexahedra, computed only for those asked for
+    (all of them would take 72 floats per element)."""
+
+    def __init__(self, X0: np.ndarray, sub: np.ndarray):
+        self.X0, self.sub = X0, sub
+        self.floor = 1e-12 * max(float(np.ptp(X0, axis=0).max()), 1e-300)
+
+    def __call__(self, mask: np.ndarray) -> np.ndarray:
+        return np.maximum(np.linalg.norm(corner_edges(self.X0, self.sub[mask]), axis=-1), self.floor)
 
 
 def _score(q: np.ndarray, threshold: float) -> tuple:
@@ -255,6 +267,7 @@ def untangle(
     rings: int = 2,
     iterations: int = 200,
     rounds: int = 5,
+    boundary: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Move the nodes around elements of low scaled Jacobian to make them valid.
 
@@ -279,6 +292,9 @@ def untangle(
         with ``rings`` rings of neighbours.
     iterations, rounds : int
         L-BFGS iterations per round; rounds of (wall + interior, project, interior only).
+    boundary : (n,) bool, optional
+        Nodes on the mesh boundary (found from the cells when not given); those that are
+        neither wall nor cap nodes stay fixed.
 
     Returns
     -------
@@ -292,18 +308,21 @@ def untangle(
     sub, _parent = sub_hexahedra(cells, order)
     wall = np.zeros(n, bool) if wall is None else np.asarray(wall, bool)
     cap_nodes = np.zeros(n, bool) if cap_nodes is None else np.asarray(cap_nodes, bool)
-    # nodes on the mesh boundary that are neither wall nor cap nodes never move (without a
-    # fixed boundary the regularised functional could shrink the region towards a point)
-    faces = np.sort(sub[:, _HEX_FACES].reshape(-1, 4), axis=1)
-    uniq, counts = np.unique(faces, axis=0, return_counts=True)
-    on_boundary = np.zeros(n, bool)
-    on_boundary[uniq[counts == 1].ravel()] = True
-    rim = (wall & cap_nodes) | (on_boundary & ~wall & ~cap_nodes)
     q = linear_scaled_jacobian(X, sub)
     info = {"before": float(q.min()) if len(q) else 1.0, "moved": 0, "rounds": 0, "elements": 0}
+    if not len(q) or q.min() >= threshold:
+        info["after"] = info["before"]
+        return X, info  # nothing to do: skip the set-up below, which costs on large meshes
+    # nodes on the mesh boundary that are neither wall nor cap nodes never move (without a
+    # fixed boundary the regularised functional could shrink the region towards a point)
+    if boundary is None:
+        faces = np.sort(sub[:, _HEX_FACES].reshape(-1, 4), axis=1)
+        uniq, counts = np.unique(faces, axis=0, return_counts=True)
+        boundary = np.zeros(n, bool)
+        boundary[uniq[counts == 1].ravel()] = True
+    rim = (wall & cap_nodes) | (np.asarray(boundary, bool) & ~wall & ~cap_nodes)
     # targets: initial edge lengths at every corner (keeps graded layers graded)
-    target = np.linalg.norm(corner_edges(X, sub), axis=-1)
-    target = np.maximum(target, 1e-12 * max(float(np.ptp(X, axis=0).max()), 1e-300))
+    target = _TargetLengths(X.copy(), sub)
     moved = np.zeros(n, bool)
     for rnd in range(rounds):
         bad = q < threshold
