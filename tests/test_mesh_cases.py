@@ -167,3 +167,27 @@ def test_real_thoracic_aorta_junction_is_valid(real_path):
     wall = np.unique(mesh.boundary_faces[mesh.boundary_ids == 0])
     d = SurfaceProjector(surface.vertices, surface.faces).project(mesh.points[wall])[1]
     assert (d > 1e-6 * surface.diagonal).mean() < 0.01
+
+
+REAL_RUNS = [
+    ("carotid_vmtk.vtp", "carotid_vmtk_centerline.vtp"),
+    ("aorta_simvascular_demo.vtp", "aorta_simvascular_demo_centerlines.vtp"),
+    ("ica_swc_surface.vtp", "ica_centerline.swc"),
+    ("aneurysm_ica_aneurisk_c0015_open.vtp", None),
+    ("coarctation_bpm120_open.stl", None),
+    ("carotid_vmtk.vtp", None),
+    ("aorta_simvascular_demo.vtp", None),
+    ("thoracic_aorta_open.vtp", None),
+    ("ica_swc_surface.vtp", None),
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("surface_name,centerline_name", REAL_RUNS, ids=[f"{s.split('.')[0]}-{'centerline' if c else 'extracted'}" for s, c in REAL_RUNS])
+def test_default_chain_on_real_case(real_path, surface_name, centerline_name):
+    """Every real surface, with its centerline where it has one and with an extracted
+    skeleton: valid, conforming, watertight, wall nodes on the fine surface, open ends named."""
+    ctx = run_default(real_path(surface_name), real_path(centerline_name) if centerline_name else None)
+    sj = check_mesh(ctx)
+    assert sj.mean() > 0.85
+    assert any(n.startswith("outlet") for n in ctx.mesh.boundary_names.values())
