@@ -264,7 +264,15 @@ def write_results(name: str, rows: list[dict], markdown: str, header: str, extra
                "python": sys.version.split()[0], "vmesh_source_sha1": source_fingerprint(), **(extra or {}), "rows": clean_rows(rows)}
     write_text_atomic(js, json.dumps(payload, indent=1, default=_json_default))
     write_text_atomic(md, header.rstrip() + f" Source fingerprint `{payload['vmesh_source_sha1']}` (SHA-1 of vmesh/**/*.py and filters/*.toml; "
-                      "the meshing code was being changed by others while these ran).\n\n" + markdown.rstrip() + "\n")
+                      "the fingerprint identifies the code that produced them).\n\n" + markdown.rstrip() + "\n")
+    return js, md
+
+
+def write_quality_results(name: str, rows: list[dict], markdown: str, misses: list[str], png, header: str) -> tuple[Path, Path]:
+    """``write_results`` with the quality-target footer and the histogram figure linked."""
+    footer = "\n\nQuality (0 invalid, min SJ ≥ 0.2, mean ≥ 0.85): " + ("all rows pass.\n" if not misses else "\n\n" + "\n".join(misses) + "\n")
+    js, md = write_results(name, rows, markdown + footer + (f"\n![histograms]({png.name})\n" if png else ""), header)
+    print(f"\nwritten {js.relative_to(ROOT)}, {md.name}" + (f", {png.name}" if png else ""))
     return js, md
 
 

@@ -100,9 +100,7 @@ def main(argv=None) -> int:
     header = (f"# all_real\n\n`python benchmarks/all_real.py` — {time.strftime('%Y-%m-%d %H:%M')}, {C.load_line()} "
               "(other jobs ran concurrently: times are noisy). Default chain, `compute_quality.fail_on_invalid=false`; "
               "`given` = the data set's centerline file, `extracted` = `extract_skeleton`. Columns as in paper_cases.md.\n")
-    footer = "\n\nQuality (0 invalid, min SJ ≥ 0.2, mean ≥ 0.85): " + ("all rows pass.\n" if not misses else "\n\n" + "\n".join(misses) + "\n")
-    js, mdp = C.write_results(args.name, rows, md + footer + (f"\n![histograms]({png.name})\n" if png else ""), header)
-    print(f"\nwritten {js.relative_to(C.ROOT)}, {mdp.name}" + (f", {png.name}" if png else ""))
+    C.write_quality_results(args.name, rows, md, misses, png, header)
     return 0
 
 

@@ -161,9 +161,7 @@ def main(argv=None) -> int:
               "`build_sdf.source=fine, refine_on_fine=false`. Skeleton nodes/segments are the input skeleton's (given) or the "
               "extracted one's (after cleaning and resampling); surface nodes/elements are the input surface's. "
               "Paper's cases: aneurysm ≈11 nodes / ≈4k triangles, coarctation ≈58 / ≈160k, cerebral tree ≈576 / ≈100k.\n")
-    footer = "\n\nQuality (0 invalid, min SJ ≥ 0.2, mean ≥ 0.85): " + ("all rows pass.\n" if not misses else "\n\n" + "\n".join(misses) + "\n")
-    js, mdp = C.write_results(args.name, rows, md + footer + (f"\n![histograms]({png.name})\n" if png else ""), header)
-    print(f"\nwritten {js.relative_to(C.ROOT)}, {mdp.name}" + (f", {png.name}" if png else ""))
+    C.write_quality_results(args.name, rows, md, misses, png, header)
     return 0
 
 

@@ -47,19 +47,7 @@ from vmesh.monitor import ResourceMonitor  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 SYNTHETIC = ROOT / "data_synthetic"
-SYNTHETIC_CASES = [
-    "straight_tube",
-    "curved_tube",
-    "y_bifurcation",
-    "trifurcation",
-    "five_furcation",
-    "two_junctions",
-    "uneven_bifurcation",
-    "aneurysm",
-    "coarctation",
-    "ring",
-    "cerebral_tree",
-]
+from data_synthetic.generate import CASES as SYNTHETIC_CASES  # noqa: E402
 
 
 def node_error(points: np.ndarray, truth) -> float:
