@@ -76,20 +76,19 @@ def main(argv=None) -> int:
     throughput = None
     if not (args.quick or args.no_throughput) and (not args.cases or TREE in args.cases):
         ov = {"mesh_transfinite.refinement": args.refinement}
-        print(f"[throughput] {TREE} with mesh_transfinite.refinement={args.refinement} (no exports) ...", flush=True)
-        throughput = C.mesh_row(TREE, C.SYNTHETIC / TREE / "surface.ply", C.SYNTHETIC / TREE / "skeleton.json",
-                                overrides=ov, exports=False, label=f"refinement={args.refinement}")
-        throughput["kind"] = "synthetic"
-        rows.append(throughput)
-        print(C.progress_line(throughput), flush=True)
-        # the same without the untangling pass: the transfinite maps alone
-        ov2 = {**ov, "mesh_transfinite.untangle": False}
-        print(f"[throughput] {TREE} refinement={args.refinement}, mesh_transfinite.untangle=false ...", flush=True)
-        bare = C.mesh_row(TREE, C.SYNTHETIC / TREE / "surface.ply", C.SYNTHETIC / TREE / "skeleton.json",
-                          overrides=ov2, exports=False, label=f"refinement={args.refinement}, no untangle")
-        bare["kind"] = "synthetic"
-        rows.append(bare)
-        print(C.progress_line(bare), flush=True)
+        # the second run leaves out the untangling pass: the transfinite maps alone
+        runs = [(ov, f"refinement={args.refinement}", "(no exports)"),
+                ({**ov, "mesh_transfinite.untangle": False}, f"refinement={args.refinement}, no untangle", "mesh_transfinite.untangle=false")]
+        made = []
+        for overrides, label, note in runs:
+            print(f"[throughput] {TREE} with mesh_transfinite.refinement={args.refinement} {note} ...", flush=True)
+            row = C.mesh_row(TREE, C.SYNTHETIC / TREE / "surface.ply", C.SYNTHETIC / TREE / "skeleton.json",
+                             overrides=overrides, exports=False, label=label)
+            row["kind"] = "synthetic"
+            rows.append(row)
+            print(C.progress_line(row), flush=True)
+            made.append(row)
+        throughput, bare = made
 
     head = ["case", "run", "skel nodes in→used", "blocks", "elements", "nodes", "pre s", "sdf s", "skel s", "blocks s",
             "hex s", "quality s", "export s", "chain s", "cpu s", "untangled nodes", "SJ min", "SJ mean", "SJ p1", "invalid", "bdist max/mean %R", "status"]

@@ -200,10 +200,14 @@ def _minimise(points: np.ndarray, prob: _Problem, iterations: int) -> np.ndarray
     return X
 
 
-def _grow(hexes: np.ndarray, seed: np.ndarray, rings: int, n_points: int) -> np.ndarray:
-    """Elements within ``rings`` node-neighbourhoods of the seed elements (mask)."""
+def _incidence(hexes: np.ndarray, n_points: int) -> sp.csr_matrix:
+    """Element-node incidence ``(m, n_points)`` as a boolean sparse matrix."""
     m = len(hexes)
-    inc = sp.csr_matrix((np.ones(hexes.size, bool), (np.repeat(np.arange(m), hexes.shape[1]), hexes.ravel())), shape=(m, n_points))
+    return sp.csr_matrix((np.ones(hexes.size, bool), (np.repeat(np.arange(m), hexes.shape[1]), hexes.ravel())), shape=(m, n_points))
+
+
+def _grow(inc: sp.csr_matrix, seed: np.ndarray, rings: int) -> np.ndarray:
+    """Elements within ``rings`` node-neighbourhoods of the seed elements (mask)."""
     sel = seed.copy()
     for _ in range(rings):
         nodes = np.asarray(inc[sel].sum(axis=0)).ravel() > 0
@@ -319,7 +323,7 @@ def untangle(
     wall = np.zeros(n, bool) if wall is None else np.asarray(wall, bool)
     cap_nodes = np.zeros(n, bool) if cap_nodes is None else np.asarray(cap_nodes, bool)
     q = linear_scaled_jacobian(X, sub)
-    info = {"before": float(q.min()) if len(q) else 1.0, "moved": 0, "rounds": 0, "elements": 0}
+    info = {"before": float(q.min()) if len(q) else 1.0, "moved": 0, "rounds": 0}
     if not len(q) or q.min() >= threshold:
         info["after"] = info["before"]
         return X, info  # nothing to do: skip the set-up below, which costs on large meshes
@@ -333,13 +337,14 @@ def untangle(
     rim = (wall & cap_nodes) | (np.asarray(boundary, bool) & ~wall & ~cap_nodes)
     # targets: initial edge lengths at every corner (keeps graded layers graded)
     target = _TargetLengths(X.copy(), sub)
+    inc = _incidence(sub, n)  # once: every round grows its region on it
     moved = np.zeros(n, bool)
     for rnd in range(rounds):
         bad = q < threshold
         if not bad.any():
             break
         info["rounds"] = rnd + 1
-        region = _grow(sub, bad, rings + rnd, n)
+        region = _grow(inc, bad, rings + rnd)
         # free nodes: nodes of the region not shared with elements outside it
         inside = np.zeros(n, bool)
         inside[sub[region].ravel()] = True
