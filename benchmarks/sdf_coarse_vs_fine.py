@@ -62,13 +62,22 @@ def prepare(path) -> tuple:
     return ctx.surface, is_open
 
 
-def coarse_versions(surface, targets, backend):
+def coarse_versions(surface, targets, backend, max_error=None):
+    """Coarse surfaces: one per face count in ``targets``, plus one decimated from the
+    largest target to the tolerance ``max_error`` (relative to the local radius)."""
     out = []
     for target in targets:
         if target >= surface.n_faces:
             continue
         ctx = FilterChain([("decimate_surface", {"target_faces": int(target), "backend": backend})]).run(surface=surface)
+        ctx.coarse_surface.coarse_label = f"{int(target)} faces"
         out.append(ctx.coarse_surface)
+    if max_error is not None and targets:
+        start = min(max(targets), surface.n_faces)
+        ctx = FilterChain([("decimate_surface", {"target_faces": int(start), "backend": backend, "max_error": float(max_error)})]).run(surface=surface)
+        if ctx.coarse_surface.n_faces < surface.n_faces:
+            ctx.coarse_surface.coarse_label = f"tolerance {100 * max_error:g} %R"
+            out.append(ctx.coarse_surface)
     return out
 
 
@@ -89,13 +98,14 @@ def default_cases() -> list[tuple[str, Path]]:
 
 
 def print_table(rows) -> str:
-    head = ("case", "tri fine", "tri coarse", "points", "build f/c s", "qps fine", "qps coarse", "speedup", "cpu qps c", "err max %R", "err mean %R", "dist max %R", "2-step qps", "2-step dist max %R", "grid build s", "grid qps", "grid speedup", "grid err max %R", "grid err mean %R")
+    head = ("case", "tri fine", "coarse level", "tri coarse", "points", "build f/c s", "qps fine", "qps coarse", "speedup", "cpu qps c", "err max %R", "err mean %R", "dist max %R", "2-step qps", "2-step dist max %R", "grid build s", "grid qps", "grid speedup", "grid err max %R", "grid err mean %R")
     lines = [head]
     for r in rows:
         lines.append(
             (
                 r["case"],
                 str(r["triangles_fine"]),
+                r.get("coarse_level", ""),
                 str(r["triangles_coarse"]),
                 f"{r['points']:.0e}",
                 f"{r['build_s_fine']:.2f}/{r['build_s_coarse']:.2f}",
@@ -221,6 +231,7 @@ def main(argv=None) -> int:
     ap.add_argument("--input", action="append", help="surface file to measure (repeatable); default: every real case and the largest synthetic one")
     ap.add_argument("--points", type=int, nargs="+", default=[10_000, 100_000, 1_000_000], help="numbers of query points")
     ap.add_argument("--coarse", type=int, nargs="+", default=[5_000, 20_000], help="coarse surface face counts")
+    ap.add_argument("--coarse-error", type=float, default=0.015, help="also decimate to this tolerance (fraction of the local radius; decimate_surface max_error); 0 = off")
     ap.add_argument("--decimation", default="fast_simplification", choices=("fast_simplification", "pymeshlab"), help="decimation backend")
     ap.add_argument("--backends", action="store_true", help="compare closest-point backends instead")
     ap.add_argument("--backend-points", type=int, default=100_000)
@@ -234,7 +245,7 @@ def main(argv=None) -> int:
     for name, path in cases:
         t0 = time.perf_counter()
         fine, was_open = prepare(path)
-        coarse = coarse_versions(fine, args.coarse, args.decimation)
+        coarse = coarse_versions(fine, args.coarse, args.decimation, args.coarse_error or None)
         if not coarse:
             print(f"{name}: {fine.n_faces} triangles, no coarse level below it; skipped", file=sys.stderr)
             continue

@@ -335,12 +335,21 @@ def smooth_loop(ctx, iterations, region, junction_distance, edge_threshold, weig
         Parameter("quality_threshold", "float", 0.3, "pymeshlab: penalise collapses creating triangles of lower quality than this.", min=0.0, max=1.0),
         Parameter("aggressiveness", "float", 7.0, "fast_simplification: higher is faster but less accurate.", min=0.0, max=20.0),
         Parameter("output", "str", "coarse_surface", "Layer receiving the result; 'surface' decimates the input in place.", choices=("coarse_surface", "surface")),
+        Parameter(
+            "max_error",
+            "float",
+            None,
+            "Tolerance on the coarse surface, relative to the local vessel radius (e.g. 0.015): when a fine vertex lies farther "
+            "from the result, decimate again to more faces (about faces x error / tolerance, up to 5 tries). Off by default.",
+            min=1e-6,
+            max=1.0,
+        ),
     ],
     reads=("surface",),
     writes=("coarse_surface",),
     category="preprocessing",
 )
-def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary, preserve_topology, quality_threshold, aggressiveness, output):
+def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary, preserve_topology, quality_threshold, aggressiveness, output, max_error):
     """Decimate the fine surface; the result is the *coarse* surface used for a fast signed
     distance, while ``ctx.surface`` stays the fine one (unless ``output='surface'``).
 
@@ -352,16 +361,18 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
     s = ctx.surface
     if target_faces is None:
         target_faces = int(round(s.n_faces * target_ratio)) if target_ratio is not None else min(s.n_faces, max(20000, s.n_faces // 10))
-    v, f = pre.decimate(
-        s.vertices,
-        s.faces,
-        target_faces,
-        backend=backend,
-        preserve_boundary=preserve_boundary,
-        preserve_topology=preserve_topology,
-        quality_threshold=quality_threshold,
-        aggressiveness=aggressiveness,
-    )
+    options = dict(backend=backend, preserve_boundary=preserve_boundary, preserve_topology=preserve_topology, quality_threshold=quality_threshold, aggressiveness=aggressiveness)
+    tries = None
+    if max_error is None:
+        v, f = pre.decimate(s.vertices, s.faces, target_faces, **options)
+    else:
+        labels = s.face_data.get(pre.CAP_LABEL)
+        wall = None if labels is None or len(labels) != s.n_faces else np.asarray(labels) == 0
+        v, f, tries = pre.decimate_to_tolerance(s.vertices, s.faces, target_faces, max_error, wall_faces=wall, **options)
+        for k, (n_faces, err) in enumerate(tries, 1):
+            ctx.tick(k / len(tries), f"{n_faces} faces: max error {100 * err:.2f} % of the local radius")
+        if tries[-1][1] > max_error:
+            ctx.warn(f"coarse surface still {100 * tries[-1][1]:.2f} % of the radius off after {len(tries)} tries (tolerance {100 * max_error:.2f} %)")
     coarse = SurfaceMesh(v, f, name=f"{s.name} (decimated)" if s.name else "decimated")
     deviation = float(np.sqrt(_squared_distance(v, f, s.vertices).max())) if len(f) else 0.0
     if output == "surface":
@@ -379,10 +390,12 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
         "max_deviation": deviation,
         "max_deviation_rel_diagonal": deviation / max(s.diagonal, 1e-300),
     }
-    ctx.count(faces_in=s.n_faces, faces_out=len(f), max_deviation=deviation)
+    if tries is not None:
+        ctx.report.sections["decimation"].update(max_error=max_error, tries=[{"faces": n, "max_error_rel": e} for n, e in tries])
+    ctx.count(faces_in=s.n_faces, faces_out=len(f), max_deviation=deviation, **({"max_error_rel": round(tries[-1][1], 5)} if tries else {}))
     if target_faces >= s.n_faces:
         ctx.warn(f"the surface has {s.n_faces} faces, no more than the target {target_faces}: kept as it is")
-    elif abs(len(f) - target_faces) > 0.01 * target_faces:
+    elif abs(len(f) - target_faces) > 0.01 * target_faces and tries is None:
         ctx.warn(f"decimation stopped at {len(f)} faces, target was {target_faces} (topology or boundary constraints)")
 
 

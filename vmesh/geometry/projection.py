@@ -1,4 +1,4 @@
-"""Closest-point projection onto a triangle surface (libigl AABB tree)."""
+"""Closest-point projection onto a triangle surface (parallel BVH, :mod:`vmesh.geometry.bvh`)."""
 
 from __future__ import annotations
 
@@ -13,20 +13,19 @@ class SurfaceProjector:
     """
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray):
-        import igl
+        from .bvh import TriangleBVH
 
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
-        self._tree = igl.AABB()
-        self._tree.init(self.vertices, self.faces)
+        self._tree = TriangleBVH(self.vertices, self.faces)
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Closest surface points ``(n, 3)``, unsigned distances ``(n,)`` and face indices ``(n,)``."""
         p = np.ascontiguousarray(np.asarray(points, np.float64).reshape(-1, 3))
         if len(p) == 0:
             return p.copy(), np.zeros(0), np.zeros(0, np.int64)
-        sq, face, closest = self._tree.squared_distance(self.vertices, self.faces, p)
-        return np.asarray(closest).reshape(-1, 3), np.sqrt(np.asarray(sq).ravel()), np.asarray(face).ravel()
+        sq, face, closest, _ = self._tree.closest(p)
+        return closest, np.sqrt(sq), face
 
     def __call__(self, points):
         return self.project(points)[0]

@@ -40,6 +40,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
+from . import bvh as _bvh
 from . import topology
 
 #: Barycentric tolerance deciding that a closest point lies on an edge or a vertex.
@@ -54,32 +55,8 @@ SIGN_METHODS = ("auto", "pseudonormal", "winding_number")
 
 
 def morton_order(points: np.ndarray, bits: int = 16) -> np.ndarray:
-    """Permutation sorting ``points`` along a Z-order (Morton) curve.
-
-    Parameters
-    ----------
-    points : (n, 3) array
-    bits : int
-        Quantisation bits per axis (at most 21).
-
-    Returns
-    -------
-    (n,) int64 array ``order`` such that ``points[order]`` is spatially coherent.
-    """
-    p = np.asarray(points, np.float64)
-    lo = p.min(axis=0)
-    span = np.maximum(p.max(axis=0) - lo, 1e-300)
-    q = ((p - lo) / span * ((1 << bits) - 1)).astype(np.uint64)
-    code = _spread_bits(q[:, 0]) | (_spread_bits(q[:, 1]) << np.uint64(1)) | (_spread_bits(q[:, 2]) << np.uint64(2))
-    return np.argsort(code, kind="stable")
-
-
-def _spread_bits(x: np.ndarray) -> np.ndarray:
-    """Insert two zero bits between the low 21 bits of each integer (Morton encoding)."""
-    x = x & np.uint64(0x1FFFFF)
-    for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F), (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)):
-        x = (x | (x << np.uint64(shift))) & np.uint64(mask)
-    return x
+    """Permutation sorting ``points`` along a Z-order (Morton) curve (see :func:`vmesh.geometry.bvh.morton_order`)."""
+    return _bvh.morton_order(points, bits=bits)
 
 
 def barycentric(points: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -199,8 +176,6 @@ class SignedDistance:
     """
 
     def __init__(self, vertices, faces, name: str = "", sign: str = "auto"):
-        import igl
-
         if sign not in SIGN_METHODS:
             raise ValueError(f"sign must be one of {SIGN_METHODS}, got {sign!r}")
         v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
@@ -230,8 +205,7 @@ class SignedDistance:
         self.vertices, self.faces = v, f
         self.bounds = (v.min(axis=0), v.max(axis=0))
         self.diagonal = float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
-        self._tree = igl.AABB()
-        self._tree.init(v, f)
+        self._tree = _bvh.TriangleBVH(v, f)
         raw = topology.face_normals(v, f, normalize=False)
         area2 = np.linalg.norm(raw, axis=1)
         self.degenerate_faces = area2 <= 1e-14 * self.diagonal**2
@@ -332,16 +306,9 @@ class SignedDistance:
 
     # -- internals -----------------------------------------------------------
     def _closest(self, p: np.ndarray):
-        """igl closest-point query in Morton order: (squared distance, face, closest)."""
-        p = np.ascontiguousarray(p, dtype=np.float64)
-        if len(p) < _SORT_MIN:
-            sq, face, closest = self._tree.squared_distance(self.vertices, self.faces, p)
-            return np.asarray(sq), np.asarray(face, np.int64), np.asarray(closest)
-        order = morton_order(p)
-        sq, face, closest = self._tree.squared_distance(self.vertices, self.faces, np.ascontiguousarray(p[order]))
-        out_sq, out_face, out_c = np.empty(len(p)), np.empty(len(p), np.int64), np.empty_like(p)
-        out_sq[order], out_face[order], out_c[order] = sq, face, closest
-        return out_sq, out_face, out_c
+        """Closest-point query (parallel BVH, Morton order): (squared distance, face, closest)."""
+        sq, face, closest, _ = self._tree.closest(p)
+        return sq, face, closest
 
     def pseudonormals(self, closest: np.ndarray, face: np.ndarray) -> np.ndarray:
         """Outward pseudonormal of the feature (face, edge or vertex) holding each closest point."""
@@ -362,9 +329,10 @@ class SignedDistance:
         return normal
 
     def _query(self, p: np.ndarray):
-        sq, face, closest = self._closest(p)
+        sq, face, closest, feature = self._tree.closest(p)
         dist = np.sqrt(np.maximum(sq, 0.0))
-        normal = self.pseudonormals(closest, face)
+        # the query reports which feature (face, edge, corner) holds the closest point
+        normal = _bvh.feature_normals(face, feature, self.faces, self.face_normals, self._edge_normals, self.vertex_normals, self.degenerate_faces)
         outside = self._outside(p, closest, face, normal)
         return closest, np.where(outside, -dist, dist), face, normal
 
@@ -527,12 +495,12 @@ def local_radius(sdf: SignedDistance, points: np.ndarray, normals: np.ndarray, w
     """
     import igl
 
-    faces, normals_of_faces, tree = sdf.faces, sdf.face_normals, sdf._tree
+    faces, normals_of_faces = sdf.faces, sdf.face_normals
     if wall_faces is not None:
         faces = np.ascontiguousarray(sdf.faces[wall_faces])
         normals_of_faces = sdf.face_normals[wall_faces]
-        tree = igl.AABB()
-        tree.init(sdf.vertices, faces)
+    tree = igl.AABB()  # ray casting: igl's tree (the closest-point BVH has no ray queries)
+    tree.init(sdf.vertices, faces)
     origin = np.ascontiguousarray(points - 1e-6 * sdf.diagonal * normals)
     hit_face, t, _ = tree.intersect_ray_first(sdf.vertices, faces, origin, np.ascontiguousarray(-normals))
     hit_face, t = np.asarray(hit_face, np.int64), np.asarray(t, float)
@@ -633,8 +601,9 @@ def compare_coarse_fine(fine_surface, coarse_surfaces, counts=(10_000, 100_000, 
         t0 = time.perf_counter()
         sdf = SignedDistance.from_surface(surface)
         coarse.append((sdf, time.perf_counter() - t0))
-    labels = fine_surface.face_data.get("cap_id")
-    wall = None if labels is None or len(labels) != fine_surface.n_faces else np.asarray(labels) == 0
+    caps = fine_surface.face_data.get("cap_id")
+    wall = None if caps is None or len(caps) != fine_surface.n_faces else np.asarray(caps) == 0
+    labels = [getattr(s, "coarse_label", f"{s.n_faces} faces") for s in coarse_surfaces]
     fine.project(fine.vertices[:16])  # warm-up (thread pool, page faults)
     from .sdf_grid import GridSignedDistance
 
@@ -644,7 +613,7 @@ def compare_coarse_fine(fine_surface, coarse_surfaces, counts=(10_000, 100_000, 
         points, radius = vessel_query_points(fine, int(n), seed=seed, wall_faces=wall)
         ref, (wall_s, cpu_s) = _timed(fine.project, points)
         qps_fine, cpu_qps_fine = n / wall_s, n / cpu_s
-        for (sdf, build_s), grid in zip(coarse, grids):
+        for (sdf, build_s), grid, label in zip(coarse, grids, labels):
             res, (wall_s, cpu_s) = _timed(sdf.project, points)
             resg, (wall_g, cpu_g) = _timed(grid.project, points)
             offg, derrg = projection_errors(fine, resg, ref)
@@ -660,6 +629,7 @@ def compare_coarse_fine(fine_surface, coarse_surfaces, counts=(10_000, 100_000, 
                     "case": case or fine_surface.name,
                     "triangles_fine": fine.n_faces,
                     "triangles_coarse": sdf.n_faces,
+                    "coarse_level": label,
                     "points": int(n),
                     "build_s_fine": round(build_fine, 4),
                     "build_s_coarse": round(build_s, 4),

@@ -1,0 +1,89 @@
+"""The closest-point engine: exact against libigl's AABB tree, features, sorting, soups."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import synthetic_case
+from vmesh.chain import FilterChain
+from vmesh.geometry.bvh import TriangleBVH, morton_order
+from vmesh.io.surface import read_surface
+
+
+def _igl_closest(v, f, p):
+    import igl
+
+    tree = igl.AABB()
+    tree.init(v, f)
+    sq, face, closest = tree.squared_distance(v, f, p)
+    return np.asarray(sq), np.asarray(face), np.asarray(closest)
+
+
+@pytest.mark.parametrize("name", ["y_bifurcation", "cerebral_tree"])
+def test_bvh_matches_igl_on_synthetic_surfaces(name):
+    path = synthetic_case(name)[0]
+    if not path.exists():
+        pytest.skip(f"synthetic case {name} not generated")
+    s = read_surface(path)
+    v, f = s.vertices, s.faces
+    rng = np.random.default_rng(0)
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    # points in the box and points just off the surface (where features matter)
+    near = v[rng.integers(0, len(v), 20_000)] + rng.normal(scale=1e-3 * np.linalg.norm(hi - lo), size=(20_000, 3))
+    p = np.concatenate([lo + rng.random((20_000, 3)) * (hi - lo), near, v[:500]])
+    sq, face, closest, feature = TriangleBVH(v, f).closest(p)
+    sq0, _, _ = _igl_closest(v, f, p)
+    scale = np.linalg.norm(hi - lo)
+    assert np.abs(np.sqrt(sq) - np.sqrt(sq0)).max() <= 1e-12 * scale
+    assert np.allclose(np.einsum("ij,ij->i", p - closest, p - closest), sq, atol=1e-12 * scale**2)
+    # the closest point lies on the reported face, at the reported feature
+    tri = v[f[face]]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    assert np.abs(np.einsum("ij,ij->i", closest - tri[:, 0], n)).max() <= 1e-9 * scale
+    corner = feature >= 4
+    k = feature[corner] - 4
+    assert np.allclose(closest[corner], tri[corner, k], atol=1e-12 * scale)
+    assert set(np.unique(feature)) <= set(range(7))
+
+
+def test_bvh_sorted_and_unsorted_queries_agree_and_soups_work():
+    rng = np.random.default_rng(1)
+    tri = rng.random((300, 3, 3))  # a soup of random triangles, some nearly degenerate
+    tri[:10, 2] = tri[:10, 0] + 1e-14
+    v, f = tri.reshape(-1, 3), np.arange(900).reshape(300, 3)
+    p = rng.random((5000, 3)) * 1.5 - 0.25
+    bvh = TriangleBVH(v, f)
+    a = bvh.closest(p, sort=True)
+    b = bvh.closest(p, sort=False)
+    assert np.allclose(a[0], b[0], rtol=0, atol=1e-15)
+    sq0, _, _ = _igl_closest(v, f, p)
+    assert np.allclose(a[0], sq0, rtol=1e-12, atol=1e-15)
+    assert len(bvh.closest(np.zeros((0, 3)))[0]) == 0
+    one = TriangleBVH(v[:3], f[:1]).closest(p[:5])
+    assert np.all(one[1] == 0)
+
+
+def test_morton_order_is_a_permutation_that_groups_neighbours():
+    rng = np.random.default_rng(2)
+    p = rng.random((10_000, 3))
+    order = morton_order(p)
+    assert np.array_equal(np.sort(order), np.arange(len(p)))
+    step = np.linalg.norm(np.diff(p[order], axis=0), axis=1).mean()
+    assert step < 0.25 * np.linalg.norm(np.diff(p, axis=0), axis=1).mean()
+
+
+def test_decimation_to_tolerance_reaches_it(real_path):
+    """decimate_surface max_error: every fine vertex within the tolerance of the coarse surface."""
+    from vmesh.preprocess import wall_radius_deviation
+
+    surface = read_surface(real_path("thoracic_aorta_open.vtp"))
+    ctx = FilterChain(["repair_surface", "cap_open_ends", ("decimate_surface", {"backend": "fast_simplification", "target_faces": 20000, "max_error": 0.015})]).run(surface=surface)
+    tries = ctx.report.sections["decimation"]["tries"]
+    assert tries[0]["faces"] == 20000 and tries[0]["max_error_rel"] > 0.015  # 20k faces are not enough here
+    assert tries[-1]["max_error_rel"] <= 0.015
+    fine, coarse = ctx.surface, ctx.coarse_surface
+    assert coarse.n_faces == tries[-1]["faces"] < fine.n_faces
+    wall = np.asarray(fine.face_data["cap_id"]) == 0
+    assert wall_radius_deviation(fine.vertices, fine.faces, coarse.vertices, coarse.faces, wall).max() <= 0.015
