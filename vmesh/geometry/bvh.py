@@ -56,11 +56,12 @@ def morton_codes(points: np.ndarray, lo: np.ndarray | None = None, hi: np.ndarra
     return _morton_kernel(np.ascontiguousarray(q))
 
 
-@_nb.njit(parallel=True, cache=True)
+@_nb.njit(cache=True)
 def _morton_kernel(q):
+    # serial: a few ns per point, less than a parallel launch costs on a busy machine
     n = q.shape[0]
     out = np.empty(n, np.uint64)
-    for i in _nb.prange(n):
+    for i in range(n):
         code = np.uint64(0)
         for axis in range(3):
             x = np.uint64(q[i, axis])
@@ -323,7 +324,7 @@ def _closest_kernel(points, lo, hi, first_leaf, leaf_size, A, AB, AC, out_sq, ou
             out_feat[i] = bf
 
 
-@_nb.njit(parallel=True, cache=True)
+@_nb.njit(cache=True)
 def feature_normals(face, feature, faces, face_normals, edge_normals, vertex_normals, degenerate):
     """Pseudonormal ``(n, 3)`` of each closest point's feature (face, edge or corner).
 
@@ -332,7 +333,7 @@ def feature_normals(face, feature, faces, face_normals, edge_normals, vertex_nor
     """
     n = face.shape[0]
     out = np.empty((n, 3))
-    for i in _nb.prange(n):
+    for i in range(n):
         f = face[i]
         k = feature[i]
         if degenerate[f]:

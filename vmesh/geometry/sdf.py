@@ -355,7 +355,8 @@ class TwoStepSignedDistance:
     result the closest fine-surface point to the query point (to second order),
     and it is kept only where it is closer. Returned points lie exactly on the fine
     surface. The sign comes from the fine surface's pseudonormals where the coarse
-    surface agrees, and from the fine winding number where it does not.
+    surface agrees; where it does not (points within the coarse error of the wall), the
+    fine surface is queried exactly.
 
     Parameters
     ----------
@@ -445,9 +446,14 @@ class TwoStepSignedDistance:
         # point may not be it (the coarse side disagrees), ask the fine winding number
         coarse_outside = coarse._outside(p, c0, face0, coarse.pseudonormals(c0, face0))
         unsure = outside != coarse_outside
+        signed = np.where(outside, -dist, dist)
         if unsure.any():
-            outside[unsure] = fine.winding_number(p[unsure]) < 0.5
-        return closest, np.where(outside, -dist, dist), face, normal
+            # such points lie within the coarse surface's error of the wall, where an exact
+            # fine query is cheap (few tree nodes) and gives the exact point and sign
+            idx = np.flatnonzero(unsure)
+            c, d, f, n = fine._query(p[idx])
+            closest[idx], signed[idx], face[idx], normal[idx] = c, d, f, n
+        return closest, signed, face, normal
 
 
 def _gradient(p, closest, signed, normal, tol):

@@ -671,7 +671,7 @@ def ray_to_surface(points: np.ndarray, directions: np.ndarray, signed_distance, 
     """
     x = np.asarray(points, float)
     d = np.asarray(directions, float)
-    reach = np.asarray(reach, float)
+    reach = np.broadcast_to(np.asarray(reach, float), (len(x),))
     f0 = signed_distance(x)
     # a first step along +d by the signed distance: the zero is at t ~ f0 when d points outward
     probe = signed_distance(x + 0.5 * np.minimum(np.abs(f0), reach)[:, None] * d)
@@ -689,18 +689,26 @@ def ray_to_surface(points: np.ndarray, directions: np.ndarray, signed_distance, 
         hi = np.where(grow, np.minimum(2 * hi, reach), hi)
         fhi[grow] = signed_distance(x[grow] + (sgn[grow] * hi[grow])[:, None] * d[grow])
     ok = np.sign(fhi) != np.sign(flo)
+    # secant (regula falsi, bracketed) steps on the lines still open; a line is done when
+    # its bracket or its distance falls below a 1e-10 fraction of its reach
+    tol = 1e-10 * np.maximum(reach, 1e-300)
+    active = np.flatnonzero(ok)
     for _ in range(iterations):
-        # secant (regula falsi, Illinois-free but bracketed) step
-        t = np.where(ok, lo - flo * (hi - lo) / np.where(fhi != flo, fhi - flo, 1e-300), lo)
-        t = np.clip(t, np.minimum(lo, hi), np.maximum(lo, hi))
-        mid = 0.5 * (lo + hi)
-        t = np.where(np.abs(t - lo) < 1e-12 * np.maximum(hi, 1e-12), mid, t)
-        ft = signed_distance(x + (sgn * t)[:, None] * d)
-        same = np.sign(ft) == np.sign(flo)
-        lo = np.where(ok & same, t, lo)
-        flo = np.where(ok & same, ft, flo)
-        hi = np.where(ok & ~same, t, hi)
-        fhi = np.where(ok & ~same, ft, fhi)
+        if len(active) == 0:
+            break
+        a_lo, a_hi, a_flo, a_fhi = lo[active], hi[active], flo[active], fhi[active]
+        t = a_lo - a_flo * (a_hi - a_lo) / np.where(a_fhi != a_flo, a_fhi - a_flo, 1e-300)
+        t = np.clip(t, np.minimum(a_lo, a_hi), np.maximum(a_lo, a_hi))
+        mid = 0.5 * (a_lo + a_hi)
+        t = np.where(np.abs(t - a_lo) < 1e-12 * np.maximum(a_hi, 1e-12), mid, t)
+        ft = signed_distance(x[active] + (sgn[active] * t)[:, None] * d[active])
+        same = np.sign(ft) == np.sign(a_flo)
+        lo[active] = np.where(same, t, a_lo)
+        flo[active] = np.where(same, ft, a_flo)
+        hi[active] = np.where(~same, t, a_hi)
+        fhi[active] = np.where(~same, ft, a_fhi)
+        done = (np.abs(ft) <= tol[active]) | (np.abs(hi[active] - lo[active]) <= tol[active])
+        active = active[~done]
     t = np.where(np.abs(flo) < np.abs(fhi), lo, hi)
     out = np.where(ok[:, None], x + (sgn * t)[:, None] * d, x)
     return (out, ok) if return_hit else out
