@@ -515,8 +515,20 @@ def test_real_thoracic_aorta_extracted_splits_its_nfurcation(real_path):
 def test_real_carotid_extracted_builds(real_path):
     # the CCA end sat half a radius off the axis of its rough end face (see
     # test_skeleton_extract.py): its end section crossed the wall
-    fixes = _check_real_blocks(_extracted_blocks(real_path("carotid_vmtk.vtp")))
+    from vmesh.geometry.block_builder import projected_wall_quality
+    from vmesh.geometry.projection import SurfaceProjector
+
+    ctx = _extracted_blocks(real_path("carotid_vmtk.vtp"))
+    fixes = _check_real_blocks(ctx)
     assert not any("split" in f or "merged" in f for f in fixes)
+    # the ends sat on the clipped end faces (not detected as caps): the end sections ran
+    # along the faces' bumps and rounded rims, and 15 boundary-layer blocks there folded
+    # when projected onto the wall (min SJ of the mesh 0.047); the ends now stop at the
+    # last full cross-section behind the faces
+    projector = SurfaceProjector(ctx.surface.vertices, ctx.surface.faces)
+    quality = projected_wall_quality(ctx.blocks, lambda p: projector.project(p)[0])
+    at_ends = (ctx.blocks.face_boundary >= 1).any(axis=1)
+    assert at_ends.sum() == 60 and quality[at_ends].min() > 0.5
 
 
 @pytest.mark.parametrize("surface_name", ["aneurysm_ica_aneurisk_c0015_open.vtp", "aorta_simvascular_demo.vtp", "ica_swc_surface.vtp"])

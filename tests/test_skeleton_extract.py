@@ -166,15 +166,56 @@ def test_pure_ring_has_one_cycle_and_no_ends():
     assert np.allclose(skeleton.radii, 1.5, atol=0.1)
 
 
-def test_grid_aligned_cylinder_ends_on_its_end_faces():
+def test_grid_aligned_cylinder_ends_a_quarter_radius_inside_its_end_faces():
     skeleton, stats = se.extract_skeleton(cylinder_sdf(40.0, 3.0), ([-20, -3, -3], [20, 3, 3]), min_radius=3.0)
     assert topology(skeleton)["endpoints"] == 2 and topology(skeleton)["junctions"] == 0
     ends = skeleton.points[skeleton.endpoints]
-    assert np.allclose(np.sort(ends[:, 0]), [-20.0, 20.0], atol=0.05)
+    assert np.allclose(np.sort(ends[:, 0]), [-19.25, 19.25], atol=0.05)
     assert np.all(np.hypot(skeleton.points[:, 1], skeleton.points[:, 2]) < 0.05)
     assert np.allclose(skeleton.radii, 3.0, atol=0.1)
     assert all("flat_end" in skeleton.node_tags[e] for e in skeleton.endpoints)
     assert stats["ends"]["flat"] == 2
+
+
+def tilted_end_cylinder_sdf(length: float, radius: float, tilt: float):
+    """Cylinder along x with a square face at -length/2 and, at +length/2, a face
+    tilted by ``tilt`` degrees about z (a lower bound of the distance outside)."""
+    n = np.array([np.cos(np.radians(tilt)), np.sin(np.radians(tilt)), 0.0])
+
+    def sdf(p):
+        side = radius - np.hypot(p[:, 1], p[:, 2])
+        return np.minimum(side, np.minimum(0.5 * length - p @ n, 0.5 * length + p[:, 0]))
+
+    return sdf
+
+
+@pytest.mark.parametrize("tilt", [20.0, 30.0])
+def test_flat_end_on_a_tilted_face_stops_where_its_section_clears_the_face(tilt):
+    # the end's cross-section (orthogonal to the axis) is what the blocks end on: on the
+    # face itself it would cut the face on one side (the carotid's clipped ends, whose
+    # sections on the face folded the boundary-layer blocks there: min SJ 0.047)
+    R, L = 3.0, 40.0
+    skeleton, stats = se.extract_skeleton(tilted_end_cylinder_sdf(L, R, tilt), ([-20, -3, -3], [22, 3, 3]), min_radius=R)
+    assert stats["ends"]["flat"] == 2
+    x = np.sort(skeleton.points[skeleton.endpoints, 0])
+    nearest_face = (0.5 * L - R * np.sin(np.radians(tilt))) / np.cos(np.radians(tilt))  # face point nearest to -x
+    assert nearest_face - R < x[1] < nearest_face
+    assert abs(x[0] + 19.25) < 0.05
+    assert np.allclose(skeleton.radii[skeleton.endpoints], R, atol=0.1)
+
+
+def test_extend_to_a_target_behind_the_end_cuts_the_branch_back():
+    graph = se.BranchGraph()
+    a, b = graph.add_node([0, 0, 0], 1.0), graph.add_node([10, 0, 0], 1.0)
+    graph.add_branch(a, b, np.c_[np.arange(1.0, 10.0), np.zeros((9, 2))], np.ones(9))
+    se._extend(graph, b, np.array([7.5, 0.2, 0.0]), 1.5, 0.5, direction=np.array([1.0, 0.0, 0.0]))
+    pts, rad = graph.polyline(a, b, 0, start=a)
+    assert np.allclose(pts[-1], [7.5, 0.2, 0.0]) and rad[-1] == 1.5
+    assert np.all(np.diff(pts[:, 0]) > 0)  # no detour past the target and back
+    # a target ahead keeps the old end as a branch point
+    se._extend(graph, b, np.array([9.0, 0.0, 0.0]), 1.0, 0.5, direction=np.array([1.0, 0.0, 0.0]))
+    pts, _ = graph.polyline(a, b, 0, start=a)
+    assert np.all(np.diff(pts[:, 0]) > 0) and np.any(np.all(np.isclose(pts, [7.5, 0.2, 0.0]), axis=1))
 
 
 def test_rounded_ends_stop_at_half_the_radius():

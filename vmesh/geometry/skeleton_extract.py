@@ -19,7 +19,8 @@ Pipeline (all distances in the SDF's unit, the signed distance positive inside):
    tiny cycles made by voxel noise (true cycles are long compared to the radius).
 5. **Place the ends**: an end is moved to the centre of the cap it belongs to when
    caps are known, otherwise the branch is extended along its end tangent to the
-   surface: onto a flat end, or into a rounded end (an aneurysm dome) down to a
+   surface: to the last full cross-section behind a flat end face
+   (:func:`flat_end_sections`), or into a rounded end (an aneurysm dome) down to a
    depth where the inscribed radius is ``end_depth`` x the end radius.
 6. **Smooth, resample and centre** every branch: nodes spaced by a multiple of the
    local radius, kept clear of junctions (where the medial axis of a crotch is not
@@ -1192,8 +1193,11 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
       a cap without a skeleton end (its branch was too short to survive thinning)
       gets a new branch from the nearest skeleton point.
     * Other ends are extended along their end tangent to the wall. A flat end
-      (the cross-section keeps its full width up to the wall) ends on the wall at
-      the centre of the end face; a rounded end (an aneurysm dome, a capsule)
+      (the cross-section keeps its full width up to the wall) ends on the axis
+      through the centre of the end face, at the last cross-section behind it that
+      meets only the side wall (:func:`flat_end_sections`: a quarter radius behind
+      a clean face, more behind a tilted, rough or rounded-rim one, as a clipped face
+      without a detected cap is); a rounded end (an aneurysm dome, a capsule)
       ends where the inscribed radius has dropped to ``end_depth`` x the radius at
       the medial end.
 
@@ -1254,21 +1258,107 @@ def _trim_end(graph: BranchGraph, node: int, spacing: float) -> tuple[np.ndarray
     return _end_tangent(pts, max(2.5 * r_ref, 4 * spacing)), r_ref
 
 
-def _extend(graph: BranchGraph, node: int, target: np.ndarray, radius: float, spacing: float) -> None:
-    """Move end ``node`` to ``target``, keeping its old position as part of the branch."""
+def _extend(graph: BranchGraph, node: int, target: np.ndarray, radius: float, spacing: float, direction=None) -> None:
+    """Move end ``node`` to ``target``, keeping its old position as part of the branch.
+
+    With ``direction`` (the outward axis at the end), branch points that do not lie
+    clearly behind ``target`` along it are cut off first: a target set back from an
+    end face may lie behind the traced end, and going there and back would fold the
+    branch."""
     (u, v, k), = list(graph.graph.edges(node, keys=True))
     data = graph.graph.edges[u, v, k]
-    old = graph.pos(node)
-    extra = np.concatenate([old[None], _straight(old, target, spacing)])
-    extra_r = np.full(len(extra), graph.radius(node))
-    if data["start"] == node:  # points run away from the end
-        data["pts"] = np.concatenate([extra[::-1], data["pts"]])
-        data["rad"] = np.concatenate([extra_r, data["rad"]])
+    target = np.asarray(target, float)
+    towards_end = data["start"] != node
+    pts = data["pts"] if towards_end else data["pts"][::-1]
+    rad = data["rad"] if towards_end else data["rad"][::-1]
+    old, old_r = graph.pos(node), graph.radius(node)
+    if direction is not None and (old - target) @ direction > -spacing:
+        behind = np.flatnonzero((pts - target) @ np.asarray(direction, float) < -spacing)
+        keep = behind[-1] + 1 if len(behind) else 0
+        pts, rad = pts[:keep], rad[:keep]
+        old = pts[-1] if keep else graph.pos(graph.other(u, v, node))
+        old_r = rad[-1] if keep else old_r
+        extra = _straight(old, target, spacing)
     else:
-        data["pts"] = np.concatenate([data["pts"], extra])
-        data["rad"] = np.concatenate([data["rad"], extra_r])
-    graph.graph.nodes[node]["pos"] = np.asarray(target, float)
+        extra = np.concatenate([old[None], _straight(old, target, spacing)])
+    pts = np.concatenate([pts, extra])
+    rad = np.concatenate([rad, np.full(len(extra), old_r)])
+    data["pts"], data["rad"] = (pts, rad) if towards_end else (pts[::-1].copy(), rad[::-1].copy())
+    graph.graph.nodes[node]["pos"] = target
     graph.graph.nodes[node]["r"] = float(radius)
+
+
+def flat_end_sections(
+    sdf: SdfFunction,
+    faces: np.ndarray,
+    normals: np.ndarray,
+    tangents: np.ndarray,
+    radii: np.ndarray,
+    setbacks=(0.25, 0.5, 0.75, 1.0),
+    rays: int = 16,
+    max_wall_angle: float = 30.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The last full cross-section behind each flat end face.
+
+    A cross-section on a clipped end face itself runs along the face's bumps and its
+    rounded rim, not along the vessel wall: its rays are short on one side, and the
+    boundary-layer blocks projected onto the wall there fold. Candidates are set back
+    from the face centre along the inward face normal by ``setbacks`` x the radius,
+    centred in the plane orthogonal to the axis; the first one whose ``rays`` in-plane
+    rays all meet the wall where it is within ``max_wall_angle`` of parallel to the axis
+    (the side wall, not the face or its rim) is kept; where none is, the one with the
+    most such rays (the nearest of those).
+
+    Parameters
+    ----------
+    sdf : callable
+        Signed distance, positive inside.
+    faces, normals : (n, 3)
+        Centres of the end faces and their outward unit normals.
+    tangents : (n, 3)
+        Unit vessel axes at the ends (outward).
+    radii : (n,)
+        Vessel radii near the ends.
+    setbacks : sequence of float
+        Candidate distances behind the face, in radii, nearest first.
+    rays : int
+        Rays per candidate section.
+    max_wall_angle : float
+        Largest angle (degrees) between the axis and the wall the rays meet.
+
+    Returns
+    -------
+    centres : (n, 3)
+        The chosen section centres.
+    section : (n,)
+        Their section radii (mean half-chord, see :func:`center_in_cross_sections`).
+    setback : (n,)
+        The chosen setbacks, in radii.
+    """
+    faces = np.asarray(faces, float).reshape(-1, 3)
+    normals = np.asarray(normals, float).reshape(-1, 3)
+    radii = np.asarray(radii, float).reshape(-1)
+    n, s = len(faces), np.asarray(setbacks, float)
+    m = len(s)
+    # candidates (n, m) flattened end by end
+    probes = faces[:, None, :] - (radii[:, None] * s[None, :])[..., None] * normals[:, None, :]
+    r = np.repeat(radii, m)
+    t = np.repeat(np.asarray(tangents, float).reshape(-1, 3), m, axis=0)
+    centres, section = center_in_cross_sections(sdf, probes.reshape(-1, 3), t, r)
+    e1, e2 = plane_basis(t)
+    ang = 2 * np.pi * np.arange(rays) / rays
+    dirs = (np.cos(ang)[None, :, None] * e1[:, None, :] + np.sin(ang)[None, :, None] * e2[:, None, :]).reshape(-1, 3)
+    origins = np.repeat(centres, rays, axis=0)
+    hit = distance_to_wall(sdf, origins, dirs, np.repeat(2.5 * r, rays), samples=20)
+    found = np.isfinite(hit) & (hit > 0)
+    back = np.repeat(0.05 * r, rays)  # the wall normal just inside the hit
+    g = sdf_gradient(sdf, origins + (np.where(found, hit, 0.0) - back)[:, None] * dirs, back)
+    along = np.abs(np.einsum("ij,ij->i", g, np.repeat(t, rays, axis=0)))
+    side = (found & (along < np.sin(np.radians(max_wall_angle)))).reshape(n, m, rays).sum(axis=2)
+    side = np.where(np.isfinite(section).reshape(n, m), side, -1)
+    pick = np.argmax(side == side.max(axis=1, keepdims=True), axis=1)
+    rows = np.arange(n)
+    return centres.reshape(n, m, 3)[rows, pick], section.reshape(n, m)[rows, pick], s[pick]
 
 
 def end_face_normals(sdf: SdfFunction, centres: np.ndarray, tangents: np.ndarray, radii: np.ndarray, reach: np.ndarray, rings: int = 2, per_ring: int = 8) -> np.ndarray:
@@ -1326,7 +1416,7 @@ def end_face_normals(sdf: SdfFunction, centres: np.ndarray, tangents: np.ndarray
 
 
 def _extend_to_wall(graph: BranchGraph, sdf: SdfFunction, free, spacing: float, end_depth: float, caps=(), taken=None) -> dict:
-    """Extend free ends along their tangent: onto a flat end face, or into a rounded end.
+    """Extend free ends along their tangent: to just behind a flat end face, or into a rounded end.
 
     An end whose axis meets the wall on a cap not matched yet (its branch bent away
     from the cap's axis) goes to that cap's centre; ``taken`` collects such caps."""
@@ -1360,7 +1450,9 @@ def _extend_to_wall(graph: BranchGraph, sdf: SdfFunction, free, spacing: float, 
     facing = np.einsum("ij,ij->i", normal, tangent) > np.cos(np.radians(45))
     flat = has_hit & facing & (section >= 0.8 * r_ref)
     to_face = distance_to_wall(sdf, centre, normal, 0.5 * r_ref + 2 * spacing)
-    flat_end = centre + np.where(np.isfinite(to_face), to_face, 0.25 * r_ref)[:, None] * normal
+    face = centre + np.where(np.isfinite(to_face), to_face, 0.25 * r_ref)[:, None] * normal
+    # the end itself is the last full cross-section behind the face
+    flat_end, flat_section, _ = flat_end_sections(sdf, face, normal, tangent, np.where(np.isfinite(section), section, r_ref))
     # rounded end: where the inscribed radius has dropped to end_depth x r_ref, centred
     samples = 32
     t = hit[:, None] * (np.arange(samples + 1) / samples)[None, :]
@@ -1392,12 +1484,14 @@ def _extend_to_wall(graph: BranchGraph, sdf: SdfFunction, free, spacing: float, 
             counts["cap"] += 1
             continue
         if flat[i]:
-            position, radius = flat_end[i], section[i]
+            position, radius = flat_end[i], flat_section[i]
+            if not np.isfinite(radius):
+                radius = section[i]
         else:
             position, radius = rounded_end[i], rounded_section[i]
             if not np.isfinite(radius):
                 radius = target[i]
-        _extend(graph, node, position, float(radius), spacing)
+        _extend(graph, node, position, float(radius), spacing, direction=tangent[i])
         graph.graph.nodes[node]["end"] = ("flat",) if flat[i] else ("rounded",)
         counts["flat" if flat[i] else "rounded"] += 1
     return counts
