@@ -208,6 +208,42 @@ def test_merge_close_junctions_joins_a_split_four_way_junction():
     assert n == 0 and len(kept.junctions) == 2
 
 
+def _side_by_side_daughters(step=0.1):
+    """Trunk down z to a junction at the origin; two daughters that run 0.02 r apart per
+    unit length for 2 radii, then part at 0.6 per unit length (radius 1)."""
+    t = np.arange(step, 8.0 + 1e-9, step)
+    g = np.where(t < 2.0, 0.02 * t, 0.04 + 0.6 * (t - 2.0))
+    trunk = np.c_[np.zeros(40), np.zeros(40), np.linspace(10.0, 0.0, 40)]
+    pts = np.r_[trunk, np.c_[g, 0 * t, -t], np.c_[-g, 0 * t, -t]]
+    n, m = len(trunk), len(t)
+    edges = np.r_[np.c_[np.arange(n - 1), np.arange(1, n)], [[n - 1, n]], np.c_[np.arange(n, n + m - 1), np.arange(n + 1, n + m)],
+                  [[n - 1, n + m]], np.c_[np.arange(n + m, n + 2 * m - 1), np.arange(n + m + 1, n + 2 * m)]]
+    tags = [("trunk",)] * (n - 1) + [("bifurcation",)] + [("d1",)] * m + [("d2",)] * m
+    return Skeleton(pts, np.ones(len(pts)), edges, tags)
+
+
+def test_separate_parallel_branches_moves_the_junction_to_where_they_part():
+    skel = _side_by_side_daughters()
+    out, n = ops.separate_parallel_branches(skel, 30.0, 60.0)
+    assert n == 1 and topology(out) == topology(skel)
+    j = out.junctions[0]
+    # from about 1.9 radii down, the daughters (1 radius further on) are 60 degrees apart
+    assert -2.1 < out.points[j, 2] < -1.7 and abs(out.points[j, 0]) < 1e-9
+    assert out.node_tags[j] == ("bifurcation",)
+    # the common stretch runs on the axis, the parted daughters keep their nodes
+    common = (out.points[:, 2] < 0) & (out.points[:, 2] > out.points[j, 2])
+    assert common.any() and np.abs(out.points[common, 0]).max() < 1e-9
+    far = skel.points[:, 2] < -2.2
+    assert np.linalg.norm(skel.points[far][:, None] - out.points[None], axis=2).min(axis=1).max() < 1e-12
+    trunk = ops.branch_paths(out.n_nodes, out.edges)[0]  # from the top end down to the junction
+    np.testing.assert_allclose(ops.arc_length(out.points[trunk])[-1], 10.0 + abs(out.points[j, 2]))
+    # branches that leave the junction well apart stay; 0 turns the step off
+    gt = truth("y_bifurcation")
+    same, n = ops.separate_parallel_branches(gt, 30.0, 60.0)
+    assert n == 0 and np.array_equal(same.points, gt.points) and np.array_equal(same.edges, gt.edges)
+    assert ops.separate_parallel_branches(skel, 0.0)[1] == 0
+
+
 def test_reconnect_components_joins_a_detached_branch():
     gt = truth("y_bifurcation")
     j = gt.junctions[0]
@@ -515,3 +551,21 @@ def test_skeleton_command(tmp_path, capsys):
     assert rc == 2 and err.startswith("vmesh: error:") and "bad.swc" in err and len(err.strip().splitlines()) == 1
     rc = main(["skeleton", str(surface), "--skeleton", str(skel_path), "--out", str(tmp_path / "x.stl")])
     assert rc == 2 and "unknown skeleton format" in capsys.readouterr().err
+
+
+def test_real_aorta_centerline_junction_moves_to_where_the_iliacs_part(real_path):
+    # the SimVascular centerline graph splits the iliacs where their paths part, about 1.6
+    # radii before the medial-axis junction: the daughters left the junction 7 degrees apart
+    # and its half cross-sections became slivers down to the carina (min scaled Jacobian 0.026)
+    chain = FilterChain(["repair_surface", "cap_open_ends", "build_sdf", "clean_skeleton", "resample_skeleton"])
+    ctx = chain.run(surface=real_path("aorta_simvascular_demo.vtp"), skeleton=real_path("aorta_simvascular_demo_centerlines.vtp"))
+    clean = next(s for s in ctx.report.steps if s.filter == "clean_skeleton")
+    assert clean.counts["junctions_moved"] == 1
+    sk = ctx.skeleton
+    (j,) = sk.junctions
+    d = sk.points[sk.neighbors(j)] - sk.points[j]
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    angles = np.degrees(np.arccos(np.clip(d @ d.T, -1, 1)))[np.triu_indices(3, 1)]
+    assert angles.min() > 45.0
+    # near where the extracted skeleton puts it (0.65, 3.19, -7.53), a radius down from the VMTK split
+    assert np.linalg.norm(sk.points[j] - [0.65, 3.19, -7.53]) < 0.5 * sk.radii[j]

@@ -122,6 +122,25 @@ def estimate_radii(ctx, overwrite):
             min=0.0,
         ),
         Parameter(
+            "parallel_angle",
+            "float",
+            30.0,
+            "Move a junction whose two closest branches leave it less than this apart (directions one radius along "
+            "them: centerlines that part well before the carina) downstream to where they are part_angle apart (0: never).",
+            unit="degrees",
+            min=0.0,
+            max=90.0,
+        ),
+        Parameter(
+            "part_angle",
+            "float",
+            60.0,
+            "Where such a junction moves to: the first point between the two branches from which they are this far apart.",
+            unit="degrees",
+            min=0.0,
+            max=150.0,
+        ),
+        Parameter(
             "spur_length",
             "float",
             1.0,
@@ -145,12 +164,13 @@ def estimate_radii(ctx, overwrite):
     category="skeleton",
 )
 def clean_skeleton(
-    ctx, outside, outside_tolerance, reconnect_distance, junction_distance, spur_length, extend_to_caps, cap_mode, cap_distance
+    ctx, outside, outside_tolerance, reconnect_distance, junction_distance, parallel_angle, part_angle, spur_length,
+    extend_to_caps, cap_mode, cap_distance,
 ):
     """Steps, in order: cutting off what runs out through a cap, nodes outside the wall,
     reconnection of separated pieces, merging of junctions split into nearby nodes, spur
-    removal (ends at caps are kept), merging again, and trimming/extending the ends to the
-    caps."""
+    removal (ends at caps are kept), merging again, moving junctions whose branches leave
+    nearly parallel to where they part, and trimming/extending the ends to the caps."""
     skel = ctx.skeleton
     if not np.isfinite(skel.radii).all() and ctx.sdf is not None:
         skel, _ = ops.estimate_radii(skel, ctx.sdf.distance)
@@ -178,6 +198,9 @@ def clean_skeleton(
     skel, counts["spurs_removed"] = ops.remove_spurs(skel, spur_length, protected)
     skel, merged2 = ops.merge_close_junctions(skel, junction_distance)
     counts["junctions_merged"] = merged + merged2
+    skel, counts["junctions_moved"] = ops.separate_parallel_branches(
+        skel, parallel_angle, part_angle, distance=ctx.sdf.distance if ctx.sdf is not None else None
+    )
     if extend_to_caps and caps:
         ctx.tick(0.75, "caps")
         skel, matched = ops.extend_to_caps(

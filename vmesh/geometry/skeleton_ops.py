@@ -685,6 +685,144 @@ def merge_close_junctions(skeleton: Skeleton, tolerance: float = 0.5) -> tuple[S
     return out, max(n_merged, 0)
 
 
+def _polyline_at(points: np.ndarray, arc: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Points at arc lengths ``s`` (clamped to the ends) of a polyline with arc lengths ``arc``."""
+    s = np.clip(s, 0.0, arc[-1])
+    k = np.clip(np.searchsorted(arc, s, side="right") - 1, 0, len(arc) - 2)
+    t = ((s - arc[k]) / np.maximum(arc[k + 1] - arc[k], 1e-300))[:, None]
+    return (1 - t) * points[k] + t * points[k + 1]
+
+
+def _pair_angle(m: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle (radians) at ``m`` between the directions to ``a`` and to ``b`` (row-wise)."""
+    u, v = a - m, b - m
+    cos = (u * v).sum(-1) / np.maximum(np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1), 1e-300)
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+def separate_parallel_branches(
+    skeleton: Skeleton,
+    min_angle: float = 30.0,
+    part_angle: float = 60.0,
+    ahead: float = 1.0,
+    max_shift: float = 4.0,
+    distance=None,
+) -> tuple[Skeleton, int]:
+    """Move junctions whose branches leave nearly parallel downstream, to where they part.
+
+    Centerlines traced from an inlet to every outlet (VMTK, SimVascular) split as soon as
+    the paths are a fraction of the radius apart, well before the carina: two daughters
+    then leave the junction a few degrees apart and run side by side for a radius or two,
+    and the junction's half cross-sections become slivers reaching down to the carina. At
+    every junction whose two closest branches make an angle below ``min_angle``
+    (directions to the points ``ahead`` x radius along them), the common stretch of those
+    two joins the vessel they leave (nodes on the midpoints of the two, matched by arc
+    length) and the junction moves to the first midpoint from which the two branches,
+    ``ahead`` x radius further on, are ``part_angle`` apart (about where the medial axis
+    of the surface branches).
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+    min_angle : float
+        Least angle (degrees) between two branches at a junction; 0 moves nothing.
+    part_angle : float
+        Angle (degrees, at least ``min_angle``) between the two branches seen from the
+        moved junction.
+    ahead : float
+        Where the branch directions are measured (x radius along the branches).
+    max_shift : float
+        Farthest a junction moves along its branches (x its radius); a junction whose
+        branches are not yet ``part_angle`` apart there is left where it is.
+    distance : callable, optional
+        Signed distance (positive inside): radii of the moved nodes. Without it (or where
+        it is not positive), the larger of the two branch radii at each midpoint.
+
+    Returns
+    -------
+    skeleton : Skeleton
+    n_moved : int
+        Number of junctions moved.
+    """
+    if min_angle <= 0 or skeleton.n_edges == 0:
+        return skeleton.copy(), 0
+    limit, target = np.radians(min_angle), np.radians(max(part_angle, min_angle))
+    skel, moved, done = skeleton, 0, set()
+    while True:
+        scale = _node_scale(skel)
+        paths = branch_paths(skel.n_nodes, skel.edges)
+        job = None
+        for c in np.flatnonzero(skel.degrees >= 3).tolist():
+            if c in done:
+                continue
+            done.add(c)  # unless a move below changes it
+            out = [p if p[0] == c else p[::-1] for p in paths if (p[0] == c) != (p[-1] == c)]  # loops skipped
+            if len(out) < 2:
+                continue
+            rc = scale[c]
+            arcs = [arc_length(skel.points[p]) for p in out]
+            tips = np.stack([_polyline_at(skel.points[p], a, np.array([ahead * rc]))[0] for p, a in zip(out, arcs)])
+            i, j = np.triu_indices(len(out), 1)
+            ang = _pair_angle(skel.points[c], tips[i], tips[j])
+            for k in np.argsort(ang).tolist():
+                if ang[k] >= limit:
+                    break
+                pi, ai, pj, aj = out[i[k]], arcs[i[k]], out[j[k]], arcs[j[k]]
+                if pi[-1] == pj[-1]:  # two paths between the same nodes: a loop, not a fork
+                    continue
+                eps = 0.02 * rc
+                top = min(max_shift * rc, ai[-1] - ahead * rc, aj[-1] - ahead * rc) - eps
+                if top <= 0:
+                    continue
+                # candidate junctions: midpoints of the two branches, every twentieth of a radius
+                s = np.arange(0.05 * rc, top + 1e-12, 0.05 * rc)
+                Pi, Pj, Ri, Rj = skel.points[pi], skel.points[pj], scale[pi], scale[pj]
+                mid = 0.5 * (_polyline_at(Pi, ai, s) + _polyline_at(Pj, aj, s))
+                r = np.maximum(np.interp(s, ai, Ri), np.interp(s, aj, Rj))
+                spread = _pair_angle(mid, _polyline_at(Pi, ai, s + ahead * r), _polyline_at(Pj, aj, s + ahead * r))
+                wide = np.flatnonzero(spread >= target)
+                if len(wide):
+                    job = (c, pi, ai, pj, aj, s[wide[0]], mid[wide[0]], r[wide[0]], eps)
+                    break
+            if job is not None:
+                break
+        if job is None:
+            break
+        c, pi, ai, pj, aj, star, at, r_at, eps = job
+        # branch i: pi[:ki] before the new junction (moved onto the midpoints), pi[li:] after
+        # it, nodes at it dropped; branch j: pj[lj:] after it, the rest but c dropped
+        ki = int(np.searchsorted(ai, star - eps, side="left"))
+        li = int(np.searchsorted(ai, star + eps, side="right"))
+        lj = int(np.searchsorted(aj, star + eps, side="right"))
+        n = skel.n_nodes
+        scale = _node_scale(skel)
+        pts = np.r_[skel.points, at[None]]
+        rad = np.r_[skel.radii, r_at]
+        inner = pi[1:ki]
+        pts[inner] = 0.5 * (skel.points[inner] + _polyline_at(skel.points[pj], aj, ai[1:ki]))
+        rad[inner] = np.maximum(scale[inner], np.interp(ai[1:ki], aj, scale[pj]))
+        if distance is not None:
+            ids = np.r_[inner, n]
+            depth = np.asarray(distance(pts[ids]), float)
+            rad[ids] = np.where(depth > 0, depth, rad[ids])
+        tags = list(skel.node_tags) + [tuple(t for t in skel.node_tags[c] if t not in END_TAGS)]
+        drop = np.zeros(n + 1, bool)
+        drop[pi[ki:li]] = True
+        drop[pj[1:lj]] = True
+        cut = np.sort([[pi[ki - 1], pi[ki]], [pi[li - 1], pi[li]], [pj[lj - 1], pj[lj]]], axis=1)
+        keep = ~(np.sort(skel.edges, axis=1)[:, None, :] == cut[None]).all(-1).any(-1)
+        edges = np.r_[skel.edges[keep], [[pi[ki - 1], n], [n, pi[li]], [n, pj[lj]]]]
+        etags = [t for t, k in zip(skel.edge_tags, keep) if k] + [()] * 3
+        grown = Skeleton(pts, rad, edges, tags, etags, name=skel.name)
+        skel = contract_nodes(grown, np.where(drop, -1, np.arange(n + 1)))
+        # contract_nodes numbers the kept nodes in order; c is looked at again (it may have
+        # more branches), the new junction is not
+        new_index = np.cumsum(~drop) - 1
+        done = {int(new_index[d]) for d in done if d != c and not drop[d]} | {int(new_index[n])}
+        moved += 1
+    return skel.copy() if skel is skeleton else skel, moved
+
+
 def reconnect_components(skeleton: Skeleton, tolerance: float = 1.0) -> tuple[Skeleton, int]:
     """Reconnect separated pieces: an endpoint (or isolated node) within ``tolerance`` x its
     radius of another component is joined to it, at the foot point on the nearest segment
