@@ -5,34 +5,30 @@ Convention (the paper's): the signed distance is **positive inside** the vessel 
 increasing distance, so it points into the vessel.
 
 Backend, chosen by measurement (``benchmarks/sdf_coarse_vs_fine.py --backends``,
-``benchmarks/results/sdf_backends.json``; 10^5 mesher-like points on the 150,000-triangle
-ica_swc surface and its 5,000-triangle decimation, in points per CPU-second because the
-shared 2-core machine was loaded):
+``benchmarks/results/sdf_backends.json``: 10^5 mesher-like points on the
+150,000-triangle ica_swc surface and its 5,000-triangle decimation):
 
-* **libigl's AABB tree** (``igl.AABB``, built once, queried with ``squared_distance``)
-  is the closest-point engine: exact (double precision), multithreaded, closest point
-  and face in one call. Queries are issued in **Morton (Z-curve) order** so that
-  neighbouring queries walk the same tree nodes: 94k vs 54k (fine) and 401k vs 249k
-  (coarse) points per CPU-second against input order.
-* The **sign** comes from Bærentzen–Aanæs angle-weighted pseudonormals at the closest
-  point (face, edge or vertex normal, whichever feature holds it), computed in numpy
-  from igl's closest point and face: exact at any distance on a closed, manifold,
-  consistently oriented surface, for ~10 % on top of the query (whole
-  ``project``: 87k fine, 345k coarse per CPU-second; 590k points/s wall on the coarse
-  surface when both cores were free). The surface is oriented outward first (signed
-  volume), so inward-oriented inputs get the right sign. Real surfaces carry tiny
-  folded slivers (the AneuRisk case has faces of area 1e-7 folded back at 160°) where
-  pseudonormals give the wrong side: points whose closest face touches such a face
-  take their sign from the winding number instead.
-* ``igl.signed_distance`` (pseudonormal 45k / 240k, fast winding number 31k / 94k) and
-  ``igl.point_mesh_squared_distance`` (46k / 250k) rebuild their tree on every call,
-  while a chain queries the same surface many times. ``igl.FastWindingNumberBVH``
-  (219k / 168k, inside test only) is the sign for surfaces that are open, non-manifold
-  or inconsistently oriented and an independent check of the pseudonormal sign.
-* VTK's ``vtkImplicitPolyDataDistance`` is 4.5× slower on the fine surface (19k) and
-  3× on the coarse one (122k). fcpw (float32 SIMD BVH, optional PyPI package) reaches
-  97k / 205k including the conversion of its Python list of results to numpy: no gain,
-  single precision. open3d was not installed; the issue measured it on par with igl.
+* Closest points come from vmesh's own **linear BVH** (:mod:`vmesh.geometry.bvh`,
+  compiled with numba): exact in double precision, queries in Morton order with a warm
+  start from the previous point, and **parallel over all cores with the GIL released**.
+  It replaced libigl's AABB tree (``igl.AABB.squared_distance``, also multithreaded),
+  which it matches to 1e-12 (tests) with fewer CPU-seconds per query, and it reports
+  which feature (face, edge or corner) holds each closest point, which the sign needs
+  (igl returns only the face, so the feature had to be recomputed in numpy).
+* The **sign** comes from Bærentzen–Aanæs angle-weighted pseudonormals of that feature:
+  exact at any distance on a closed, manifold, consistently oriented surface. The surface
+  is oriented outward first (signed volume), so inward-oriented inputs get the right
+  sign. Real surfaces carry tiny folded slivers (the AneuRisk case has faces of area 1e-7
+  folded back at 160°) where pseudonormals give the wrong side: points whose closest
+  face touches such a face take their sign from the winding number instead.
+* ``igl.signed_distance`` and ``igl.point_mesh_squared_distance`` rebuild their tree on
+  every call, while a chain queries the same surface many times.
+  ``igl.FastWindingNumberBVH`` is the sign for surfaces that are open, non-manifold or
+  inconsistently oriented and an independent check of the pseudonormal sign. VTK's
+  ``vtkImplicitPolyDataDistance`` is 3–5× slower than igl; fcpw (float32 SIMD BVH,
+  optional PyPI package) gained nothing over igl once its results are converted to numpy,
+  in single precision.
+* Ray casting (``local_radius``) still uses igl's tree: the BVH has no ray queries.
 """
 
 from __future__ import annotations
