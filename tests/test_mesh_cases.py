@@ -154,19 +154,20 @@ def test_high_order_bifurcation_reads_back_in_pyvista(tmp_path, order):
 
 def test_real_thoracic_aorta_junction_is_valid(real_path):
     """The VMTK centerline of the thoracic aorta has no branch down the descending aorta, so
-    the blocks at the 4-junction of the arch span the descending aorta's mouth and the saddles
-    beside the supra-aortic branches. Closest-point projection used to pull their wall nodes
-    onto the far rims (18 inverted elements after untangling, 129 before); wall-face nodes over
-    the opening now stay on their patch and edge nodes do not follow rays past a concavity."""
+    the blocks at the 4-junction of the arch used to span the descending aorta's mouth and
+    the saddles beside the supra-aortic branches. Closest-point projection pulled their wall
+    nodes onto the far rims (18 inverted elements after untangling, 129 before); wall-face
+    nodes over the opening then stayed on their patch (min SJ 0.08, a few wall nodes off the
+    wall). clean_skeleton now grafts the extracted descending aorta onto the centerline."""
     ctx = run_default(real_path("thoracic_aorta_open.vtp"), real_path("thoracic_aorta_centerlines.vtp"), **{"compute_quality.fail_on_invalid": False})
     sj = ctx.mesh.cell_data["scaled_jacobian"]
     assert (sj > 0).all(), f"{(sj <= 0).sum()} invalid elements, min {sj.min():.3f}"
-    assert sj.mean() > 0.85
-    # only the few nodes over the unmeshed vessel's mouth are off the wall
+    assert sj.min() >= 0.2 and sj.mean() > 0.85
+    assert any(n == "inlet" for n in ctx.mesh.boundary_names.values())
     mesh, surface = ctx.mesh, ctx.surface
     wall = np.unique(mesh.boundary_faces[mesh.boundary_ids == 0])
     d = SurfaceProjector(surface.vertices, surface.faces).project(mesh.points[wall])[1]
-    assert (d > 1e-6 * surface.diagonal).mean() < 0.01
+    assert (d > 1e-6 * surface.diagonal).mean() < 0.001
 
 
 @pytest.mark.slow

@@ -364,6 +364,51 @@ def test_trim_at_caps_cuts_centerlines_running_out_of_open_ends():
     assert "outlet" in out.node_tags[end]
 
 
+def test_graft_branches_gives_a_missed_cap_the_branch_of_another_skeleton():
+    # a centerline without one daughter of the Y: the daughter comes from a differently
+    # sampled skeleton of the same vessel and joins the trunk at the junction
+    gt = truth("y_bifurcation")
+    caps = caps_of(gt)
+    j, end = int(gt.junctions[0]), int(gt.endpoints[-1])
+    daughter = next(p for p in ops.branch_paths(gt.n_nodes, gt.edges) if end in (p[0], p[-1]))
+    drop = np.isin(np.arange(gt.n_nodes), daughter) & (np.arange(gt.n_nodes) != j)
+    given = ops.remove_nodes(gt, drop, bridge=False)
+    source = ops.resample_skeleton(gt, spacing=0.7)
+    cap = caps[list(gt.endpoints).index(end)]
+    out, grafts = ops.graft_branches(given, source, [cap.center], [cap.radius], [cap.name])
+    assert topology(out) == topology(gt)
+    assert grafts[0]["cap"] == cap.name and grafts[0]["nodes"] > 3
+    new_end = out.endpoints[np.argmin(np.linalg.norm(out.points[out.endpoints] - cap.center, axis=1))]
+    np.testing.assert_allclose(out.points[new_end], cap.center, atol=1e-9)
+    assert {"outlet", cap.name} <= set(out.node_tags[new_end])
+    assert all("vessel" in out.node_tags[i] for i in range(given.n_nodes, out.n_nodes))
+    assert skeleton_distance(out.points, gt).max() < 0.05 * gt.radii.min()
+    assert np.linalg.norm(out.points[out.junctions[0]] - gt.points[j]) < 0.5 * gt.radii[j]
+    # a cap the source does not reach either, and a skeleton that already reaches the cap
+    far = cap.center + [0, 0, 50 * cap.radius]
+    out2, grafts = ops.graft_branches(given, source, [far, gt.points[j]], [cap.radius, cap.radius])
+    assert out2.n_nodes == given.n_nodes and [g["nodes"] for g in grafts] == [0, 0]
+
+
+def test_clean_skeleton_grafts_the_missing_descending_aorta(real_path):
+    """The VMTK centerline of the thoracic aorta has no line down the descending aorta: its
+    cap had no skeleton end, the arch blocks spanned its mouth and the mesh had min SJ 0.08
+    (test_mesh_cases checks the mesh). clean_skeleton grafts the extracted branch there."""
+    surface = read_surface(real_path("thoracic_aorta_open.vtp"))
+    skeleton = read_skeleton(real_path("thoracic_aorta_centerlines.vtp"))
+    steps = ["repair_surface", "cap_open_ends", "decimate_surface", ("build_sdf", {"source": "coarse"}), "estimate_radii", "clean_skeleton"]
+    ctx = FilterChain(steps).run(surface=surface, skeleton=skeleton)
+    sk = ctx.skeleton
+    assert len(ctx.caps) == 6 and len(sk.endpoints) == 6 and sk.n_components == 1
+    for cap in ctx.caps:
+        gap = np.linalg.norm(sk.points[sk.endpoints] - cap.center, axis=1)
+        assert gap.min() < 1e-6 * cap.radius and cap.name in sk.node_tags[sk.endpoints[np.argmin(gap)]]
+    grafts = ctx.report.sections["grafted_branches"]
+    assert [g["cap"] for g in grafts] == ["inlet"] and grafts[0]["nodes"] > 0
+    assert ctx.report.steps[-1].counts["grafted"] == 1
+    assert (ctx.sdf.distance(sk.points[sk.degrees >= 2]) > 0).all()
+
+
 # ---------------------------------------------------------------------------
 # resampling
 # ---------------------------------------------------------------------------

@@ -94,7 +94,7 @@ def estimate_radii(ctx, overwrite):
 
 
 @register_filter(
-    description="Clean the skeleton: bring nodes back inside, reconnect pieces, merge split junctions, remove spurs, extend ends to the caps.",
+    description="Clean the skeleton: bring nodes back inside, reconnect pieces, merge split junctions, remove spurs, graft branches to caps it misses, extend ends to the caps.",
     parameters=[
         Parameter(
             "outside",
@@ -157,20 +157,50 @@ def estimate_radii(ctx, overwrite):
             choices=("center", "plane"),
         ),
         Parameter("cap_distance", "float", 3.0, "An endpoint belongs to a cap when it is at most this far from the cap centre.", unit="× cap radius", min=0.0),
+        Parameter(
+            "graft_to_caps",
+            "bool",
+            True,
+            "A cap that no endpoint belongs to (the centerline misses that vessel) gets the branch leading to it in a "
+            "skeleton extracted from the signed distance, grafted on where that branch meets the skeleton (needs the "
+            "caps and sdf layers).",
+        ),
+        Parameter(
+            "graft_join",
+            "float",
+            0.5,
+            "A grafted branch joins the skeleton at its first node this close to it.",
+            unit="× radius",
+            min=0.0,
+            max=5.0,
+        ),
     ],
     reads=("skeleton",),
-    optional_reads=("sdf", "caps"),
+    optional_reads=("sdf", "caps", "surface"),
     writes=("skeleton",),
     category="skeleton",
 )
 def clean_skeleton(
-    ctx, outside, outside_tolerance, reconnect_distance, junction_distance, parallel_angle, part_angle, spur_length,
-    extend_to_caps, cap_mode, cap_distance,
+    ctx,
+    outside,
+    outside_tolerance,
+    reconnect_distance,
+    junction_distance,
+    parallel_angle,
+    part_angle,
+    spur_length,
+    extend_to_caps,
+    cap_mode,
+    cap_distance,
+    graft_to_caps,
+    graft_join,
 ):
     """Steps, in order: cutting off what runs out through a cap, nodes outside the wall,
     reconnection of separated pieces, merging of junctions split into nearby nodes, spur
-    removal (ends at caps are kept), merging again, moving junctions whose branches leave
-    nearly parallel to where they part, and trimming/extending the ends to the caps."""
+    removal (ends at caps are kept), merging again, grafting a branch to every cap no end
+    belongs to (then merging again), moving junctions whose branches leave nearly parallel
+    to where they part, and trimming/extending the ends to the caps. Grafted branches are
+    listed in the report section ``grafted_branches``."""
     skel = ctx.skeleton
     if not np.isfinite(skel.radii).all() and ctx.sdf is not None:
         skel, _ = ops.estimate_radii(skel, ctx.sdf.distance)
@@ -197,6 +227,11 @@ def clean_skeleton(
     ctx.tick(0.5, "spurs")
     skel, counts["spurs_removed"] = ops.remove_spurs(skel, spur_length, protected)
     skel, merged2 = ops.merge_close_junctions(skel, junction_distance)
+    if graft_to_caps and caps:
+        skel, counts["grafted"] = _graft_missing_branches(ctx, skel, caps, cap_distance, graft_join)
+        if counts["grafted"]:
+            skel, merged3 = ops.merge_close_junctions(skel, junction_distance)
+            merged2 += merged3
     counts["junctions_merged"] = merged + merged2
     skel, counts["junctions_moved"] = ops.separate_parallel_branches(
         skel, parallel_angle, part_angle, distance=ctx.sdf.distance if ctx.sdf is not None else None
@@ -218,6 +253,49 @@ def clean_skeleton(
     ctx.skeleton = skel
     ctx.count(**counts)
     _count_summary(ctx, skel)
+
+
+def _graft_missing_branches(ctx, skel, caps, cap_distance, join):
+    """Graft a branch of an extracted skeleton to each cap that no endpoint of ``skel``
+    belongs to (see :func:`~vmesh.geometry.skeleton_ops.graft_branches`); returns the
+    skeleton and the number of branches grafted."""
+    centers = np.array([c.center for c in caps], float)
+    radii = np.array([c.radius for c in caps], float)
+    reached = {c for _, c in ops.match_ends_to_caps(skel, centers, radii, cap_distance)}
+    missing = [c for c in range(len(caps)) if c not in reached]
+    if not missing:
+        return skel, 0
+    if ctx.sdf is None:
+        ctx.warn("no sdf layer: caps without a skeleton end get no grafted branch")
+        return skel, 0
+    from ..geometry import skeleton_extract as se
+
+    if ctx.surface is not None:
+        surface, bounds = (ctx.surface.vertices, ctx.surface.faces), ctx.surface.bounds
+    elif getattr(ctx.sdf, "bounds", None) is not None and getattr(ctx.sdf, "faces", None) is not None:
+        surface, bounds = (ctx.sdf.vertices, ctx.sdf.faces), ctx.sdf.bounds
+    else:
+        ctx.warn("no surface layer: caps without a skeleton end get no grafted branch")
+        return skel, 0
+    ctx.tick(0.6, f"extracting a skeleton for {len(missing)} cap(s) without an end")
+    try:  # the same extraction as the extract_skeleton filter's defaults
+        source, _ = se.extract_skeleton(ctx.sdf.distance, bounds, surface=surface, caps=caps)
+    except ValueError as exc:
+        ctx.warn(f"could not extract a skeleton to graft from: {exc}")
+        return skel, 0
+    names = [caps[c].name for c in missing]
+    skel, grafts = ops.graft_branches(skel, source, centers[missing], radii[missing], names, join=join)
+    ctx.report.sections["grafted_branches"] = grafts
+    done = [g for g in grafts if g["nodes"]]
+    for g in done:
+        ctx.warn(
+            f"no skeleton end at cap {g['cap']}: grafted the extracted branch to it "
+            f"({g['nodes']} nodes, {g['length']:.3g} long, joined at {np.round(g['joined_at'], 3).tolist()})"
+        )
+    for g in grafts:
+        if not g["nodes"]:
+            ctx.warn(f"no skeleton end at cap {g['cap']} and no branch grafted: {g['reason']}")
+    return skel, len(done)
 
 
 @register_filter(

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from ..skeleton import Skeleton
@@ -823,6 +823,26 @@ def separate_parallel_branches(
     return skel.copy() if skel is skeleton else skel, moved
 
 
+def _node_at_foot(skel: Skeleton, seg: int, t: float, scale: np.ndarray) -> tuple[Skeleton, int]:
+    """The node where something joins segment ``seg`` at parameter ``t``: an end node of
+    the segment within a quarter of its radius (``scale``) of the foot point, else a new
+    node splitting the segment there (radius interpolated, tags both ends share)."""
+    a, b = (int(x) for x in skel.edges[seg])
+    length = np.linalg.norm(skel.points[b] - skel.points[a])
+    if t * length <= 0.25 * scale[a]:
+        return skel, a
+    if (1 - t) * length <= 0.25 * scale[b]:
+        return skel, b
+    foot = skel.points[a] + t * (skel.points[b] - skel.points[a])
+    r = (1 - t) * skel.radii[a] + t * skel.radii[b]
+    node = skel.n_nodes
+    edges = np.r_[np.delete(skel.edges, seg, axis=0), [[a, node], [node, b]]]
+    etags = [x for i, x in enumerate(skel.edge_tags) if i != seg] + [skel.edge_tags[seg]] * 2
+    shared = tuple(x for x in skel.node_tags[a] if x in skel.node_tags[b])
+    out = Skeleton(np.r_[skel.points, [foot]], np.r_[skel.radii, r], edges, list(skel.node_tags) + [shared], etags, skel.name)
+    return out, node
+
+
 def reconnect_components(skeleton: Skeleton, tolerance: float = 1.0) -> tuple[Skeleton, int]:
     """Reconnect separated pieces: an endpoint (or isolated node) within ``tolerance`` x its
     radius of another component is joined to it, at the foot point on the nearest segment
@@ -869,22 +889,7 @@ def reconnect_components(skeleton: Skeleton, tolerance: float = 1.0) -> tuple[Sk
             break
         _, e, seg, t, node = best
         if seg >= 0:
-            a, b = skel.edges[seg]
-            length = np.linalg.norm(skel.points[b] - skel.points[a])
-            if t * length <= 0.25 * scale[a]:
-                node = int(a)
-            elif (1 - t) * length <= 0.25 * scale[b]:
-                node = int(b)
-            else:  # split the segment at the foot point
-                foot = skel.points[a] + t * (skel.points[b] - skel.points[a])
-                r = (1 - t) * skel.radii[a] + t * skel.radii[b]
-                node = skel.n_nodes
-                edges = np.r_[np.delete(skel.edges, seg, axis=0), [[a, node], [node, b]]]
-                etags = [x for i, x in enumerate(skel.edge_tags) if i != seg] + [skel.edge_tags[seg]] * 2
-                shared = tuple(x for x in skel.node_tags[a] if x in skel.node_tags[b])
-                skel = Skeleton(
-                    np.r_[skel.points, [foot]], np.r_[skel.radii, r], edges, list(skel.node_tags) + [shared], etags, skel.name
-                )
+            skel, node = _node_at_foot(skel, seg, t, scale)
         skel = skel.copy(edges=np.r_[skel.edges, [[e, node]]], edge_tags=list(skel.edge_tags) + [()])
         joined += 1
     return skel, joined
@@ -1009,6 +1014,27 @@ def trim_at_caps(
     return skel, n_cut
 
 
+def match_ends_to_caps(skeleton: Skeleton, centers: np.ndarray, radii: np.ndarray, max_distance: float = 3.0) -> list[tuple[int, int]]:
+    """Match caps to skeleton endpoints one to one: optimal assignment on distance / cap
+    radius; pairs farther than ``max_distance`` x cap radius stay unmatched.
+
+    Returns
+    -------
+    list of (endpoint node, cap index)
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    centers = np.asarray(centers, float).reshape(-1, 3)
+    cap_r = np.asarray(radii, float).reshape(-1)
+    ends = skeleton.endpoints
+    if len(centers) == 0 or len(ends) == 0:
+        return []
+    cost = np.linalg.norm(skeleton.points[ends][:, None, :] - centers[None], axis=2) / cap_r[None]
+    rows, cols = linear_sum_assignment(cost)
+    ok = cost[rows, cols] <= max_distance
+    return [(int(ends[r]), int(c)) for r, c in zip(rows[ok], cols[ok])]
+
+
 def extend_to_caps(
     skeleton: Skeleton,
     centers: np.ndarray,
@@ -1046,8 +1072,6 @@ def extend_to_caps(
     matched : (c,) int64
         Node index of the end node of each cap in the returned skeleton, -1 if unmatched.
     """
-    from scipy.optimize import linear_sum_assignment
-
     centers = np.asarray(centers, float).reshape(-1, 3)
     normals = np.asarray(normals, float).reshape(-1, 3)
     normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
@@ -1057,10 +1081,7 @@ def extend_to_caps(
     matched = np.full(n_caps, -1, np.int64)
     if n_caps == 0 or len(ends) == 0:
         return skeleton.copy(), matched
-    cost = np.linalg.norm(skeleton.points[ends][:, None, :] - centers[None], axis=2) / cap_r[None]
-    rows, cols = linear_sum_assignment(cost)
-    ok = cost[rows, cols] <= max_distance
-    pairs = [(int(ends[r]), int(c)) for r, c in zip(rows[ok], cols[ok])]
+    pairs = match_ends_to_caps(skeleton, centers, cap_r, max_distance)
 
     pts, rad = list(skeleton.points), list(skeleton.radii)
     ntags = list(skeleton.node_tags)
@@ -1150,6 +1171,121 @@ def extend_to_caps(
     if full_drop.any():
         out = remove_nodes(out, full_drop, bridge=False)
     return out, matched
+
+
+def graft_branches(
+    skeleton: Skeleton,
+    source: Skeleton,
+    centers: np.ndarray,
+    radii: np.ndarray,
+    names: list[str] | None = None,
+    reach: float = 1.0,
+    join: float = 0.5,
+) -> tuple[Skeleton, list[dict]]:
+    """Graft branches of ``source`` onto ``skeleton`` so that it reaches the given caps.
+
+    A centerline that misses a vessel (a VMTK centerline without a line down one open
+    end) leaves that vessel without blocks: the wall over its mouth is meshed by the
+    blocks of its neighbours and badly. ``source`` is another skeleton of the same vessel
+    (extracted from its signed distance) that does reach the cap. For each cap the
+    grafted branch is the shortest path in ``source`` from its endpoint nearest the cap
+    centre (at most ``reach`` x cap radius away) to the first node within ``join`` x
+    radius of ``skeleton`` (distance to its segments; radius the larger of the two
+    skeletons' there). That last node is replaced by the foot point on ``skeleton`` (an
+    existing node within a quarter radius, else a new node splitting the segment), which
+    becomes the junction. Caps are grafted in order, so a later branch may join an
+    earlier one.
+
+    Grafted nodes keep the positions and radii of ``source`` and get the tags both end
+    nodes of the joined segment carry (end tags excepted); the end node also gets the
+    cap's name and ``inlet`` (a cap named ``inlet*`` when no endpoint is tagged ``inlet``
+    yet) or ``outlet``.
+
+    Parameters
+    ----------
+    skeleton, source : Skeleton
+    centers : (c, 3)
+        Centres of the caps to reach.
+    radii : (c,)
+        Cap radii.
+    names : list of str, optional
+        Cap names, for the tags and the report.
+
+    Returns
+    -------
+    skeleton : Skeleton
+    grafts : list of dict
+        One per cap: ``cap``, ``nodes`` (added), ``length`` of the branch, ``joined_at``
+        (position of the junction), ``gap`` (distance / radius from the last source node
+        to ``skeleton``); ``nodes == 0`` and a ``reason`` where nothing was grafted.
+    """
+    centers = np.asarray(centers, float).reshape(-1, 3)
+    cap_r = np.asarray(radii, float).reshape(-1)
+    names = list(names) if names is not None else [f"cap_{c}" for c in range(len(centers))]
+    end_tags = set(END_TAGS) | set(names)
+    src_ends = source.endpoints
+    skel = skeleton.copy()
+    grafts = []
+    if not len(src_ends) or skel.n_edges == 0:
+        return skel, [{"cap": n, "nodes": 0, "reason": "no skeleton to graft from or onto"} for n in names]
+    w = edge_lengths(source.points, source.edges)
+    a, b = source.edges.T
+    src_adj = sp.coo_matrix((np.r_[w, w], (np.r_[a, b], np.r_[b, a])), shape=(source.n_nodes,) * 2).tocsr()
+    src_r = _node_scale(source)
+    for c in range(len(centers)):
+        gap_to_cap = np.linalg.norm(source.points[src_ends] - centers[c], axis=1)
+        if gap_to_cap.min() > reach * cap_r[c]:
+            grafts.append({"cap": names[c], "nodes": 0, "reason": "the source skeleton has no end at the cap"})
+            continue
+        start = int(src_ends[np.argmin(gap_to_cap)])
+        scale = _node_scale(skel)
+        dist, near = _graph_distance(source.points, skel.points, skel.edges, cKDTree(skel.points))
+        close = dist <= join * np.maximum(src_r, scale[near])
+        along, pred = dijkstra(src_adj, indices=start, return_predecessors=True)
+        cand = np.flatnonzero(close & np.isfinite(along))
+        if not len(cand):
+            grafts.append({"cap": names[c], "nodes": 0, "reason": "the source skeleton does not come near the skeleton"})
+            continue
+        entry = int(cand[np.argmin(along[cand])])
+        path = [entry]
+        while path[-1] != start:
+            path.append(int(pred[path[-1]]))
+        new = np.asarray(path[:0:-1], np.int64)  # from the cap end inwards, without the entry node
+        if not len(new):
+            grafts.append({"cap": names[c], "nodes": 0, "reason": "the skeleton passes through the cap centre"})
+            continue
+        # the junction: the foot of the entry node on the nearest segment of the skeleton
+        q = source.points[entry]
+        p0, vec = skel.points[skel.edges[:, 0]], skel.points[skel.edges[:, 1]] - skel.points[skel.edges[:, 0]]
+        t = np.clip(((q - p0) * vec).sum(1) / np.maximum((vec * vec).sum(1), 1e-300), 0.0, 1.0)
+        seg = int(np.argmin(np.linalg.norm(q - p0 - t[:, None] * vec, axis=1)))
+        e0, e1 = skel.edges[seg]
+        base = tuple(x for x in skel.node_tags[e0] if x in skel.node_tags[e1] and x not in end_tags)
+        skel, node = _node_at_foot(skel, seg, float(t[seg]), scale)
+        has_inlet = any("inlet" in skel.node_tags[i] for i in skel.endpoints.tolist())
+        kind = "inlet" if names[c].startswith("inlet") and not has_inlet else "outlet"
+        n0 = skel.n_nodes
+        chain = np.r_[n0 + np.arange(len(new)), node]
+        tags = list(skel.node_tags) + [base] * len(new)
+        tags[n0] = _union(base, (kind, names[c]))
+        skel = Skeleton(
+            np.r_[skel.points, source.points[new]],
+            np.r_[skel.radii, source.radii[new]],
+            np.r_[skel.edges, np.c_[chain[:-1], chain[1:]]],
+            tags,
+            list(skel.edge_tags) + [()] * len(new),
+            skel.name,
+        )
+        grafts.append(
+            {
+                "cap": names[c],
+                "nodes": int(len(new)),
+                "length": float(arc_length(skel.points[chain])[-1]),
+                "joined_at": skel.points[node].tolist(),
+                "gap": float(dist[entry] / src_r[entry]),
+            }
+        )
+    return skel, grafts
 
 
 # ---------------------------------------------------------------------------
