@@ -15,6 +15,7 @@ from vmesh.geometry.block_builder import (
     BlockOptions,
     block_structure_checks,
     build_blocks,
+    endpoint_caps,
     projected_wall_quality,
     redistribute_sections,
     merge_junction_pair,
@@ -62,9 +63,12 @@ def star_distance(directions, radius=1.0, length=8.0):
     return capsule_distance(np.zeros_like(d), (length + 2 * radius) * d, np.full(len(d), radius))
 
 
-def expected_blocks(skeleton, blocks_around=8):
+def expected_blocks(skeleton, blocks_around=8, caps=None):
+    """Blocks per segment, plus the cap of blocks closing each endpoint without a cap (when
+    ``caps`` are given): a half-ball O-grid of a core, its ring and its boundary layer."""
     a, b = cs.core_shape(blocks_around)
-    return skeleton.n_edges * (2 * blocks_around + a * b)
+    closed = len(skeleton.endpoints) - len(endpoint_caps(skeleton.points, skeleton.radii, skeleton.endpoints, caps)) if caps else 0
+    return skeleton.n_edges * (2 * blocks_around + a * b) + closed * (3 * a * b + 2 * blocks_around)
 
 
 @pytest.fixture(scope="module")
@@ -237,7 +241,7 @@ def test_synthetic_block_structure(case, synthetic):
     assert checks["boundary_components"] == 1
     assert checks["nonmanifold_boundary_edges"] == 0
     assert checks["boundary_euler"] == 2 - 2 * skeleton.n_cycles
-    assert blocks.n_blocks == expected_blocks(skeleton)
+    assert blocks.n_blocks == expected_blocks(skeleton, caps=ctx.caps)
     # corners on the wall lie on the surface
     on = blocks.vertex_on_surface
     r = np.median(skeleton.radii)
@@ -268,15 +272,52 @@ def test_aneurysm_sac_is_closed_on_the_wall(synthetic):
     ctx, sdf, skeleton, blocks = synthetic("aneurysm")
     sac_end = int(np.flatnonzero(np.array(["aneurysm" in t for t in skeleton.node_tags]) & (skeleton.degrees == 1))[0])
     last = blocks.block_segment == int(np.flatnonzero((skeleton.edges == sac_end).any(axis=1))[0])
-    fb = blocks.face_boundary[last]
-    # the face at the sac end is wall (no cap), and all of its corners lie on the dome
-    end_face = 5 if np.all(fb[:, 5] == FACE_WALL) else 4
-    assert np.all(fb[:, end_face] == FACE_WALL)
-    corners = blocks.hexes[last][:, HEX_FACES[end_face]].ravel()
+    # the sac end (no cap) is closed by a cap of blocks on the dome: a half-ball O-grid
+    assert blocks.info["dome_caps"] == 1
+    a, b = cs.core_shape(8)
+    assert last.sum() == (2 * 8 + a * b) + (3 * a * b + 2 * 8)
+    # whose section stands back from the endpoint, which lies close to the dome
+    assert blocks.info["dome_retreat"][sac_end] > 0.3 * skeleton.radii[sac_end]
+    # no block meets the smooth dome with two faces (its elements would fold along the
+    # edge between them): the boundary layer turns round the dome with the wall
+    fb = blocks.face_boundary
+    assert ((fb == FACE_WALL).sum(axis=1) <= 1).all()
+    on_wall = (fb[last] == FACE_WALL).any(axis=1)
+    assert np.all(blocks.block_layer[last][on_wall] == LAYER_BOUNDARY)
+    assert np.all(fb[last][on_wall, 1] == FACE_WALL)
+    # the sac's boundary is wall only, with its corners on the dome
+    corners = blocks.hexes[last][on_wall][:, HEX_FACES[1]].ravel()
+    assert np.all(fb[last][fb[last] != FACE_INTERIOR] == FACE_WALL)
     assert blocks.vertex_on_surface[corners].all()
     assert np.abs(sdf.distance(blocks.vertices[corners])).max() < 1e-3
     assert {"aneurysm"} <= set().union(*[set(t) for t in np.asarray(blocks.block_tags, dtype=object)[last]])
     assert sorted(blocks.boundary_names.values()) == sorted(["wall"] + [c.name for c in ctx.caps])
+
+
+def test_closed_ends_are_capped_with_half_ball_o_grids():
+    # a capsule whose skeleton ends 0.6 radii short of either dome (as extracted skeletons
+    # do); without a cap at either end both are closed, each by a half-ball O-grid whose
+    # section stands at the dome's centre
+    from vmesh.blocks import scaled_corner_jacobians
+    from vmesh.caps import Cap
+
+    dist = capsule_distance(np.zeros((1, 3)), np.array([[10.0, 0, 0]]), np.array([1.0]))
+    x = np.linspace(-0.6, 10.6, 9)
+    sk = Skeleton(np.c_[x, np.zeros((9, 2))], np.ones(9), np.c_[np.arange(8), np.arange(1, 9)])
+    elsewhere = [Cap(1, "inlet", np.array([100.0, 0, 0]), np.array([1.0, 0, 0]), 1.0)]
+    blocks = build_blocks(sk, dist, elsewhere, BlockOptions())
+    checks = block_structure_checks(blocks)
+    assert checks["invalid_blocks"] == checks["face_use_errors"] == checks["nonmanifold_boundary_edges"] == 0
+    assert checks["boundary_components"] == 1 and checks["boundary_euler"] == 2
+    assert blocks.n_blocks == expected_blocks(sk, caps=elsewhere)
+    assert blocks.info["dome_caps"] == 2
+    assert blocks.info["dome_retreat"] == pytest.approx({0: 0.6, 8: 0.6}, abs=1e-9)
+    assert set(blocks.boundary_names.values()) == {"wall"}
+    assert ((blocks.face_boundary == FACE_WALL).sum(axis=1) <= 1).all()
+    # the cube-sphere's corner blocks (1 / sqrt(3)) are the worst
+    assert scaled_corner_jacobians(blocks.vertices[blocks.hexes]).min() > 0.55
+    on = blocks.vertex_on_surface
+    assert np.abs(dist(blocks.vertices[on])).max() < 1e-6 and (dist(blocks.vertices[~on]) > 0.1).all()
 
 
 def test_projected_wall_quality(synthetic):
@@ -447,7 +488,7 @@ def test_real_case_with_centerline(real_path, surface_name, centerline_name):
     checks = block_structure_checks(ctx.blocks)
     assert checks["invalid_blocks"] == checks["face_use_errors"] == 0
     assert checks["boundary_components"] == 1 and checks["boundary_euler"] == 2 - 2 * ctx.skeleton.n_cycles
-    assert ctx.blocks.n_blocks == expected_blocks(ctx.skeleton)
+    assert ctx.blocks.n_blocks == expected_blocks(ctx.skeleton, caps=ctx.caps)
     assert ctx.blocks.face_boundary[ctx.blocks.face_boundary != FACE_INTERIOR].size > 0
 
 
@@ -493,7 +534,7 @@ def _check_real_blocks(ctx):
     checks = block_structure_checks(ctx.blocks)
     assert checks["invalid_blocks"] == checks["face_use_errors"] == 0
     assert checks["boundary_components"] == 1 and checks["boundary_euler"] == 2
-    assert ctx.blocks.n_blocks == expected_blocks(ctx.skeleton)
+    assert ctx.blocks.n_blocks == expected_blocks(ctx.skeleton, caps=ctx.caps)
     return ctx.blocks.info["fixes"]
 
 

@@ -75,6 +75,22 @@ def test_aneurysm_tagged_elements_form_the_sac():
     assert (~node_is_sac[nearest[~sac]]).mean() > 0.9  # the junction blocks next to the neck are vessel
 
 
+def test_aneurysm_dome_is_meshed_without_folds():
+    """The sac ends blind inside the dome (no cap): its boundary layer turns round the dome in
+    a cap of blocks, so the dome's elements are good before any untangling (their blocks
+    used to meet the dome with two faces, min SJ 0.12), and the mesh meets the quality target."""
+    surface, skeleton = synthetic_case("aneurysm")
+    raw = run_default(surface, skeleton, **{"mesh_transfinite.untangle": False})
+    sj = check_mesh(raw)
+    blocks, sk = raw.blocks, raw.skeleton
+    sac_end = int(np.flatnonzero(np.array(["aneurysm" in t for t in sk.node_tags]) & (sk.degrees == 1))[0])
+    last = blocks.block_segment == int(np.flatnonzero((sk.edges == sac_end).any(axis=1))[0])
+    dome = last[raw.mesh.cell_data["block_id"]]
+    assert dome.sum() > 0 and sj[dome].min() > 0.4
+    sj = check_mesh(run_default(surface, skeleton))
+    assert sj.min() >= 0.2 and sj.mean() >= 0.85
+
+
 def test_junction_folds_are_untangled():
     """Without untangling the crotches of two close junctions have poor (once: folded) elements;
     with it every element is good."""

@@ -31,6 +31,8 @@ from ..registry import Parameter, register_filter
         Parameter("clear_ray_factor", "float", 1.8, "Near a junction, a branch's cross-section is clear of the other branches when no ray from its centre to the wall is longer than this many branch radii.", unit="× radius", min=1.1, max=10.0),
         Parameter("junction_margin", "float", 0.3, "Least distance between a junction's half cross-sections and a branch's first cross-section.", unit="× radius", min=0.0, max=5.0),
         Parameter("cap_distance", "float", 1.0, "An endpoint is the open end of a cap when it lies within this many radii of the cap centre.", unit="× radius", min=0.0, max=20.0),
+        Parameter("dome_depth", "float", 1.0, "A closed end (a dome without cap, such as an aneurysm sac) ends in a cap of blocks that carries the boundary layer round the dome; its last cross-section moves back from the endpoint until the wall ahead along the axis is at least this many times its mean distance to the wall in the section.", unit="× wall distance", min=0.0, max=5.0),
+        Parameter("dome_max_retreat", "float", 1.5, "How far a closed end's last cross-section may move back from its endpoint (at most half its branch).", unit="× radius", min=0.0, max=10.0),
         Parameter("max_fix_rounds", "int", 16, "Rounds of repairs of invalid blocks before failing.", min=0, max=100),
         Parameter("check_wall_projection", "bool", True, "Also check boundary-layer blocks with their wall faces projected onto the wall, and thicken the layer (up to 0.5) where they would fold."),
     ],
@@ -41,7 +43,7 @@ from ..registry import Parameter, register_filter
 )
 def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_bias, junction_rotation, rotation_range,
                           max_out_of_plane, min_branch_gap, split_nonplanar, clear_ray_factor, junction_margin, cap_distance,
-                          max_fix_rounds, check_wall_projection):
+                          dome_depth, dome_max_retreat, max_fix_rounds, check_wall_projection):
     """One O-grid cross-section per skeleton node (a core of a x b blocks, a ring and a
     boundary-layer ring whose outer corners are found on the wall by ray casting in the
     section plane), half cross-sections on half-planes through each junction's axis shared
@@ -51,7 +53,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
     core; a block that stays invalid fails with its skeleton node and a VTU of the bad
     blocks), then boundary-layer blocks checked with their wall faces projected onto the
     wall and thickened where they would fold. Endpoints near a cap end on the cap plane with the cap's name; endpoints
-    without a cap are closed on the wall; without caps every endpoint is open."""
+    without a cap are closed on the wall by a cap of blocks round the dome; without caps every endpoint is open."""
     from ..geometry.block_builder import BlockOptions, block_structure_checks, build_blocks
 
     if blocks_around % 2:
@@ -69,6 +71,8 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         clear_ray_factor=clear_ray_factor,
         junction_margin=junction_margin,
         cap_distance=cap_distance,
+        dome_depth=dome_depth,
+        dome_max_retreat=dome_max_retreat,
         max_fix_rounds=max_fix_rounds,
     )
     sdf = ctx.sdf

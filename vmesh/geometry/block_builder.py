@@ -13,8 +13,9 @@ Method (see :mod:`vmesh.geometry.cross_sections` for the kernels)
 2. **Branches.** The skeleton is cut into branches between junctions and endpoints
    (cycles without junctions are branches that close on themselves). Every other node gets
    a full cross-section: the bisecting plane of its two segments, the cap plane at an open
-   end, the plane normal to the segment at a closed end (whose section is then projected
-   onto the dome along the segment). Near a junction, sections that would still reach
+   end, the plane normal to the segment at a closed end (moved back from the endpoint to
+   about the dome's centre; the dome beyond it is filled by a half-ball O-grid whose
+   boundary layer continues the wall's). Near a junction, sections that would still reach
    into the other branches (rays much longer than the branch radius) or sit behind the
    half-sections' reach are moved along the branch until they are clear.
 3. **Frames.** The reference direction of each section is transported along its branch
@@ -39,10 +40,14 @@ import numpy as np
 
 from ..blocks import (
     AXIS_ALONG,
+    AXIS_LAYER,
+    AXIS_RING,
     FACE_INTERIOR,
     FACE_WALL,
     HEX_FACES,
     LAYER_BOUNDARY,
+    LAYER_CORE,
+    LAYER_RING,
     BlockStructure,
 )
 from ..errors import MeshingError
@@ -70,6 +75,8 @@ class BlockOptions:
     clear_ray_factor: float = 1.8
     junction_margin: float = 0.3  # × branch radius, between half-sections and the first section
     cap_distance: float = 1.0  # × radius
+    dome_depth: float = 1.0  # wall distance ahead of a closed end's section, × its mean wall distance
+    dome_max_retreat: float = 1.5  # × endpoint radius
     max_fix_rounds: int = 16
     wall_quality: float = 0.05  # least scaled Jacobian of boundary-layer blocks with projected wall faces
 
@@ -137,7 +144,7 @@ def build_blocks(
         ``distance(points (n, 3)) -> (n,)`` signed distance, positive inside the vessel.
     caps : list of vmesh.caps.Cap, optional
         Flat open ends. Endpoints near a cap end on its plane with their end faces named
-        after it; endpoints without a cap are closed (their ends lie on the wall). Without
+        after it; endpoints without a cap are closed (a cap of blocks fills the dome). Without
         any caps every endpoint is an open end, named by decreasing radius.
     options : BlockOptions
     bad_blocks_path : path, optional
@@ -870,7 +877,64 @@ class _Builder:
         self.clear = clear
         for br in self.branches:
             br.s = br.arc.copy()
+        self.retreat = self._dome_retreat()
         self._apply_clearance()
+
+    def _dome_retreat(self) -> dict:
+        """How far each closed end's section moves back from its endpoint along the branch.
+
+        The dome beyond a closed end's section is closed by a cap of blocks
+        (:meth:`_dome_cap`) that carries the boundary layer round it; the cap needs a dome
+        about as high as the section is wide, or its blocks are flattened against the
+        section. Endpoints often lie closer to the dome than that (a skeleton ends inside
+        the sac, where the inscribed sphere touches the dome): the section goes back to the
+        first position (in steps of a tenth of the endpoint's radius, up to
+        ``dome_max_retreat`` radii and half the branch) where the wall ahead along the axis
+        is at least ``dome_depth`` times the mean distance to the wall in the section, or
+        where that ratio is highest.
+
+        Returns
+        -------
+        dict ``{(branch, side): arc length}``.
+        """
+        opt, sk, t = self.opt, self.sk, self.template
+        jobs = []
+        for bi, br in enumerate(self.branches):
+            for side in (0, 1):
+                if br.kinds[side] != CLOSED:
+                    continue
+                end = int(br.nodes[-1] if side == 1 else br.nodes[0])
+                r_end = float(sk.radii[end])
+                limit = min(opt.dome_max_retreat * r_end, 0.5 * br.arc[-1])
+                back = np.arange(0.0, limit + 1e-12, 0.1 * r_end)
+                jobs.append((bi, side, back))
+        if not jobs:
+            return {}
+        centers, normals, radii, owner = [], [], [], []
+        for n_job, (bi, side, back) in enumerate(jobs):
+            br = self.branches[bi]
+            N = self._node_normals(br)
+            s = back if side == 0 else br.arc[-1] - back
+            pos, nrm = polyline_at(self.pos[br.nodes], br.arc, s, N)
+            _, rad = polyline_at(self.pos[br.nodes], br.arc, s, sk.radii[br.nodes])
+            centers.append(pos)
+            normals.append(cs.unit(nrm) * (1.0 if side == 1 else -1.0))  # outward
+            radii.append(rad)
+            owner.append(np.full(len(s), n_job))
+        centers, normals, radii, owner = map(np.concatenate, (centers, normals, radii, owner))
+        e1 = cs.any_perpendicular(normals)
+        e2 = np.cross(normals, e1)
+        dirs = np.concatenate([cs.ray_directions(e1, e2, t.loop_angle), normals[:, None, :]], axis=1)
+        nr = dirs.shape[1]
+        R = self.cast(np.repeat(centers, nr, axis=0), dirs.reshape(-1, 3), np.repeat(radii, nr)).reshape(len(centers), nr)
+        ratio = R[:, -1] / np.mean(R[:, :-1], axis=1)
+        ratio = np.where(np.isfinite(ratio), ratio, -np.inf)
+        out = {}
+        for n_job, (bi, side, back) in enumerate(jobs):
+            rj = ratio[owner == n_job]
+            deep = np.flatnonzero(rj >= opt.dome_depth)
+            out[(bi, side)] = float(back[deep[0]] if len(deep) else back[int(np.argmax(rj))])
+        return out
 
     def _junction_reach(self, bi: int, side: int) -> float:
         """How far the half-sections of the junction at a branch's end reach along it."""
@@ -900,11 +964,15 @@ class _Builder:
                     lo = need
                 else:
                     hi = br.arc[-1] - need
+            # closed ends' sections stand back from the dome (:meth:`_dome_retreat`)
+            ends = br.arc.copy()
+            ends[0] += self.retreat.get((bi, 0), 0.0)
+            ends[-1] -= self.retreat.get((bi, 1), 0.0)
             if br.kinds[1] in (OPEN, CLOSED):
-                hi = br.arc[-1] - 0.3 * rb
+                hi = ends[-1] - 0.3 * rb
             if br.kinds[0] in (OPEN, CLOSED):
-                lo = max(lo, 0.3 * rb)
-            br.s, ok = redistribute_sections(br.arc, lo, hi)
+                lo = max(lo, ends[0] + 0.3 * rb)
+            br.s, ok = redistribute_sections(ends, lo, hi)
             if not ok:
                 self.infeasible.append(bi)
 
@@ -1015,22 +1083,47 @@ class _Builder:
         V = cs.section_vertices(t, C, E1, E2, R, lc[:, 1], lc[:, 0])
         on_surface = np.zeros(V.shape[:2], bool)
         on_surface[:, t.kind == cs.VERTEX_OUTER] = True
-        # closed ends: the section's inner vertices go onto the dome along the axis
+        # closed ends: the section stays flat; the dome beyond it is closed by a cap of blocks
+        self.domes = []
         for n, (b, k) in enumerate(idx):
             br = self.branches[b]
-            end = (k == 0 and br.kinds[0] == CLOSED) or (k == len(br.nodes) - 1 and br.kinds[1] == CLOSED)
-            if not end:
-                continue
-            inner = t.kind != cs.VERTEX_OUTER
-            d = Nn[n] * outward[n]
-            o = V[n, inner] - 0.02 * rad[n] * d
-            tt = self.cast(o, np.repeat(d[None], len(o), 0), np.full(len(o), rad[n]))
-            if np.any(~np.isfinite(tt)):
-                node = int(br.nodes[k])
-                raise MeshingError(f"closed end at skeleton node {node}: no wall found ahead of its cross-section")
-            V[n, inner] = o + tt[:, None] * d
-            on_surface[n] = True
+            if (k == 0 and br.kinds[0] == CLOSED) or (k == len(br.nodes) - 1 and br.kinds[1] == CLOSED):
+                self.domes.append(self._dome_cap(n, int(br.nodes[k]), C[n], V[n], Nn[n] * outward[n], rad[n], lc[n, 0], lc[n, 1]))
         return idx, V, on_surface, R
+
+    def _dome_cap(self, n: int, node: int, c: np.ndarray, V: np.ndarray, d: np.ndarray, rad: float, layer: float, core: float) -> dict:
+        """Corners of the cap of blocks that closes the dome beyond a closed end's flat section.
+
+        A closed end's boundary layer has to turn round the dome with the wall: blocks with
+        a side face and an end face both on the smooth dome would meet it at a straight
+        angle and fold their elements there. The cap is the upper half of a ball's O-grid
+        (a cube projected onto the sphere) standing on the section: the section's core
+        square is lifted along the outward axis ``d`` by ``core`` times the wall distance
+        ahead (``lifted``), and rays from the section centre ``c`` through the lifted
+        corners find the dome (``wall``) and the boundary layer's inner surface at
+        ``1 - layer`` of the way (``inner``), as rays in the section plane place its ring
+        and outer corners. The assembly joins the core square to ``lifted`` (the cap's core),
+        ``lifted`` to ``inner`` and the section's ring quads to both (the cap's ring), and
+        ``inner`` to ``wall`` and the section's boundary-layer quads to both (the boundary
+        layer over the dome, continuing the side wall's).
+
+        Returns
+        -------
+        dict with ``section`` (index of the end section), ``core`` (template core vertices)
+        and their ``lifted``, ``inner`` and ``wall`` positions ((len(core), 3) each).
+        """
+        t = self.template
+        core_v = np.flatnonzero(t.kind == cs.VERTEX_CORE)
+        ahead = self.cast(c[None], d[None], np.array([rad]))[0]
+        if not np.isfinite(ahead):
+            raise MeshingError(f"closed end at skeleton node {node}: no wall found ahead of its cross-section")
+        lifted = V[core_v] + core * ahead * d
+        dirs = cs.unit(lifted - c)
+        R = self.cast(np.repeat(c[None], len(dirs), 0), dirs, np.full(len(dirs), rad))
+        if np.any(~np.isfinite(R)):
+            raise MeshingError(f"closed end at skeleton node {node}: no wall found round the dome beyond its cross-section")
+        return {"section": n, "core": core_v, "lifted": lifted,
+                "inner": c + ((1.0 - layer) * R)[:, None] * dirs, "wall": c + R[:, None] * dirs}
 
     # -- 7. assembly ------------------------------------------------------------------
     def assemble(self) -> BlockStructure:
@@ -1069,6 +1162,15 @@ class _Builder:
                 verts.append(HV[h, only_up])
                 on_surf.append(t.kind[only_up] == cs.VERTEX_OUTER)
             j.half_vertices = HV
+        # dome caps: the lifted core square, and its rays' points on the layer and the dome
+        for dome in self.domes:
+            cv = dome["core"]
+            for name, onwall in (("lifted", False), ("inner", False), ("wall", True)):
+                dome[name + "_ids"] = np.full(nv_t, -1, np.int64)
+                dome[name + "_ids"][cv] = n_vert + np.arange(len(cv))
+                n_vert += len(cv)
+                verts.append(dome[name])
+                on_surf.append(np.full(len(cv), onwall))
         vertices = np.vstack(verts)
         on_surface = np.concatenate(on_surf)
 
@@ -1091,10 +1193,11 @@ class _Builder:
                 hexes.append(np.hstack([a, b]))
                 f = np.full((nq, 6), FACE_INTERIOR, np.int64)
                 f[t.quad_wall, 1] = FACE_WALL
-                if k == 0 and br.kinds[0] in (OPEN, CLOSED):
-                    f[:, 4] = br.caps[0] if br.kinds[0] == OPEN else FACE_WALL
-                if k == K - 2 and br.kinds[1] in (OPEN, CLOSED):
-                    f[:, 5] = br.caps[1] if br.kinds[1] == OPEN else FACE_WALL
+                # open ends lie on their caps; closed ends are shared with their dome's cap blocks
+                if k == 0 and br.kinds[0] == OPEN:
+                    f[:, 4] = br.caps[0]
+                if k == K - 2 and br.kinds[1] == OPEN:
+                    f[:, 5] = br.caps[1]
                 fb.append(f)
                 ak.append(np.c_[t.quad_axes, np.full(nq, AXIS_ALONG)])
                 n0, n1 = int(br.nodes[k]), int(br.nodes[k + 1])
@@ -1106,6 +1209,46 @@ class _Builder:
                 tags = tuple(sorted(set(sk.node_tags[n0]) | set(sk.node_tags[n1]) | set(sk.edge_tags[e])))
                 btags.extend([tags] * nq)
                 where.append(np.c_[np.full(nq, bi), np.full(nq, k)])
+        loop_of = np.full(nv_t, -1, np.int64)  # ring and outer vertices -> the loop vertex on their ray
+        loop_of[t.ring] = t.loop
+        loop_of[t.outer] = t.loop
+        for dome in self.domes:
+            bi, k = idx[dome["section"]]
+            br = self.branches[bi]
+            kseg = 0 if k == 0 else k - 1
+            E, L, I, W = sec_ids[(bi, k)], dome["lifted_ids"], dome["inner_ids"], dome["wall_ids"]
+            cq, rq, bq = (q[t.quad_layer == lay] for lay in (LAYER_CORE, LAYER_RING, LAYER_BOUNDARY))
+            ax_c, ax_r, ax_b = (t.quad_axes[t.quad_layer == lay] for lay in (LAYER_CORE, LAYER_RING, LAYER_BOUNDARY))
+            lb = loop_of[bq]  # ring quads start and end on loop vertices already
+            blocks_ = [
+                # the cap's core: the section's core square lifted along the axis
+                (np.hstack([E[cq], L[cq]]), np.c_[ax_c, np.full(len(cq), AXIS_ALONG)], LAYER_CORE, False),
+                # the cap's ring over the core, and round it from the section's ring quads
+                (np.hstack([L[cq], I[cq]]), np.c_[ax_c, np.full(len(cq), AXIS_RING)], LAYER_RING, False),
+                (np.hstack([E[rq], np.stack([L[rq[:, 0]], I[rq[:, 0]], I[rq[:, 3]], L[rq[:, 3]]], 1)]), np.c_[ax_r, np.full(len(rq), AXIS_ALONG)], LAYER_RING, False),
+                # the boundary layer over the dome (across its first axis, wall face 1 as in the
+                # ring's layer) and round it from the section's boundary-layer quads
+                (np.stack([I[cq[:, 0]], W[cq[:, 0]], W[cq[:, 1]], I[cq[:, 1]], I[cq[:, 3]], W[cq[:, 3]], W[cq[:, 2]], I[cq[:, 2]]], 1),
+                 np.c_[np.full(len(cq), AXIS_LAYER), ax_c], LAYER_BOUNDARY, True),
+                (np.hstack([E[bq], np.stack([I[lb[:, 0]], W[lb[:, 0]], W[lb[:, 3]], I[lb[:, 3]]], 1)]), np.c_[ax_b, np.full(len(bq), AXIS_ALONG)], LAYER_BOUNDARY, True),
+            ]
+            n0, n1 = int(br.nodes[kseg]), int(br.nodes[kseg + 1])
+            e = int(br.edges[kseg])
+            tags = tuple(sorted(set(sk.node_tags[n0]) | set(sk.node_tags[n1]) | set(sk.edge_tags[e])))
+            for hx, axes, lay, on_wall in blocks_:
+                m = len(hx)
+                hexes.append(hx)
+                f = np.full((m, 6), FACE_INTERIOR, np.int64)
+                if on_wall:
+                    f[:, 1] = FACE_WALL
+                fb.append(f)
+                ak.append(axes)
+                radius.append(np.full(m, self.R_node[bi][k]))
+                bnode.append(np.full(m, n0))
+                bseg.append(np.full(m, e))
+                blayer.append(np.full(m, lay))
+                btags.extend([tags] * m)
+                where.append(np.c_[np.full(m, bi), np.full(m, kseg)])
         hexes = np.vstack(hexes)
         fb = np.vstack(fb)
         ak = np.vstack(ak)
@@ -1117,6 +1260,7 @@ class _Builder:
             hexes[flip] = hexes[flip][:, [4, 5, 6, 7, 0, 1, 2, 3]]
             fb[flip] = fb[flip][:, [0, 1, 2, 3, 5, 4]]
         self.block_where = np.vstack(where)
+        self.block_layers = np.concatenate(blayer)
         blocks = BlockStructure(
             vertices=vertices,
             hexes=hexes,
@@ -1138,6 +1282,8 @@ class _Builder:
             "junctions": {int(c): {"neighbors": j.neighbors.tolist(), "axis": j.u.round(6).tolist(),
                                    "rotation_deg": np.degrees(j.psi).round(2).tolist()} for c, j in self.junctions.items()},
             "flipped_blocks": int(flip.sum()),
+            "dome_caps": len(self.domes),
+            "dome_retreat": {int(self.branches[bi].nodes[-1 if side else 0]): round(v, 4) for (bi, side), v in self.retreat.items()},
             "skeleton": self.sk,
         }
         return blocks
@@ -1268,8 +1414,7 @@ class _Builder:
         return changed
 
     def _last_layers(self, bad):
-        t = self.template
-        return t.quad_layer[np.asarray(bad) % t.n_quads]
+        return self.block_layers[np.asarray(bad)]
 
     def _section_key(self, bi: int, k: int):
         br = self.branches[bi]
