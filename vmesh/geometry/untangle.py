@@ -59,22 +59,12 @@ def corner_edges(points: np.ndarray, hexes: np.ndarray) -> np.ndarray:
     return (X[:, _NBR, :] - X[:, :, None, :]) * _SGN[None, :, :, None]
 
 
-def linear_scaled_jacobian(points: np.ndarray, hexes: np.ndarray, chunk: int = 500_000) -> np.ndarray:
-    """Minimum corner scaled Jacobian of linear hexahedra in tensor corner order.
+def linear_scaled_jacobian(points: np.ndarray, hexes: np.ndarray) -> np.ndarray:
+    """Minimum corner scaled Jacobian of linear hexahedra in tensor corner order
+    (:func:`vmesh.geometry.quality.hex8_scaled_jacobian`)."""
+    from .quality import hex8_scaled_jacobian
 
-    The signed edge leaving corner (i, j, k) along an axis is the hexahedron's edge along
-    that axis at the other two indices, so the 24 corner edges are 12 slices broadcast.
-    """
-    out = np.empty(len(hexes))
-    for s in range(0, len(hexes), chunk):
-        X = points[hexes[s : s + chunk]].reshape(-1, 2, 2, 2, 3)  # (m, k, j, i, 3)
-        e0 = X[:, :, :, 1:2] - X[:, :, :, 0:1]
-        e1 = X[:, :, 1:2, :] - X[:, :, 0:1, :]
-        e2 = X[:, 1:2, :, :] - X[:, 0:1, :, :]
-        det = (e0 * _cross(e1, e2)).sum(-1)  # broadcasts to (m, 2, 2, 2)
-        ln = np.sqrt((e0 * e0).sum(-1)) * np.sqrt((e1 * e1).sum(-1)) * np.sqrt((e2 * e2).sum(-1))
-        out[s : s + chunk] = (det / np.maximum(ln, 1e-300)).reshape(len(det), -1).min(axis=1)
-    return out
+    return hex8_scaled_jacobian(points, hexes)
 
 
 @dataclass
