@@ -14,9 +14,9 @@ Columns: ``qps`` = points per wall-clock second (2 cores), ``cpu_qps`` = points 
 CPU-second (less sensitive to other jobs on the machine), ``err`` = distance of the
 coarse projection from the fine surface divided by the local radius (max / mean),
 ``dist_err`` = difference of signed distances / local radius, two-step = coarse
-projection refined on the fine surface, grid = the coarse distance sampled on a narrow-band
-grid around the wall and interpolated (``build_sdf grid = true``; projection by two
-Newton steps on the interpolated distance).
+projection refined on the fine surface. Coarse levels: fixed face counts (``--coarse``)
+and one decimated to a tolerance of the local radius (``--coarse-error``,
+``decimate_surface max_error``).
 
 Usage::
 
@@ -63,8 +63,9 @@ def prepare(path) -> tuple:
 
 
 def coarse_versions(surface, targets, backend, max_error=None):
-    """Coarse surfaces: one per face count in ``targets``, plus one decimated from the
-    largest target to the tolerance ``max_error`` (relative to the local radius)."""
+    """Coarse surfaces: one per face count in ``targets``, plus the coarsest decimation,
+    starting from the smallest target, within the tolerance ``max_error`` (relative to
+    the local radius; ``decimate_surface max_error``)."""
     out = []
     for target in targets:
         if target >= surface.n_faces:
@@ -73,7 +74,7 @@ def coarse_versions(surface, targets, backend, max_error=None):
         ctx.coarse_surface.coarse_label = f"{int(target)} faces"
         out.append(ctx.coarse_surface)
     if max_error is not None and targets:
-        start = min(max(targets), surface.n_faces)
+        start = min(min(targets), surface.n_faces)
         ctx = FilterChain([("decimate_surface", {"target_faces": int(start), "backend": backend, "max_error": float(max_error)})]).run(surface=surface)
         if ctx.coarse_surface.n_faces < surface.n_faces:
             ctx.coarse_surface.coarse_label = f"tolerance {100 * max_error:g} %R"
@@ -98,7 +99,7 @@ def default_cases() -> list[tuple[str, Path]]:
 
 
 def print_table(rows) -> str:
-    head = ("case", "tri fine", "coarse level", "tri coarse", "points", "build f/c s", "qps fine", "qps coarse", "speedup", "cpu qps c", "err max %R", "err mean %R", "dist max %R", "2-step qps", "2-step dist max %R", "grid build s", "grid qps", "grid speedup", "grid err max %R", "grid err mean %R")
+    head = ("case", "tri fine", "coarse level", "tri coarse", "points", "build f/c s", "qps fine", "qps coarse", "speedup", "cpu qps c", "err max %R", "err mean %R", "dist max %R", "2-step qps", "2-step dist max %R")
     lines = [head]
     for r in rows:
         lines.append(
@@ -118,11 +119,6 @@ def print_table(rows) -> str:
                 f"{100 * r['dist_err_max_rel']:.2f}",
                 f"{r['qps_two_step']:,}",
                 f"{100 * r['two_step_dist_err_max_rel']:.2f}",
-                f"{r['grid_build_s']:.2f}",
-                f"{r['qps_grid_project']:,}",
-                f"{r['grid_speedup']:.1f}",
-                f"{100 * r['grid_err_max_rel']:.2f}",
-                f"{100 * r['grid_err_mean_rel']:.3f}",
             )
         )
     widths = [max(len(line[i]) for line in lines) for i in range(len(head))]

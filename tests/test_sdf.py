@@ -189,35 +189,3 @@ def test_measure_sdf_chain_preset(real_path, tmp_path):
     assert len(ctx.caps) == 3
 
 
-def test_grid_signed_distance_matches_the_exact_one_near_the_wall():
-    from vmesh.geometry.sdf_grid import GridSignedDistance
-
-    v, f = icosphere(5.0, level=4)
-    exact = SignedDistance(v, f)
-    grid = GridSignedDistance(exact, voxel_size=0.25)
-    rng = np.random.default_rng(4)
-    d = rng.normal(size=(20000, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    near = d * rng.uniform(4.5, 5.5, (20000, 1))  # within the shell around the wall
-    far = d[:200] * 1.0  # deep inside: outside the shell, answered exactly
-    err = np.abs(grid.distance(near) - exact.distance(near))
-    assert err.max() < 0.02 and np.array_equal(grid.distance(far), exact.distance(far))
-    assert np.all(np.sign(grid.distance(near[err < np.abs(exact.distance(near))])) == np.sign(exact.distance(near[err < np.abs(exact.distance(near))])))
-    closest, dist, _ = grid.project(near)
-    assert np.abs(exact.distance(closest)).max() < 0.02
-    assert np.allclose(dist, grid.distance(near))
-    g = grid.gradient(near)
-    assert np.degrees(np.arccos(np.clip((g * -d).sum(1), -1, 1))).max() < 3.0  # inward, radial
-    assert grid.n_samples > 0 and grid.build_s >= 0
-
-
-def test_build_sdf_grid_option():
-    surface, skeleton = synthetic_case("y_bifurcation")
-    ctx = FilterChain(["repair_surface", "cap_open_ends", ("build_sdf", {"grid": True})]).run(surface=surface)
-    from vmesh.geometry.sdf_grid import GridSignedDistance
-
-    assert isinstance(ctx.sdf, GridSignedDistance)
-    p = ctx.surface.vertices
-    # away from the caps' sharp rims, where the sampled distance has a ridge
-    far = np.min([np.linalg.norm(p - c.center, axis=1) for c in ctx.caps], axis=0) > 4.0
-    assert np.abs(ctx.sdf.distance(p[far])).max() < 0.05 * 2.0  # radius 2..3 mm

@@ -421,15 +421,13 @@ def _squared_distance(vertices, faces, points):
         ),
         Parameter("refine_on_fine", "bool", False, "With source 'coarse': project on the coarse surface, then refine the projection on the fine surface (two-step projection)."),
         Parameter("check_points", "int", 2000, "Random points in the bounding box whose sign is checked against the winding number (0: no check).", min=0, max=10_000_000),
-        Parameter("grid", "bool", False, "Sample the distance on a narrow-band grid around the wall and interpolate it (millions of queries per second; exact away from the wall). See benchmarks/sdf_coarse_vs_fine.py."),
-        Parameter("grid_voxel", "float", None, "Voxel size of the grid. Automatic: the median edge length of the surface the distance is built from.", unit="mm", min=1e-6),
     ],
     reads=("surface",),
     optional_reads=("coarse_surface",),
     writes=("sdf",),
     category="implicit surface",
 )
-def build_sdf(ctx, source, sign, refine_on_fine, check_points, grid, grid_voxel):
+def build_sdf(ctx, source, sign, refine_on_fine, check_points):
     """Put a :class:`~vmesh.geometry.sdf.SignedDistance` (or, with ``refine_on_fine``, a
     :class:`~vmesh.geometry.sdf.TwoStepSignedDistance`) into ``ctx.sdf``.
 
@@ -454,10 +452,6 @@ def build_sdf(ctx, source, sign, refine_on_fine, check_points, grid, grid_voxel)
     if refine_on_fine:
         sdf = TwoStepSignedDistance(sdf, SignedDistance.from_surface(ctx.surface, sign=sign))
     base = sdf.fine if refine_on_fine else sdf
-    if grid:
-        from ..geometry.sdf_grid import GridSignedDistance
-
-        sdf = GridSignedDistance(sdf, voxel_size=grid_voxel)
     build_s = time.perf_counter() - t0
     info = {
         "source": source,
