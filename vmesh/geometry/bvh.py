@@ -188,30 +188,22 @@ class TriangleBVH:
 
 
 @_nb.njit(inline="always")
+def _gap(lo, hi, x):
+    """Distance from ``x`` to the interval ``[lo, hi]``."""
+    if lo > x:
+        return lo - x
+    if x > hi:
+        return x - hi
+    return 0.0
+
+
+@_nb.njit(inline="always")
 def _box_sq(lo, hi, node, px, py, pz):
-    d = 0.0
-    t = lo[node, 0] - px
-    if t > 0.0:
-        d += t * t
-    else:
-        t = px - hi[node, 0]
-        if t > 0.0:
-            d += t * t
-    t = lo[node, 1] - py
-    if t > 0.0:
-        d += t * t
-    else:
-        t = py - hi[node, 1]
-        if t > 0.0:
-            d += t * t
-    t = lo[node, 2] - pz
-    if t > 0.0:
-        d += t * t
-    else:
-        t = pz - hi[node, 2]
-        if t > 0.0:
-            d += t * t
-    return d
+    """Squared distance from a point to the box of ``node`` (0 inside)."""
+    gx = _gap(lo[node, 0], hi[node, 0], px)
+    gy = _gap(lo[node, 1], hi[node, 1], py)
+    gz = _gap(lo[node, 2], hi[node, 2], pz)
+    return gx * gx + gy * gy + gz * gz
 
 
 @_nb.njit(inline="always", error_model="numpy")
