@@ -634,9 +634,11 @@ def run(manifest, chain="default", out=None, *, client=None, scheduler: str | No
     if rows:
         say({"resumed_rows": len(rows)}, len(rows))
     interrupted = False
+    stop = _InterruptFlag()
     try:
         if pending:
-            _run_pending(pending, rows, out, client, scheduler, workers, retries, cache_entries, connect_timeout, say, lambda: _write_summary(tasks, rows, out, manifest, parquet, final=False))
+            with stop:
+                _run_pending(pending, rows, out, client, scheduler, workers, retries, cache_entries, connect_timeout, say, lambda: _write_summary(tasks, rows, out, manifest, parquet, final=False), stop)
     except KeyboardInterrupt:
         interrupted = True
         raise
@@ -648,7 +650,41 @@ def run(manifest, chain="default", out=None, *, client=None, scheduler: str | No
     return BatchResult([rows.get(t.name) or _pending_row(t) for t in tasks], out, csv_path, pq_path, time.perf_counter() - t_start, interrupted)
 
 
-def _run_pending(pending, rows, out, client, scheduler, workers, retries, cache_entries, connect_timeout, say, checkpoint):
+class _InterruptFlag:
+    """Remembers Ctrl-C while a batch runs (main thread only).
+
+    The KeyboardInterrupt raised by Python's handler can be swallowed when it lands in
+    Dask's client machinery; the flag is checked again after every finished row, so the
+    batch still stops and writes its summary with the rows left pending.
+    """
+
+    def __init__(self):
+        self.set = False
+        self._old = None
+
+    def __enter__(self):
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            self._old = signal.getsignal(signal.SIGINT)
+
+            def handler(signum, frame):
+                self.set = True
+                raise KeyboardInterrupt
+
+            signal.signal(signal.SIGINT, handler)
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+
+        if self._old is not None:
+            signal.signal(signal.SIGINT, self._old)
+        return False
+
+
+def _run_pending(pending, rows, out, client, scheduler, workers, retries, cache_entries, connect_timeout, say, checkpoint, stop=None):
     try:
         from distributed import Client, as_completed
     except ImportError:  # pragma: no cover - dask is a dependency
@@ -681,6 +717,8 @@ def _run_pending(pending, rows, out, client, scheduler, workers, retries, cache_
         queue = as_completed([submit(t) for t in pending])
         last = time.monotonic()
         for f in queue:
+            if stop is not None and stop.set:
+                raise KeyboardInterrupt
             name = futures.pop(f)
             try:
                 res = f.result()
@@ -692,6 +730,8 @@ def _run_pending(pending, rows, out, client, scheduler, workers, retries, cache_
                 continue
             rows[name] = _summary_row(res, by_name[name], attempts=attempts[name], resumed=False)
             say(rows[name], len(rows))
+            if stop is not None and stop.set:
+                raise KeyboardInterrupt
             if time.monotonic() - last > _SUMMARY_EVERY_S:
                 checkpoint()
                 last = time.monotonic()
