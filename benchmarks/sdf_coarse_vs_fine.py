@@ -63,22 +63,20 @@ def prepare(path) -> tuple:
 
 
 def coarse_versions(surface, targets, backend, max_error=None):
-    """Coarse surfaces: one per face count in ``targets``, plus the coarsest decimation,
-    starting from the smallest target, within the tolerance ``max_error`` (relative to
-    the local radius; ``decimate_surface max_error``)."""
+    """``(label, coarse surface)`` pairs: one per face count in ``targets``, plus the
+    coarsest decimation, starting from the smallest target, within the tolerance
+    ``max_error`` (relative to the local radius; ``decimate_surface max_error``)."""
     out = []
     for target in targets:
         if target >= surface.n_faces:
             continue
         ctx = FilterChain([("decimate_surface", {"target_faces": int(target), "backend": backend})]).run(surface=surface)
-        ctx.coarse_surface.coarse_label = f"{int(target)} faces"
-        out.append(ctx.coarse_surface)
+        out.append((f"{int(target)} faces", ctx.coarse_surface))
     if max_error is not None and targets:
         start = min(min(targets), surface.n_faces)
         ctx = FilterChain([("decimate_surface", {"target_faces": int(start), "backend": backend, "max_error": float(max_error)})]).run(surface=surface)
         if ctx.coarse_surface.n_faces < surface.n_faces:
-            ctx.coarse_surface.coarse_label = f"tolerance {100 * max_error:g} %R"
-            out.append(ctx.coarse_surface)
+            out.append((f"tolerance {100 * max_error:g} %R", ctx.coarse_surface))
     return out
 
 
@@ -213,7 +211,7 @@ def run_backends(args):
         print(f"skipped: {realdata.missing_reason()}")
         return
     fine, _ = prepare(path)
-    coarse = coarse_versions(fine, [5000], "fast_simplification")[0]
+    coarse = coarse_versions(fine, [5000], "fast_simplification")[0][1]
     rows = backend_rows(fine, args.backend_points, "ica_swc fine") + backend_rows(coarse, args.backend_points, "ica_swc coarse")
     width = max(len(r["backend"]) for r in rows)
     print(f"\n{'surface':<15} {'triangles':>9}  {'backend':<{width}}  {'points':>8}  {'qps':>10}  {'cpu qps':>10}")
@@ -250,7 +248,8 @@ def main(argv=None) -> int:
         if not coarse:
             print(f"{name}: {fine.n_faces} triangles, no coarse level below it; skipped", file=sys.stderr)
             continue
-        case_rows = compare_coarse_fine(fine, coarse, counts=args.points, case=name)
+        labels, surfaces = zip(*coarse)
+        case_rows = compare_coarse_fine(fine, surfaces, counts=args.points, case=name, labels=labels)
         rows += case_rows
         print(f"{name}: {fine.n_faces} triangles{' (capped)' if was_open else ''}, {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     print(f"\nload average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; decimation: {args.decimation}\n")

@@ -684,7 +684,7 @@ class _InterruptFlag:
         return False
 
 
-def _run_pending(pending, rows, out, client, scheduler, workers, retries, cache_entries, connect_timeout, say, checkpoint, stop=None):
+def _run_pending(pending, rows, out, client, scheduler, workers, retries, cache_entries, connect_timeout, say, checkpoint, stop):
     try:
         from distributed import Client, as_completed
     except ImportError:  # pragma: no cover - dask is a dependency
@@ -717,7 +717,7 @@ def _run_pending(pending, rows, out, client, scheduler, workers, retries, cache_
         queue = as_completed([submit(t) for t in pending])
         last = time.monotonic()
         for f in queue:
-            if stop is not None and stop.set:
+            if stop.set:
                 raise KeyboardInterrupt
             name = futures.pop(f)
             try:
@@ -730,7 +730,7 @@ def _run_pending(pending, rows, out, client, scheduler, workers, retries, cache_
                 continue
             rows[name] = _summary_row(res, by_name[name], attempts=attempts[name], resumed=False)
             say(rows[name], len(rows))
-            if stop is not None and stop.set:
+            if stop.set:
                 raise KeyboardInterrupt
             if time.monotonic() - last > _SUMMARY_EVERY_S:
                 checkpoint()

@@ -728,21 +728,29 @@ def decimate(
     raise ValueError(f"unknown decimation backend {backend!r}")
 
 
-def wall_radius_deviation(fine_vertices: np.ndarray, fine_faces: np.ndarray, coarse_vertices: np.ndarray, coarse_faces: np.ndarray, wall_faces: np.ndarray | None = None) -> np.ndarray:
-    """Distance of every fine vertex from the coarse surface over the local vessel radius ``(n,)``.
-
-    The radius is half the chord along the inward normal
-    (:func:`vmesh.geometry.sdf.local_radius`); caps (``wall_faces`` False) are left out
-    of the chords. A cheap, faithful proxy of the coarse signed distance's projection
-    error relative to the radius (``benchmarks/sdf_coarse_vs_fine.py`` measures both).
-    """
-    from .geometry.bvh import TriangleBVH
+def vertex_radii(vertices: np.ndarray, faces: np.ndarray, wall_faces: np.ndarray | None = None) -> np.ndarray:
+    """Local vessel radius ``(n,)`` at every vertex of a closed surface: half the chord
+    along the inward normal (:func:`vmesh.geometry.sdf.local_radius`; caps, ``wall_faces``
+    False, are left out of the chords)."""
     from .geometry.sdf import SignedDistance, local_radius
 
-    fine = SignedDistance(fine_vertices, fine_faces)
-    radius = local_radius(fine, fine.vertices, fine.vertex_normals, wall_faces=wall_faces)
-    sq = TriangleBVH(coarse_vertices, coarse_faces).closest(fine.vertices)[0]
-    return np.sqrt(sq) / np.maximum(radius, 1e-300)
+    fine = SignedDistance(vertices, faces)
+    return local_radius(fine, fine.vertices, fine.vertex_normals, wall_faces=wall_faces)
+
+
+def wall_radius_deviation(fine_vertices: np.ndarray, fine_faces: np.ndarray, coarse_vertices: np.ndarray, coarse_faces: np.ndarray, wall_faces: np.ndarray | None = None, radii: np.ndarray | None = None) -> np.ndarray:
+    """Distance of every fine vertex from the coarse surface over the local vessel radius ``(n,)``.
+
+    ``radii`` are the fine vertices' radii (:func:`vertex_radii`, computed when not given).
+    A cheap, faithful proxy of the coarse signed distance's projection error relative to
+    the radius (``benchmarks/sdf_coarse_vs_fine.py`` measures both).
+    """
+    from .geometry.bvh import TriangleBVH
+
+    if radii is None:
+        radii = vertex_radii(fine_vertices, fine_faces, wall_faces)
+    sq = TriangleBVH(coarse_vertices, coarse_faces).closest(fine_vertices)[0]
+    return np.sqrt(sq) / np.maximum(radii, 1e-300)
 
 
 def decimate_to_tolerance(vertices, faces, target_faces: int, max_error: float, wall_faces=None, max_tries: int = 5, **options):
@@ -760,12 +768,15 @@ def decimate_to_tolerance(vertices, faces, target_faces: int, max_error: float, 
     f = np.asarray(faces, np.int64)
     target = int(target_faces)
     tries = []
+    radii = None  # the fine surface's radii, the same for every try
     while True:
         v2, f2 = decimate(vertices, f, target, **options)
         if len(f2) >= len(f):
             tries.append((len(f2), 0.0))
             return v2, f2, tries
-        err = float(wall_radius_deviation(vertices, f, v2, f2, wall_faces).max())
+        if radii is None:
+            radii = vertex_radii(vertices, f, wall_faces)
+        err = float(wall_radius_deviation(vertices, f, v2, f2, radii=radii).max())
         tries.append((len(f2), err))
         if err <= max_error or len(tries) >= max_tries:
             return v2, f2, tries

@@ -373,8 +373,10 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
             ctx.tick(k / len(tries), f"{n_faces} faces: max error {100 * err:.2f} % of the local radius")
         if tries[-1][1] > max_error:
             ctx.warn(f"coarse surface still {100 * tries[-1][1]:.2f} % of the radius off after {len(tries)} tries (tolerance {100 * max_error:.2f} %)")
+    from ..geometry.bvh import TriangleBVH
+
     coarse = SurfaceMesh(v, f, name=f"{s.name} (decimated)" if s.name else "decimated")
-    deviation = float(np.sqrt(_squared_distance(v, f, s.vertices).max())) if len(f) else 0.0
+    deviation = float(np.sqrt(TriangleBVH(v, f).closest(s.vertices)[0].max())) if len(f) else 0.0
     if output == "surface":
         ctx.surface = coarse.copy(name=s.name)
         if ctx.caps:
@@ -397,14 +399,6 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
         ctx.warn(f"the surface has {s.n_faces} faces, no more than the target {target_faces}: kept as it is")
     elif abs(len(f) - target_faces) > 0.01 * target_faces and tries is None:
         ctx.warn(f"decimation stopped at {len(f)} faces, target was {target_faces} (topology or boundary constraints)")
-
-
-def _squared_distance(vertices, faces, points):
-    import igl
-
-    tree = igl.AABB()
-    tree.init(np.ascontiguousarray(vertices, np.float64), np.ascontiguousarray(faces, np.int64))
-    return np.asarray(tree.squared_distance(vertices, faces, np.ascontiguousarray(points, np.float64))[0])
 
 
 @register_filter(

@@ -320,8 +320,9 @@ def _closest_kernel(points, lo, hi, first_leaf, leaf_size, A, AB, AC, out_sq, ou
 def feature_normals(face, feature, faces, face_normals, edge_normals, vertex_normals, degenerate):
     """Pseudonormal ``(n, 3)`` of each closest point's feature (face, edge or corner).
 
-    Degenerate triangles take the normal of their first corner's vertex: their edge and
-    face normals are meaningless (callers mark such points as unsure anyway).
+    On degenerate triangles, whose edge and face normals are meaningless, a point on a
+    corner takes that vertex's normal and any other point the first corner's (callers
+    mark such points as unsure anyway).
     """
     n = face.shape[0]
     out = np.empty((n, 3))
@@ -329,14 +330,14 @@ def feature_normals(face, feature, faces, face_normals, edge_normals, vertex_nor
         f = face[i]
         k = feature[i]
         if degenerate[f]:
-            k = 4 if k < 4 else k
-        if k == 0:
+            k = FEATURE_VERTEX if k < FEATURE_VERTEX else k
+        if k == FEATURE_FACE:
             out[i, 0], out[i, 1], out[i, 2] = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
-        elif k < 4:
-            e = k - 1
+        elif k < FEATURE_VERTEX:
+            e = k - FEATURE_EDGE
             out[i, 0], out[i, 1], out[i, 2] = edge_normals[f, e, 0], edge_normals[f, e, 1], edge_normals[f, e, 2]
         else:
-            vtx = faces[f, k - 4]
+            vtx = faces[f, k - FEATURE_VERTEX]
             out[i, 0], out[i, 1], out[i, 2] = vertex_normals[vtx, 0], vertex_normals[vtx, 1], vertex_normals[vtx, 2]
     return out
 

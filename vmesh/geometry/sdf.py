@@ -46,8 +46,6 @@ from . import topology
 _FEATURE_EPS = 1e-6
 #: Queries are processed in chunks of this many points (bounds temporary memory).
 _CHUNK = 1 << 20
-#: Below this many points the Morton sort costs more than it saves.
-_SORT_MIN = 2048
 
 SIGN_METHODS = ("auto", "pseudonormal", "winding_number")
 
@@ -441,7 +439,7 @@ class TwoStepSignedDistance:
         normal = fine.pseudonormals(closest, face)
         outside = fine._outside(p, closest, face, normal)
         # pseudonormals decide the side only at the true closest point; where the refined
-        # point may not be it (the coarse side disagrees), ask the fine winding number
+        # point may not be it (the coarse side disagrees), query the fine surface exactly
         coarse_outside = coarse._outside(p, c0, face0, coarse.pseudonormals(c0, face0))
         unsure = outside != coarse_outside
         signed = np.where(outside, -dist, dist)
@@ -575,12 +573,13 @@ def projection_errors(fine: SignedDistance, result, fine_result) -> tuple[np.nda
     return off_surface, np.abs(result[1] - fine_result[1])
 
 
-def compare_coarse_fine(fine_surface, coarse_surfaces, counts=(10_000, 100_000, 1_000_000), seed: int = 0, case: str = "") -> list[dict]:
+def compare_coarse_fine(fine_surface, coarse_surfaces, counts=(10_000, 100_000, 1_000_000), seed: int = 0, case: str = "", labels=None) -> list[dict]:
     """Build time, query throughput and projection error of coarse SDFs against the fine one.
 
     For every number of points in ``counts`` and every coarse surface: project the same
     query points (:func:`vessel_query_points`, caps excluded when the fine surface has
-    a ``cap_id`` face array) with the fine, the coarse and the two-step SDF.
+    a ``cap_id`` face array) with the fine, the coarse and the two-step SDF. ``labels``
+    name the coarse surfaces in the rows' ``coarse_level`` (default: their face counts).
 
     Returns
     -------
@@ -604,7 +603,7 @@ def compare_coarse_fine(fine_surface, coarse_surfaces, counts=(10_000, 100_000, 
         coarse.append((sdf, time.perf_counter() - t0))
     caps = fine_surface.face_data.get("cap_id")
     wall = None if caps is None or len(caps) != fine_surface.n_faces else np.asarray(caps) == 0
-    labels = [getattr(s, "coarse_label", f"{s.n_faces} faces") for s in coarse_surfaces]
+    labels = list(labels) if labels is not None else [f"{s.n_faces} faces" for s in coarse_surfaces]
     fine.project(fine.vertices[:16])  # warm-up (thread pool, page faults)
     rows = []
     for n in counts:
