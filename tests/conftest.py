@@ -13,6 +13,23 @@ SYNTHETIC = ROOT / "data_synthetic"
 from data_synthetic.generate import CASES as SYNTHETIC_CASES  # noqa: E402  (every synthetic case, by name)
 
 
+@pytest.fixture(scope="session", autouse=True)
+def compiled_kernels():
+    """Compile (or load) vmesh's numba kernels once, in this process, before any test
+    starts CLI runs or Dask workers: on a fresh checkout those would otherwise all compile
+    the same kernels at once and write numba's cache beside the sources together."""
+    import numpy as np
+
+    from vmesh.geometry.quality import hex8_scaled_jacobian
+    from vmesh.geometry.sdf import SignedDistance
+
+    tetra = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    sdf = SignedDistance(tetra, [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    sdf.project(np.random.default_rng(0).random((1000, 3)))  # BVH query, Morton codes, feature normals
+    cube = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], float)
+    hex8_scaled_jacobian(cube, np.arange(8)[None])
+
+
 @pytest.fixture(scope="session")
 def real_path():
     """``real_path(name)`` -> path of a real data file; skips (with the reason) when absent."""
