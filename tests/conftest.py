@@ -25,7 +25,8 @@ def compiled_kernels():
 
     tetra = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
     sdf = SignedDistance(tetra, [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
-    sdf.project(np.random.default_rng(0).random((1000, 3)))  # BVH query, Morton codes, feature normals
+    sdf.project(np.random.default_rng(0).random((1000, 3)))  # BVH build and query, Morton codes, feature normals
+    sdf.intersect_lines(np.full((300, 3), 0.2), np.random.default_rng(1).normal(size=(300, 3)), 1.0)
     cube = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], float)
     hex8_scaled_jacobian(cube, np.arange(8)[None])
 

@@ -87,3 +87,68 @@ def test_decimation_to_tolerance_reaches_it(real_path):
     assert coarse.n_faces == tries[-1]["faces"] < fine.n_faces
     wall = np.asarray(fine.face_data["cap_id"]) == 0
     assert wall_radius_deviation(fine.vertices, fine.faces, coarse.vertices, coarse.faces, wall).max() <= 0.015
+
+
+def _brute_force_lines(v, f, o, d, reach):
+    """Nearest two-sided line crossing by testing every triangle (Möller–Trumbore in numpy)."""
+    a, e1, e2 = v[f[:, 0]], v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
+    p = np.cross(d[:, None], e2[None])
+    det = np.einsum("tk,ntk->nt", e1, p)
+    s = o[:, None] - a[None]
+    u = np.einsum("ntk,ntk->nt", s, p) / det
+    q = np.cross(s, e1[None])
+    w = np.einsum("nk,ntk->nt", d, q) / det
+    t = np.einsum("tk,ntk->nt", e2, q) / det
+    ok = (u >= 0) & (u <= 1) & (w >= 0) & (u + w <= 1) & (np.abs(t) <= reach[:, None])
+    return np.where(ok, t, np.nan)
+
+
+def test_line_crossings_match_brute_force_both_and_one_sided():
+    """intersect_lines: the crossing nearest to the origin within reach, both sides or one."""
+    path = synthetic_case("y_bifurcation")[0]
+    if not path.exists():
+        pytest.skip("synthetic case y_bifurcation not generated")
+    s = read_surface(path)
+    v, f = s.vertices, s.faces
+    rng = np.random.default_rng(3)
+    n = 2000
+    o = v[rng.integers(0, len(v), n)] + rng.normal(scale=0.3, size=(n, 3))
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    reach = rng.uniform(0.1, 3.0, n)
+    all_t = _brute_force_lines(v, f, o, d, reach)
+    bvh = TriangleBVH(v, f)
+    for side in (0, 1, -1):
+        cand = all_t if side == 0 else np.where(all_t * side >= 0, all_t, np.nan)
+        has = ~np.isnan(cand).all(axis=1)
+        ref = np.full(n, np.nan)
+        ref[has] = np.abs(cand[has][np.arange(has.sum()), np.nanargmin(np.abs(cand[has]), axis=1)])
+        t, face = bvh.intersect_lines(o, d, reach, side=None if side == 0 else np.full(n, side))
+        assert np.array_equal(np.isnan(t), ~has) and np.array_equal(face < 0, ~has)
+        assert np.abs(np.abs(t[has]) - ref[has]).max() < 1e-12
+        if side:
+            assert np.all(t[has] * side >= 0)
+        # the crossing lies on the reported triangle's plane
+        x = o[has] + t[has, None] * d[has]
+        tri = v[f[face[has]]]
+        nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        assert np.abs(np.einsum("ij,ij->i", x - tri[:, 0], nrm)).max() < 1e-9 * np.abs(nrm).max()
+
+
+def test_tree_boxes_contain_their_triangles():
+    """The median-split order is a permutation and every node's box holds its subtree."""
+    rng = np.random.default_rng(4)
+    tri = rng.random((1001, 3, 3))
+    v, f = tri.reshape(-1, 3), np.arange(3003).reshape(1001, 3)
+    bvh = TriangleBVH(v, f)
+    assert np.array_equal(np.sort(bvh.order), np.arange(1001))
+    t = tri[bvh.order]
+    first = bvh._first_leaf
+    for leaf in range(-(-1001 // bvh.leaf_size)):
+        node = first + leaf
+        pts = t[leaf * bvh.leaf_size : (leaf + 1) * bvh.leaf_size].reshape(-1, 3)
+        while True:
+            assert np.all(bvh._lo[node] <= pts.min(axis=0)) and np.all(bvh._hi[node] >= pts.max(axis=0))
+            if node == 0:
+                break
+            node = (node - 1) // 2

@@ -59,7 +59,10 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         from ..geometry.sdf import SignedDistance
 
         sdf = SignedDistance.from_surface(surface)
-    sm = mesh_blocks(blocks, projector, ref, progress=ctx.tick, signed_distance=sdf.distance)
+    # the mesher queries near the wall only, where the exact fine query is cheaper than a
+    # coarse query plus its refinement
+    exact = getattr(sdf, "fine", sdf)
+    sm = mesh_blocks(blocks, projector, ref, progress=ctx.tick, signed_distance=exact.distance, intersect_lines=getattr(exact, "intersect_lines", None))
     if untangle:
         _untangle(ctx, sm, projector, sdf, untangle_below)
     b = sm.cell_block

@@ -5,11 +5,12 @@ The closest-point engine behind :class:`~vmesh.geometry.sdf.SignedDistance` and
 release the GIL and run on all cores, where libigl's AABB tree (the previous engine,
 still the reference in the tests) held the GIL and ran on one.
 
-Structure: a linear BVH. Triangles are sorted along a Morton curve of their centroids
-and cut into leaves of ``leaf_size`` consecutive triangles; the leaves are the bottom
-level of an implicit complete binary tree in heap order (children of node ``i`` are
-``2i+1`` and ``2i+2``), so building it is a sort plus one vectorised box reduction per
-level. Queries are sorted along the same kind of curve and processed in blocks of
+Structure: an implicit complete binary tree in heap order (children of node ``i`` are
+``2i+1`` and ``2i+2``) whose leaves hold ``leaf_size`` consecutive triangles. The triangle
+order comes from median splits: each node's range is split where the layout puts its
+children's boundary, across the longest axis of its centroids (quickselect, O(m) per
+level); the boxes are then one vectorised reduction per level. (A Morton-curve order of
+the triangles, the linear-BVH shortcut, gave looser boxes and 1.3–1.8× slower queries.) Queries are sorted along the same kind of curve and processed in blocks of
 consecutive points; each point starts from the previous point's closest triangle, whose
 distance prunes most of the tree before the descent starts (nearer child first).
 
@@ -109,15 +110,15 @@ class TriangleBVH:
         self.leaf_size = int(leaf_size)
         tri = v[f]
         lo_t, hi_t = tri.min(axis=1), tri.max(axis=1)
-        order = np.argsort(morton_codes(tri.mean(axis=1), lo_t.min(axis=0), hi_t.max(axis=0)), kind="stable")
-        self.order = order.astype(np.int64)  # sorted slot -> face index
+        m = len(f)
+        n_leaves = -(-m // self.leaf_size)
+        depth = max(int(np.ceil(np.log2(n_leaves))), 0) if n_leaves > 1 else 0
+        order = _median_split_order(np.ascontiguousarray(tri.mean(axis=1)), self.leaf_size, depth)
+        self.order = order  # sorted slot -> face index
         tri = tri[order]
         self._a = np.ascontiguousarray(tri[:, 0])
         self._ab = np.ascontiguousarray(tri[:, 1] - tri[:, 0])
         self._ac = np.ascontiguousarray(tri[:, 2] - tri[:, 0])
-        m = len(f)
-        n_leaves = -(-m // self.leaf_size)
-        depth = max(int(np.ceil(np.log2(n_leaves))), 0) if n_leaves > 1 else 0
         slots = 1 << depth
         starts = np.arange(0, m, self.leaf_size)
         lo = np.full((2 * slots - 1, 3), np.inf)
@@ -185,6 +186,115 @@ class TriangleBVH:
             out_sq[order], out_face[order], out_c[order], out_feat[order] = sq, face, closest, feature
             return out_sq, out_face, out_c, out_feat
         return sq, face, closest, feature
+
+    def intersect_lines(self, origins, directions, reach, side=None, sort: bool = True):
+        """Nearest crossing of lines ``origins + t * directions`` with the triangles.
+
+        The crossing with the smallest ``|t|`` within ``|t| <= reach`` is returned
+        (two-sided Möller–Trumbore tests), on both sides of the origin or on one.
+
+        Parameters
+        ----------
+        origins, directions : (n, 3) array_like
+        reach : float or (n,) array_like
+            Largest ``|t|`` searched, in units of each direction's length.
+        side : (n,) array_like of -1, 0, 1, optional
+            Search only ``t >= 0`` (1), only ``t <= 0`` (-1) or both (0, the default).
+        sort : bool
+            Process the lines in Morton order of their origins.
+
+        Returns
+        -------
+        t : (n,) float64
+            Signed line parameter of the crossing (``nan`` where none lies within reach).
+        face : (n,) int64
+            Triangle crossed (-1 where none).
+        """
+        o = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
+        d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
+        n = len(o)
+        r = np.ascontiguousarray(np.broadcast_to(np.asarray(reach, np.float64), (n,)))
+        sd = np.zeros(n, np.int8) if side is None else np.ascontiguousarray(np.broadcast_to(np.sign(side).astype(np.int8), (n,)))
+        t, slot = np.empty(n), np.empty(n, np.int64)
+        if n == 0:
+            return t, slot
+        order = None
+        if sort and n > 4 * _BLOCK:
+            order = morton_order(o)
+            o, d, r, sd = (np.ascontiguousarray(x[order]) for x in (o, d, r, sd))
+        previous = _nb.get_parallel_chunksize()
+        _nb.set_parallel_chunksize(8)
+        try:
+            _line_kernel(o, d, r, sd, self._lo, self._hi, self._first_leaf, self.leaf_size, self._a, self._ab, self._ac, t, slot, _BLOCK)
+        finally:
+            _nb.set_parallel_chunksize(previous)
+        face = np.where(slot >= 0, self.order[np.maximum(slot, 0)], -1)
+        if order is not None:
+            out_t, out_face = np.empty(n), np.empty(n, np.int64)
+            out_t[order], out_face[order] = t, face
+            return out_t, out_face
+        return t, face
+
+
+@_nb.njit(cache=True)
+def _median_split_order(centroids, leaf_size, depth):
+    """Triangle order of the implicit tree: every node's range is split where the tree layout
+    puts its children's boundary, across the longest axis of its centroids' box (a median
+    split by quickselect, O(m) per level). Tighter boxes than a Morton-curve order. Serial:
+    a parallel launch per level costs more than the level's work (2 ms per 10^5 triangles)."""
+    m = centroids.shape[0]
+    order = np.arange(m)
+    c = centroids.copy()  # kept in the current order: contiguous scans, no gathers
+    for level in range(depth):
+        span = (1 << (depth - level)) * leaf_size
+        n_nodes = min(1 << level, (m + span - 1) // span)
+        for k in range(n_nodes):
+            s0 = k * span
+            s1 = min(s0 + span, m)
+            mid = s0 + span // 2
+            if mid >= s1:
+                continue
+            lo0, lo1, lo2 = np.inf, np.inf, np.inf
+            hi0, hi1, hi2 = -np.inf, -np.inf, -np.inf
+            for i in range(s0, s1):
+                lo0, hi0 = min(lo0, c[i, 0]), max(hi0, c[i, 0])
+                lo1, hi1 = min(lo1, c[i, 1]), max(hi1, c[i, 1])
+                lo2, hi2 = min(lo2, c[i, 2]), max(hi2, c[i, 2])
+            axis = 0
+            if hi1 - lo1 > hi0 - lo0:
+                axis = 1
+            if hi2 - lo2 > max(hi0 - lo0, hi1 - lo1):
+                axis = 2
+            _select(order, c, axis, s0, s1 - 1, mid)
+    return order
+
+
+@_nb.njit(inline="always")
+def _select(order, c, axis, left, right, nth):
+    """Reorder rows ``left..right`` of ``c`` (and ``order`` with them) so that row ``nth`` has
+    the nth key along ``axis``, no larger key before it and no smaller one after (Hoare
+    quickselect)."""
+    while right > left:
+        a, b, d = c[left, axis], c[(left + right) // 2, axis], c[right, axis]
+        pivot = max(min(a, b), min(max(a, b), d))  # median of three
+        i, j = left, right
+        while i <= j:
+            while c[i, axis] < pivot:
+                i += 1
+            while c[j, axis] > pivot:
+                j -= 1
+            if i <= j:
+                order[i], order[j] = order[j], order[i]
+                for ax in range(3):
+                    c[i, ax], c[j, ax] = c[j, ax], c[i, ax]
+                i += 1
+                j -= 1
+        if nth <= j:
+            right = j
+        elif nth >= i:
+            left = i
+        else:
+            return
 
 
 @_nb.njit(inline="always")
@@ -314,6 +424,121 @@ def _closest_kernel(points, lo, hi, first_leaf, leaf_size, A, AB, AC, out_sq, ou
             out_slot[i] = bt
             out_c[i, 0], out_c[i, 1], out_c[i, 2] = bx, by, bz
             out_feat[i] = bf
+
+
+@_nb.njit(inline="always")
+def _slab(lo, hi, node, ox, oy, oz, ix, iy, iz):
+    """Parameter interval ``(t0, t1)`` of the line inside the box of ``node`` (t0 > t1: missed)."""
+    if lo[node, 0] > hi[node, 0]:  # padding slot of the implicit tree: no triangles
+        return np.inf, -np.inf
+    t0, t1 = -np.inf, np.inf
+    for axis in range(3):
+        o = ox if axis == 0 else (oy if axis == 1 else oz)
+        inv = ix if axis == 0 else (iy if axis == 1 else iz)
+        if inv == np.inf:  # parallel to this slab pair: inside or never
+            if o < lo[node, axis] or o > hi[node, axis]:
+                return np.inf, -np.inf
+            continue
+        a = (lo[node, axis] - o) * inv
+        b = (hi[node, axis] - o) * inv
+        if a > b:
+            a, b = b, a
+        t0 = max(t0, a)
+        t1 = min(t1, b)
+    return t0, t1
+
+
+@_nb.njit(inline="always")
+def _nearest_in(t0, t1):
+    """Smallest ``|t|`` over the interval ``[t0, t1]`` (inf when empty)."""
+    if t0 > t1:
+        return np.inf
+    if t0 > 0.0:
+        return t0
+    if t1 < 0.0:
+        return -t1
+    return 0.0
+
+
+@_nb.njit(inline="always", error_model="numpy")
+def _line_triangle(ox, oy, oz, dx, dy, dz, A, AB, AC, t):
+    """Line parameter of the crossing with triangle ``t`` (Möller–Trumbore, both sides; nan if none)."""
+    e1x, e1y, e1z = AB[t, 0], AB[t, 1], AB[t, 2]
+    e2x, e2y, e2z = AC[t, 0], AC[t, 1], AC[t, 2]
+    px, py, pz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
+    det = e1x * px + e1y * py + e1z * pz
+    scale = (abs(e1x) + abs(e1y) + abs(e1z)) * (abs(e2x) + abs(e2y) + abs(e2z)) * (abs(dx) + abs(dy) + abs(dz))
+    if abs(det) <= 1e-14 * scale:
+        return np.nan
+    inv = 1.0 / det
+    sx, sy, sz = ox - A[t, 0], oy - A[t, 1], oz - A[t, 2]
+    u = (sx * px + sy * py + sz * pz) * inv
+    if u < -1e-12 or u > 1.0 + 1e-12:
+        return np.nan
+    qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
+    v = (dx * qx + dy * qy + dz * qz) * inv
+    if v < -1e-12 or u + v > 1.0 + 1e-12:
+        return np.nan
+    return (e2x * qx + e2y * qy + e2z * qz) * inv
+
+
+@_nb.njit(parallel=True, cache=True, error_model="numpy")
+def _line_kernel(origins, directions, reach, side, lo, hi, first_leaf, leaf_size, A, AB, AC, out_t, out_slot, block):
+    n = origins.shape[0]
+    m = A.shape[0]
+    n_blocks = (n + block - 1) // block
+    for b in _nb.prange(n_blocks):
+        stack = np.empty(256, np.int64)
+        stack_d = np.empty(256, np.float64)
+        for i in range(b * block, min(n, (b + 1) * block)):
+            ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
+            dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
+            ix = 1.0 / dx if dx != 0.0 else np.inf
+            iy = 1.0 / dy if dy != 0.0 else np.inf
+            iz = 1.0 / dz if dz != 0.0 else np.inf
+            best, bt, bs = reach[i], np.nan, -1
+            # one-sided lines: the parameter interval is cut at 0
+            cut_lo = 0.0 if side[i] > 0 else -np.inf
+            cut_hi = 0.0 if side[i] < 0 else np.inf
+            t0, t1 = _slab(lo, hi, 0, ox, oy, oz, ix, iy, iz)
+            t0, t1 = max(t0, cut_lo), min(t1, cut_hi)
+            stack[0] = 0
+            stack_d[0] = _nearest_in(t0, t1)
+            sp = 1
+            while sp > 0:
+                sp -= 1
+                node = stack[sp]
+                if stack_d[sp] > best:
+                    continue
+                if node >= first_leaf:
+                    s0 = (node - first_leaf) * leaf_size
+                    s1 = min(s0 + leaf_size, m)
+                    for s in range(s0, s1):
+                        t = _line_triangle(ox, oy, oz, dx, dy, dz, A, AB, AC, s)
+                        if t == t and abs(t) <= best and (bs < 0 or abs(t) < best) and cut_lo <= t <= cut_hi:
+                            best, bt, bs = abs(t), t, s
+                else:
+                    left, right = 2 * node + 1, 2 * node + 2
+                    a0, a1 = _slab(lo, hi, left, ox, oy, oz, ix, iy, iz)
+                    c0, c1 = _slab(lo, hi, right, ox, oy, oz, ix, iy, iz)
+                    dl = _nearest_in(max(a0, cut_lo), min(a1, cut_hi))
+                    dr = _nearest_in(max(c0, cut_lo), min(c1, cut_hi))
+                    if dl <= dr:  # nearer child searched first
+                        if dr <= best:
+                            stack[sp], stack_d[sp] = right, dr
+                            sp += 1
+                        if dl <= best:
+                            stack[sp], stack_d[sp] = left, dl
+                            sp += 1
+                    else:
+                        if dl <= best:
+                            stack[sp], stack_d[sp] = left, dl
+                            sp += 1
+                        if dr <= best:
+                            stack[sp], stack_d[sp] = right, dr
+                            sp += 1
+            out_t[i] = bt
+            out_slot[i] = bs
 
 
 @_nb.njit(cache=True)

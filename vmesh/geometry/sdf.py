@@ -30,7 +30,8 @@ Backend, chosen by measurement (``benchmarks/sdf_coarse_vs_fine.py --backends``,
   ``vtkImplicitPolyDataDistance`` is 3–5× slower than igl; fcpw (float32 SIMD BVH,
   optional PyPI package) gained nothing over igl once its results are converted to numpy,
   in single precision.
-* Ray casting (``local_radius``) still uses igl's tree: the BVH has no ray queries.
+* Rays: :meth:`SignedDistance.intersect_lines` casts lines on the same BVH (the mesher's
+  wall nodes); ``local_radius`` still uses igl's tree.
 """
 
 from __future__ import annotations
@@ -291,6 +292,25 @@ class SignedDistance:
             self._wn.init(self.vertices, self.faces)
         return np.asarray(self._wn.winding_number(_as_points(points)))
 
+    def intersect_lines(self, points, directions, reach, side=None) -> tuple[np.ndarray, np.ndarray]:
+        """Move points along lines to the nearest crossing with the surface.
+
+        The surface (the zero set of the distance) is crossed by each line
+        ``points + t * directions`` at several ``t`` or none; the crossing with the smallest
+        ``|t| <= reach`` is taken (an exact ray cast on the tree), on both sides of the
+        point or, with ``side`` (n,) of ±1, only at ``t * side >= 0``.
+
+        Returns
+        -------
+        moved : (n, 3) the crossing points (the input point where none lies within reach)
+        hit : (n,) bool, True where a crossing was found
+        """
+        p = _as_points(points)
+        d = np.ascontiguousarray(np.asarray(directions, np.float64).reshape(-1, 3))
+        t, _ = self._tree.intersect_lines(p, d, reach, side)
+        hit = ~np.isnan(t)
+        return np.where(hit[:, None], p + np.where(hit, t, 0.0)[:, None] * d, p), hit
+
     def surface_normals(self, points) -> np.ndarray:
         """Outward unit (pseudo)normals ``(n, 3)`` of the surface at the closest points."""
         p = _as_points(points)
@@ -417,6 +437,10 @@ class TwoStepSignedDistance:
         """Winding number of the fine surface."""
         return self.fine.winding_number(points)
 
+    def intersect_lines(self, points, directions, reach, side=None) -> tuple[np.ndarray, np.ndarray]:
+        """Nearest crossings of lines with the fine surface (:meth:`SignedDistance.intersect_lines`)."""
+        return self.fine.intersect_lines(points, directions, reach, side)
+
     def surface_normals(self, points) -> np.ndarray:
         """Outward unit normals of the fine surface at the closest points."""
         return self._query(_as_points(points))[3]
@@ -501,7 +525,7 @@ def local_radius(sdf: SignedDistance, points: np.ndarray, normals: np.ndarray, w
     if wall_faces is not None:
         faces = np.ascontiguousarray(sdf.faces[wall_faces])
         normals_of_faces = sdf.face_normals[wall_faces]
-    tree = igl.AABB()  # ray casting: igl's tree (the closest-point BVH has no ray queries)
+    tree = igl.AABB()  # first hit forward along the ray (the BVH's line queries take both directions)
     tree.init(sdf.vertices, faces)
     origin = np.ascontiguousarray(points - 1e-6 * sdf.diagonal * normals)
     hit_face, t, _ = tree.intersect_ray_first(sdf.vertices, faces, origin, np.ascontiguousarray(-normals))

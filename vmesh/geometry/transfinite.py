@@ -44,6 +44,9 @@ FACE_AXES = [(0, 0), (0, 1), (1, 0), (1, 1), (2, 0), (2, 1)]
 #: wall edge nodes follow their ray to the wall only when it is at most this many times
 #: longer than their distance to the wall (otherwise the closest point is used)
 RAY_TRUST = 1.5
+#: rays search the wall up to this many times the node's distance to it (and a radius at most):
+#: a wall much farther along the normal than the closest wall point lies beyond a concavity
+RAY_SEARCH = 32.0
 #: wall-face nodes whose ray finds no wall within a radius are projected only when they are
 #: closer to the wall than this fraction of the radius (otherwise they span an opening)
 OPENING_DEPTH = 0.25
@@ -257,7 +260,7 @@ def requested_counts(blocks: BlockStructure, topo: Topology, ref: Refinement) ->
     return counts
 
 
-def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None, signed_distance=None) -> StructuredMesh:
+def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None, signed_distance=None, intersect_lines=None) -> StructuredMesh:
     """Fill every block with a transfinite lattice of nodes; see the module docstring.
 
     Parameters
@@ -276,7 +279,14 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
         within a radius (a face over the mouth of a vessel without skeleton) stay on their
         patch and are not marked as wall nodes; edge nodes whose ray runs past a concavity
         (much longer than their wall distance) use the closest point.
+    intersect_lines : callable, optional
+        ``intersect_lines(points, directions, reach, side=None) -> (moved, hit)``: the nearest
+        crossing of each line with the wall within ``|t| <= reach``, at ``t * side >= 0`` (e.g.
+        :meth:`~vmesh.geometry.sdf.SignedDistance.intersect_lines`, an exact ray cast). Without
+        it the rays search the zero of ``signed_distance`` (:func:`ray_to_surface`).
     """
+    if signed_distance is not None and intersect_lines is None:
+        intersect_lines = lambda x, d, r, side=None: ray_to_surface(x, d, signed_distance, r, return_hit=True)  # noqa: E731
     tick = progress or (lambda f, m="": None)
     p = int(ref.order)
     V = blocks.vertices.copy()
@@ -353,11 +363,14 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
                 inner_pts = pts[wall, 1:-1]
                 k = inner_pts.shape[1]
                 flat = inner_pts.reshape(-1, 3)
-                moved = ray_to_surface(flat, np.repeat(edge_normal[sel[wall]], k, axis=0), signed_distance, np.repeat(edge_radius[sel[wall]], k))
+                f0 = signed_distance(flat)
+                # the edge normal points out of the vessel: inside nodes move outward, outside ones inward
+                reach = np.minimum(np.repeat(edge_radius[sel[wall]], k), RAY_SEARCH * np.abs(f0))
+                moved, _ = intersect_lines(flat, np.repeat(edge_normal[sel[wall]], k, axis=0), reach, np.where(f0 >= 0, 1, -1))
                 # A ray much longer than the distance to the wall has passed a concave place (the
                 # saddle beside a junction, a vessel mouth) and lands far from where the edge
                 # runs; the closest point is nearer and keeps the edge on its side of the fold.
-                far = np.linalg.norm(moved - flat, axis=1) > RAY_TRUST * np.abs(signed_distance(flat)) + 1e-9
+                far = np.linalg.norm(moved - flat, axis=1) > RAY_TRUST * np.abs(f0) + 1e-9
                 moved[far] = flat[far]
                 pts[wall, 1:-1] = moved.reshape(-1, k, 3)
             pts[wall] = _project_curves(pts[wall], t[wall], project)
@@ -369,6 +382,7 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
     # --- faces (Coons patches) --------------------------------------------------
     face_radius = np.zeros(F)
     face_radius[topo.block_face.ravel()] = np.repeat(blocks.block_radius, 6)
+    face_out = _wall_face_outward(blocks, topo, V)
     tick(0.3, "faces")
     for Ns, Nt in sorted(set(zip(face_Ns.tolist(), face_Nt.tolist()))):
         sel = np.flatnonzero((face_Ns == Ns) & (face_Nt == Nt))
@@ -393,14 +407,18 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
             interior = Pw[:, 1:-1, 1:-1].reshape(-1, 3)
             hit = np.ones(len(interior), bool)
             if signed_distance is not None:
-                normal = _patch_normals(Pw)  # (k, Ns-1, Nt-1, 3), orientation irrelevant
+                normal = _patch_normals(Pw)  # (k, Ns-1, Nt-1, 3)
+                # oriented out of the vessel: inside nodes move outward, outside ones inward
+                flip = np.einsum("ijkl,il->ijk", normal, face_out[sel[wall]]) < 0
+                normal = np.where(flip[..., None], -normal, normal).reshape(-1, 3)
                 reach = np.repeat(face_radius[sel][wall], (Ns - 1) * (Nt - 1))
-                interior, hit = ray_to_surface(interior, normal.reshape(-1, 3), signed_distance, reach, return_hit=True)
+                f0 = signed_distance(interior)
+                interior, hit = intersect_lines(interior, normal, np.minimum(reach, RAY_SEARCH * np.abs(f0)), np.where(f0 >= 0, 1, -1))
                 # no wall along the normal within a radius: the face spans an opening (the mouth
                 # of a vessel without skeleton). The closest wall point is then on the opening's
                 # rim, far to the side, and would fold the layer: keep the patch point instead.
                 # Points already close to the wall are projected as before.
-                hit |= np.abs(signed_distance(interior)) < OPENING_DEPTH * reach
+                hit |= np.abs(f0) < OPENING_DEPTH * reach
             projected = project(interior)
             P[wall, 1:-1, 1:-1] = np.where(hit[:, None], projected, interior).reshape(-1, Ns - 1, Nt - 1, 3)
         X[inner_ids.ravel()] = P[:, 1:-1, 1:-1].reshape(-1, 3)
@@ -651,6 +669,16 @@ def _wall_edge_normals(blocks, topo, V, wall_face) -> np.ndarray:
         e = _row_lookup(topo.edges, np.sort(c[:, [u, v]], 1))
         np.add.at(acc, e, n)
     return acc / np.maximum(np.linalg.norm(acc, axis=1, keepdims=True), 1e-300)
+
+
+def _wall_face_outward(blocks, topo, V) -> np.ndarray:
+    """Direction ``(F, 3)`` from the owning block's centre to each wall face's centre (zero
+    for other faces): which side of a wall face is out of the vessel."""
+    out = np.zeros((len(topo.faces), 3))
+    b, f = np.nonzero(blocks.face_boundary == FACE_WALL)
+    fid = topo.block_face[b, f]
+    out[fid] = V[topo.faces[fid]].mean(axis=1) - V[blocks.hexes[b]].mean(axis=1)
+    return out
 
 
 def _patch_normals(P: np.ndarray) -> np.ndarray:
