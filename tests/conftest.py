@@ -29,6 +29,15 @@ def compiled_kernels():
     sdf.intersect_lines(np.full((300, 3), 0.2), np.random.default_rng(1).normal(size=(300, 3)), 1.0)
     cube = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], float)
     hex8_scaled_jacobian(cube, np.arange(8)[None])
+    # transfinite kernels: a graded cylinder runs every one of them with mesh_blocks' types
+    from cylinder_blocks import cylinder_blocks, project_cylinder
+    from vmesh.geometry.transfinite import Refinement, coons_patch, mesh_blocks, regrade_lines, transfinite_volume
+
+    mesh_blocks(cylinder_blocks(radius=2.0, sections=2), project_cylinder(2.0), Refinement(first_layer=0.05, order=2))
+    lattice = np.random.default_rng(0).random((1, 3, 3, 3, 3))
+    transfinite_volume(lattice)
+    coons_patch(lattice[:, :, :, 0])
+    regrade_lines(lattice, 1, np.ones(1, bool), np.full(1, 0.1), 2, 1, "gauss_lobatto")
 
 
 @pytest.fixture(scope="session")

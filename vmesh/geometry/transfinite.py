@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
@@ -38,6 +39,7 @@ from ..blocks import (
     HEX_EDGES,
     BlockStructure,
 )
+from . import bvh  # noqa: F401  (chooses numba's threading layer before the first parallel kernel)
 
 # local faces in HEX_FACES order: (fixed axis, fixed value); free axes are the other two, ascending
 FACE_AXES = [(0, 0), (0, 1), (1, 0), (1, 1), (2, 0), (2, 1)]
@@ -105,30 +107,14 @@ def reference_points(p: int, kind: str = "gauss_lobatto") -> np.ndarray:
 
 
 def geometric_ratio(first: np.ndarray, length: np.ndarray, n: int) -> np.ndarray:
-    """Ratio q with ``first * (q**n - 1) / (q - 1) = length`` for arrays of edges (bisection).
+    """Ratio q with ``first * (q**n - 1) / (q - 1) = length`` for arrays of edges.
 
     Returns 1 where uniform spacing already gives elements thinner than ``first``.
+    Solved per edge by Newton steps on ``1 + q + ... + q**(n-1)`` (see :func:`_ratio`).
     """
-    first = np.asarray(first, float)
-    length = np.asarray(length, float)
-    target = length / np.maximum(first, 1e-300)
-    lo = np.ones_like(target)
-    hi = np.full_like(target, 2.0)
-    # grow the bracket where needed
-    for _ in range(60):
-        s = (hi**n - 1) / (hi - 1)
-        grow = s < target
-        if not grow.any():
-            break
-        hi = np.where(grow, hi * 2, hi)
-    for _ in range(80):
-        mid = 0.5 * (lo + hi)
-        s = np.where(np.abs(mid - 1) < 1e-12, n, (mid**n - 1) / np.maximum(mid - 1, 1e-300))
-        too_big = s > target
-        hi = np.where(too_big, mid, hi)
-        lo = np.where(too_big, lo, mid)
-    q = 0.5 * (lo + hi)
-    return np.where(target <= n, 1.0, q)
+    first, length = np.broadcast_arrays(np.asarray(first, float), np.asarray(length, float))
+    out = _ratio_kernel(np.ascontiguousarray(first).ravel(), np.ascontiguousarray(length).ravel(), int(n))
+    return out.reshape(first.shape)
 
 
 def element_boundaries(n: int, ratio: np.ndarray | float = 1.0) -> np.ndarray:
@@ -168,7 +154,11 @@ def block_topology(blocks: BlockStructure) -> Topology:
     nb = len(H)
     pairs = H[:, HEX_EDGES]  # (nb, 12, 2)
     key = np.sort(pairs, axis=2).reshape(-1, 2)
-    edges, inv = np.unique(key, axis=0, return_inverse=True)
+    # unique rows through one integer key per row (lexicographic like np.unique(axis=0),
+    # which sorts structured rows an order of magnitude slower)
+    nv = int(H.max()) + 1 if nb else 1
+    ukey, inv = np.unique(key[:, 0] * nv + key[:, 1], return_inverse=True)
+    edges = np.stack([ukey // nv, ukey % nv], axis=1)
     block_edge = inv.reshape(nb, 12)
     # parallel edges of a block share a class: connect edge 4a to 4a+1..4a+3
     src = block_edge[:, [0, 0, 0, 4, 4, 4, 8, 8, 8]].ravel()
@@ -180,15 +170,27 @@ def block_topology(blocks: BlockStructure) -> Topology:
     grids = np.stack([_face_corner_grid(f) for f in range(6)])  # (6, 2, 2) local corners
     corner_ids = H[:, grids.reshape(6, 4)]  # (nb, 6, 4) as (pp, qq) = (0,0),(0,1),(1,0),(1,1)
     fkey = np.sort(corner_ids, axis=2).reshape(-1, 4)
-    fkeys, first, finv = np.unique(fkey, axis=0, return_index=True, return_inverse=True)
+    first, finv = _unique_rows(fkey[:, 0] * nv + fkey[:, 1], fkey[:, 2] * nv + fkey[:, 3])
     block_face = finv.reshape(nb, 6)
     g4 = corner_ids.reshape(-1, 4)[first]  # a representative corner grid per unique face
     faces = canonical_faces(g4)
-    fb = np.full(len(fkeys), FACE_INTERIOR, np.int64)
+    fb = np.full(len(first), FACE_INTERIOR, np.int64)
     bf = blocks.face_boundary.reshape(-1)
     on_boundary = bf != FACE_INTERIOR
     fb[finv.ravel()[on_boundary]] = bf[on_boundary]
     return Topology(edges, block_edge, edge_class, faces, block_face, fb)
+
+
+def _unique_rows(major: np.ndarray, minor: np.ndarray):
+    """First occurrence and inverse of the unique pairs (major, minor), in lexicographic
+    order (as ``np.unique(..., axis=0, return_index=True, return_inverse=True)``)."""
+    order = np.lexsort((minor, major))  # stable: the first of equal rows is their first occurrence
+    a, b = major[order], minor[order]
+    new = np.ones(len(order), bool)
+    new[1:] = (a[1:] != a[:-1]) | (b[1:] != b[:-1])
+    inv = np.empty(len(order), np.int64)
+    inv[order] = np.cumsum(new) - 1
+    return order[new], inv
 
 
 def _face_corner_grid(f: int) -> np.ndarray:
@@ -392,7 +394,8 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
         m = len(sel)
         inner_ids = face_off[sel][:, None] + np.arange((Ns - 1) * (Nt - 1))[None, :]
         grid[:, 1:-1, 1:-1] = inner_ids.reshape(m, Ns - 1, Nt - 1)
-        P = coons_patch(X[grid])  # boundary known; interior filled
+        P = X[grid]  # boundary known; interior filled in place (a fresh array)
+        _coons_kernel(P)
         if ref.first_layer:
             for axis, (c0, c1) in ((1, (0, 1)), (2, (0, 2))):
                 e = _row_lookup(topo.edges, np.sort(fc[sel][:, [c0, c1]], 1))
@@ -400,7 +403,7 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
                 if layer.any():
                     wall_first = blocks.vertex_on_surface[fc[sel][layer, c0]]
                     h1 = ref.first_layer * edge_radius[e[layer]]
-                    P[layer] = regrade_lines(P[layer], axis, wall_first, h1, int(n_edge[e[layer][0]]), p, ref.nodes)
+                    _regrade_inplace(P, axis, layer, wall_first, h1, int(n_edge[e[layer][0]]), p, ref.nodes)
         wall = wall_face[sel]
         if wall.any():
             Pw = P[wall]
@@ -438,38 +441,43 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
         L = _block_lattice_ids(members, key, H, topo, edge_off, N_edge, face_off, face_Ns, face_Nt, vol_off)
         I, J, K = key
         if I > 1 and J > 1 and K > 1:
-            P = transfinite_volume(X[L])
+            m = len(members)
+            layer = np.zeros((m, 3), bool)
+            wall_first = np.zeros((m, 3), bool)
+            h1 = np.zeros((m, 3))
             if ref.first_layer:
-                kinds = blocks.axis_kind[members]
+                layer[:] = blocks.axis_kind[members] == AXIS_LAYER
                 for axis in range(3):
-                    layer = kinds[:, axis] == AXIS_LAYER
-                    if layer.any():
-                        c1 = [1, 3, 4][axis]  # corner next to corner 0 along this axis
-                        wall_first = blocks.vertex_on_surface[H[members[layer], 0]] & ~blocks.vertex_on_surface[H[members[layer], c1]]
-                        h1 = ref.first_layer * blocks.block_radius[members[layer]]
-                        P[layer] = regrade_lines(P[layer], axis + 1, wall_first, h1, key[axis] // p, p, ref.nodes)
-            X[L[:, 1:-1, 1:-1, 1:-1].reshape(-1)] = P[:, 1:-1, 1:-1, 1:-1].reshape(-1, 3)
+                    c1 = [1, 3, 4][axis]  # corner next to corner 0 along this axis
+                    wall_first[:, axis] = blocks.vertex_on_surface[H[members, 0]] & ~blocks.vertex_on_surface[H[members, c1]]
+                    h1[:, axis] = ref.first_layer * blocks.block_radius[members]
+            n3 = np.array([k // p for k in key])
+            layer &= n3[None, :] >= 2  # one element across: nothing to re-space
+            # per axis: which lattice lines along it are interior (before and after the axis)
+            masks = []
+            for axis in range(3):
+                dims = (I + 1, J + 1, K + 1)
+                for part in (dims[:axis], dims[axis + 1 :]):
+                    inner = np.zeros(part, bool)
+                    inner[tuple(slice(1, -1) for _ in part)] = True
+                    masks.append(inner.ravel())
+            _fill_blocks_kernel(X, L, layer, wall_first, h1, n3, reference_points(p, ref.nodes)[:-1].copy(), *masks)
         lattices[key] = (members, L)
     if np.isnan(X).any():
         raise RuntimeError("transfinite meshing left nodes unset (inconsistent block topology)")
 
     # --- elements and boundary faces ------------------------------------------
     tick(0.85, "connectivity")
-    cells, cell_block, bfaces, bids, bcells = [], [], [], [], []
+    cell_block, bfaces, bids, bcells = [], [], [], []
+    n_total = sum(len(members) * int(np.prod([k // p for k in key])) for key, (members, _) in lattices.items())
+    all_cells = np.empty((n_total, (p + 1) ** 3), np.int64)
     n_cells = 0
     for key, (members, L) in lattices.items():
         ni, nj, nk = (k // p for k in key)
-        # element (ei, ej, ek) spans lattice [ei p : ei p + p + 1] etc.
-        ar = np.arange(p + 1)
-        ii = (np.arange(ni)[:, None] * p + ar[None, :])  # (ni, p+1)
-        jj = (np.arange(nj)[:, None] * p + ar[None, :])
-        kk = (np.arange(nk)[:, None] * p + ar[None, :])
-        # tensor order with i fastest: index = i + (p+1) (j + (p+1) k)
-        E6 = L[:, ii[None, None, :, None, None, :], jj[None, :, None, None, :, None], kk[:, None, None, :, None, None]]
-        # E6 axes: (m, ek, ej, ei, kk, jj, ii)
-        c = E6.reshape(len(members), nk * nj * ni, (p + 1) ** 3)
-        elem_index = n_cells + np.arange(len(members) * nk * nj * ni).reshape(len(members), nk, nj, ni)
-        cells.append(c.reshape(-1, (p + 1) ** 3))
+        # element (ei, ej, ek) spans lattice [ei p : ei p + p + 1] etc., nodes in tensor order
+        n_here = len(members) * nk * nj * ni
+        _cells_kernel(L, p, all_cells[n_cells : n_cells + n_here])
+        elem_index = n_cells + np.arange(n_here).reshape(len(members), nk, nj, ni)
         cell_block.append(np.repeat(members, nk * nj * ni))
         # boundary faces of these blocks
         fbound = blocks.face_boundary[members]
@@ -485,7 +493,7 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
     tick(1.0, "done")
     return StructuredMesh(
         points=X,
-        cells=np.concatenate(cells),
+        cells=all_cells,
         order=p,
         cell_block=np.concatenate(cell_block),
         boundary_faces=np.concatenate(bfaces) if bfaces else np.zeros((0, (p + 1) ** 2), np.int64),
@@ -505,28 +513,32 @@ def regrade_lines(P: np.ndarray, axis: int, wall_first: np.ndarray, h1: np.ndarr
     at the block corners; re-spacing every line by arc length keeps it at ``h1`` everywhere.
     Nodes only slide along their lattice lines, and the lattice boundary is left untouched.
     """
-    if n < 2:
-        return P
-    Q = np.moveaxis(P, axis, -2)  # (m, ..., N+1, 3)
-    shape = Q.shape
-    m, k = shape[0], shape[-2]
-    lines = Q.reshape(m, -1, k, 3)
-    flip = ~np.asarray(wall_first, bool)
-    lines = np.where(flip[:, None, None, None], lines[:, :, ::-1], lines)  # wall end first
-    seg = np.linalg.norm(np.diff(lines, axis=2), axis=3)
-    s = np.concatenate([np.zeros(seg.shape[:2] + (1,)), np.cumsum(seg, axis=2)], axis=2)
-    length = s[..., -1]
-    ratio = geometric_ratio(np.repeat(h1[:, None], lines.shape[1], 1).ravel(), length.ravel(), n)
-    target = with_order(element_boundaries(n, ratio), p, kind).reshape(s.shape) * length[..., None]
-    flat = lines.reshape(-1, k, 3)
-    new = _interp_rows(target.reshape(-1, k), s.reshape(-1, k), flat)
-    new = new.reshape(lines.shape)
-    new = np.where(flip[:, None, None, None], new[:, :, ::-1], new)
-    out = np.moveaxis(new.reshape(shape), -2, axis)
-    res = P.copy()
-    inner = tuple([slice(None)] + [slice(None) if d == axis else slice(1, -1) for d in range(1, P.ndim - 1)])
-    res[inner] = out[inner]
+    res = np.array(P, float, order="C", copy=True)
+    _regrade_inplace(res, axis, np.ones(len(res), bool), wall_first, h1, n, p, kind)
     return res
+
+
+def _regrade_inplace(P: np.ndarray, axis: int, selected: np.ndarray, wall_first: np.ndarray, h1: np.ndarray, n: int, p: int, kind: str) -> None:
+    """:func:`regrade_lines` in place on the lattices ``P[selected]`` (C-contiguous ``P``);
+    ``wall_first`` and ``h1`` are given per selected lattice."""
+    if n < 2 or not np.any(selected):
+        return
+    m = P.shape[0]
+    dims = P.shape[1:-1]
+    k = dims[axis - 1]
+    before, after = dims[: axis - 1], dims[axis:]
+    # lines whose other lattice indices are all interior (the boundary is left untouched)
+    inner_before = np.zeros(before, bool)
+    inner_before[tuple(slice(1, -1) for _ in before)] = True
+    inner_after = np.zeros(after, bool)
+    inner_after[tuple(slice(1, -1) for _ in after)] = True
+    sel = np.flatnonzero(selected)
+    wall_first_all = np.zeros(m, bool)
+    wall_first_all[sel] = np.asarray(wall_first, bool)
+    h1_all = np.zeros(m)
+    h1_all[sel] = h1
+    view = P.reshape(m, inner_before.size, k, inner_after.size, 3)  # a view: P is C-contiguous
+    _regrade_kernel(view, sel, inner_before.ravel(), inner_after.ravel(), wall_first_all, h1_all, int(n), reference_points(p, kind)[:-1].copy())
 
 
 def _row_lookup(table: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -762,24 +774,13 @@ def _project_curves(pts: np.ndarray, t: np.ndarray, project, passes: int = 2) ->
 
 def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     """Row-wise ``np.interp``: x (m, j), xp (m, k) ascending per row, fp (m, k) or (m, k, d)."""
-    m, k = xp.shape
-    lo = xp[:, :1]
-    span = np.maximum(xp[:, -1:] - lo, 1e-300)
-    # one sorted array for all rows: row r occupies [3 r, 3 r + 1]
-    offset = 3.0 * np.arange(m)[:, None]
-    flat_xp = ((xp - lo) / span + offset).ravel()
-    flat_x = (np.clip((x - lo) / span, 0.0, 1.0) + offset).ravel()
-    idx = np.searchsorted(flat_xp, flat_x, side="right") - 1
-    row_start = (np.arange(m) * k)[:, None]
-    idx = np.clip(idx.reshape(x.shape) - row_start, 0, k - 2)
-    x0 = np.take_along_axis(xp, idx, 1)
-    x1 = np.take_along_axis(xp, idx + 1, 1)
-    w = np.clip(np.where(x1 > x0, (x - x0) / np.maximum(x1 - x0, 1e-300), 0.0), 0.0, 1.0)
-    if fp.ndim == 3:
-        idx, w = idx[..., None], w[..., None]
-    f0 = np.take_along_axis(fp, idx, 1)
-    f1 = np.take_along_axis(fp, idx + 1, 1)
-    return f0 + w * (f1 - f0)
+    x = np.ascontiguousarray(x, float)
+    xp = np.ascontiguousarray(xp, float)
+    f3 = np.ascontiguousarray(fp, float)
+    if f3.ndim == 2:
+        f3 = f3[:, :, None]
+    out = _interp_rows_kernel(x, xp, f3)
+    return out[:, :, 0] if np.ndim(fp) == 2 else out
 
 
 # ---------------------------------------------------------------------------
@@ -798,22 +799,8 @@ def coons_patch(P: np.ndarray) -> np.ndarray:
     Blending parameters follow the arc-length spacing of opposite edges, so graded
     edge distributions carry into the face.
     """
-    P = P.copy()
-    B, T = P[:, :, 0], P[:, :, -1]  # along s at t = 0, 1
-    Lf, R = P[:, 0, :], P[:, -1, :]  # along t at s = 0, 1
-    sb, st = _edge_params(B), _edge_params(T)  # (m, Ns+1)
-    vl, vr = _edge_params(Lf), _edge_params(R)  # (m, Nt+1)
-    # blending parameters: linear mix of the opposite edges' spacings
-    t_mean = 0.5 * (vl + vr)[:, None, :]
-    s_mean = 0.5 * (sb + st)[:, :, None]
-    u = ((1 - t_mean) * sb[:, :, None] + t_mean * st[:, :, None])[..., None]
-    v = ((1 - s_mean) * vl[:, None, :] + s_mean * vr[:, None, :])[..., None]
-    c00, c10, c01, c11 = P[:, :1, :1], P[:, -1:, :1], P[:, :1, -1:], P[:, -1:, -1:]
-    inner = (
-        (1 - v) * B[:, :, None] + v * T[:, :, None] + (1 - u) * Lf[:, None, :] + u * R[:, None, :]
-        - ((1 - u) * (1 - v) * c00 + u * (1 - v) * c10 + (1 - u) * v * c01 + u * v * c11)
-    )
-    P[:, 1:-1, 1:-1] = inner[:, 1:-1, 1:-1]
+    P = np.array(P, float, order="C", copy=True)
+    _coons_kernel(P)
     return P
 
 
@@ -823,19 +810,273 @@ def transfinite_volume(P: np.ndarray) -> np.ndarray:
     Blending parameters along each axis follow the mean spacing of the block's four
     parallel edges.
     """
-    P = P.copy()
-    # blending parameters from the spacing of the four parallel edges along each axis
-    ui = _edge_params(P[:, :, [0, 0, -1, -1], [0, -1, 0, -1]].transpose(0, 2, 1, 3)).mean(axis=1)  # (m, I+1)
-    vj = _edge_params(P[:, [0, 0, -1, -1], :, [0, -1, 0, -1]].transpose(1, 0, 2, 3)).mean(axis=1)
-    wk = _edge_params(P[:, [0, 0, -1, -1], [0, -1, 0, -1], :]).mean(axis=1)
-    u = ui[:, :, None, None, None]
-    v = vj[:, None, :, None, None]
-    w = wk[:, None, None, :, None]
-    # Boolean sum of the three directional projectors (equal to the full TFI formula for
-    # separable blending functions, with a third of the array operations)
-    W = (1 - u) * P[:, :1] + u * P[:, -1:]
-    W += (1 - v) * (P[:, :, :1] - W[:, :, :1]) + v * (P[:, :, -1:] - W[:, :, -1:])
-    W += (1 - w) * (P[:, :, :, :1] - W[:, :, :, :1]) + w * (P[:, :, :, -1:] - W[:, :, :, -1:])
-    inner = W
-    P[:, 1:-1, 1:-1, 1:-1] = inner[:, 1:-1, 1:-1, 1:-1]
+    P = np.array(P, float, order="C", copy=True)
+    _tfi_kernel(P)
     return P
+
+
+# ---------------------------------------------------------------------------
+# compiled kernels (parallel over lattices or lines)
+# ---------------------------------------------------------------------------
+@nb.njit(cache=True, error_model="numpy")
+def _ratio(first, length, n):
+    """Geometric ratio of one edge (see :func:`geometric_ratio`): Newton steps on the convex
+    ``s(q) = 1 + q + ... + q**(n-1)`` from above the root converge monotonically; the sum
+    form has no cancellation near q = 1, unlike ``(q**n - 1) / (q - 1)``."""
+    target = length / max(first, 1e-300)
+    if not target > n:
+        return 1.0
+    q = 2.0
+    for _ in range(60):  # a bracket top: s(q) >= target
+        s = 1.0
+        for _i in range(n - 1):
+            s = s * q + 1.0
+        if s >= target:
+            break
+        q *= 2.0
+    for _ in range(200):
+        s, ds = 1.0, 0.0
+        for _i in range(n - 1):
+            ds = ds * q + s
+            s = s * q + 1.0
+        step = (s - target) / ds
+        if not step > 1e-16 * q:
+            break
+        q -= step
+    return q
+
+
+@nb.njit(parallel=True, cache=True, error_model="numpy")
+def _ratio_kernel(first, length, n):
+    out = np.empty(len(first))
+    for e in nb.prange(len(first)):
+        out[e] = _ratio(first[e], length[e], n)
+    return out
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def _interp_line(x, xp, fp, out):
+    """``out[i] = interp(x[i], xp, fp)`` for one ascending row (fp: (k, d)), the arithmetic of
+    the former vectorised row-wise interpolation: interval by normalised position, clipped
+    weights, flat extension outside the row."""
+    k = len(xp)
+    lo = xp[0]
+    span = max(xp[k - 1] - lo, 1e-300)
+    j = 0
+    for i in range(len(x)):
+        xn = min(max((x[i] - lo) / span, 0.0), 1.0)
+        # last node at or before x (x is usually ascending: walk from the previous one)
+        while j > 0 and (xp[j] - lo) / span > xn:
+            j -= 1
+        while j + 1 < k and (xp[j + 1] - lo) / span <= xn:
+            j += 1
+        c = min(j, k - 2)
+        x0, x1 = xp[c], xp[c + 1]
+        w = 0.0
+        if x1 > x0:
+            w = min(max((x[i] - x0) / max(x1 - x0, 1e-300), 0.0), 1.0)
+        for d in range(fp.shape[1]):
+            out[i, d] = fp[c, d] + w * (fp[c + 1, d] - fp[c, d])
+
+
+@nb.njit(parallel=True, cache=True, error_model="numpy")
+def _interp_rows_kernel(x, xp, fp):
+    m = x.shape[0]
+    out = np.empty((m, x.shape[1], fp.shape[2]))
+    for r in nb.prange(m):
+        _interp_line(x[r], xp[r], fp[r], out[r])
+    return out
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def _arc_params(P, out):
+    """Normalised arc-length parameters of one polyline (n, 3) into out (n,)."""
+    out[0] = 0.0
+    for i in range(1, P.shape[0]):
+        dx, dy, dz = P[i, 0] - P[i - 1, 0], P[i, 1] - P[i - 1, 1], P[i, 2] - P[i - 1, 2]
+        out[i] = out[i - 1] + np.sqrt(dx * dx + dy * dy + dz * dz)
+    total = max(out[P.shape[0] - 1], 1e-300)
+    for i in range(P.shape[0]):
+        out[i] = out[i] / total
+
+
+@nb.njit(parallel=True, cache=True, error_model="numpy")
+def _coons_kernel(P):
+    """Coons patch of lattices (m, Ns+1, Nt+1, 3) in place (interior only)."""
+    m, ns1, nt1 = P.shape[0], P.shape[1], P.shape[2]
+    Ns, Nt = ns1 - 1, nt1 - 1
+    for f in nb.prange(m):
+        Q = P[f]
+        sb, st = np.empty(ns1), np.empty(ns1)
+        vl, vr = np.empty(nt1), np.empty(nt1)
+        _arc_params(Q[:, 0], sb)
+        _arc_params(Q[:, Nt], st)
+        _arc_params(Q[0, :], vl)
+        _arc_params(Q[Ns, :], vr)
+        for i in range(1, Ns):
+            s_mean = 0.5 * (sb[i] + st[i])
+            for j in range(1, Nt):
+                t_mean = 0.5 * (vl[j] + vr[j])
+                u = (1 - t_mean) * sb[i] + t_mean * st[i]
+                v = (1 - s_mean) * vl[j] + s_mean * vr[j]
+                for d in range(3):
+                    Q[i, j, d] = (
+                        (1 - v) * Q[i, 0, d] + v * Q[i, Nt, d] + (1 - u) * Q[0, j, d] + u * Q[Ns, j, d]
+                        - ((1 - u) * (1 - v) * Q[0, 0, d] + u * (1 - v) * Q[Ns, 0, d] + (1 - u) * v * Q[0, Nt, d] + u * v * Q[Ns, Nt, d])
+                    )
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def _mean_edge_params(e0, e1, e2, e3, tmp, out):
+    """Mean of the normalised arc-length parameters of four parallel edges."""
+    _arc_params(e0, out)
+    _arc_params(e1, tmp)
+    for i in range(len(out)):
+        out[i] = out[i] + tmp[i]
+    _arc_params(e2, tmp)
+    for i in range(len(out)):
+        out[i] = out[i] + tmp[i]
+    _arc_params(e3, tmp)
+    for i in range(len(out)):
+        out[i] = (out[i] + tmp[i]) / 4
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _tfi_one(Q):
+    """Transfinite interpolation of one lattice (I+1, J+1, K+1, 3) in place (interior only):
+    the Boolean sum of the three directional projectors W1 (along i), W2 (adds j), W3 (adds k)."""
+    I, J, K = Q.shape[0] - 1, Q.shape[1] - 1, Q.shape[2] - 1
+    u, v, w = np.empty(I + 1), np.empty(J + 1), np.empty(K + 1)
+    _mean_edge_params(Q[:, 0, 0], Q[:, 0, K], Q[:, J, 0], Q[:, J, K], np.empty(I + 1), u)
+    _mean_edge_params(Q[0, :, 0], Q[0, :, K], Q[I, :, 0], Q[I, :, K], np.empty(J + 1), v)
+    _mean_edge_params(Q[0, 0, :], Q[0, J, :], Q[I, 0, :], Q[I, J, :], np.empty(K + 1), w)
+    # W2 on the faces k = 0 and k = K (needed by W3), W1 on j = 0 and j = J (needed by W2)
+    W2lo = np.empty((I + 1, J + 1, 3))
+    W2hi = np.empty((I + 1, J + 1, 3))
+    for i in range(1, I):
+        for kk in (0, K):
+            for d in range(3):
+                a0 = (1 - u[i]) * Q[0, 0, kk, d] + u[i] * Q[I, 0, kk, d]
+                aJ = (1 - u[i]) * Q[0, J, kk, d] + u[i] * Q[I, J, kk, d]
+                for j in range(1, J):
+                    W1 = (1 - u[i]) * Q[0, j, kk, d] + u[i] * Q[I, j, kk, d]
+                    W2 = W1 + ((1 - v[j]) * (Q[i, 0, kk, d] - a0) + v[j] * (Q[i, J, kk, d] - aJ))
+                    if kk == 0:
+                        W2lo[i, j, d] = W2
+                    else:
+                        W2hi[i, j, d] = W2
+    for i in range(1, I):
+        for kk in range(1, K):
+            for d in range(3):
+                a0 = (1 - u[i]) * Q[0, 0, kk, d] + u[i] * Q[I, 0, kk, d]
+                aJ = (1 - u[i]) * Q[0, J, kk, d] + u[i] * Q[I, J, kk, d]
+                for j in range(1, J):
+                    W1 = (1 - u[i]) * Q[0, j, kk, d] + u[i] * Q[I, j, kk, d]
+                    W2 = W1 + ((1 - v[j]) * (Q[i, 0, kk, d] - a0) + v[j] * (Q[i, J, kk, d] - aJ))
+                    Q[i, j, kk, d] = W2 + ((1 - w[kk]) * (Q[i, j, 0, d] - W2lo[i, j, d]) + w[kk] * (Q[i, j, K, d] - W2hi[i, j, d]))
+
+
+@nb.njit(parallel=True, cache=True, error_model="numpy")
+def _tfi_kernel(P):
+    """Transfinite interpolation of lattices (m, I+1, J+1, K+1, 3) in place."""
+    for b in nb.prange(P.shape[0]):
+        _tfi_one(P[b])
+
+
+@nb.njit(parallel=True, cache=True, error_model="numpy")
+def _regrade_kernel(P, lattices, inner_before, inner_after, wall_first, h1, n, ref):
+    """:func:`_regrade_one` on the lattices ``P[lattices]`` (P: (m, A, k, C, 3))."""
+    for q in nb.prange(len(lattices)):
+        b = lattices[q]
+        _regrade_one(P[b], inner_before, inner_after, wall_first[b], h1[b], n, ref)
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _regrade_one(Q, inner_before, inner_after, wall_first, h1, n, ref):
+    """Re-space the lines ``Q[a, :, c]`` (Q: (A, k, C, 3)) of one lattice whose indices a and
+    c are interior: geometric element boundaries with first element ``h1`` from the wall
+    end, high-order nodes at ``ref`` inside each element, placed by arc length."""
+    A, k, C = Q.shape[0], Q.shape[1], Q.shape[2]
+    p = len(ref)
+    line = np.empty((k, 3))
+    s = np.empty(k)
+    t = np.empty(n + 1)
+    target = np.empty(k)
+    new = np.empty((k, 3))
+    for a in range(A):
+        if not inner_before[a]:
+            continue
+        for c in range(C):
+            if not inner_after[c]:
+                continue
+            for i in range(k):  # wall end first
+                src = i if wall_first else k - 1 - i
+                for d in range(3):
+                    line[i, d] = Q[a, src, c, d]
+            s[0] = 0.0
+            for i in range(1, k):
+                dx, dy, dz = line[i, 0] - line[i - 1, 0], line[i, 1] - line[i - 1, 1], line[i, 2] - line[i - 1, 2]
+                s[i] = s[i - 1] + np.sqrt(dx * dx + dy * dy + dz * dz)
+            length = s[k - 1]
+            ratio = _ratio(h1, length, n)
+            t[0] = 0.0
+            for e in range(n):
+                t[e + 1] = t[e] + ratio ** float(e)
+            total = t[n]
+            for e in range(n + 1):
+                t[e] = t[e] / total
+            for e in range(n):
+                for r in range(p):
+                    target[e * p + r] = (t[e] + (t[e + 1] - t[e]) * ref[r]) * length
+            target[n * p] = t[n] * length
+            _interp_line(target, s, line, new)
+            for i in range(k):
+                dst = i if wall_first else k - 1 - i
+                for d in range(3):
+                    Q[a, dst, c, d] = new[i, d]
+
+
+@nb.njit(parallel=True, cache=True, error_model="numpy")
+def _fill_blocks_kernel(X, L, layer, wall_first, h1, n3, ref, before0, after0, before1, after1, before2, after2):
+    """Fill the block lattices ``L`` (m, I+1, J+1, K+1) of node ids in the node array X in place:
+    gather each lattice, transfinite interpolation, re-spacing of the boundary-layer lines
+    along the axes flagged in ``layer`` (m, 3), scatter of the interior nodes."""
+    m, I1, J1, K1 = L.shape
+    for b in nb.prange(m):
+        Q = np.empty((I1, J1, K1, 3))
+        for i in range(I1):
+            for j in range(J1):
+                for k in range(K1):
+                    for d in range(3):
+                        Q[i, j, k, d] = X[L[b, i, j, k], d]
+        _tfi_one(Q)
+        if layer[b, 0]:
+            _regrade_one(Q.reshape((1, I1, J1 * K1, 3)), before0, after0, wall_first[b, 0], h1[b, 0], n3[0], ref)
+        if layer[b, 1]:
+            _regrade_one(Q.reshape((I1, J1, K1, 3)), before1, after1, wall_first[b, 1], h1[b, 1], n3[1], ref)
+        if layer[b, 2]:
+            _regrade_one(Q.reshape((I1 * J1, K1, 1, 3)), before2, after2, wall_first[b, 2], h1[b, 2], n3[2], ref)
+        for i in range(1, I1 - 1):
+            for j in range(1, J1 - 1):
+                for k in range(1, K1 - 1):
+                    for d in range(3):
+                        X[L[b, i, j, k], d] = Q[i, j, k, d]
+
+
+@nb.njit(parallel=True, cache=True, error_model="numpy")
+def _cells_kernel(L, p, out):
+    """Element node ids of block lattices L (m, I+1, J+1, K+1) into out (m nk nj ni, (p+1)^3):
+    elements ordered (block, ek, ej, ei), nodes in tensor order (i fastest)."""
+    m = L.shape[0]
+    ni, nj, nk = (L.shape[1] - 1) // p, (L.shape[2] - 1) // p, (L.shape[3] - 1) // p
+    for b in nb.prange(m):
+        for ek in range(nk):
+            for ej in range(nj):
+                for ei in range(ni):
+                    e = ((b * nk + ek) * nj + ej) * ni + ei
+                    c = 0
+                    for kk in range(p + 1):
+                        for jj in range(p + 1):
+                            for ii in range(p + 1):
+                                out[e, c] = L[b, ei * p + ii, ej * p + jj, ek * p + kk]
+                                c += 1
