@@ -228,6 +228,19 @@ def test_decimation_reaches_target_within_one_percent(real_path, backend):
         assert 0 < dev < 0.01
 
 
+def test_fast_decimation_keeps_the_surface_manifold(real_path):
+    """fast-simplification leaves a non-manifold edge on the capped coarctation at 11,170
+    faces (11,170-12,000 all do); decimate falls back to pymeshlab, so the coarse signed
+    distance keeps its exact pseudonormal sign instead of winding numbers."""
+    surface = read_surface(real_path("coarctation_bpm120_open.stl"))
+    ctx = FilterChain(["repair_surface", "cap_open_ends"]).run(surface=surface)
+    with pytest.warns(RuntimeWarning, match="non-manifold"):
+        v, f = pre.decimate(ctx.surface.vertices, ctx.surface.faces, 11170, backend="fast_simplification")
+    assert abs(len(f) - 11170) <= 0.01 * 11170
+    assert pre._is_manifold(f)
+    assert SignedDistance(v, f).sign_method == "pseudonormal"
+
+
 def test_decimation_default_and_parameter_errors():
     v, f = icosphere(1.0, 4)
     ctx = FilterChain(["decimate_surface"]).run(surface=SurfaceMesh(v, f))

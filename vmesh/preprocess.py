@@ -720,12 +720,31 @@ def decimate(
     if backend == "fast_simplification":
         import fast_simplification
 
-        v, f2 = fast_simplification.simplify(
-            np.asarray(vertices, np.float64), f.astype(np.int32), target_count=target, agg=aggressiveness, preserve_border=preserve_boundary
-        )
-        v, f2, _ = remove_unreferenced_vertices(np.asarray(v, np.float64), np.asarray(f2, np.int64))
-        return v, f2
+        # fast-simplification does not preserve topology: now and then a collapse leaves a
+        # non-manifold edge, which costs the signed distance its exact pseudonormal sign.
+        # A slightly different target collapses other edges; pymeshlab is the last resort.
+        keep_manifold = _is_manifold(f)
+        for attempt in range(4):
+            count = min(len(f), int(round(target * (1.0 + 0.003 * attempt))))  # stays within 1 %
+            v, f2 = fast_simplification.simplify(
+                np.asarray(vertices, np.float64), f.astype(np.int32), target_count=count, agg=aggressiveness, preserve_border=preserve_boundary
+            )
+            v, f2, _ = remove_unreferenced_vertices(np.asarray(v, np.float64), np.asarray(f2, np.int64))
+            if not keep_manifold or _is_manifold(f2):
+                return v, f2
+        import warnings
+
+        warnings.warn(f"fast-simplification leaves non-manifold edges at {target} faces: decimated with pymeshlab instead", RuntimeWarning, stacklevel=2)
+        return decimate(vertices, f, target, "pymeshlab", preserve_boundary, preserve_topology, preserve_normal, quality_threshold, aggressiveness)
     raise ValueError(f"unknown decimation backend {backend!r}")
+
+
+def _is_manifold(faces: np.ndarray) -> bool:
+    """True when no edge has more than two faces and the faces are consistently oriented."""
+    from .geometry.sdf import edge_table
+
+    _, faces_per_edge, oriented = edge_table(np.asarray(faces, np.int64))
+    return bool(oriented) and not bool(np.any(faces_per_edge > 2))
 
 
 def vertex_radii(vertices: np.ndarray, faces: np.ndarray, wall_faces: np.ndarray | None = None) -> np.ndarray:

@@ -24,13 +24,14 @@ from ..registry import Parameter, register_filter
         Parameter("project_to", "str", "fine", "Surface the wall nodes are projected onto: the fine (input) or the coarse surface.", choices=("fine", "coarse")),
         Parameter("untangle", "bool", True, "Move the nodes around elements of low scaled Jacobian (folds at junction crotches) to make them valid: wall nodes slide on the wall, cap nodes in the cap plane."),
         Parameter("untangle_below", "float", 0.3, "Elements whose scaled Jacobian (of their sub-hexahedra for p > 1) is below this are optimised, with two rings of neighbours.", min=0.0, max=0.9),
+        Parameter("untangle_restart_below", "float", 0.2, "When untangling leaves an element below this, untangle once more from its result (fresh targets) and keep the better; 0 = never.", min=0.0, max=0.9),
     ],
     reads=("blocks", "surface"),
     optional_reads=("coarse_surface", "caps", "skeleton"),
     writes=("mesh",),
     category="meshing",
 )
-def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_layer, element_length, grading, first_layer, growth, order, node_distribution, project_to, untangle, untangle_below):
+def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_layer, element_length, grading, first_layer, growth, order, node_distribution, project_to, untangle, untangle_below, untangle_restart_below):
     """Edge nodes are projected onto the wall and re-spaced by arc length; Coons patches fill
     block faces (wall faces projected again) and transfinite interpolation fills the blocks.
     The boundary layer is resolved by grading, never by extra element layers: the element
@@ -64,7 +65,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
     exact = getattr(sdf, "fine", sdf)
     sm = mesh_blocks(blocks, projector, ref, progress=ctx.tick, signed_distance=exact.distance, intersect_lines=getattr(exact, "intersect_lines", None))
     if untangle:
-        _untangle(ctx, sm, projector, sdf, untangle_below)
+        _untangle(ctx, sm, projector, sdf, untangle_below, untangle_restart_below)
     b = sm.cell_block
     mesh = HexMesh(
         points=sm.points,
@@ -90,7 +91,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
     ctx.report.sections["order"] = order
 
 
-def _untangle(ctx, sm, projector, sdf, below):
+def _untangle(ctx, sm, projector, sdf, below, restart_below):
     """Optimise the nodes around low-quality elements in place (see :mod:`vmesh.geometry.untangle`)."""
     from ..geometry.untangle import untangle
 
@@ -112,7 +113,7 @@ def _untangle(ctx, sm, projector, sdf, below):
     ctx.tick(0.95, "untangling")
     X, info = untangle(
         sm.points, sm.cells, p, wall=wall, wall_normals=sdf.gradient, project=projector, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=below,
-        boundary=boundary,
+        boundary=boundary, restart_below=restart_below or None,
     )
     sm.points[:] = X
     if info["rounds"]:

@@ -7,15 +7,18 @@ Every block is filled with a structured lattice of nodes:
    the largest count its members ask for. Nodes are distributed along each edge
    (uniform, or geometric towards the wall in the boundary layer), mesh order ``p``
    adds Gauss-Lobatto or equispaced nodes inside each element, and edges on the wall
-   are projected onto the surface and re-spaced by arc length.
+   are moved onto the surface (along the wall normal: an exact line cast on the surface's
+   BVH, :meth:`~vmesh.geometry.sdf.SignedDistance.intersect_lines`), projected and
+   re-spaced by arc length.
 2. **Faces.** Coons patches from the four edges of each block face; faces on the wall
-   are projected again.
+   are moved onto it along their normals and projected again.
 3. **Blocks.** Transfinite interpolation from the six faces fills each block.
 
 Nodes on shared corners, edges and faces are numbered once through the block
 topology (a canonical orientation per edge and face), so the mesh is conforming by
 construction, not by merging nearby points. All work is vectorised over groups of
-edges, faces and blocks of the same size.
+edges, faces and blocks of the same size; the maps, the boundary-layer re-spacing and the
+connectivity are compiled kernels (numba) running in parallel over lattices.
 """
 
 from __future__ import annotations

@@ -272,6 +272,7 @@ def untangle(
     iterations: int = 200,
     rounds: int = 5,
     boundary: np.ndarray | None = None,
+    restart_below: float | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Move the nodes around elements of low scaled Jacobian to make them valid.
 
@@ -299,6 +300,11 @@ def untangle(
     boundary : (n,) bool, optional
         Nodes on the mesh boundary (found from the cells when not given); those that are
         neither wall nor cap nodes stay fixed.
+    restart_below : float, optional
+        When the result still has an element below this, untangle once more from it, with
+        targets taken from the improved mesh, and keep the better of the two. The
+        functional is not convex: which local optimum a fold ends in depends on small
+        differences of the start, and a restart leaves a poor one.
 
     Returns
     -------
@@ -307,6 +313,20 @@ def untangle(
     info : dict
         ``moved`` nodes, ``before``/``after`` minimum sub-element scaled Jacobian, rounds.
     """
+    kw = dict(wall=wall, wall_normals=wall_normals, project=project, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=threshold, rings=rings, iterations=iterations, rounds=rounds, boundary=boundary)
+    X, info = _untangle_pass(points, cells, order, **kw)
+    if restart_below is not None and info["rounds"] and info["after"] < restart_below:
+        X2, info2 = _untangle_pass(X, cells, order, **kw)
+        info["restart"] = {"after": info2["after"], "moved": info2["moved"], "rounds": info2["rounds"]}
+        if info2["after"] > info["after"]:
+            moved = info["moved"]
+            X, info = X2, {**info2, "before": info["before"], "rounds": info["rounds"] + info2["rounds"], "restart": info["restart"]}
+            info["moved"] = max(moved, info2["moved"])
+    return X, info
+
+
+def _untangle_pass(points, cells, order, *, wall, wall_normals, project, cap_normals, cap_nodes, threshold, rings, iterations, rounds, boundary):
+    """One run of :func:`untangle` (its rounds) from ``points``."""
     X = np.array(points, float, copy=True)
     n = len(X)
     sub, _parent = sub_hexahedra(cells, order)
