@@ -957,26 +957,28 @@ def _tfi_one(Q):
     W2lo = np.empty((I + 1, J + 1, 3))
     W2hi = np.empty((I + 1, J + 1, 3))
     for i in range(1, I):
-        for kk in (0, K):
-            for d in range(3):
-                a0 = (1 - u[i]) * Q[0, 0, kk, d] + u[i] * Q[I, 0, kk, d]
-                aJ = (1 - u[i]) * Q[0, J, kk, d] + u[i] * Q[I, J, kk, d]
-                for j in range(1, J):
-                    W1 = (1 - u[i]) * Q[0, j, kk, d] + u[i] * Q[I, j, kk, d]
-                    W2 = W1 + ((1 - v[j]) * (Q[i, 0, kk, d] - a0) + v[j] * (Q[i, J, kk, d] - aJ))
-                    if kk == 0:
-                        W2lo[i, j, d] = W2
-                    else:
-                        W2hi[i, j, d] = W2
+        for d in range(3):
+            _w2_row(Q, u, v, i, 0, d, W2lo[i, :, d])
+            _w2_row(Q, u, v, i, K, d, W2hi[i, :, d])
+    row = np.empty(J + 1)
     for i in range(1, I):
         for kk in range(1, K):
             for d in range(3):
-                a0 = (1 - u[i]) * Q[0, 0, kk, d] + u[i] * Q[I, 0, kk, d]
-                aJ = (1 - u[i]) * Q[0, J, kk, d] + u[i] * Q[I, J, kk, d]
+                _w2_row(Q, u, v, i, kk, d, row)
                 for j in range(1, J):
-                    W1 = (1 - u[i]) * Q[0, j, kk, d] + u[i] * Q[I, j, kk, d]
-                    W2 = W1 + ((1 - v[j]) * (Q[i, 0, kk, d] - a0) + v[j] * (Q[i, J, kk, d] - aJ))
-                    Q[i, j, kk, d] = W2 + ((1 - w[kk]) * (Q[i, j, 0, d] - W2lo[i, j, d]) + w[kk] * (Q[i, j, K, d] - W2hi[i, j, d]))
+                    Q[i, j, kk, d] = row[j] + ((1 - w[kk]) * (Q[i, j, 0, d] - W2lo[i, j, d]) + w[kk] * (Q[i, j, K, d] - W2hi[i, j, d]))
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def _w2_row(Q, u, v, i, kk, d, out):
+    """``out[j]`` = W2 (the projectors along i and j) at lattice ``(i, j, kk)``, coordinate d,
+    for the interior j."""
+    I, J = Q.shape[0] - 1, Q.shape[1] - 1
+    a0 = (1 - u[i]) * Q[0, 0, kk, d] + u[i] * Q[I, 0, kk, d]
+    aJ = (1 - u[i]) * Q[0, J, kk, d] + u[i] * Q[I, J, kk, d]
+    for j in range(1, J):
+        W1 = (1 - u[i]) * Q[0, j, kk, d] + u[i] * Q[I, j, kk, d]
+        out[j] = W1 + ((1 - v[j]) * (Q[i, 0, kk, d] - a0) + v[j] * (Q[i, J, kk, d] - aJ))
 
 
 @nb.njit(parallel=True, cache=True, error_model="numpy")
