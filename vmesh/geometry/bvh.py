@@ -21,9 +21,10 @@ closest-point-on-triangle test), which is what the pseudonormal sign test needs.
 
 from __future__ import annotations
 
-import numpy as np
-
+import contextlib
 import os
+
+import numpy as np
 
 try:  # numba is a hard dependency; the import guard only makes the error readable
     import numba as _nb
@@ -172,20 +173,9 @@ class TriangleBVH:
         if sort and n > 4 * _BLOCK:
             order = morton_order(p)
             p = np.ascontiguousarray(p[order])
-        # dynamic chunks of blocks: threads that get slow regions (deep points) or lose
-        # their core to another process do not hold the others up
-        previous = _nb.get_parallel_chunksize()
-        _nb.set_parallel_chunksize(8)
-        try:
+        with _dynamic_chunks():
             _closest_kernel(p, self._lo, self._hi, self._first_leaf, self.leaf_size, self._a, self._ab, self._ac, sq, slot, closest, feature, _BLOCK)
-        finally:
-            _nb.set_parallel_chunksize(previous)
-        face = self.order[slot]
-        if order is not None:
-            out_sq, out_face, out_c, out_feat = np.empty(n), np.empty(n, np.int64), np.empty((n, 3)), np.empty(n, np.int8)
-            out_sq[order], out_face[order], out_c[order], out_feat[order] = sq, face, closest, feature
-            return out_sq, out_face, out_c, out_feat
-        return sq, face, closest, feature
+        return _in_input_order(order, sq, self.order[slot], closest, feature)
 
     def intersect_lines(self, origins, directions, reach, side=None, sort: bool = True):
         """Nearest crossing of lines ``origins + t * directions`` with the triangles.
@@ -222,18 +212,34 @@ class TriangleBVH:
         if sort and n > 4 * _BLOCK:
             order = morton_order(o)
             o, d, r, sd = (np.ascontiguousarray(x[order]) for x in (o, d, r, sd))
-        previous = _nb.get_parallel_chunksize()
-        _nb.set_parallel_chunksize(8)
-        try:
+        with _dynamic_chunks():
             _line_kernel(o, d, r, sd, self._lo, self._hi, self._first_leaf, self.leaf_size, self._a, self._ab, self._ac, t, slot, _BLOCK)
-        finally:
-            _nb.set_parallel_chunksize(previous)
-        face = np.where(slot >= 0, self.order[np.maximum(slot, 0)], -1)
-        if order is not None:
-            out_t, out_face = np.empty(n), np.empty(n, np.int64)
-            out_t[order], out_face[order] = t, face
-            return out_t, out_face
-        return t, face
+        return _in_input_order(order, t, np.where(slot >= 0, self.order[np.maximum(slot, 0)], -1))
+
+
+@contextlib.contextmanager
+def _dynamic_chunks(blocks: int = 8):
+    """Hand the parallel kernels' blocks out a few at a time: threads that get slow regions
+    (deep points) or lose their core to another process do not hold the others up."""
+    previous = _nb.get_parallel_chunksize()
+    _nb.set_parallel_chunksize(blocks)
+    try:
+        yield
+    finally:
+        _nb.set_parallel_chunksize(previous)
+
+
+def _in_input_order(order, *arrays):
+    """Results computed for the points ``points[order]``, put back in input order
+    (returned as they are when ``order`` is None)."""
+    if order is None:
+        return arrays
+    out = []
+    for a in arrays:
+        b = np.empty_like(a)
+        b[order] = a
+        out.append(b)
+    return tuple(out)
 
 
 @_nb.njit(cache=True)

@@ -789,13 +789,6 @@ def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------------------
 # transfinite interpolation kernels
 # ---------------------------------------------------------------------------
-def _edge_params(curve: np.ndarray) -> np.ndarray:
-    """Normalised arc-length parameters along curves (..., n, 3) -> (..., n)."""
-    seg = np.linalg.norm(np.diff(curve, axis=-2), axis=-1)
-    s = np.concatenate([np.zeros(seg.shape[:-1] + (1,)), np.cumsum(seg, axis=-1)], axis=-1)
-    return s / np.maximum(s[..., -1:], 1e-300)
-
-
 def coons_patch(P: np.ndarray) -> np.ndarray:
     """Fill the interior of lattices (m, Ns+1, Nt+1, 3) from their boundary (Coons patch).
 
@@ -892,12 +885,18 @@ def _interp_rows_kernel(x, xp, fp):
 
 
 @nb.njit(cache=True, error_model="numpy", inline="always")
-def _arc_params(P, out):
-    """Normalised arc-length parameters of one polyline (n, 3) into out (n,)."""
+def _arc_lengths(P, out):
+    """Arc length from the first node at every node of one polyline (n, 3) into out (n,)."""
     out[0] = 0.0
     for i in range(1, P.shape[0]):
         dx, dy, dz = P[i, 0] - P[i - 1, 0], P[i, 1] - P[i - 1, 1], P[i, 2] - P[i - 1, 2]
         out[i] = out[i - 1] + np.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@nb.njit(cache=True, error_model="numpy", inline="always")
+def _arc_params(P, out):
+    """Normalised arc-length parameters of one polyline (n, 3) into out (n,)."""
+    _arc_lengths(P, out)
     total = max(out[P.shape[0] - 1], 1e-300)
     for i in range(P.shape[0]):
         out[i] = out[i] / total
@@ -1018,10 +1017,7 @@ def _regrade_one(Q, inner_before, inner_after, wall_first, h1, n, ref):
                 src = i if wall_first else k - 1 - i
                 for d in range(3):
                     line[i, d] = Q[a, src, c, d]
-            s[0] = 0.0
-            for i in range(1, k):
-                dx, dy, dz = line[i, 0] - line[i - 1, 0], line[i, 1] - line[i - 1, 1], line[i, 2] - line[i - 1, 2]
-                s[i] = s[i - 1] + np.sqrt(dx * dx + dy * dy + dz * dz)
+            _arc_lengths(line, s)
             length = s[k - 1]
             ratio = _ratio(h1, length, n)
             t[0] = 0.0

@@ -314,19 +314,19 @@ def untangle(
         ``moved`` nodes, ``before``/``after`` minimum sub-element scaled Jacobian, rounds.
     """
     kw = dict(wall=wall, wall_normals=wall_normals, project=project, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=threshold, rings=rings, iterations=iterations, rounds=rounds, boundary=boundary)
-    X, info = _untangle_pass(points, cells, order, **kw)
+    X, info, moved = _untangle_pass(points, cells, order, **kw)
     if restart_below is not None and info["rounds"] and info["after"] < restart_below:
-        X2, info2 = _untangle_pass(X, cells, order, **kw)
+        X2, info2, moved2 = _untangle_pass(X, cells, order, **kw)
         info["restart"] = {"after": info2["after"], "moved": info2["moved"], "rounds": info2["rounds"]}
         if info2["after"] > info["after"]:
-            moved = info["moved"]
-            X, info = X2, {**info2, "before": info["before"], "rounds": info["rounds"] + info2["rounds"], "restart": info["restart"]}
-            info["moved"] = max(moved, info2["moved"])
+            X = X2
+            info = {**info2, "before": info["before"], "moved": int((moved | moved2).sum()), "rounds": info["rounds"] + info2["rounds"], "restart": info["restart"]}
     return X, info
 
 
 def _untangle_pass(points, cells, order, *, wall, wall_normals, project, cap_normals, cap_nodes, threshold, rings, iterations, rounds, boundary):
-    """One run of :func:`untangle` (its rounds) from ``points``."""
+    """One run of :func:`untangle` (its rounds) from ``points``: new points, info and the
+    mask of the nodes it moved."""
     X = np.array(points, float, copy=True)
     n = len(X)
     sub, _parent = sub_hexahedra(cells, order)
@@ -336,7 +336,7 @@ def _untangle_pass(points, cells, order, *, wall, wall_normals, project, cap_nor
     info = {"before": float(q.min()) if len(q) else 1.0, "moved": 0, "rounds": 0}
     if not len(q) or q.min() >= threshold:
         info["after"] = info["before"]
-        return X, info  # nothing to do: skip the set-up below, which costs on large meshes
+        return X, info, np.zeros(n, bool)  # nothing to do: skip the set-up below, which costs on large meshes
     # nodes on the mesh boundary that are neither wall nor cap nodes never move (without a
     # fixed boundary the regularised functional could shrink the region towards a point)
     if boundary is None:
@@ -383,4 +383,4 @@ def _untangle_pass(points, cells, order, *, wall, wall_normals, project, cap_nor
         moved |= best[2]
     info["after"] = float(q.min()) if len(q) else 1.0
     info["moved"] = int(moved.sum())
-    return X, info
+    return X, info, moved
