@@ -152,3 +152,48 @@ def test_tree_boxes_contain_their_triangles():
             if node == 0:
                 break
             node = (node - 1) // 2
+
+
+def test_node_slabs_enclose_their_triangles_and_bound_the_distance():
+    """Every node's slab (mean-normal planes) holds its triangles' corners, so the node bound
+    (the larger of box and slab distance) never exceeds the distance to any of its triangles."""
+    path = synthetic_case("y_bifurcation")[0]
+    if not path.exists():
+        pytest.skip("synthetic case y_bifurcation not generated")
+    s = read_surface(path)
+    bvh = TriangleBVH(s.vertices, s.faces)
+    t = s.vertices[s.faces[bvh.order]]  # (m, 3, 3) in slot order
+    nodes = bvh._nodes
+    normal, smin, smax = nodes[:, 6:9], nodes[:, 9], nodes[:, 10]
+    finite = np.isfinite(smin)
+    n_leaves = -(-len(t) // bvh.leaf_size)
+    assert finite[bvh._first_leaf : bvh._first_leaf + n_leaves].mean() > 0.9  # wall patches: nearly all get a slab
+    assert np.allclose(np.linalg.norm(normal[finite], axis=1), 1.0)
+    rng = np.random.default_rng(5)
+    lo, hi = s.vertices.min(axis=0), s.vertices.max(axis=0)
+    p = lo + rng.random((64, 3)) * (hi - lo)
+    m, size, depth = len(t), bvh.leaf_size, bvh.depth
+    for level in range(depth + 1):
+        span = (1 << (depth - level)) * size
+        for k in range(0, 1 << level, max(1, (1 << level) // 16)):  # a sample of each level
+            node = (1 << level) - 1 + k
+            corners = t[k * span : min((k + 1) * span, m)].reshape(-1, 3)
+            if len(corners) == 0 or not finite[node]:
+                continue
+            off = corners @ normal[node]
+            assert off.min() >= smin[node] - 1e-12 and off.max() <= smax[node] + 1e-12
+            # the slab gap is a lower bound of every corner's (hence every point's) distance
+            s_p = p @ normal[node]
+            gap = np.maximum(np.maximum(smin[node] - s_p, s_p - smax[node]), 0.0)
+            tri_sq = TriangleBVH(corners, np.arange(len(corners)).reshape(-1, 3)).closest(p)[0]
+            assert np.all(gap**2 <= tri_sq + 1e-12)
+
+
+def test_radix_morton_order_matches_argsort_of_the_codes():
+    from vmesh.geometry.bvh import morton_codes
+
+    rng = np.random.default_rng(6)
+    p = rng.normal(size=(50_000, 3))
+    p[:100] = p[0]  # ties keep their input order (stable)
+    codes = morton_codes(p, bits=10)
+    assert np.array_equal(morton_order(p, bits=10), np.argsort(codes, kind="stable"))

@@ -10,9 +10,19 @@ Structure: an implicit complete binary tree in heap order (children of node ``i`
 order comes from median splits: each node's range is split where the layout puts its
 children's boundary, across the longest axis of its centroids (quickselect, O(m) per
 level); the boxes are then one vectorised reduction per level. (A Morton-curve order of
-the triangles, the linear-BVH shortcut, gave looser boxes and 1.3–1.8× slower queries.) Queries are sorted along the same kind of curve and processed in blocks of
-consecutive points; each point starts from the previous point's closest triangle, whose
-distance prunes most of the tree before the descent starts (nearer child first).
+the triangles, the linear-BVH shortcut, gave looser boxes and 1.3–1.8× slower queries.)
+
+Each node is bounded by its box *and* by a slab: the planes normal to its triangles' mean
+normal that enclose them. A vessel wall patch is thin along its normal (its sag, about
+s²/8R for a patch of size s on a vessel of radius R) while its axis-aligned box is as
+thick as the patch is wide wherever the wall runs obliquely. The larger of the two lower
+bounds prunes the ring of nearly equidistant wall that a point near the centreline must
+otherwise visit: 1.4–1.8× faster closest-point queries on real vessels.
+
+Queries are sorted along a Morton curve (a two-pass radix sort) and processed in blocks
+of consecutive points; each point starts from the previous point's closest triangle,
+whose distance prunes most of the tree before the descent starts (nearer child first).
+Results are written straight to the input positions.
 
 Besides the closest point, each query returns the *feature* holding it (face interior,
 one of the three edges or one of the three corners: the Voronoi region of Ericson's
@@ -79,10 +89,83 @@ def _morton_kernel(q):
 
 
 def morton_order(points: np.ndarray, bits: int = 16) -> np.ndarray:
-    """Permutation ``(n,) int64`` sorting ``points`` along a Z-order (Morton) curve."""
-    if len(points) == 0:
+    """Permutation ``(n,) int64`` sorting ``points`` along a Z-order (Morton) curve.
+
+    With ``bits <= 10`` (codes of at most 30 bits, 1024 cells per axis: plenty for query
+    locality) the codes are computed in parallel and radix-sorted in two passes, about
+    ten times faster than ``argsort``.
+    """
+    p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(p) == 0:
         return np.zeros(0, np.int64)
-    return np.argsort(morton_codes(points, bits=bits), kind="stable")
+    if bits <= 10:
+        lo, hi = _bounds(p)  # numpy's axis-0 min/max of an (n, 3) array is 20x slower
+        scale = ((1 << bits) - 1) / np.maximum(hi - lo, 1e-300)
+        return _radix_order_30(_morton30_kernel(p, lo, scale))
+    return np.argsort(morton_codes(p, bits=bits), kind="stable")
+
+
+@_nb.njit(cache=True)
+def _bounds(p):
+    lo = p[0].copy()
+    hi = p[0].copy()
+    for i in range(1, p.shape[0]):
+        for axis in range(3):
+            x = p[i, axis]
+            if x < lo[axis]:
+                lo[axis] = x
+            elif x > hi[axis]:
+                hi[axis] = x
+    return lo, hi
+
+
+@_nb.njit(parallel=True, cache=True)
+def _morton30_kernel(p, lo, scale):
+    n = p.shape[0]
+    out = np.empty(n, np.uint32)
+    for i in _nb.prange(n):
+        code = np.uint32(0)
+        for axis in range(3):
+            x = np.uint32(min(max((p[i, axis] - lo[axis]) * scale[axis], 0.0), 1023.0))
+            x = (x | (x << np.uint32(16))) & np.uint32(0x030000FF)
+            x = (x | (x << np.uint32(8))) & np.uint32(0x0300F00F)
+            x = (x | (x << np.uint32(4))) & np.uint32(0x030C30C3)
+            x = (x | (x << np.uint32(2))) & np.uint32(0x09249249)
+            code |= x << np.uint32(axis)
+        out[i] = code
+    return out
+
+
+@_nb.njit(cache=True)
+def _radix_order_30(codes):
+    """Stable order of codes below 2**30: two counting-sort passes of 15 bits, the keys
+    carried along so that both passes read sequentially."""
+    n = codes.shape[0]
+    mask = np.uint32(0x7FFF)
+    count = np.zeros((1 << 15) + 1, np.int64)
+    for i in range(n):
+        count[(codes[i] & mask) + 1] += 1
+    for k in range(1 << 15):
+        count[k + 1] += count[k]
+    keys = np.empty(n, np.uint32)
+    idx = np.empty(n, np.int64)
+    for i in range(n):
+        key = codes[i] & mask
+        j = count[key]
+        keys[j] = codes[i] >> np.uint32(15)
+        idx[j] = i
+        count[key] = j + 1
+    count[:] = 0
+    for i in range(n):
+        count[keys[i] + 1] += 1
+    for k in range(1 << 15):
+        count[k + 1] += count[k]
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        key = keys[i]
+        order[count[key]] = idx[i]
+        count[key] += 1
+    return order
 
 
 class TriangleBVH:
@@ -120,6 +203,12 @@ class TriangleBVH:
         self._a = np.ascontiguousarray(tri[:, 0])
         self._ab = np.ascontiguousarray(tri[:, 1] - tri[:, 0])
         self._ac = np.ascontiguousarray(tri[:, 2] - tri[:, 0])
+        # unit plane (normal, offset) per slot: a triangle whose plane is already farther
+        # than the best distance is skipped before the full closest-point test
+        nrm = np.cross(self._ab, self._ac)
+        length = np.linalg.norm(nrm, axis=1)
+        nrm = nrm / np.where(length > 0, length, np.inf)[:, None]  # degenerate: 0, never skipped
+        self._planes = np.ascontiguousarray(np.column_stack([nrm, np.einsum("ij,ij->i", nrm, self._a)]))
         slots = 1 << depth
         starts = np.arange(0, m, self.leaf_size)
         lo = np.full((2 * slots - 1, 3), np.inf)
@@ -135,6 +224,11 @@ class TriangleBVH:
         self._lo, self._hi = lo, hi
         self._first_leaf = first
         self.depth = depth
+        # packed per node: box lo (3), box hi (3), slab normal (3), slab offsets (2), pad
+        nodes = np.zeros((2 * slots - 1, 12))
+        nodes[:, 0:3], nodes[:, 3:6] = lo, hi
+        nodes[:, 6:11] = _node_slabs(self._a, self._ab, self._ac, self.leaf_size, depth)
+        self._nodes = nodes
 
     @property
     def n_faces(self) -> int:
@@ -169,13 +263,11 @@ class TriangleBVH:
         sq, slot, closest, feature = np.empty(n), np.empty(n, np.int64), np.empty((n, 3)), np.empty(n, np.int8)
         if n == 0:
             return sq, slot, closest, feature
-        order = None
-        if sort and n > 4 * _BLOCK:
-            order = morton_order(p)
-            p = np.ascontiguousarray(p[order])
+        # the kernel reads and writes through the order: no gathered copies of the points
+        order = morton_order(p, bits=10) if sort and n > 4 * _BLOCK else np.arange(n)
         with _dynamic_chunks():
-            _closest_kernel(p, self._lo, self._hi, self._first_leaf, self.leaf_size, self._a, self._ab, self._ac, sq, slot, closest, feature, _BLOCK)
-        return _in_input_order(order, sq, self.order[slot], closest, feature)
+            _closest_kernel(p, order, self._nodes, self._first_leaf, self.leaf_size, self._a, self._ab, self._ac, self._planes, sq, slot, closest, feature, _BLOCK)
+        return sq, self.order[slot], closest, feature
 
     def intersect_lines(self, origins, directions, reach, side=None, sort: bool = True):
         """Nearest crossing of lines ``origins + t * directions`` with the triangles.
@@ -303,6 +395,65 @@ def _select(order, c, axis, left, right, nth):
             return
 
 
+@_nb.njit(cache=True)
+def _node_slabs(A, AB, AC, leaf_size, depth):
+    """Per node of the implicit tree: unit mean normal of its triangles and the offsets
+    ``(smin, smax)`` of their corners along it, ``(nodes, 5)``. Nodes whose triangles face
+    too many ways (the normals' resultant under half their total) get an infinite slab."""
+    m = A.shape[0]
+    slots = 1 << depth
+    n_nodes = 2 * slots - 1
+    first = slots - 1
+    out = np.zeros((n_nodes, 5))
+    out[:, 3], out[:, 4] = -np.inf, np.inf
+    sums = np.zeros((n_nodes, 4))  # resultant of the area normals, total area
+    for k in range(slots):
+        t0, t1 = k * leaf_size, min((k + 1) * leaf_size, m)
+        for t in range(t0, t1):
+            nx = AB[t, 1] * AC[t, 2] - AB[t, 2] * AC[t, 1]
+            ny = AB[t, 2] * AC[t, 0] - AB[t, 0] * AC[t, 2]
+            nz = AB[t, 0] * AC[t, 1] - AB[t, 1] * AC[t, 0]
+            sums[first + k, 0] += nx
+            sums[first + k, 1] += ny
+            sums[first + k, 2] += nz
+            sums[first + k, 3] += np.sqrt(nx * nx + ny * ny + nz * nz)
+    for node in range(first - 1, -1, -1):
+        for j in range(4):
+            sums[node, j] = sums[2 * node + 1, j] + sums[2 * node + 2, j]
+    for level in range(depth + 1):
+        span = (1 << (depth - level)) * leaf_size
+        s0 = (1 << level) - 1
+        for k in range(1 << level):
+            node = s0 + k
+            t0, t1 = k * span, min((k + 1) * span, m)
+            length = np.sqrt(sums[node, 0] ** 2 + sums[node, 1] ** 2 + sums[node, 2] ** 2)
+            if t0 >= t1 or length <= 0.5 * sums[node, 3] or length == 0.0:
+                continue
+            ux, uy, uz = sums[node, 0] / length, sums[node, 1] / length, sums[node, 2] / length
+            lo, hi = np.inf, -np.inf
+            for t in range(t0, t1):
+                a = A[t, 0] * ux + A[t, 1] * uy + A[t, 2] * uz
+                b = a + AB[t, 0] * ux + AB[t, 1] * uy + AB[t, 2] * uz
+                c = a + AC[t, 0] * ux + AC[t, 1] * uy + AC[t, 2] * uz
+                lo = min(lo, a, b, c)
+                hi = max(hi, a, b, c)
+            out[node, 0], out[node, 1], out[node, 2], out[node, 3], out[node, 4] = ux, uy, uz, lo, hi
+    return out
+
+
+@_nb.njit(inline="always")
+def _node_sq(nodes, node, px, py, pz):
+    """Squared lower bound of the distance from a point to the triangles of ``node``: the
+    larger of the distances to its box and to its slab."""
+    gx = _gap(nodes[node, 0], nodes[node, 3], px)
+    gy = _gap(nodes[node, 1], nodes[node, 4], py)
+    gz = _gap(nodes[node, 2], nodes[node, 5], pz)
+    box = gx * gx + gy * gy + gz * gz
+    g = _gap(nodes[node, 9], nodes[node, 10], nodes[node, 6] * px + nodes[node, 7] * py + nodes[node, 8] * pz)
+    g = g * g
+    return box if box > g else g
+
+
 @_nb.njit(inline="always")
 def _gap(lo, hi, x):
     """Distance from ``x`` to the interval ``[lo, hi]``."""
@@ -311,15 +462,6 @@ def _gap(lo, hi, x):
     if x > hi:
         return x - hi
     return 0.0
-
-
-@_nb.njit(inline="always")
-def _box_sq(lo, hi, node, px, py, pz):
-    """Squared distance from a point to the box of ``node`` (0 inside)."""
-    gx = _gap(lo[node, 0], hi[node, 0], px)
-    gy = _gap(lo[node, 1], hi[node, 1], py)
-    gz = _gap(lo[node, 2], hi[node, 2], pz)
-    return gx * gx + gy * gy + gz * gz
 
 
 @_nb.njit(inline="always", error_model="numpy")
@@ -377,7 +519,7 @@ def _point_triangle(px, py, pz, A, AB, AC, t):
 
 
 @_nb.njit(parallel=True, cache=True, error_model="numpy")
-def _closest_kernel(points, lo, hi, first_leaf, leaf_size, A, AB, AC, out_sq, out_slot, out_c, out_feat, block):
+def _closest_kernel(points, order, nodes, first_leaf, leaf_size, A, AB, AC, planes, out_sq, out_slot, out_c, out_feat, block):
     n = points.shape[0]
     m = A.shape[0]
     n_blocks = (n + block - 1) // block
@@ -385,7 +527,8 @@ def _closest_kernel(points, lo, hi, first_leaf, leaf_size, A, AB, AC, out_sq, ou
         stack = np.empty(256, np.int64)
         stack_d = np.empty(256, np.float64)
         hint = -1
-        for i in range(b * block, min(n, (b + 1) * block)):
+        for k in range(b * block, min(n, (b + 1) * block)):
+            i = order[k]
             px, py, pz = points[i, 0], points[i, 1], points[i, 2]
             best, bx, by, bz, bf, bt = np.inf, 0.0, 0.0, 0.0, 0, -1
             if hint >= 0:
@@ -393,7 +536,7 @@ def _closest_kernel(points, lo, hi, first_leaf, leaf_size, A, AB, AC, out_sq, ou
                 if d < best:
                     best, bx, by, bz, bf, bt = d, cx, cy, cz, ft, hint
             stack[0] = 0
-            stack_d[0] = _box_sq(lo, hi, 0, px, py, pz)
+            stack_d[0] = 0.0
             sp = 1
             while sp > 0:
                 sp -= 1
@@ -404,13 +547,16 @@ def _closest_kernel(points, lo, hi, first_leaf, leaf_size, A, AB, AC, out_sq, ou
                     t0 = (node - first_leaf) * leaf_size
                     t1 = min(t0 + leaf_size, m)
                     for t in range(t0, t1):
+                        h = planes[t, 0] * px + planes[t, 1] * py + planes[t, 2] * pz - planes[t, 3]
+                        if h * h >= best:
+                            continue
                         d, cx, cy, cz, ft = _point_triangle(px, py, pz, A, AB, AC, t)
                         if d < best:
                             best, bx, by, bz, bf, bt = d, cx, cy, cz, ft, t
                 else:
                     left, right = 2 * node + 1, 2 * node + 2
-                    dl = _box_sq(lo, hi, left, px, py, pz)
-                    dr = _box_sq(lo, hi, right, px, py, pz)
+                    dl = _node_sq(nodes, left, px, py, pz)
+                    dr = _node_sq(nodes, right, px, py, pz)
                     if dl <= dr:  # push the farther child first so the nearer one is searched first
                         if dr < best:
                             stack[sp], stack_d[sp] = right, dr
@@ -547,28 +693,48 @@ def _line_kernel(origins, directions, reach, side, lo, hi, first_leaf, leaf_size
             out_slot[i] = bs
 
 
-@_nb.njit(cache=True)
-def feature_normals(face, feature, faces, face_normals, edge_normals, vertex_normals, degenerate):
-    """Pseudonormal ``(n, 3)`` of each closest point's feature (face, edge or corner).
+@_nb.njit(parallel=True, cache=True, error_model="numpy")
+def pseudonormal_signs(points, sq, closest, face, feature, faces, face_normals, edge_normals, vertex_normals, degenerate, suspect_vertex):
+    """Signed distances by the pseudonormal of each closest point's feature, in one pass.
 
-    On degenerate triangles, whose edge and face normals are meaningless, a point on a
-    corner takes that vertex's normal and any other point the first corner's (callers
-    mark such points as unsure anyway).
+    Parameters
+    ----------
+    points, sq, closest, face, feature : the queries and the results of
+        :meth:`TriangleBVH.closest` (``face`` as face indices)
+    faces, face_normals, edge_normals (m, 3, 3), vertex_normals : the outward-oriented
+        surface and its Bærentzen–Aanæs pseudonormals
+    degenerate : (m,) bool
+        Faces whose edge and face normals are meaningless: a point on a corner takes that
+        vertex's normal and any other point the first corner's.
+    suspect_vertex : (n_vertices,) bool
+        Vertices of folded or sliver faces, where pseudonormals are not trustworthy.
+
+    Returns
+    -------
+    signed : (n,) distance, positive where ``(p - closest) . normal <= 0`` (inside)
+    normal : (n, 3) the feature's pseudonormal
+    unsure : (n,) bool, True where the closest face touches a suspect vertex
     """
     n = face.shape[0]
-    out = np.empty((n, 3))
-    for i in range(n):
+    signed = np.empty(n)
+    normal = np.empty((n, 3))
+    unsure = np.empty(n, np.bool_)
+    for i in _nb.prange(n):
         f = face[i]
         k = feature[i]
         if degenerate[f]:
             k = FEATURE_VERTEX if k < FEATURE_VERTEX else k
         if k == FEATURE_FACE:
-            out[i, 0], out[i, 1], out[i, 2] = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+            nx, ny, nz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
         elif k < FEATURE_VERTEX:
             e = k - FEATURE_EDGE
-            out[i, 0], out[i, 1], out[i, 2] = edge_normals[f, e, 0], edge_normals[f, e, 1], edge_normals[f, e, 2]
+            nx, ny, nz = edge_normals[f, e, 0], edge_normals[f, e, 1], edge_normals[f, e, 2]
         else:
             vtx = faces[f, k - FEATURE_VERTEX]
-            out[i, 0], out[i, 1], out[i, 2] = vertex_normals[vtx, 0], vertex_normals[vtx, 1], vertex_normals[vtx, 2]
-    return out
-
+            nx, ny, nz = vertex_normals[vtx, 0], vertex_normals[vtx, 1], vertex_normals[vtx, 2]
+        normal[i, 0], normal[i, 1], normal[i, 2] = nx, ny, nz
+        dot = (points[i, 0] - closest[i, 0]) * nx + (points[i, 1] - closest[i, 1]) * ny + (points[i, 2] - closest[i, 2]) * nz
+        d = np.sqrt(max(sq[i], 0.0))
+        signed[i] = -d if dot > 0 else d
+        unsure[i] = suspect_vertex[faces[f, 0]] or suspect_vertex[faces[f, 1]] or suspect_vertex[faces[f, 2]]
+    return signed, normal, unsure

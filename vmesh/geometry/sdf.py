@@ -345,11 +345,15 @@ class SignedDistance:
 
     def _query(self, p: np.ndarray):
         sq, face, closest, feature = self._tree.closest(p)
-        dist = np.sqrt(np.maximum(sq, 0.0))
         # the query reports which feature (face, edge, corner) holds the closest point
-        normal = _bvh.feature_normals(face, feature, self.faces, self.face_normals, self._edge_normals, self.vertex_normals, self.degenerate_faces)
-        outside = self._outside(p, closest, face, normal)
-        return closest, np.where(outside, -dist, dist), face, normal
+        signed, normal, unsure = _bvh.pseudonormal_signs(p, sq, closest, face, feature, self.faces, self.face_normals, self._edge_normals, self.vertex_normals, self.degenerate_faces, self._suspect_vertex)
+        if self.sign_method != "pseudonormal":
+            unsure[:] = True
+        if unsure.any():
+            idx = np.flatnonzero(unsure)
+            outside = self.winding_number(p[idx]) < 0.5
+            signed[idx] = np.where(outside, -1.0, 1.0) * np.abs(signed[idx])
+        return closest, signed, face, normal
 
     def _outside(self, p, closest, face, normal) -> np.ndarray:
         if self.sign_method != "pseudonormal":
