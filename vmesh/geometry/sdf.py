@@ -9,13 +9,14 @@ Backend, chosen by measurement (``benchmarks/sdf_coarse_vs_fine.py --backends``,
 150,000-triangle ica_swc surface and its 5,000-triangle decimation, quiet 2-core machine):
 
 * Closest points come from vmesh's own **BVH** (:mod:`vmesh.geometry.bvh`, compiled with
-  numba): exact in double precision, median-split boxes, queries in Morton order with a
-  warm start from the previous point, and **parallel over all cores with the GIL
-  released**. It replaced libigl's AABB tree (``igl.AABB.squared_distance``), which it
-  matches to 1e-12 (tests) and outruns (fine: 236k vs 161k, coarse: 1.20M vs 840k
-  points/s on both cores, igl also in Morton order), because it also reports which
-  feature (face, edge or corner) holds each closest point, which the sign needs, and it
-  releases the GIL for Dask's threaded workers.
+  numba): exact in double precision, median-split nodes bounded by their box and by a
+  slab along their triangles' mean normal, queries in Morton order with a warm start
+  from the previous point, and **parallel over all cores with the GIL released**. It
+  replaced libigl's AABB tree (``igl.AABB.squared_distance``), which it matches to 1e-12
+  (tests) and outruns (fine: 516k vs 147k, coarse: 1.50M vs 592k points/s on both
+  cores, igl also in Morton order), because it also reports which feature (face, edge or
+  corner) holds each closest point, which the sign needs, and it releases the GIL for
+  Dask's threaded workers.
 * The **sign** comes from Bærentzen–Aanæs angle-weighted pseudonormals of that feature:
   exact at any distance on a closed, manifold, consistently oriented surface. The surface
   is oriented outward first (signed volume), so inward-oriented inputs get the right
