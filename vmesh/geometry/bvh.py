@@ -302,7 +302,7 @@ class TriangleBVH:
             return t, slot
         order = None
         if sort and n > 4 * _BLOCK:
-            order = morton_order(o)
+            order = morton_order(o, bits=10)
             o, d, r, sd = (np.ascontiguousarray(x[order]) for x in (o, d, r, sd))
         with _dynamic_chunks():
             _line_kernel(o, d, r, sd, self._lo, self._hi, self._first_leaf, self.leaf_size, self._a, self._ab, self._ac, t, slot, _BLOCK)
