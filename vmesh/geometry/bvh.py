@@ -59,50 +59,18 @@ _BLOCK = 64  # points per work item: consecutive (Morton-sorted) points share a 
 
 
 def morton_codes(points: np.ndarray, lo: np.ndarray | None = None, hi: np.ndarray | None = None, bits: int = 16) -> np.ndarray:
-    """Morton (Z-curve) codes ``(n,) uint64`` of points quantised to ``bits`` per axis."""
-    p = np.asarray(points, np.float64)
-    lo = p.min(axis=0) if lo is None else lo
-    hi = p.max(axis=0) if hi is None else hi
-    span = np.maximum(hi - lo, 1e-300)
-    q = np.clip((p - lo) / span, 0.0, 1.0) * ((1 << bits) - 1)
-    return _morton_kernel(np.ascontiguousarray(q))
-
-
-@_nb.njit(cache=True)
-def _morton_kernel(q):
-    # serial: a few ns per point, less than a parallel launch costs on a busy machine
-    n = q.shape[0]
-    out = np.empty(n, np.uint64)
-    for i in range(n):
-        code = np.uint64(0)
-        for axis in range(3):
-            x = np.uint64(q[i, axis])
-            x = x & np.uint64(0x1FFFFF)
-            x = (x | (x << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
-            x = (x | (x << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
-            x = (x | (x << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
-            x = (x | (x << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
-            x = (x | (x << np.uint64(2))) & np.uint64(0x1249249249249249)
-            code |= x << np.uint64(axis)
-        out[i] = code
-    return out
-
-
-def morton_order(points: np.ndarray, bits: int = 16) -> np.ndarray:
-    """Permutation ``(n,) int64`` sorting ``points`` along a Z-order (Morton) curve.
-
-    With ``bits <= 10`` (codes of at most 30 bits, 1024 cells per axis: plenty for query
-    locality) the codes are computed in parallel and radix-sorted in two passes, about
-    ten times faster than ``argsort``.
-    """
+    """Morton (Z-curve) codes ``(n,) uint64`` of points quantised to ``bits`` (<= 21) per axis
+    over the box ``lo``..``hi`` (default: the points' bounds)."""
     p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     if len(p) == 0:
-        return np.zeros(0, np.int64)
-    if bits <= 10:
-        lo, hi = _bounds(p)  # numpy's axis-0 min/max of an (n, 3) array is 20x slower
-        scale = ((1 << bits) - 1) / np.maximum(hi - lo, 1e-300)
-        return _radix_order_30(_morton30_kernel(p, lo, scale))
-    return np.argsort(morton_codes(p, bits=bits), kind="stable")
+        return np.zeros(0, np.uint64)
+    if lo is None or hi is None:
+        b_lo, b_hi = _bounds(p)  # numpy's axis-0 min/max of an (n, 3) array is 20x slower
+        lo = b_lo if lo is None else np.asarray(lo, np.float64)
+        hi = b_hi if hi is None else np.asarray(hi, np.float64)
+    top = float((1 << bits) - 1)
+    scale = top / np.maximum(np.asarray(hi, np.float64) - lo, 1e-300)
+    return _morton_kernel(p, np.asarray(lo, np.float64), scale, top)
 
 
 @_nb.njit(cache=True)
@@ -120,20 +88,36 @@ def _bounds(p):
 
 
 @_nb.njit(parallel=True, cache=True)
-def _morton30_kernel(p, lo, scale):
+def _morton_kernel(p, lo, scale, top):
     n = p.shape[0]
-    out = np.empty(n, np.uint32)
+    out = np.empty(n, np.uint64)
     for i in _nb.prange(n):
-        code = np.uint32(0)
+        code = np.uint64(0)
         for axis in range(3):
-            x = np.uint32(min(max((p[i, axis] - lo[axis]) * scale[axis], 0.0), 1023.0))
-            x = (x | (x << np.uint32(16))) & np.uint32(0x030000FF)
-            x = (x | (x << np.uint32(8))) & np.uint32(0x0300F00F)
-            x = (x | (x << np.uint32(4))) & np.uint32(0x030C30C3)
-            x = (x | (x << np.uint32(2))) & np.uint32(0x09249249)
-            code |= x << np.uint32(axis)
+            x = np.uint64(min(max((p[i, axis] - lo[axis]) * scale[axis], 0.0), top))
+            x = x & np.uint64(0x1FFFFF)
+            x = (x | (x << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
+            x = (x | (x << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
+            x = (x | (x << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
+            x = (x | (x << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
+            x = (x | (x << np.uint64(2))) & np.uint64(0x1249249249249249)
+            code |= x << np.uint64(axis)
         out[i] = code
     return out
+
+
+def morton_order(points: np.ndarray, bits: int = 16) -> np.ndarray:
+    """Permutation ``(n,) int64`` sorting ``points`` along a Z-order (Morton) curve.
+
+    With ``bits <= 10`` (codes of at most 30 bits, 1024 cells per axis: plenty for query
+    locality) the codes are radix-sorted in two passes, several times faster than ``argsort``.
+    """
+    codes = morton_codes(points, bits=bits)
+    if len(codes) == 0:
+        return np.zeros(0, np.int64)
+    if bits <= 10:
+        return _radix_order_30(codes)
+    return np.argsort(codes, kind="stable")
 
 
 @_nb.njit(cache=True)
@@ -141,18 +125,17 @@ def _radix_order_30(codes):
     """Stable order of codes below 2**30: two counting-sort passes of 15 bits, the keys
     carried along so that both passes read sequentially."""
     n = codes.shape[0]
-    mask = np.uint32(0x7FFF)
     count = np.zeros((1 << 15) + 1, np.int64)
     for i in range(n):
-        count[(codes[i] & mask) + 1] += 1
+        count[np.int64(codes[i] & np.uint64(0x7FFF)) + 1] += 1
     for k in range(1 << 15):
         count[k + 1] += count[k]
-    keys = np.empty(n, np.uint32)
+    keys = np.empty(n, np.int64)
     idx = np.empty(n, np.int64)
     for i in range(n):
-        key = codes[i] & mask
+        key = np.int64(codes[i] & np.uint64(0x7FFF))
         j = count[key]
-        keys[j] = codes[i] >> np.uint32(15)
+        keys[j] = np.int64(codes[i] >> np.uint64(15))
         idx[j] = i
         count[key] = j + 1
     count[:] = 0
