@@ -66,11 +66,10 @@ def morton_codes(points: np.ndarray, lo: np.ndarray | None = None, hi: np.ndarra
         return np.zeros(0, np.uint64)
     if lo is None or hi is None:
         b_lo, b_hi = _bounds(p)  # numpy's axis-0 min/max of an (n, 3) array is 20x slower
-        lo = b_lo if lo is None else np.asarray(lo, np.float64)
-        hi = b_hi if hi is None else np.asarray(hi, np.float64)
+        lo, hi = (b_lo if lo is None else lo), (b_hi if hi is None else hi)
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     top = float((1 << bits) - 1)
-    scale = top / np.maximum(np.asarray(hi, np.float64) - lo, 1e-300)
-    return _morton_kernel(p, np.asarray(lo, np.float64), scale, top)
+    return _morton_kernel(p, lo, top / np.maximum(hi - lo, 1e-300), top)
 
 
 @_nb.njit(cache=True)
@@ -188,9 +187,9 @@ class TriangleBVH:
         self._ac = np.ascontiguousarray(tri[:, 2] - tri[:, 0])
         # unit plane (normal, offset) per slot: a triangle whose plane is already farther
         # than the best distance is skipped before the full closest-point test
-        nrm = np.cross(self._ab, self._ac)
-        length = np.linalg.norm(nrm, axis=1)
-        nrm = nrm / np.where(length > 0, length, np.inf)[:, None]  # degenerate: 0, never skipped
+        area_normals = np.cross(self._ab, self._ac)  # also the slabs' weights
+        length = np.linalg.norm(area_normals, axis=1)
+        nrm = area_normals / np.where(length > 0, length, np.inf)[:, None]  # degenerate: 0, never skipped
         self._planes = np.ascontiguousarray(np.column_stack([nrm, np.einsum("ij,ij->i", nrm, self._a)]))
         slots = 1 << depth
         starts = np.arange(0, m, self.leaf_size)
@@ -204,14 +203,14 @@ class TriangleBVH:
             k = 1 << level
             lo[s : s + k] = np.minimum(lo[c : c + 2 * k : 2], lo[c + 1 : c + 2 * k : 2])
             hi[s : s + k] = np.maximum(hi[c : c + 2 * k : 2], hi[c + 1 : c + 2 * k : 2])
-        self._lo, self._hi = lo, hi
         self._first_leaf = first
         self.depth = depth
         # packed per node: box lo (3), box hi (3), slab normal (3), slab offsets (2), pad
         nodes = np.zeros((2 * slots - 1, 12))
         nodes[:, 0:3], nodes[:, 3:6] = lo, hi
-        nodes[:, 6:11] = _node_slabs(self._a, self._ab, self._ac, self.leaf_size, depth)
+        nodes[:, 6:11] = _node_slabs(self._a, self._ab, self._ac, area_normals, length, self.leaf_size, depth)
         self._nodes = nodes
+        self._lo, self._hi = nodes[:, 0:3], nodes[:, 3:6]  # views of the boxes
 
     @property
     def n_faces(self) -> int:
@@ -283,13 +282,10 @@ class TriangleBVH:
         t, slot = np.empty(n), np.empty(n, np.int64)
         if n == 0:
             return t, slot
-        order = None
-        if sort and n > 4 * _BLOCK:
-            order = morton_order(o, bits=10)
-            o, d, r, sd = (np.ascontiguousarray(x[order]) for x in (o, d, r, sd))
+        order = morton_order(o, bits=10) if sort and n > 4 * _BLOCK else np.arange(n)
         with _dynamic_chunks():
-            _line_kernel(o, d, r, sd, self._lo, self._hi, self._first_leaf, self.leaf_size, self._a, self._ab, self._ac, t, slot, _BLOCK)
-        return _in_input_order(order, t, np.where(slot >= 0, self.order[np.maximum(slot, 0)], -1))
+            _line_kernel(o, d, r, sd, order, self._nodes, self._first_leaf, self.leaf_size, self._a, self._ab, self._ac, t, slot, _BLOCK)
+        return t, np.where(slot >= 0, self.order[np.maximum(slot, 0)], -1)
 
 
 @contextlib.contextmanager
@@ -302,19 +298,6 @@ def _dynamic_chunks(blocks: int = 8):
         yield
     finally:
         _nb.set_parallel_chunksize(previous)
-
-
-def _in_input_order(order, *arrays):
-    """Results computed for the points ``points[order]``, put back in input order
-    (returned as they are when ``order`` is None)."""
-    if order is None:
-        return arrays
-    out = []
-    for a in arrays:
-        b = np.empty_like(a)
-        b[order] = a
-        out.append(b)
-    return tuple(out)
 
 
 @_nb.njit(cache=True)
@@ -379,7 +362,7 @@ def _select(order, c, axis, left, right, nth):
 
 
 @_nb.njit(cache=True)
-def _node_slabs(A, AB, AC, leaf_size, depth):
+def _node_slabs(A, AB, AC, area_normals, areas, leaf_size, depth):
     """Per node of the implicit tree: unit mean normal of its triangles and the offsets
     ``(smin, smax)`` of their corners along it, ``(nodes, 5)``. Nodes whose triangles face
     too many ways (the normals' resultant under half their total) get an infinite slab."""
@@ -393,13 +376,9 @@ def _node_slabs(A, AB, AC, leaf_size, depth):
     for k in range(slots):
         t0, t1 = k * leaf_size, min((k + 1) * leaf_size, m)
         for t in range(t0, t1):
-            nx = AB[t, 1] * AC[t, 2] - AB[t, 2] * AC[t, 1]
-            ny = AB[t, 2] * AC[t, 0] - AB[t, 0] * AC[t, 2]
-            nz = AB[t, 0] * AC[t, 1] - AB[t, 1] * AC[t, 0]
-            sums[first + k, 0] += nx
-            sums[first + k, 1] += ny
-            sums[first + k, 2] += nz
-            sums[first + k, 3] += np.sqrt(nx * nx + ny * ny + nz * nz)
+            for j in range(3):
+                sums[first + k, j] += area_normals[t, j]
+            sums[first + k, 3] += areas[t]
     for node in range(first - 1, -1, -1):
         for j in range(4):
             sums[node, j] = sums[2 * node + 1, j] + sums[2 * node + 2, j]
@@ -562,20 +541,20 @@ def _closest_kernel(points, order, nodes, first_leaf, leaf_size, A, AB, AC, plan
 
 
 @_nb.njit(inline="always")
-def _slab(lo, hi, node, ox, oy, oz, ix, iy, iz):
+def _box_interval(nodes, node, ox, oy, oz, ix, iy, iz):
     """Parameter interval ``(t0, t1)`` of the line inside the box of ``node`` (t0 > t1: missed)."""
-    if lo[node, 0] > hi[node, 0]:  # padding slot of the implicit tree: no triangles
+    if nodes[node, 0] > nodes[node, 3]:  # padding slot of the implicit tree: no triangles
         return np.inf, -np.inf
     t0, t1 = -np.inf, np.inf
     for axis in range(3):
         o = ox if axis == 0 else (oy if axis == 1 else oz)
         inv = ix if axis == 0 else (iy if axis == 1 else iz)
         if inv == np.inf:  # parallel to this slab pair: inside or never
-            if o < lo[node, axis] or o > hi[node, axis]:
+            if o < nodes[node, axis] or o > nodes[node, 3 + axis]:
                 return np.inf, -np.inf
             continue
-        a = (lo[node, axis] - o) * inv
-        b = (hi[node, axis] - o) * inv
+        a = (nodes[node, axis] - o) * inv
+        b = (nodes[node, 3 + axis] - o) * inv
         if a > b:
             a, b = b, a
         t0 = max(t0, a)
@@ -618,14 +597,15 @@ def _line_triangle(ox, oy, oz, dx, dy, dz, A, AB, AC, t):
 
 
 @_nb.njit(parallel=True, cache=True, error_model="numpy")
-def _line_kernel(origins, directions, reach, side, lo, hi, first_leaf, leaf_size, A, AB, AC, out_t, out_slot, block):
+def _line_kernel(origins, directions, reach, side, order, nodes, first_leaf, leaf_size, A, AB, AC, out_t, out_slot, block):
     n = origins.shape[0]
     m = A.shape[0]
     n_blocks = (n + block - 1) // block
     for b in _nb.prange(n_blocks):
         stack = np.empty(256, np.int64)
         stack_d = np.empty(256, np.float64)
-        for i in range(b * block, min(n, (b + 1) * block)):
+        for k in range(b * block, min(n, (b + 1) * block)):
+            i = order[k]
             ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
             dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
             ix = 1.0 / dx if dx != 0.0 else np.inf
@@ -635,7 +615,7 @@ def _line_kernel(origins, directions, reach, side, lo, hi, first_leaf, leaf_size
             # one-sided lines: the parameter interval is cut at 0
             cut_lo = 0.0 if side[i] > 0 else -np.inf
             cut_hi = 0.0 if side[i] < 0 else np.inf
-            t0, t1 = _slab(lo, hi, 0, ox, oy, oz, ix, iy, iz)
+            t0, t1 = _box_interval(nodes, 0, ox, oy, oz, ix, iy, iz)
             t0, t1 = max(t0, cut_lo), min(t1, cut_hi)
             stack[0] = 0
             stack_d[0] = _nearest_in(t0, t1)
@@ -654,8 +634,8 @@ def _line_kernel(origins, directions, reach, side, lo, hi, first_leaf, leaf_size
                             best, bt, bs = abs(t), t, s
                 else:
                     left, right = 2 * node + 1, 2 * node + 2
-                    a0, a1 = _slab(lo, hi, left, ox, oy, oz, ix, iy, iz)
-                    c0, c1 = _slab(lo, hi, right, ox, oy, oz, ix, iy, iz)
+                    a0, a1 = _box_interval(nodes, left, ox, oy, oz, ix, iy, iz)
+                    c0, c1 = _box_interval(nodes, right, ox, oy, oz, ix, iy, iz)
                     dl = _nearest_in(max(a0, cut_lo), min(a1, cut_hi))
                     dr = _nearest_in(max(c0, cut_lo), min(c1, cut_hi))
                     if dl <= dr:  # nearer child searched first
