@@ -25,8 +25,11 @@ def compiled_kernels():
 
     tetra = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
     sdf = SignedDistance(tetra, [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
-    sdf.project(np.random.default_rng(0).random((1000, 3)))  # BVH build and query, Morton codes, feature normals
-    sdf.intersect_lines(np.full((300, 3), 0.2), np.random.default_rng(1).normal(size=(300, 3)), 1.0)
+    from vmesh.geometry.bvh import PARALLEL_MIN
+
+    for n in (1000, PARALLEL_MIN):  # the serial and the parallel kernels
+        sdf.project(np.random.default_rng(0).random((n, 3)))  # BVH build and query, Morton codes, signs
+        sdf.intersect_lines(np.full((n, 3), 0.2), np.random.default_rng(1).normal(size=(n, 3)), 1.0)
     cube = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], float)
     hex8_scaled_jacobian(cube, np.arange(8)[None])
     # transfinite kernels: a graded cylinder runs every one of them with mesh_blocks' types

@@ -165,6 +165,31 @@ def test_cast_rays_sphere():
     assert np.isnan(cs.cast_rays(sphere, np.array([[5.0, 0, 0]]), np.array([[1.0, 0, 0]]), np.ones(1), reach=3))[0]
 
 
+def test_cast_rays_with_line_casts_match_bisection():
+    """The bracketing step closed by one exact line cast gives bisection's crossing, and
+    the same rays miss (outside start, out of reach)."""
+    from vmesh.geometry.sdf import SignedDistance
+    from vmesh.io.surface import read_surface
+
+    path = synthetic_case("y_bifurcation")[0]
+    if not path.exists():
+        pytest.skip("synthetic case y_bifurcation not generated")
+    sdf = SignedDistance.from_surface(read_surface(path))
+    rng = np.random.default_rng(2)
+    v = sdf.vertices
+    o = v[rng.integers(0, len(v), 400)] - 0.3 * sdf.surface_normals(v[rng.integers(0, len(v), 400)])
+    o = np.concatenate([o, v.mean(axis=0) + rng.normal(scale=0.5, size=(100, 3))])
+    d = cs.unit(rng.normal(size=(len(o), 3)))
+    scale = np.full(len(o), 0.5)
+    bisected = cs.cast_rays(sdf.distance, o, d, scale, reach=4.0, iterations=40)
+    cast = cs.cast_rays(sdf.distance, o, d, scale, reach=4.0, intersect_lines=sdf.intersect_lines)
+    assert np.array_equal(np.isnan(bisected), np.isnan(cast)) and np.isnan(cast).any() and (~np.isnan(cast)).sum() > 100
+    ok = ~np.isnan(cast)
+    assert np.abs(cast[ok] - bisected[ok]).max() < 1e-9
+    # the crossings lie on the surface
+    assert np.abs(sdf.distance(o[ok] + cast[ok, None] * d[ok])).max() < 1e-9
+
+
 # ---------------------------------------------------------------------------
 # planes, frames, junction axes
 # ---------------------------------------------------------------------------

@@ -197,3 +197,27 @@ def test_radix_morton_order_matches_argsort_of_the_codes():
     p[:100] = p[0]  # ties keep their input order (stable)
     codes = morton_codes(p, bits=10)
     assert np.array_equal(morton_order(p, bits=10), np.argsort(codes, kind="stable"))
+
+
+def test_serial_and_parallel_kernels_agree(monkeypatch):
+    """Small batches run the serial twins of the query kernels: same results as the parallel ones."""
+    from vmesh.geometry import bvh as bvh_module
+    from vmesh.geometry.sdf import SignedDistance
+
+    path = synthetic_case("y_bifurcation")[0]
+    if not path.exists():
+        pytest.skip("synthetic case y_bifurcation not generated")
+    s = read_surface(path)
+    rng = np.random.default_rng(5)
+    lo, hi = s.vertices.min(axis=0), s.vertices.max(axis=0)
+    p = lo + rng.random((3000, 3)) * (hi - lo)
+    d = rng.normal(size=(3000, 3))
+    sdf = SignedDistance.from_surface(s)
+    runs = []
+    for threshold in (10**9, 1):  # everything serial, then everything parallel
+        monkeypatch.setattr(bvh_module, "PARALLEL_MIN", threshold)
+        closest, signed, _ = sdf.project(p)
+        t, _ = sdf._tree.intersect_lines(p, d, 5.0)
+        runs.append((closest, signed, t, bvh_module.morton_codes(p)))
+    for serial, parallel in zip(*runs):
+        assert np.array_equal(serial, parallel, equal_nan=True)

@@ -1036,7 +1036,8 @@ class _Builder:
         self.max_twist = float(np.degrees(np.concatenate(tw).max())) if tw else 0.0
 
     def cast(self, origins, directions, scale, reach: float = 12.0) -> np.ndarray:
-        return cs.cast_rays(self.sdf, origins, directions, scale, reach=reach)
+        owner = getattr(self.sdf, "__self__", None)  # the SDF whose distance method was passed
+        return cs.cast_rays(self.sdf, origins, directions, scale, reach=reach, intersect_lines=getattr(owner, "intersect_lines", None))
 
     def regular_sections(self):
         """Vertices of every regular (non-junction) section."""

@@ -57,6 +57,11 @@ FEATURE_FACE, FEATURE_EDGE, FEATURE_VERTEX = 0, 1, 4
 
 _BLOCK = 64  # points per work item: consecutive (Morton-sorted) points share a warm start
 
+#: Smallest query batch run on all cores. Below it the serial twin of each kernel runs: a
+#: parallel launch costs 0.1-1 ms (about 1 ms while other processes hold the cores), more
+#: than a few hundred queries, and the mesher sends tens of thousands of small batches.
+PARALLEL_MIN = 4096
+
 
 def morton_codes(points: np.ndarray, lo: np.ndarray | None = None, hi: np.ndarray | None = None, bits: int = 16) -> np.ndarray:
     """Morton (Z-curve) codes ``(n,) uint64`` of points quantised to ``bits`` (<= 21) per axis
@@ -69,7 +74,8 @@ def morton_codes(points: np.ndarray, lo: np.ndarray | None = None, hi: np.ndarra
         lo, hi = (b_lo if lo is None else lo), (b_hi if hi is None else hi)
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     top = float((1 << bits) - 1)
-    return _morton_kernel(p, lo, top / np.maximum(hi - lo, 1e-300), top)
+    kernel = _morton_kernel if len(p) >= PARALLEL_MIN else _morton_serial
+    return kernel(p, lo, top / np.maximum(hi - lo, 1e-300), top)
 
 
 @_nb.njit(cache=True)
@@ -86,22 +92,34 @@ def _bounds(p):
     return lo, hi
 
 
+@_nb.njit(inline="always")
+def _morton_one(p, i, lo, scale, top):
+    code = np.uint64(0)
+    for axis in range(3):
+        x = np.uint64(min(max((p[i, axis] - lo[axis]) * scale[axis], 0.0), top))
+        x = x & np.uint64(0x1FFFFF)
+        x = (x | (x << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
+        x = (x | (x << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
+        x = (x | (x << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
+        x = (x | (x << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
+        x = (x | (x << np.uint64(2))) & np.uint64(0x1249249249249249)
+        code |= x << np.uint64(axis)
+    return code
+
+
 @_nb.njit(parallel=True, cache=True)
 def _morton_kernel(p, lo, scale, top):
-    n = p.shape[0]
-    out = np.empty(n, np.uint64)
-    for i in _nb.prange(n):
-        code = np.uint64(0)
-        for axis in range(3):
-            x = np.uint64(min(max((p[i, axis] - lo[axis]) * scale[axis], 0.0), top))
-            x = x & np.uint64(0x1FFFFF)
-            x = (x | (x << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
-            x = (x | (x << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
-            x = (x | (x << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
-            x = (x | (x << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
-            x = (x | (x << np.uint64(2))) & np.uint64(0x1249249249249249)
-            code |= x << np.uint64(axis)
-        out[i] = code
+    out = np.empty(p.shape[0], np.uint64)
+    for i in _nb.prange(p.shape[0]):
+        out[i] = _morton_one(p, i, lo, scale, top)
+    return out
+
+
+@_nb.njit(cache=True)
+def _morton_serial(p, lo, scale, top):
+    out = np.empty(p.shape[0], np.uint64)
+    for i in range(p.shape[0]):
+        out[i] = _morton_one(p, i, lo, scale, top)
     return out
 
 
@@ -247,8 +265,12 @@ class TriangleBVH:
             return sq, slot, closest, feature
         # the kernel reads and writes through the order: no gathered copies of the points
         order = morton_order(p, bits=10) if sort and n > 4 * _BLOCK else np.arange(n)
-        with _dynamic_chunks():
-            _closest_kernel(p, order, self._nodes, self._first_leaf, self.leaf_size, self._a, self._ab, self._ac, self._planes, sq, slot, closest, feature, _BLOCK)
+        args = (p, order, self._nodes, self._first_leaf, self.leaf_size, self._a, self._ab, self._ac, self._planes, sq, slot, closest, feature)
+        if n < PARALLEL_MIN:
+            _closest_serial(*args)
+        else:
+            with _dynamic_chunks():
+                _closest_kernel(*args, _BLOCK)
         return sq, self.order[slot], closest, feature
 
     def intersect_lines(self, origins, directions, reach, side=None, sort: bool = True):
@@ -283,8 +305,12 @@ class TriangleBVH:
         if n == 0:
             return t, slot
         order = morton_order(o, bits=10) if sort and n > 4 * _BLOCK else np.arange(n)
-        with _dynamic_chunks():
-            _line_kernel(o, d, r, sd, order, self._nodes, self._first_leaf, self.leaf_size, self._a, self._ab, self._ac, t, slot, _BLOCK)
+        args = (o, d, r, sd, order, self._nodes, self._first_leaf, self.leaf_size, self._a, self._ab, self._ac, t, slot)
+        if n < PARALLEL_MIN:
+            _line_serial(*args)
+        else:
+            with _dynamic_chunks():
+                _line_kernel(*args, _BLOCK)
         return t, np.where(slot >= 0, self.order[np.maximum(slot, 0)], -1)
 
 
@@ -480,64 +506,74 @@ def _point_triangle(px, py, pz, A, AB, AC, t):
     return dx * dx + dy * dy + dz * dz, cx, cy, cz, feat
 
 
+@_nb.njit(inline="always", error_model="numpy")
+def _closest_run(points, order, k0, k1, nodes, first_leaf, leaf_size, A, AB, AC, planes, out_sq, out_slot, out_c, out_feat):
+    """Closest points of ``points[order[k0:k1]]``, each starting from the previous one's triangle."""
+    m = A.shape[0]
+    stack = np.empty(256, np.int64)
+    stack_d = np.empty(256, np.float64)
+    hint = -1
+    for k in range(k0, k1):
+        i = order[k]
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        best, bx, by, bz, bf, bt = np.inf, 0.0, 0.0, 0.0, 0, -1
+        if hint >= 0:
+            d, cx, cy, cz, ft = _point_triangle(px, py, pz, A, AB, AC, hint)
+            if d < best:
+                best, bx, by, bz, bf, bt = d, cx, cy, cz, ft, hint
+        stack[0] = 0
+        stack_d[0] = 0.0
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            node = stack[sp]
+            if stack_d[sp] >= best:
+                continue
+            if node >= first_leaf:
+                t0 = (node - first_leaf) * leaf_size
+                t1 = min(t0 + leaf_size, m)
+                for t in range(t0, t1):
+                    h = planes[t, 0] * px + planes[t, 1] * py + planes[t, 2] * pz - planes[t, 3]
+                    if h * h >= best:
+                        continue
+                    d, cx, cy, cz, ft = _point_triangle(px, py, pz, A, AB, AC, t)
+                    if d < best:
+                        best, bx, by, bz, bf, bt = d, cx, cy, cz, ft, t
+            else:
+                left, right = 2 * node + 1, 2 * node + 2
+                dl = _node_sq(nodes, left, px, py, pz)
+                dr = _node_sq(nodes, right, px, py, pz)
+                if dl <= dr:  # push the farther child first so the nearer one is searched first
+                    if dr < best:
+                        stack[sp], stack_d[sp] = right, dr
+                        sp += 1
+                    if dl < best:
+                        stack[sp], stack_d[sp] = left, dl
+                        sp += 1
+                else:
+                    if dl < best:
+                        stack[sp], stack_d[sp] = left, dl
+                        sp += 1
+                    if dr < best:
+                        stack[sp], stack_d[sp] = right, dr
+                        sp += 1
+        hint = bt
+        out_sq[i] = best
+        out_slot[i] = bt
+        out_c[i, 0], out_c[i, 1], out_c[i, 2] = bx, by, bz
+        out_feat[i] = bf
+
+
 @_nb.njit(parallel=True, cache=True, error_model="numpy")
 def _closest_kernel(points, order, nodes, first_leaf, leaf_size, A, AB, AC, planes, out_sq, out_slot, out_c, out_feat, block):
     n = points.shape[0]
-    m = A.shape[0]
-    n_blocks = (n + block - 1) // block
-    for b in _nb.prange(n_blocks):
-        stack = np.empty(256, np.int64)
-        stack_d = np.empty(256, np.float64)
-        hint = -1
-        for k in range(b * block, min(n, (b + 1) * block)):
-            i = order[k]
-            px, py, pz = points[i, 0], points[i, 1], points[i, 2]
-            best, bx, by, bz, bf, bt = np.inf, 0.0, 0.0, 0.0, 0, -1
-            if hint >= 0:
-                d, cx, cy, cz, ft = _point_triangle(px, py, pz, A, AB, AC, hint)
-                if d < best:
-                    best, bx, by, bz, bf, bt = d, cx, cy, cz, ft, hint
-            stack[0] = 0
-            stack_d[0] = 0.0
-            sp = 1
-            while sp > 0:
-                sp -= 1
-                node = stack[sp]
-                if stack_d[sp] >= best:
-                    continue
-                if node >= first_leaf:
-                    t0 = (node - first_leaf) * leaf_size
-                    t1 = min(t0 + leaf_size, m)
-                    for t in range(t0, t1):
-                        h = planes[t, 0] * px + planes[t, 1] * py + planes[t, 2] * pz - planes[t, 3]
-                        if h * h >= best:
-                            continue
-                        d, cx, cy, cz, ft = _point_triangle(px, py, pz, A, AB, AC, t)
-                        if d < best:
-                            best, bx, by, bz, bf, bt = d, cx, cy, cz, ft, t
-                else:
-                    left, right = 2 * node + 1, 2 * node + 2
-                    dl = _node_sq(nodes, left, px, py, pz)
-                    dr = _node_sq(nodes, right, px, py, pz)
-                    if dl <= dr:  # push the farther child first so the nearer one is searched first
-                        if dr < best:
-                            stack[sp], stack_d[sp] = right, dr
-                            sp += 1
-                        if dl < best:
-                            stack[sp], stack_d[sp] = left, dl
-                            sp += 1
-                    else:
-                        if dl < best:
-                            stack[sp], stack_d[sp] = left, dl
-                            sp += 1
-                        if dr < best:
-                            stack[sp], stack_d[sp] = right, dr
-                            sp += 1
-            hint = bt
-            out_sq[i] = best
-            out_slot[i] = bt
-            out_c[i, 0], out_c[i, 1], out_c[i, 2] = bx, by, bz
-            out_feat[i] = bf
+    for b in _nb.prange((n + block - 1) // block):
+        _closest_run(points, order, b * block, min(n, (b + 1) * block), nodes, first_leaf, leaf_size, A, AB, AC, planes, out_sq, out_slot, out_c, out_feat)
+
+
+@_nb.njit(cache=True, error_model="numpy")
+def _closest_serial(points, order, nodes, first_leaf, leaf_size, A, AB, AC, planes, out_sq, out_slot, out_c, out_feat):
+    _closest_run(points, order, 0, points.shape[0], nodes, first_leaf, leaf_size, A, AB, AC, planes, out_sq, out_slot, out_c, out_feat)
 
 
 @_nb.njit(inline="always")
@@ -596,67 +632,76 @@ def _line_triangle(ox, oy, oz, dx, dy, dz, A, AB, AC, t):
     return (e2x * qx + e2y * qy + e2z * qz) * inv
 
 
+@_nb.njit(inline="always", error_model="numpy")
+def _line_run(origins, directions, reach, side, order, k0, k1, nodes, first_leaf, leaf_size, A, AB, AC, out_t, out_slot):
+    """Nearest crossings of the lines ``order[k0:k1]``."""
+    m = A.shape[0]
+    stack = np.empty(256, np.int64)
+    stack_d = np.empty(256, np.float64)
+    for k in range(k0, k1):
+        i = order[k]
+        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
+        dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
+        ix = 1.0 / dx if dx != 0.0 else np.inf
+        iy = 1.0 / dy if dy != 0.0 else np.inf
+        iz = 1.0 / dz if dz != 0.0 else np.inf
+        best, bt, bs = reach[i], np.nan, -1
+        # one-sided lines: the parameter interval is cut at 0
+        cut_lo = 0.0 if side[i] > 0 else -np.inf
+        cut_hi = 0.0 if side[i] < 0 else np.inf
+        t0, t1 = _box_interval(nodes, 0, ox, oy, oz, ix, iy, iz)
+        t0, t1 = max(t0, cut_lo), min(t1, cut_hi)
+        stack[0] = 0
+        stack_d[0] = _nearest_in(t0, t1)
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            node = stack[sp]
+            if stack_d[sp] > best:
+                continue
+            if node >= first_leaf:
+                s0 = (node - first_leaf) * leaf_size
+                s1 = min(s0 + leaf_size, m)
+                for s in range(s0, s1):
+                    t = _line_triangle(ox, oy, oz, dx, dy, dz, A, AB, AC, s)
+                    if t == t and abs(t) <= best and (bs < 0 or abs(t) < best) and cut_lo <= t <= cut_hi:
+                        best, bt, bs = abs(t), t, s
+            else:
+                left, right = 2 * node + 1, 2 * node + 2
+                a0, a1 = _box_interval(nodes, left, ox, oy, oz, ix, iy, iz)
+                c0, c1 = _box_interval(nodes, right, ox, oy, oz, ix, iy, iz)
+                dl = _nearest_in(max(a0, cut_lo), min(a1, cut_hi))
+                dr = _nearest_in(max(c0, cut_lo), min(c1, cut_hi))
+                if dl <= dr:  # nearer child searched first
+                    if dr <= best:
+                        stack[sp], stack_d[sp] = right, dr
+                        sp += 1
+                    if dl <= best:
+                        stack[sp], stack_d[sp] = left, dl
+                        sp += 1
+                else:
+                    if dl <= best:
+                        stack[sp], stack_d[sp] = left, dl
+                        sp += 1
+                    if dr <= best:
+                        stack[sp], stack_d[sp] = right, dr
+                        sp += 1
+        out_t[i] = bt
+        out_slot[i] = bs
+
+
 @_nb.njit(parallel=True, cache=True, error_model="numpy")
 def _line_kernel(origins, directions, reach, side, order, nodes, first_leaf, leaf_size, A, AB, AC, out_t, out_slot, block):
     n = origins.shape[0]
-    m = A.shape[0]
-    n_blocks = (n + block - 1) // block
-    for b in _nb.prange(n_blocks):
-        stack = np.empty(256, np.int64)
-        stack_d = np.empty(256, np.float64)
-        for k in range(b * block, min(n, (b + 1) * block)):
-            i = order[k]
-            ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
-            dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
-            ix = 1.0 / dx if dx != 0.0 else np.inf
-            iy = 1.0 / dy if dy != 0.0 else np.inf
-            iz = 1.0 / dz if dz != 0.0 else np.inf
-            best, bt, bs = reach[i], np.nan, -1
-            # one-sided lines: the parameter interval is cut at 0
-            cut_lo = 0.0 if side[i] > 0 else -np.inf
-            cut_hi = 0.0 if side[i] < 0 else np.inf
-            t0, t1 = _box_interval(nodes, 0, ox, oy, oz, ix, iy, iz)
-            t0, t1 = max(t0, cut_lo), min(t1, cut_hi)
-            stack[0] = 0
-            stack_d[0] = _nearest_in(t0, t1)
-            sp = 1
-            while sp > 0:
-                sp -= 1
-                node = stack[sp]
-                if stack_d[sp] > best:
-                    continue
-                if node >= first_leaf:
-                    s0 = (node - first_leaf) * leaf_size
-                    s1 = min(s0 + leaf_size, m)
-                    for s in range(s0, s1):
-                        t = _line_triangle(ox, oy, oz, dx, dy, dz, A, AB, AC, s)
-                        if t == t and abs(t) <= best and (bs < 0 or abs(t) < best) and cut_lo <= t <= cut_hi:
-                            best, bt, bs = abs(t), t, s
-                else:
-                    left, right = 2 * node + 1, 2 * node + 2
-                    a0, a1 = _box_interval(nodes, left, ox, oy, oz, ix, iy, iz)
-                    c0, c1 = _box_interval(nodes, right, ox, oy, oz, ix, iy, iz)
-                    dl = _nearest_in(max(a0, cut_lo), min(a1, cut_hi))
-                    dr = _nearest_in(max(c0, cut_lo), min(c1, cut_hi))
-                    if dl <= dr:  # nearer child searched first
-                        if dr <= best:
-                            stack[sp], stack_d[sp] = right, dr
-                            sp += 1
-                        if dl <= best:
-                            stack[sp], stack_d[sp] = left, dl
-                            sp += 1
-                    else:
-                        if dl <= best:
-                            stack[sp], stack_d[sp] = left, dl
-                            sp += 1
-                        if dr <= best:
-                            stack[sp], stack_d[sp] = right, dr
-                            sp += 1
-            out_t[i] = bt
-            out_slot[i] = bs
+    for b in _nb.prange((n + block - 1) // block):
+        _line_run(origins, directions, reach, side, order, b * block, min(n, (b + 1) * block), nodes, first_leaf, leaf_size, A, AB, AC, out_t, out_slot)
 
 
-@_nb.njit(parallel=True, cache=True, error_model="numpy")
+@_nb.njit(cache=True, error_model="numpy")
+def _line_serial(origins, directions, reach, side, order, nodes, first_leaf, leaf_size, A, AB, AC, out_t, out_slot):
+    _line_run(origins, directions, reach, side, order, 0, origins.shape[0], nodes, first_leaf, leaf_size, A, AB, AC, out_t, out_slot)
+
+
 def pseudonormal_signs(points, sq, closest, face, feature, faces, face_normals, edge_normals, vertex_normals, degenerate, suspect_vertex):
     """Signed distances by the pseudonormal of each closest point's feature, in one pass.
 
@@ -682,22 +727,39 @@ def pseudonormal_signs(points, sq, closest, face, feature, faces, face_normals, 
     signed = np.empty(n)
     normal = np.empty((n, 3))
     unsure = np.empty(n, np.bool_)
-    for i in _nb.prange(n):
-        f = face[i]
-        k = feature[i]
-        if degenerate[f]:
-            k = FEATURE_VERTEX if k < FEATURE_VERTEX else k
-        if k == FEATURE_FACE:
-            nx, ny, nz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
-        elif k < FEATURE_VERTEX:
-            e = k - FEATURE_EDGE
-            nx, ny, nz = edge_normals[f, e, 0], edge_normals[f, e, 1], edge_normals[f, e, 2]
-        else:
-            vtx = faces[f, k - FEATURE_VERTEX]
-            nx, ny, nz = vertex_normals[vtx, 0], vertex_normals[vtx, 1], vertex_normals[vtx, 2]
-        normal[i, 0], normal[i, 1], normal[i, 2] = nx, ny, nz
-        dot = (points[i, 0] - closest[i, 0]) * nx + (points[i, 1] - closest[i, 1]) * ny + (points[i, 2] - closest[i, 2]) * nz
-        d = np.sqrt(max(sq[i], 0.0))
-        signed[i] = -d if dot > 0 else d
-        unsure[i] = suspect_vertex[faces[f, 0]] or suspect_vertex[faces[f, 1]] or suspect_vertex[faces[f, 2]]
+    kernel = _signs_kernel if n >= PARALLEL_MIN else _signs_serial
+    kernel(points, sq, closest, face, feature, faces, face_normals, edge_normals, vertex_normals, degenerate, suspect_vertex, signed, normal, unsure)
     return signed, normal, unsure
+
+
+@_nb.njit(inline="always")
+def _sign_one(i, points, sq, closest, face, feature, faces, face_normals, edge_normals, vertex_normals, degenerate, suspect_vertex, signed, normal, unsure):
+    f = face[i]
+    k = feature[i]
+    if degenerate[f]:
+        k = FEATURE_VERTEX if k < FEATURE_VERTEX else k
+    if k == FEATURE_FACE:
+        nx, ny, nz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+    elif k < FEATURE_VERTEX:
+        e = k - FEATURE_EDGE
+        nx, ny, nz = edge_normals[f, e, 0], edge_normals[f, e, 1], edge_normals[f, e, 2]
+    else:
+        vtx = faces[f, k - FEATURE_VERTEX]
+        nx, ny, nz = vertex_normals[vtx, 0], vertex_normals[vtx, 1], vertex_normals[vtx, 2]
+    normal[i, 0], normal[i, 1], normal[i, 2] = nx, ny, nz
+    dot = (points[i, 0] - closest[i, 0]) * nx + (points[i, 1] - closest[i, 1]) * ny + (points[i, 2] - closest[i, 2]) * nz
+    d = np.sqrt(max(sq[i], 0.0))
+    signed[i] = -d if dot > 0 else d
+    unsure[i] = suspect_vertex[faces[f, 0]] or suspect_vertex[faces[f, 1]] or suspect_vertex[faces[f, 2]]
+
+
+@_nb.njit(parallel=True, cache=True)
+def _signs_kernel(points, sq, closest, face, feature, faces, face_normals, edge_normals, vertex_normals, degenerate, suspect_vertex, signed, normal, unsure):
+    for i in _nb.prange(face.shape[0]):
+        _sign_one(i, points, sq, closest, face, feature, faces, face_normals, edge_normals, vertex_normals, degenerate, suspect_vertex, signed, normal, unsure)
+
+
+@_nb.njit(cache=True)
+def _signs_serial(points, sq, closest, face, feature, faces, face_normals, edge_normals, vertex_normals, degenerate, suspect_vertex, signed, normal, unsure):
+    for i in range(face.shape[0]):
+        _sign_one(i, points, sq, closest, face, feature, faces, face_normals, edge_normals, vertex_normals, degenerate, suspect_vertex, signed, normal, unsure)
