@@ -52,15 +52,23 @@ def test_run_folder_reads_back(y_run, mesh):
 
 
 def test_vtu(mesh, tmp_path):
-    """VTK's own reader (meshio skips VTU files with string field data)."""
+    """VTK's reader and meshio's read the VTU, with the label and boundary names."""
+    import meshio
     import pyvista as pv
+
+    from vmesh.io.mesh import names_from_field_data
 
     path = export_mesh(tmp_path / "m.vtu", mesh)
     r = pv.read(path)
     assert r.n_points == mesh.n_points and r.n_cells == mesh.n_cells
     assert set(mesh.cell_data) <= set(r.cell_data.keys())
     assert np.array_equal(r.cell_data["label"], mesh.cell_data["label"])
-    assert list(r.field_data["label_names"]) == [mesh.label_names[k] for k in sorted(mesh.label_names)]
+    m = meshio.read(path)
+    assert len(m.points) == mesh.n_points and sum(len(c.data) for c in m.cells) == mesh.n_cells
+    assert np.array_equal(np.concatenate(m.cell_data["label"]), mesh.cell_data["label"])
+    for field in (r.field_data, m.field_data):
+        assert names_from_field_data(field, "label") == dict(mesh.label_names)
+        assert names_from_field_data(field, "boundary") == dict(mesh.boundary_names)
 
 
 def test_gmsh(mesh, tmp_path):

@@ -9,16 +9,43 @@ import numpy as np
 from .atomic import atomic_path
 
 
+def name_field_data(names: dict, kind: str) -> dict[str, np.ndarray]:
+    """Names of ids as integer field-data arrays: ``{"<kind>:<name>": [ids]}``.
+
+    ``kind`` is ``label`` (element labels) or ``boundary`` (boundary ids). meshio refuses
+    VTK string arrays (``Illegal data type 'String'``), so the names are the arrays' names;
+    ParaView lists them as, e.g., ``boundary:inlet 1``.
+    """
+    out: dict[str, list] = {}
+    for key in sorted(names):
+        out.setdefault(f"{kind}:{names[key]}", []).append(int(key))
+    return {k: np.asarray(v, np.int64) for k, v in out.items()}
+
+
+def names_from_field_data(field, kind: str) -> dict[int, str]:
+    """The ``{id: name}`` written by :func:`name_field_data` (also reads the string arrays
+    ``label_names`` / ``boundary_names`` of files written before)."""
+    prefix = f"{kind}:"
+    names = {int(i): key[len(prefix):] for key in field.keys() if key.startswith(prefix) for i in np.asarray(field[key]).ravel()}
+    legacy = f"{kind}_names"
+    if not names and legacy in field.keys():
+        values = [str(v) for v in np.asarray(field[legacy]).ravel()]
+        if kind == "boundary":
+            return {int(k): v for k, _, v in (s.partition(":") for s in values)}
+        return dict(enumerate(values))
+    return dict(sorted(names.items()))
+
+
 def write_mesh(path, mesh) -> Path:
     """Write ``mesh`` atomically. ``.vtu`` goes through VTK (Lagrange hexahedra for p > 1,
-    label names as field data); other extensions through meshio."""
+    label and boundary names as field data, :func:`name_field_data`); other extensions
+    through meshio."""
     path = Path(path)
     with atomic_path(path) as tmp:
         if path.suffix.lower() == ".vtu":
             grid = mesh.to_pyvista()
-            if mesh.label_names:
-                grid.field_data["label_names"] = np.array([mesh.label_names[k] for k in sorted(mesh.label_names)])
-            grid.field_data["boundary_names"] = np.array([f"{k}:{v}" for k, v in sorted(mesh.boundary_names.items())])
+            for key, ids in {**name_field_data(mesh.label_names, "label"), **name_field_data(mesh.boundary_names, "boundary")}.items():
+                grid.field_data[key] = ids
             grid.save(str(tmp), binary=True)
         else:
             mesh.to_meshio().write(str(tmp))
@@ -30,6 +57,7 @@ def write_boundary(path, mesh) -> Path:
     path = Path(path)
     with atomic_path(path) as tmp:
         b = mesh.boundary_to_pyvista()
-        b.field_data["boundary_names"] = np.array([f"{k}:{v}" for k, v in sorted(mesh.boundary_names.items())])
+        for key, ids in name_field_data(mesh.boundary_names, "boundary").items():
+            b.field_data[key] = ids
         b.save(str(tmp), binary=True)
     return path

@@ -34,12 +34,9 @@ def check_run_dir(run_dir) -> Path:
 
 
 def _names(field, key) -> dict:
-    if key not in field:
-        return {}
-    values = [str(v) for v in np.asarray(field[key]).ravel()]
-    if key == "boundary_names":
-        return {int(k): v for k, _, v in (s.partition(":") for s in values)}
-    return dict(enumerate(values))
+    from .mesh import names_from_field_data
+
+    return names_from_field_data(field, key.removesuffix("_names"))
 
 
 def match_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
