@@ -289,11 +289,17 @@ def test_meshlab_filter_keeps_caps_through_subdivision():
     surface_path, _ = synthetic_case("straight_tube")
     if not surface_path.exists():
         pytest.skip("synthetic case straight_tube not generated yet")
-    ctx = FilterChain(["detect_caps", ("meshlab_filter", {"name": "meshing_surface_subdivision_loop", "params": {"iterations": 1, "threshold": "0%"}})]).run(
-        surface=surface_path
-    )
-    assert [c.name for c in ctx.caps] == ["inlet", "outlet_1"]
-    assert all(len(c.faces) > 0 for c in ctx.caps)
+    before = FilterChain(["detect_caps"]).run(surface=surface_path)
+    for step in (
+        ("meshlab_filter", {"name": "meshing_surface_subdivision_loop", "params": {"iterations": 1, "threshold": "0%"}}),
+        ("smooth_loop", {"region": "all", "iterations": 1, "preserve_caps": False, "taubin_iterations": 0}),
+    ):
+        ctx = FilterChain(["detect_caps", step]).run(surface=surface_path)
+        assert ctx.surface.n_faces == 4 * before.surface.n_faces
+        assert [c.name for c in ctx.caps] == ["inlet", "outlet_1"]
+        # every child of a cap face is a cap face (not only the one that kept the parent's slot)
+        assert [len(c.faces) for c in ctx.caps] == [4 * len(c.faces) for c in before.caps]
+        assert np.count_nonzero(ctx.surface.face_data["cap_id"]) == 4 * np.count_nonzero(before.surface.face_data["cap_id"])
 
 
 def test_meshlab_script(tmp_path):

@@ -618,15 +618,18 @@ def loop_subdivide(
     import pymeshlab
 
     scheme = {"Loop": 0, "Enhance regularity": 1, "Enhance continuity": 2}[weights]
-    # face quality drives the selection; the labels ride along as a custom attribute
-    select = np.ones(len(faces)) if face_mask is None else np.asarray(face_mask, float)
-    mesh = pymeshlab.Mesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int64), f_scalar_array=select)
+    # the labels ride along as face quality, which the subdivision copies to every child face
+    # (a custom attribute reaches only one child of each split face); the face colour's red
+    # channel carries the selection
     carry = np.zeros(len(faces)) if labels is None else np.asarray(labels, float)
-    mesh.add_face_custom_scalar_attribute(carry, "vmesh_label")
+    select = np.ones(len(faces)) if face_mask is None else np.asarray(face_mask, float)
+    colour = np.zeros((len(faces), 4))
+    colour[:, 0], colour[:, 3] = select, 1.0
+    mesh = pymeshlab.Mesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int64), f_scalar_array=carry, f_color_matrix=colour)
     ms = pymeshlab.MeshSet()
     ms.add_mesh(mesh)
     if face_mask is not None:
-        ms.compute_selection_by_condition_per_face(condselect="fq > 0.5")
+        ms.compute_selection_by_condition_per_face(condselect="fr > 127")
     ms.meshing_surface_subdivision_loop(
         loopweight=scheme,
         iterations=iterations,
@@ -635,7 +638,7 @@ def loop_subdivide(
     )
     out = ms.current_mesh()
     v, f = out.vertex_matrix().astype(np.float64), out.face_matrix().astype(np.int64)
-    new_labels = None if labels is None else np.rint(out.face_custom_scalar_attribute_array("vmesh_label")).astype(np.int64)
+    new_labels = None if labels is None else np.rint(out.face_scalar_array()).astype(np.int64)
     return v, f, new_labels
 
 

@@ -11,9 +11,12 @@ booleans and strings pass through (enumerations may be given by their label, e.g
 ``PercentageValue`` (percent of the bounding-box diagonal); a table
 ``{percentage = 1.5}`` or ``{absolute = 0.2}`` is a ``PercentageValue`` or ``PureValue``.
 
-Cap labels travel through the filter as a per-face custom attribute, so caps survive
-filters that keep or subdivide faces; after filters that rebuild the mesh the caps
-are dropped with a warning.
+Cap labels travel through the filter twice: as a per-face custom attribute, which
+filters that keep the faces leave alone, and as face quality, which subdividing filters
+copy to every child face (the custom attribute reaches only one child of each split
+face). So caps survive filters that keep or subdivide faces; after filters that rebuild
+the mesh (or overwrite face quality while changing the faces) the caps are dropped with a
+warning.
 """
 
 from __future__ import annotations
@@ -58,9 +61,12 @@ def _meshset(ctx, layer):
     surface = getattr(ctx, layer)
     if surface is None:
         raise InputError(f"there is no {layer} layer to process (add decimate_surface first)")
-    mesh = pymeshlab.Mesh(surface.vertices, surface.faces)
     if layer == "surface":
-        mesh.add_face_custom_scalar_attribute(cap_labels(ctx).astype(np.float64), _LABEL_ATTRIBUTE)
+        labels = cap_labels(ctx).astype(np.float64)
+        mesh = pymeshlab.Mesh(surface.vertices, surface.faces, f_scalar_array=labels)
+        mesh.add_face_custom_scalar_attribute(labels, _LABEL_ATTRIBUTE)
+    else:
+        mesh = pymeshlab.Mesh(surface.vertices, surface.faces)
     ms = pymeshlab.MeshSet()
     ms.add_mesh(mesh, surface.name or "surface")
     return ms, surface
@@ -80,11 +86,19 @@ def _take_result(ctx, ms, layer, surface: SurfaceMesh, what: str) -> None:
     if layer != "surface":
         setattr(ctx, layer, out)
         return
-    try:
-        labels = np.rint(m.face_custom_scalar_attribute_array(_LABEL_ATTRIBUTE)).astype(np.int64)
-    except Exception:  # the filter built a new mesh without the attribute
-        labels = None
-    had_caps = bool(ctx.caps) or bool(cap_labels(ctx).any())
+    before = cap_labels(ctx)
+    labels = None
+    if same_faces:
+        try:
+            labels = np.rint(m.face_custom_scalar_attribute_array(_LABEL_ATTRIBUTE)).astype(np.int64)
+        except Exception:  # the filter built a new mesh without the attribute
+            labels = None
+    if labels is None and m.has_face_scalar():
+        quality = np.asarray(m.face_scalar_array(), np.float64)
+        # labels only if the quality still holds them: whole numbers, all of them old labels
+        if len(quality) == len(f) and np.all(quality == np.rint(quality)) and np.isin(quality, np.unique(before)).all():
+            labels = quality.astype(np.int64)
+    had_caps = bool(ctx.caps) or bool(before.any())
     if had_caps and labels is not None and len(labels) == len(f) and labels.min() >= 0:
         set_caps(ctx, out, labels, keep_names=True)
     else:
