@@ -89,6 +89,19 @@ def test_single_point_and_bad_shapes():
         sdf.distance(np.zeros((4, 2)))
 
 
+def test_non_finite_points_give_nan_not_inside():
+    v, f = icosphere(1.0, 2)
+    sdf = SignedDistance(v, f)
+    p = np.array([[np.nan, 0, 0], [0.0, 0, 0], [np.inf, 1, 1], [2.0, 0, 0]])
+    closest, d, face = sdf.project(p)
+    assert np.isnan(d[[0, 2]]).all() and np.isnan(closest[[0, 2]]).all() and list(face[[0, 2]]) == [-1, -1]
+    assert d[1] > 0.9 and d[3] < -0.9 and face[1] >= 0
+    assert list(sdf.inside(p)) == [False, True, False, False]
+    assert np.isnan(sdf.gradient(p)[0]).all() and np.allclose(np.linalg.norm(sdf.gradient(p)[[1, 3]], axis=1), 1)
+    two = TwoStepSignedDistance(sdf, sdf)
+    assert np.array_equal(two.distance(p), d, equal_nan=True)
+
+
 def test_open_surface_needs_winding_number_sign():
     v, f = icosphere(1.0, 2)
     open_f = f[1:]
