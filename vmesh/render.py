@@ -311,7 +311,26 @@ def render_run(run_dir, out_dir=None, size=(1000, 750), html: bool = True) -> di
     skeleton = read_skeleton(run_dir / "skeleton.json") if (run_dir / "skeleton.json").is_file() else None
     blocks = pv.read(str(run_dir / "blocks.vtu")) if (run_dir / "blocks.vtu").is_file() else None
     report = read_report(run_dir)
-    pictures = render_pictures(out_dir / "pictures", mesh, surface, skeleton, blocks, report, size=size)
+    # render into a staging folder and swap it in: a failure leaves the old pictures, not half of new ones
+    import shutil
+    import tempfile
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    final = out_dir / "pictures"
+    stage = Path(tempfile.mkdtemp(prefix=".pictures.", dir=out_dir))
+    try:
+        staged = render_pictures(stage, mesh, surface, skeleton, blocks, report, size=size)
+        old = None
+        if final.exists():
+            old = final.with_name(stage.name + ".old")
+            final.rename(old)
+        stage.rename(final)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    finally:
+        if stage.exists():
+            shutil.rmtree(stage, ignore_errors=True)
+    pictures = {name: final / path.name for name, path in staged.items()}
     if html:
         name = Path(report.get("inputs", {}).get("surface", run_dir.name)).name
         pictures["html"] = html_report(out_dir / "report.html", report, dict(pictures), title=f"vmesh: {name}")

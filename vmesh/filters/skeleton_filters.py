@@ -448,7 +448,7 @@ def render_skeleton_png(path, skeleton, surface=None, size=(1200, 900), opacity=
                 scalar_bar_args={"title": "radius", "color": "black", "vertical": True},
             )
         deg = skeleton.degrees
-        if 0 < skeleton.n_nodes <= 5000:  # coarse skeletons: show where the nodes are
+        if 0 < skeleton.n_nodes <= 5000 and (deg == 2).any():  # coarse skeletons: show where the nodes are
             plotter.add_points(skeleton.points[deg == 2], color="black", point_size=6, render_points_as_spheres=True)
         size = 0.3 * np.where(np.isfinite(skeleton.radii), skeleton.radii, scale)
         for mask, color in ((deg >= 3, "red"), (deg == 1, "royalblue"), (deg == 0, "black")):
