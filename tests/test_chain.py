@@ -85,6 +85,26 @@ def test_failed_run_leaves_no_output(tmp_path):
     assert not list(tmp_path.iterdir())  # no staging folder left behind
 
 
+def test_rerun_replaces_the_run_folder_and_refuses_other_outputs(tmp_path):
+    out = tmp_path / "o"
+    chain = FilterChain(["surface_info", ("write_surface_layer", {"filename": "a.ply"})])
+    chain.run(surface=tube(), out_dir=out)
+    (out / "mesh.msh").write_text("exported from the earlier mesh")
+    FilterChain(["surface_info"]).run(surface=tube(), out_dir=out)
+    assert sorted(p.name for p in out.iterdir()) == ["chain.toml", "report.json"]  # nothing stale
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o"]  # no staging or old folder left
+    assert oct(out.stat().st_mode & 0o777) != oct(0o700)  # not mkdtemp's private mode
+    # a file, or a folder holding something else, is refused before anything runs
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(InputError, match="not a folder"):
+        chain.run(surface=tube(), out_dir=tmp_path / "f")
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("x")
+    with pytest.raises(InputError, match="not a vmesh run folder"):
+        chain.run(surface=tube(), out_dir=tmp_path / "mine")
+    assert [p.name for p in (tmp_path / "mine").iterdir()] == ["notes.txt"]
+
+
 def test_chain_file_errors(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("[[step]\nfilter = 1")

@@ -252,6 +252,9 @@ class FilterChain:
         from .surface import SurfaceMesh
 
         resolved = self.resolved()  # every parameter checked before anything runs
+        if out_dir is not None:
+            out_dir = Path(out_dir)
+            check_out_dir(out_dir)
         ctx = context or Context()
         if cache is not None:
             ctx.cache = cache
@@ -274,7 +277,6 @@ class FilterChain:
             ctx.progress = lambda frac, msg="": say("tick", fraction=frac, message=msg)
         stage = None
         if out_dir is not None:
-            out_dir = Path(out_dir)
             out_dir.parent.mkdir(parents=True, exist_ok=True)
             stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=out_dir.parent))
             ctx.stage_dir, ctx.out_dir = stage, out_dir
@@ -325,14 +327,43 @@ class FilterChain:
         return ctx
 
 
+#: Files that mark a folder as a finished vmesh run (written last, by every run).
+RUN_FOLDER_MARKERS = ("report.json", "chain.toml")
+
+
+def check_out_dir(out_dir: Path) -> None:
+    """Refuse an output folder that a run must not replace: a file, or a folder with other
+    content than an earlier vmesh run (whose files would otherwise mix with the new ones)."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError("exists and is not a folder (the output must be a folder)", out_dir)
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not any((out_dir / m).is_file() for m in RUN_FOLDER_MARKERS):
+        raise InputError("is not empty and not a vmesh run folder (no report.json): give a new or empty folder", out_dir)
+    for parent in out_dir.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise InputError(f"{parent} is not a folder", out_dir)
+            break
+
+
 def _commit_stage(stage: Path, out_dir: Path) -> None:
-    """Move every staged file into ``out_dir`` (each move is an atomic rename)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    for src in sorted(stage.rglob("*")):
-        if src.is_file():
-            dst = out_dir / src.relative_to(stage)
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(src, dst)
+    """Put the staged run in place of ``out_dir``: the whole folder is swapped by renames,
+    so the files of an earlier run there (exports, pictures) never mix with the new ones."""
+    umask = os.umask(0)
+    os.umask(umask)
+    stage.chmod(0o777 & ~umask)  # mkdtemp made it private
+    old = None
+    if out_dir.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.parent))
+        old.rmdir()
+        out_dir.rename(old)
+    try:
+        stage.rename(out_dir)
+    except OSError:
+        if old is not None:
+            old.rename(out_dir)  # put the earlier run back
+        raise
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
 
 
 def _toml_clean(params: dict) -> dict:
