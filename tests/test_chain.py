@@ -61,6 +61,18 @@ def test_run_writes_report_and_resolved_chain(tmp_path):
     assert ctx.report.steps[0].peak_memory_mb > 0
 
 
+def test_append_keywords_and_a_filters_own_params_parameter():
+    chain = FilterChain().append("decimate_surface", target_faces=500).append("decimate_surface", {"target_faces": 600})
+    chain.append("decimate_surface", params={"target_faces": 700})
+    chain.append("meshlab_filter", name="meshing_surface_subdivision_loop", params={"iterations": 2})
+    assert [s.params for s in chain.steps] == [
+        {"target_faces": 500},
+        {"target_faces": 600},
+        {"target_faces": 700},
+        {"name": "meshing_surface_subdivision_loop", "params": {"iterations": 2}},
+    ]
+
+
 def test_overrides():
     chain = FilterChain([("transform_surface", {"scale": 2.0})]).with_overrides({"transform_surface.scale": 3.0})
     assert chain.steps[0].params["scale"] == 3.0

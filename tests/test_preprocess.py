@@ -283,6 +283,10 @@ def test_meshlab_filter_validation():
         FilterChain([("meshlab_filter", {"name": "meshing_surface_subdivision_loop", "params": {"iterations": "many"}})]).run(surface=s)
     with pytest.raises(ParameterError, match="needs the name"):
         FilterChain(["meshlab_filter"]).run(surface=s)
+    # caught when the chain is resolved, before any step runs (not when the step is reached)
+    for params in ({"name": "no_such_filter"}, {"name": "meshing_surface_subdivision_loop", "params": {"iteration": 2}}):
+        with pytest.raises(ParameterError, match="step 2"):
+            FilterChain(["repair_surface", ("meshlab_filter", params)]).resolved()
 
 
 def test_meshlab_filter_keeps_caps_through_subdivision():
@@ -321,3 +325,17 @@ def test_meshlab_script(tmp_path):
         FilterChain([("meshlab_script", {"path": str(bad)})]).run(surface=SurfaceMesh(v, f))
     with pytest.raises(InputError, match="not found"):
         FilterChain([("meshlab_script", {"path": str(tmp_path / "missing.mlx")})]).run(surface=SurfaceMesh(v, f))
+    with pytest.raises(InputError, match="not found"):
+        FilterChain(["repair_surface", ("meshlab_script", {"path": str(tmp_path / "missing.mlx")})]).resolved()
+    # the chain as run names the script by its absolute path: it replays from any folder
+    import os
+
+    here = os.getcwd()
+    try:
+        os.chdir(tmp_path)
+        ctx = FilterChain([("meshlab_script", {"path": "prep.mlx"})]).run(surface=SurfaceMesh(v, f), out_dir=tmp_path / "run")
+    finally:
+        os.chdir(here)
+    assert str(script.resolve()) in (tmp_path / "run" / "chain.toml").read_text()
+    replay = FilterChain.load(tmp_path / "run" / "chain.toml").run(surface=SurfaceMesh(v, f))
+    assert replay.surface.n_faces == ctx.surface.n_faces

@@ -95,8 +95,15 @@ class FilterChain:
         get_filter(step.filter)  # unknown names fail here, with a suggestion
         self.steps.append(step)
 
-    def append(self, filter_name: str, params: dict | None = None, **kw) -> "FilterChain":
-        """Add a step; returns the chain so calls can be chained."""
+    def append(self, filter_name: str, params: dict | None = None, /, **kw) -> "FilterChain":
+        """Add a step; returns the chain so calls can be chained.
+
+        Parameters go as keywords (``append("decimate_surface", target_faces=5000)``) or as
+        one dict. A keyword ``params`` is the filter's own parameter where it has one
+        (``append("meshlab_filter", name="...", params={...})``), else the dict.
+        """
+        if "params" in kw and "params" not in get_filter(filter_name).parameter_names:
+            params = {**(params or {}), **kw.pop("params")}
         self._add(Step(filter_name, {**(params or {}), **kw}))
         return self
 

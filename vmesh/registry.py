@@ -69,6 +69,8 @@ class Parameter:
         Inclusive range for numbers (and list items).
     choices : tuple, optional
         Allowed values for ``str`` parameters.
+    multiple_of : int, optional
+        ``int`` values must be multiples of this (e.g. 2: even).
     """
 
     name: str
@@ -79,6 +81,7 @@ class Parameter:
     min: float | None = None
     max: float | None = None
     choices: tuple | None = None
+    multiple_of: int | None = None
 
     def __post_init__(self):
         if self.type not in PARAMETER_TYPES:
@@ -112,6 +115,8 @@ class Parameter:
                 raise ParameterError(f"{label} = {v} is below its minimum {self.min}")
             if self.max is not None and v > self.max:
                 raise ParameterError(f"{label} = {v} is above its maximum {self.max}")
+            if self.multiple_of and v % self.multiple_of:
+                raise ParameterError(f"{label} = {v} must be a multiple of {self.multiple_of}" + (" (even)" if self.multiple_of == 2 else ""))
         if self.choices is not None and value not in self.choices:
             raise ParameterError(
                 f"{label} = {value!r} is not one of {', '.join(map(repr, self.choices))}"
@@ -126,7 +131,8 @@ class Parameter:
             return ""
         lo = "-inf" if self.min is None else f"{self.min:g}"
         hi = "inf" if self.max is None else f"{self.max:g}"
-        return f"[{lo}, {hi}]"
+        step = ("even" if self.multiple_of == 2 else f"multiple of {self.multiple_of}") if self.multiple_of else ""
+        return f"[{lo}, {hi}]" + (f" {step}" if step else "")
 
 
 @dataclass(frozen=True)
@@ -147,6 +153,7 @@ class Filter:
     writes: tuple[str, ...] = ()
     category: str = "misc"
     doc: str = ""
+    check: Callable | None = None
 
     @property
     def parameter_names(self) -> list[str]:
@@ -166,7 +173,10 @@ class Filter:
         for key in params:
             self.parameter(key)  # raises with a suggestion
         where = f"filter '{self.name}'"
-        return {p.name: p.validate(params.get(p.name, p.default), where) for p in self.parameters}
+        resolved = {p.name: p.validate(params.get(p.name, p.default), where) for p in self.parameters}
+        if self.check is not None:  # checks across parameters or against outside lists, before any step runs
+            resolved = self.check(resolved) or resolved
+        return resolved
 
     def __call__(self, ctx, **params):
         return self.function(ctx, **self.resolve(params))
@@ -209,8 +219,13 @@ def register_filter(
     optional_reads=(),
     writes=(),
     category: str = "misc",
+    check: Callable | None = None,
 ):
     """Decorator registering ``function(ctx, **params)`` as a filter.
+
+    ``check(params) -> params or None``, if given, runs when a chain is resolved (before
+    any step runs) on the validated parameters; it raises for values that no single
+    parameter's type or range can catch and may return them normalised.
 
     Examples
     --------
@@ -242,6 +257,7 @@ def register_filter(
             writes=tuple(writes),
             category=category,
             doc=doc if doc != description else "",
+            check=check,
         )
         return function
 

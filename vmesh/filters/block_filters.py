@@ -19,7 +19,7 @@ from ..registry import Parameter, register_filter
 @register_filter(
     description="Build the hexahedral block structure from the skeleton: O-grid cross-sections, junction half-sections, twist-free frames, valid blocks.",
     parameters=[
-        Parameter("blocks_around", "int", 8, "Blocks around the circumference (even; the core is a x b with 2(a+b) of them: 6 -> 1x2, 8 -> 2x2, 10 -> 3x2). 4 (a 1x1 core) only for skeletons without junctions.", min=4, max=64),
+        Parameter("blocks_around", "int", 8, "Blocks around the circumference (even; the core is a x b with 2(a+b) of them: 6 -> 1x2, 8 -> 2x2, 10 -> 3x2). 4 (a 1x1 core) only for skeletons without junctions.", min=4, max=64, multiple_of=2),
         Parameter("core_size", "float", 0.3, "Half-width of the core relative to the distance from the section centre to the wall.", unit="× wall distance", min=0.05, max=0.6),
         Parameter("layer_thickness", "float", 0.3, "Thickness of the boundary-layer block ring relative to the distance to the wall.", unit="× wall distance", min=0.02, max=0.6),
         Parameter("plane_bias", "float", 1.0, "Turn bisecting planes towards perpendicular to the shorter of their two segments: weights (radius / length) ** bias (0: plain bisector).", min=0.0, max=4.0),
@@ -56,8 +56,6 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
     without a cap are closed on the wall by a cap of blocks round the dome; without caps every endpoint is open."""
     from ..geometry.block_builder import BlockOptions, block_structure_checks, build_blocks
 
-    if blocks_around % 2:
-        raise ParameterError(f"filter 'build_block_structure': parameter 'blocks_around' must be even, got {blocks_around}")
     options = BlockOptions(
         blocks_around=blocks_around,
         core_size=core_size,
@@ -175,6 +173,13 @@ def block_edges(blocks) -> tuple[np.ndarray, np.ndarray]:
     return e, on_wall
 
 
+def _check_block_file_names(filename, edges_filename):
+    if not filename.lower().endswith(".vtu"):
+        raise ParameterError(f"filter 'write_blocks': parameter 'filename' must end in .vtu, got {filename!r}")
+    if edges_filename and not edges_filename.lower().endswith(".ply"):
+        raise ParameterError(f"filter 'write_blocks': parameter 'edges_filename' must end in .ply, got {edges_filename!r}")
+
+
 @register_filter(
     description="Write the block structure: hexahedra with block/segment/node/layer data (VTU, for ParaView) and the block edges (PLY edge mesh, for MeshLab).",
     parameters=[
@@ -183,6 +188,7 @@ def block_edges(blocks) -> tuple[np.ndarray, np.ndarray]:
     ],
     reads=("blocks",),
     category="export",
+    check=lambda params: _check_block_file_names(**params),
 )
 def write_blocks(ctx, filename, edges_filename):
     """The VTU carries per block ``block_id``, ``segment_id``, ``node_id``, ``layer`` (0 core,
@@ -195,8 +201,6 @@ def write_blocks(ctx, filename, edges_filename):
     if path is None:
         ctx.warn(f"no output folder: {filename} not written")
         return
-    if not filename.lower().endswith(".vtu"):
-        raise ParameterError(f"filter 'write_blocks': parameter 'filename' must end in .vtu, got {filename!r}")
     grid = blocks.to_pyvista()
     boundary = blocks.face_boundary
     grid.cell_data["wall_faces"] = (boundary == 0).sum(axis=1).astype(np.uint8)
@@ -205,8 +209,6 @@ def write_blocks(ctx, filename, edges_filename):
         grid.save(str(tmp), binary=True)
     written = [str(path.name)]
     if edges_filename:
-        if not edges_filename.lower().endswith(".ply"):
-            raise ParameterError(f"filter 'write_blocks': parameter 'edges_filename' must end in .ply, got {edges_filename!r}")
         e, wall = block_edges(blocks)
         write_edge_ply(ctx.output_path(edges_filename), blocks.vertices, e, {"wall": wall.astype(np.int32)})
         written.append(edges_filename)

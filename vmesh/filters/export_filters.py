@@ -44,6 +44,11 @@ def export_mesh(ctx, filename, format, linearize):
     ctx.count(format=f.name, elements=ctx.mesh.n_cells, nodes=ctx.mesh.n_points)
 
 
+def _check_project_name(project):
+    if not project.lower().endswith(".mlp"):
+        raise ParameterError(f"filter 'export_meshlab': parameter 'project' must end in .mlp, got {project!r}")
+
+
 @register_filter(
     description="Write the MeshLab layers: input and coarse surfaces, the mesh boundary as quads coloured by label and by scaled Jacobian, skeleton and block edges as edge meshes, and a .mlp project.",
     parameters=[
@@ -53,6 +58,7 @@ def export_mesh(ctx, filename, format, linearize):
     reads=("mesh",),
     optional_reads=("surface", "coarse_surface", "skeleton", "blocks"),
     category="export",
+    check=lambda params: _check_project_name(params["project"]),
 )
 def export_meshlab(ctx, folder, project):
     """The boundary PLYs carry per-face colour and per-face quality (boundary id, or the
@@ -61,8 +67,6 @@ def export_meshlab(ctx, folder, project):
     ``vmesh export --format meshlab`` reuse the surfaces written here."""
     from ..io.meshlab import write_meshlab_folder
 
-    if not project.lower().endswith(".mlp"):
-        raise ParameterError(f"filter 'export_meshlab': parameter 'project' must end in .mlp, got {project!r}")
     path = ctx.output_path(folder)
     if path is None:
         ctx.warn(f"no output folder: {folder}/ not written")

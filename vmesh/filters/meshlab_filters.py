@@ -108,6 +108,47 @@ def _take_result(ctx, ms, layer, surface: SurfaceMesh, what: str) -> None:
             ctx.warn(f"{what} rebuilt the mesh: caps were dropped (run detect_caps or cap_open_ends again)")
 
 
+def _probe_meshset():
+    """A MeshSet holding one tetrahedron: pymeshlab lists a filter's parameters only with a mesh loaded."""
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    tetra = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    ms.add_mesh(pymeshlab.Mesh(tetra, np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])))
+    return ms
+
+
+def _checked_call(ms, name, params) -> dict:
+    """``params`` converted for pymeshlab after checking the filter name and the parameter
+    names (with suggestions) against pymeshlab's own lists on ``ms``."""
+    import pymeshlab
+
+    if name is None:
+        raise ParameterError("meshlab_filter needs the name of a pymeshlab filter (parameter 'name')")
+    available = pymeshlab.filter_list()
+    if name not in available:
+        raise ParameterError(f"unknown pymeshlab filter '{name}'" + suggest(name, available))
+    try:
+        valid = ms.filter_parameter_values(name)
+    except pymeshlab.PyMeshLabException:  # filters that need more than one mesh: pymeshlab checks when it runs
+        return {k: pymeshlab_value(v, k) for k, v in params.items()}
+    for key in params:
+        if key not in valid:
+            raise ParameterError(
+                f"pymeshlab filter '{name}' has no parameter '{key}'" + suggest(key, valid) + f" (parameters: {', '.join(valid) or 'none'})"
+            )
+    converted = {k: pymeshlab_value(v, k) for k, v in params.items()}
+    try:
+        ms.filter_parameter_values(name, **converted)
+    except Exception as exc:  # pybind11 raises RuntimeError/TypeError on a wrong type
+        raise ParameterError(f"pymeshlab filter '{name}': invalid parameter value ({_short(exc)}); defaults: {_defaults_text(valid)}") from None
+    return converted
+
+
+def _check_meshlab_filter(params):
+    _checked_call(_probe_meshset(), params["name"], params["params"])
+
+
 @register_filter(
     description="Apply any pymeshlab filter by name, its parameters checked against pymeshlab's own list.",
     parameters=[
@@ -118,6 +159,7 @@ def _take_result(ctx, ms, layer, surface: SurfaceMesh, what: str) -> None:
     optional_reads=("surface", "coarse_surface", "caps"),
     writes=("surface", "coarse_surface", "caps"),
     category="preprocessing",
+    check=_check_meshlab_filter,
 )
 def meshlab_filter(ctx, name, params, layer):
     """Run ``MeshSet.apply_filter(name, **params)`` on a surface layer.
@@ -129,23 +171,8 @@ def meshlab_filter(ctx, name, params, layer):
     """
     import pymeshlab
 
-    if name is None:
-        raise ParameterError("meshlab_filter needs the name of a pymeshlab filter (parameter 'name')")
-    available = pymeshlab.filter_list()
-    if name not in available:
-        raise ParameterError(f"unknown pymeshlab filter '{name}'" + suggest(name, available))
     ms, surface = _meshset(ctx, layer)
-    valid = ms.filter_parameter_values(name)
-    for key in params:
-        if key not in valid:
-            raise ParameterError(
-                f"pymeshlab filter '{name}' has no parameter '{key}'" + suggest(key, valid) + f" (parameters: {', '.join(valid) or 'none'})"
-            )
-    converted = {k: pymeshlab_value(v, k) for k, v in params.items()}
-    try:
-        ms.filter_parameter_values(name, **converted)
-    except Exception as exc:  # pybind11 raises RuntimeError/TypeError on a wrong type
-        raise ParameterError(f"pymeshlab filter '{name}': invalid parameter value ({_short(exc)}); defaults: {_defaults_text(valid)}") from None
+    converted = _checked_call(ms, name, params)  # again on the real mesh: percentages, ranges
     try:
         result = ms.apply_filter(name, **converted)
     except pymeshlab.PyMeshLabException as exc:
@@ -155,26 +182,8 @@ def meshlab_filter(ctx, name, params, layer):
     _take_result(ctx, ms, layer, surface, f"pymeshlab filter '{name}'")
 
 
-@register_filter(
-    description="Run a MeshLab filter script (.mlx, saved from the MeshLab GUI or pymeshlab) on a surface layer.",
-    parameters=[
-        Parameter("path", "path", None, "(required) The .mlx filter script; relative paths are taken from the current folder."),
-        LAYER_PARAMETER,
-    ],
-    optional_reads=("surface", "coarse_surface", "caps"),
-    writes=("surface", "coarse_surface", "caps"),
-    category="preprocessing",
-)
-def meshlab_script(ctx, path, layer):
-    """Replay every filter of a MeshLab ``.mlx`` script, in order, on the surface.
-
-    The script's filters are listed in the report's ``meshlab_script`` section.
-    """
-    import pymeshlab
-
-    if path is None:
-        raise ParameterError("meshlab_script needs the path of a .mlx script (parameter 'path')")
-    path = Path(path)
+def _script_filters(path: Path) -> list[str]:
+    """The filter names of a ``.mlx`` script, after checking that it is one."""
     if not path.is_file():
         raise InputError("MeshLab filter script not found", path)
     if path.stat().st_size == 0:
@@ -188,6 +197,39 @@ def meshlab_script(ctx, path, layer):
     names = [el.get("name", "?") for el in root.iter("filter")] + [el.get("name", "?") for el in root.iter("xmlfilter")]
     if not names:
         raise InputError("MeshLab filter script has no filters", path)
+    return names
+
+
+def _check_meshlab_script(params):
+    """The script is read before any step runs; its path is kept absolute, so that the
+    chain.toml written with the run replays from any folder."""
+    if params["path"] is None:
+        raise ParameterError("meshlab_script needs the path of a .mlx script (parameter 'path')")
+    path = Path(params["path"]).expanduser().resolve()
+    _script_filters(path)
+    return {**params, "path": str(path)}
+
+
+@register_filter(
+    description="Run a MeshLab filter script (.mlx, saved from the MeshLab GUI or pymeshlab) on a surface layer.",
+    parameters=[
+        Parameter("path", "path", None, "(required) The .mlx filter script; relative paths are taken from the current folder."),
+        LAYER_PARAMETER,
+    ],
+    optional_reads=("surface", "coarse_surface", "caps"),
+    writes=("surface", "coarse_surface", "caps"),
+    category="preprocessing",
+    check=_check_meshlab_script,
+)
+def meshlab_script(ctx, path, layer):
+    """Replay every filter of a MeshLab ``.mlx`` script, in order, on the surface.
+
+    The script's filters are listed in the report's ``meshlab_script`` section.
+    """
+    import pymeshlab
+
+    path = Path(path)
+    names = _script_filters(path)
     ms, surface = _meshset(ctx, layer)
     try:
         ms.load_filter_script(str(path))
