@@ -234,12 +234,14 @@ def main(argv=None) -> int:
     ap.add_argument("--decimation", default="fast_simplification", choices=("fast_simplification", "pymeshlab"), help="decimation backend")
     ap.add_argument("--backends", action="store_true", help="compare closest-point backends instead")
     ap.add_argument("--backend-points", type=int, default=100_000)
-    ap.add_argument("--out", default=str(RESULTS / "sdf_coarse_vs_fine.json"), help="JSON rows output")
+    ap.add_argument("--out", help="JSON rows output (default: benchmarks/results/sdf_coarse_vs_fine.json; with --input, sdf_coarse_vs_fine_<name>.json in the current folder, so the shipped results stay)")
     args = ap.parse_args(argv)
     if args.backends:
         run_backends(args)
         return 0
     cases = [(Path(p).stem, Path(p)) for p in args.input] if args.input else default_cases()
+    if args.out is None:
+        args.out = f"sdf_coarse_vs_fine_{cases[0][0]}.json" if args.input else str(RESULTS / "sdf_coarse_vs_fine.json")
     rows = []
     for name, path in cases:
         t0 = time.perf_counter()

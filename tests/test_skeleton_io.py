@@ -208,6 +208,25 @@ def test_swc_keeps_types_and_refuses_cycles(tmp_path):
     assert not (tmp_path / "ring.swc").exists()
 
 
+def test_swc_carries_other_tags_as_named_custom_types(tmp_path):
+    """Branch and node tags survive SWC: custom types from 10 up, named in '# vmesh tag' lines."""
+    skel = Skeleton(
+        [[0, 0, 0], [1, 0, 0], [2, 0, 0], [2, 1, 0]],
+        [1, 1, 1, 1],
+        [[0, 1], [1, 2], [2, 3]],
+        [("swc_type_1",), (), ("aneurysm",), ()],
+        [("branch_0",), ("branch_1",), ("branch_1",)],
+    )
+    path = write_skeleton(tmp_path / "t.swc", skel)
+    assert "# vmesh tag 10 branch_0" in path.read_text()
+    back = read_skeleton(path)
+    assert back.node_tags[0] == ("swc_type_1",)  # an SWC type stays itself
+    assert back.node_tags[1] == ("branch_0",)  # the tag of the segment to its parent
+    assert set(back.node_tags[2]) == {"aneurysm", "branch_1"} and back.node_tags[3] == ("branch_1",)
+    edge = {tuple(sorted(e)): set(t) for e, t in zip(back.edges.tolist(), back.edge_tags)}
+    assert edge[(0, 1)] == {"branch_0"} and edge[(2, 3)] == {"branch_1"} and "branch_1" in edge[(1, 2)]
+
+
 def test_ply_edge_mesh_opens_in_pymeshlab(tmp_path):
     import pymeshlab
 

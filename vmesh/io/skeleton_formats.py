@@ -304,7 +304,10 @@ def write_skeleton_vtk(path, skeleton: Skeleton) -> Path:
 def read_swc(path) -> Skeleton:
     """Read an SWC file (``id type x y z radius parent`` per line, ``#`` comments).
 
-    The type column becomes the node tag ``swc_type_<n>``; radii <= 0 are unknown (NaN).
+    The type column becomes the node tag ``swc_type_<n>``, or the tags named for that
+    type by ``# vmesh tag <type> <tag>[+<tag>...]`` comments (written by
+    :func:`write_swc`), which also tag the segment to the sample's parent; radii <= 0 are
+    unknown (NaN).
     """
     path = Path(path)
     rows = []
@@ -312,7 +315,11 @@ def read_swc(path) -> Skeleton:
         text = path.read_text()
     except UnicodeDecodeError:
         raise InputError("not a text (SWC) file", path) from None
+    named: dict[int, tuple] = {}
     for lineno, line in enumerate(text.splitlines(), 1):
+        tag_line = re.fullmatch(r"\s*#\s*vmesh tag (-?\d+) (\S+)\s*", line)
+        if tag_line:
+            named[int(tag_line.group(1))] = tuple(tag_line.group(2).split("+"))
         body = line.split("#", 1)[0].strip()
         if not body:
             continue
@@ -345,14 +352,17 @@ def read_swc(path) -> Skeleton:
     edges = np.c_[order[pos], child]
     if (edges[:, 0] == edges[:, 1]).any():
         raise InputError("a sample is its own parent", path)
-    tags = [(f"swc_type_{t}",) for t in types.tolist()]
-    return Skeleton(pts, np.where(rad > 0, rad, np.nan), edges, tags, name=path.name)
+    tags = [named.get(t, (f"swc_type_{t}",)) for t in types.tolist()]
+    edge_tags = [tags[c] if types[c] in named else () for c in child.tolist()]
+    return Skeleton(pts, np.where(rad > 0, rad, np.nan), edges, tags, edge_tags, name=path.name)
 
 
 def write_swc(path, skeleton: Skeleton) -> Path:
     """Write SWC: samples in breadth-first order from each tree's root (the inlet), so that
-    parents precede children. SWC stores trees only; node tags other than
-    ``swc_type_<n>`` are not kept (type 0, "undefined", without one).
+    parents precede children. SWC stores trees only, and one type per sample: a node's
+    ``swc_type_<n>`` tag gives its type; other tags (of the node and of the segment to its
+    parent, e.g. ``branch_<k>``) get custom types from 10 up, named in ``# vmesh tag``
+    comments that :func:`read_swc` reads back; untagged samples are type 0 (undefined).
 
     Raises
     ------
@@ -378,8 +388,28 @@ def write_swc(path, skeleton: Skeleton) -> Path:
         f"# vmesh skeleton {skeleton.name}".rstrip(),
         "# id type x y z radius parent",
     ]
+    edge_of = {(int(a), int(b)): k for k, (a, b) in enumerate(skeleton.edges.tolist())}
+    used = {int(t[9:]) for tags in skeleton.node_tags for t in tags if re.fullmatch(r"swc_type_-?\d+", t)}
+    custom: dict[tuple, int] = {}
+    types = []
     for i, p in zip(order, parent):
-        swc_type = next((int(t[9:]) for t in skeleton.node_tags[i] if re.fullmatch(r"swc_type_-?\d+", t)), 0)
+        swc_type = next((int(t[9:]) for t in skeleton.node_tags[i] if re.fullmatch(r"swc_type_-?\d+", t)), None)
+        if swc_type is None:
+            k = edge_of.get((p, i), edge_of.get((i, p))) if p >= 0 else None
+            own = {t for t in skeleton.node_tags[i]} | (set(skeleton.edge_tags[k]) if k is not None else set())
+            key = tuple(sorted(t for t in own if not re.fullmatch(r"swc_type_-?\d+", t) and t.strip() and "+" not in t))
+            swc_type = 0
+            if key:
+                if key not in custom:
+                    number = 10 + len(custom)
+                    while number in used:
+                        number += 1
+                    used.add(number)
+                    custom[key] = number
+                swc_type = custom[key]
+        types.append(swc_type)
+    lines += [f"# vmesh tag {number} {'+'.join(key)}" for key, number in custom.items()]
+    for (i, p), swc_type in zip(zip(order, parent), types):
         x, y, z = skeleton.points[i]
         r = skeleton.radii[i]
         lines.append(f"{new_id[i]} {swc_type} {x:.9g} {y:.9g} {z:.9g} {0.0 if not np.isfinite(r) else r:.9g} {new_id[p] if p >= 0 else -1}")
