@@ -73,6 +73,18 @@ def test_append_keywords_and_a_filters_own_params_parameter():
     ]
 
 
+def test_unset_parameters_are_listed_and_auto_resets_them():
+    chain = FilterChain([("decimate_surface", {"target_faces": 500})]).resolved()
+    text = chain.to_toml()
+    assert '# target_ratio = "auto"' in text and '# max_error = "auto"' in text and "target_faces = 500" in text
+    again = FilterChain.from_dict(__import__("tomllib").loads(text)).resolved()
+    assert again.steps[0].params == chain.steps[0].params
+    reset = chain.with_overrides({"decimate_surface.target_faces": "auto"}).resolved()
+    assert reset.steps[0].params["target_faces"] is None
+    # a string parameter whose value is 'auto' keeps it
+    assert FilterChain([("smooth_loop", {"region": "auto"})]).resolved().steps[0].params["region"] == "auto"
+
+
 def test_overrides():
     chain = FilterChain([("transform_surface", {"scale": 2.0})]).with_overrides({"transform_surface.scale": 3.0})
     assert chain.steps[0].params["scale"] == 3.0

@@ -178,10 +178,14 @@ class FilterChain:
 
         d = self.to_dict()
         parts = [tomli_w.dumps({"chain": d["chain"]})]
-        for step in d["step"]:
+        for step, original in zip(d["step"], self.steps):
             text = f"[[step]]\nfilter = {tomli_w.dumps({'f': step['filter']}).split('=', 1)[1].strip()}\n"
             if step.get("params"):
                 text += "\n" + tomli_w.dumps({"step": {"params": step["params"]}})
+            # TOML has no null: parameters left automatic are listed as comments
+            unset = [k for k, v in original.params.items() if v is None]
+            if unset:
+                text += ("" if step.get("params") else "\n[step.params]\n") + "".join(f"# {k} = \"auto\"  (not set: its default)\n" for k in unset)
             parts.append(text)
         return (header + "\n" if header else "") + "\n".join(parts)
 

@@ -88,7 +88,10 @@ class Parameter:
             raise ValueError(f"parameter {self.name}: unknown type {self.type!r}")
 
     def validate(self, value: Any, where: str) -> Any:
-        """Check ``value`` and return it converted to the parameter's type."""
+        """Check ``value`` and return it converted to the parameter's type (the string
+        ``"auto"`` sets a non-string parameter whose default is automatic back to it)."""
+        if isinstance(value, str) and value == "auto" and self.default is None and self.type != "str":
+            value = None
         if value is None:
             if self.default is None:
                 return None

@@ -246,7 +246,7 @@ def detect_caps(ctx, angle_tolerance, min_crease_angle, min_roundness, min_faces
         ctx.report.sections["caps"] = [c.as_dict() for c in ctx.caps]
     ctx.count(caps=len(ctx.caps))
     if not ctx.caps:
-        ctx.warn("no flat caps found (rounded ends?); inlets and outlets stay unnamed")
+        ctx.warn("no flat caps found (rounded ends?): the mesh's open ends will be named from the skeleton's endpoints, the widest one inlet")
 
 
 @register_filter(
@@ -328,7 +328,7 @@ def smooth_loop(ctx, iterations, region, junction_distance, edge_threshold, weig
     description="Quadric edge-collapse decimation (pymeshlab or fast-simplification) to a face count or ratio; writes the coarse surface.",
     parameters=[
         Parameter("backend", "str", "pymeshlab", "pymeshlab's meshing_decimation_quadric_edge_collapse (topology, boundary and normals preserved) or fast_simplification (faster).", choices=("pymeshlab", "fast_simplification")),
-        Parameter("target_faces", "int", None, "Number of triangles to reach.", unit="faces", min=4),
+        Parameter("target_faces", "int", None, "Number of triangles to reach (automatic: max(20000, a tenth of the input); smaller surfaces are kept as they are).", unit="faces", min=4),
         Parameter("target_ratio", "float", None, "Fraction of the triangles to keep. Without either target: 10 % of the faces, at least 20,000.", min=1e-6, max=1.0),
         Parameter("preserve_boundary", "bool", True, "Do not move or collapse open-boundary edges."),
         Parameter("preserve_topology", "bool", True, "pymeshlab: refuse collapses that change the topology (no new holes or handles)."),
@@ -359,6 +359,7 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
     if target_faces is not None and target_ratio is not None:
         raise ParameterError("give target_faces or target_ratio, not both")
     s = ctx.surface
+    automatic = target_faces is None and target_ratio is None
     if target_faces is None:
         target_faces = int(round(s.n_faces * target_ratio)) if target_ratio is not None else min(s.n_faces, max(20000, s.n_faces // 10))
     options = dict(backend=backend, preserve_boundary=preserve_boundary, preserve_topology=preserve_topology, quality_threshold=quality_threshold, aggressiveness=aggressiveness)
@@ -396,7 +397,8 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
         ctx.report.sections["decimation"].update(max_error=max_error, tries=[{"faces": n, "max_error_rel": e} for n, e in tries])
     ctx.count(faces_in=s.n_faces, faces_out=len(f), max_deviation=deviation, **({"max_error_rel": round(tries[-1][1], 5)} if tries else {}))
     if target_faces >= s.n_faces:
-        ctx.warn(f"the surface has {s.n_faces} faces, no more than the target {target_faces}: kept as it is")
+        if not automatic:  # the automatic target keeps surfaces under 20k faces on purpose
+            ctx.warn(f"the surface has {s.n_faces} faces, no more than the target {target_faces}: kept as it is")
     elif abs(len(f) - target_faces) > 0.01 * target_faces and tries is None:
         ctx.warn(f"decimation stopped at {len(f)} faces, target was {target_faces} (topology or boundary constraints)")
 
