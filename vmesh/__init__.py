@@ -49,6 +49,17 @@ __all__ = [
     "ParameterError",
     "ChainError",
     "MeshingError",
+    "SignedDistance",
+    "TwoStepSignedDistance",
 ]
+
+
+def __getattr__(name):
+    # the signed distance pulls in numba: imported on first use, not with vmesh
+    if name in ("SignedDistance", "TwoStepSignedDistance"):
+        from .geometry import sdf
+
+        return getattr(sdf, name)
+    raise AttributeError(f"module 'vmesh' has no attribute {name!r}")
 
 from . import batch  # noqa: E402,F401  (vmesh.batch.run; dask is imported only when a batch runs)

@@ -364,12 +364,18 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
         target_faces = int(round(s.n_faces * target_ratio)) if target_ratio is not None else min(s.n_faces, max(20000, s.n_faces // 10))
     options = dict(backend=backend, preserve_boundary=preserve_boundary, preserve_topology=preserve_topology, quality_threshold=quality_threshold, aggressiveness=aggressiveness)
     tries = None
-    if max_error is None:
-        v, f = pre.decimate(s.vertices, s.faces, target_faces, **options)
-    else:
-        labels = s.face_data.get(pre.CAP_LABEL)
-        wall = None if labels is None or len(labels) != s.n_faces else np.asarray(labels) == 0
-        v, f, tries = pre.decimate_to_tolerance(s.vertices, s.faces, target_faces, max_error, wall_faces=wall, **options)
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:  # the backend fallback goes into the report
+        warnings.simplefilter("always", RuntimeWarning)
+        if max_error is None:
+            v, f = pre.decimate(s.vertices, s.faces, target_faces, **options)
+        else:
+            labels = s.face_data.get(pre.CAP_LABEL)
+            wall = None if labels is None or len(labels) != s.n_faces else np.asarray(labels) == 0
+            v, f, tries = pre.decimate_to_tolerance(s.vertices, s.faces, target_faces, max_error, wall_faces=wall, **options)
+    for message in dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)):
+        ctx.warn(message)
         for k, (n_faces, err) in enumerate(tries, 1):
             ctx.tick(k / len(tries), f"{n_faces} faces: max error {100 * err:.2f} % of the local radius")
         if tries[-1][1] > max_error:
