@@ -366,8 +366,9 @@ def cast_rays(
     Marches each ray from its origin (inside the vessel) in steps of ``step × scale``
     until the signed distance turns negative, then finds the crossing in the bracketing
     step: by one exact line cast where ``intersect_lines`` is given, else by bisection.
-    (A wall grazed between two march samples is stepped over, on purpose: it is the
-    crossing the sections were tuned with.)
+    Either way a wall grazed between two march samples is stepped over (an exact first
+    crossing moved 35 of the real coarctation's 33,249 section rays inward by up to 6
+    radii and changed its mesh; the march keeps the sections the presets were tuned on).
 
     Parameters
     ----------

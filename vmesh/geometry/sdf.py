@@ -667,7 +667,11 @@ def compare_coarse_fine(fine_surface, coarse_surfaces, counts=(10_000, 100_000, 
     caps = fine_surface.face_data.get("cap_id")
     wall = None if caps is None or len(caps) != fine_surface.n_faces else np.asarray(caps) == 0
     labels = list(labels) if labels is not None else [f"{s.n_faces} faces" for s in coarse_surfaces]
-    fine.project(fine.vertices[:16])  # warm-up (thread pool, page faults)
+    # warm-up (thread pool, page faults) of the serial and the parallel kernels, every surface
+    warm = np.resize(fine.vertices, (_bvh.PARALLEL_MIN, 3))
+    for sdf in [fine] + [c for c, _ in coarse]:
+        sdf.project(warm[:16])
+        sdf.project(warm)
     rows = []
     for n in counts:
         points, radius = vessel_query_points(fine, int(n), seed=seed, wall_faces=wall)
