@@ -359,9 +359,7 @@ def check_out_dir(out_dir: Path) -> None:
 def _commit_stage(stage: Path, out_dir: Path) -> None:
     """Put the staged run in place of ``out_dir``: the whole folder is swapped by renames,
     so the files of an earlier run there (exports, pictures) never mix with the new ones."""
-    umask = os.umask(0)
-    os.umask(umask)
-    stage.chmod(0o777 & ~umask)  # mkdtemp made it private
+    stage.chmod(0o777 & ~_umask())  # mkdtemp made it private
     old = None
     if out_dir.exists():
         old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.parent))
@@ -375,6 +373,18 @@ def _commit_stage(stage: Path, out_dir: Path) -> None:
         raise
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
+
+
+def _umask() -> int:
+    """The process umask, read without setting it (os.umask changes it for every thread
+    while it is read, and batch workers are threads)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    return 0o022
 
 
 def _toml_clean(params: dict) -> dict:
