@@ -161,7 +161,8 @@ def repair_surface(ctx, merge_tolerance, keep, orient):
             "str",
             "rings",
             "'rings': concentric rings of triangles sized like the rim edges, zipped to the rim, with a centre fan; "
-            "'meshlab': pymeshlab hole filling (meshing_close_holes) with refinement.",
+            "'meshlab': pymeshlab hole filling (meshing_close_holes) with refinement, which can leave sliver triangles on the cap "
+            "(harmless for the signed distance; 'rings' gives well-shaped caps).",
             choices=("rings", "meshlab"),
         ),
         Parameter("rings", "int", None, "Inner rings per cap for method 'rings' (0: a plain centre fan). Automatic: about radius / rim edge length.", min=0, max=200),
