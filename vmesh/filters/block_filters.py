@@ -86,7 +86,10 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
             project = wall_projector(ctx.surface, ctx.caps)
         elif hasattr(sdf, "closest_points"):
             project = sdf.closest_points
-    blocks = build_blocks(ctx.skeleton, distance, ctx.caps, options, bad_blocks_path=bad_path, warn=ctx.warn, progress=ctx.tick, project=project)
+    blocks = build_blocks(
+        ctx.skeleton, distance, ctx.caps, options, bad_blocks_path=bad_path, warn=ctx.warn, progress=ctx.tick, project=project,
+        intersect_lines=getattr(sdf, "intersect_lines", None),
+    )
     skeleton = blocks.info.pop("skeleton", None)
     if skeleton is not None and skeleton is not ctx.skeleton:
         ctx.skeleton = skeleton  # junctions were split

@@ -133,6 +133,7 @@ def build_blocks(
     warn=None,
     progress=None,
     project=None,
+    intersect_lines=None,
 ) -> BlockStructure:
     """Build the block structure of a vessel.
 
@@ -155,6 +156,11 @@ def build_blocks(
         ``project(points) -> closest wall points``: when given, boundary-layer blocks are
         also checked with their wall faces projected onto the wall and thickened where they
         would fold (:func:`projected_wall_quality`).
+    intersect_lines : callable, optional
+        Line casts on the same surface
+        (:meth:`~vmesh.geometry.sdf.SignedDistance.intersect_lines`): the section rays
+        then find the wall by one cast each instead of bisecting ``distance``
+        (:func:`~vmesh.geometry.cross_sections.cast_rays`).
 
     Returns
     -------
@@ -172,7 +178,7 @@ def build_blocks(
         sk, notes = queue.pop(0)
         tries += 1
         try:
-            blocks = _Builder(sk, distance, caps, options, warn, progress, project).run()
+            blocks = _Builder(sk, distance, caps, options, warn, progress, project, intersect_lines).run()
         except _Failure as failure:
             first = first or failure
             queue[:0] = _retopology_options(failure, notes, distance, options)
@@ -408,9 +414,10 @@ def polyline_at(points: np.ndarray, arc: np.ndarray, s: np.ndarray, values: np.n
 # the builder
 # ---------------------------------------------------------------------------
 class _Builder:
-    def __init__(self, skeleton: Skeleton, distance, caps, options: BlockOptions, warn, progress, project=None):
+    def __init__(self, skeleton: Skeleton, distance, caps, options: BlockOptions, warn, progress, project=None, intersect_lines=None):
         self.opt = options
         self.sdf = distance
+        self.intersect_lines = intersect_lines
         self.project = project
         self.caps = list(caps or [])
         self.warn = warn or (lambda msg: None)
@@ -1036,8 +1043,7 @@ class _Builder:
         self.max_twist = float(np.degrees(np.concatenate(tw).max())) if tw else 0.0
 
     def cast(self, origins, directions, scale, reach: float = 12.0) -> np.ndarray:
-        owner = getattr(self.sdf, "__self__", None)  # the SDF whose distance method was passed
-        return cs.cast_rays(self.sdf, origins, directions, scale, reach=reach, intersect_lines=getattr(owner, "intersect_lines", None))
+        return cs.cast_rays(self.sdf, origins, directions, scale, reach=reach, intersect_lines=self.intersect_lines)
 
     def regular_sections(self):
         """Vertices of every regular (non-junction) section."""
