@@ -28,6 +28,9 @@ def check_pictures(folder, size=(1000, 750)):
     for table in ("Counts", "Quality (scaled Jacobian)", "Elements per label", "Boundary faces", "Filters"):
         assert f"<h2>{table}</h2>" in html
     assert not list(folder.rglob(".*partial*"))
+    # staged and swapped in: no staging folder left, and not mkdtemp's private mode
+    assert not list(folder.glob(".pictures*"))
+    assert (folder / "pictures").stat().st_mode & 0o077
 
 
 def test_render_synthetic(y_run, tmp_path, capsys):

@@ -15,6 +15,7 @@ from pathlib import Path
 from . import __version__
 from .context import Context, StepReport
 from .errors import ChainError, InputError, ParameterError, VmeshError
+from .io.atomic import replace_dir
 from .monitor import ResourceMonitor
 from .registry import get_filter, suggest
 
@@ -329,7 +330,7 @@ class FilterChain:
                 report["inputs"] = dict(ctx.inputs)
                 report["chain"] = resolved.name
                 (stage / "report.json").write_text(json.dumps(report, indent=2))
-                _commit_stage(stage, out_dir)
+                replace_dir(stage, out_dir)  # the whole folder: no earlier run's files stay beside the new ones
                 ctx.stage_dir = None
         finally:
             ctx._step = None
@@ -354,37 +355,6 @@ def check_out_dir(out_dir: Path) -> None:
             if not parent.is_dir():
                 raise InputError(f"{parent} is not a folder", out_dir)
             break
-
-
-def _commit_stage(stage: Path, out_dir: Path) -> None:
-    """Put the staged run in place of ``out_dir``: the whole folder is swapped by renames,
-    so the files of an earlier run there (exports, pictures) never mix with the new ones."""
-    stage.chmod(0o777 & ~_umask())  # mkdtemp made it private
-    old = None
-    if out_dir.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.parent))
-        old.rmdir()
-        out_dir.rename(old)
-    try:
-        stage.rename(out_dir)
-    except OSError:
-        if old is not None:
-            old.rename(out_dir)  # put the earlier run back
-        raise
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
-
-
-def _umask() -> int:
-    """The process umask, read without setting it (os.umask changes it for every thread
-    while it is read, and batch workers are threads)."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("Umask:"):
-                return int(line.split()[1], 8)
-    except (OSError, ValueError):
-        pass
-    return 0o022
 
 
 def _toml_clean(params: dict) -> dict:

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .io.atomic import atomic_path, write_text_atomic
+from .io.atomic import atomic_path, replace_dir, write_text_atomic
 
 #: Pictures in the order the HTML page shows them, with their captions.
 PICTURES = {
@@ -320,13 +320,7 @@ def render_run(run_dir, out_dir=None, size=(1000, 750), html: bool = True) -> di
     stage = Path(tempfile.mkdtemp(prefix=".pictures.", dir=out_dir))
     try:
         staged = render_pictures(stage, mesh, surface, skeleton, blocks, report, size=size)
-        old = None
-        if final.exists():
-            old = final.with_name(stage.name + ".old")
-            final.rename(old)
-        stage.rename(final)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+        replace_dir(stage, final)
     finally:
         if stage.exists():
             shutil.rmtree(stage, ignore_errors=True)

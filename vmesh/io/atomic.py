@@ -24,9 +24,7 @@ def atomic_path(path: str | Path):
     try:
         yield tmp
         if tmp.is_file():  # mkstemp makes files private (0600): give them the usual umask mode
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)
+            os.chmod(tmp, 0o666 & ~current_umask())
         if tmp.is_dir():  # writers that produce folders (e.g. OpenFOAM cases)
             if path.exists():
                 import shutil
@@ -48,3 +46,40 @@ def write_text_atomic(path: str | Path, text: str) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(text)
     return Path(path)
+
+
+def replace_dir(stage: str | Path, final: str | Path) -> Path:
+    """Put the folder ``stage`` in place of ``final`` by renames (same file system): an
+    earlier ``final`` is moved aside, then removed once ``stage`` has taken its name, and
+    put back if that rename fails. ``stage`` gets the usual umask mode (``mkdtemp`` made it
+    private)."""
+    import shutil
+
+    stage, final = Path(stage), Path(final)
+    stage.chmod(0o777 & ~current_umask())
+    old = None
+    if final.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{final.name}.old-", dir=final.parent))
+        old.rmdir()
+        final.rename(old)
+    try:
+        stage.rename(final)
+    except OSError:
+        if old is not None:
+            old.rename(final)
+        raise
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+    return final
+
+
+def current_umask() -> int:
+    """The process umask, read without setting it (``os.umask`` changes it for every
+    thread while it is read, and batch workers are threads)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    return 0o022
