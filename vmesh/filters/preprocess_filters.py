@@ -10,6 +10,7 @@ geometry and names.
 from __future__ import annotations
 
 import time
+import warnings
 
 import numpy as np
 
@@ -365,8 +366,6 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
         target_faces = int(round(s.n_faces * target_ratio)) if target_ratio is not None else min(s.n_faces, max(20000, s.n_faces // 10))
     options = dict(backend=backend, preserve_boundary=preserve_boundary, preserve_topology=preserve_topology, quality_threshold=quality_threshold, aggressiveness=aggressiveness)
     tries = None
-    import warnings
-
     with warnings.catch_warnings(record=True) as caught:  # the backend fallback goes into the report
         warnings.simplefilter("always", RuntimeWarning)
         if max_error is None:

@@ -384,9 +384,9 @@ class TwoStepSignedDistance:
     points, tight bends) the distance can exceed the fine one by up to a few coarse
     errors (``benchmarks/sdf_coarse_vs_fine.py``, column ``2-step dist max``: 0.5–1.7 %
     of the local radius at the 1.5 % tolerance level, up to 6 % with 5k-triangle coarse
-    surfaces of the large vessels). The sign comes from the fine surface's pseudonormals where the coarse
-    surface agrees; where it does not (points within the coarse error of the wall), the
-    fine surface is queried exactly. With the BVH a direct fine query is faster (three
+    surfaces of the large vessels). The sign comes from the fine surface's pseudonormals
+    where the coarse surface agrees; where it does not (points within the coarse error of
+    the wall), the fine surface is queried exactly. With the BVH a direct fine query is faster (three
     tree queries here against one).
 
     Parameters

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..mesh import VTK_HEXAHEDRON, VTK_LAGRANGE_HEXAHEDRON, tensor_to_vtk
+from .mesh import names_from_field_data
 
 #: Where a run folder keeps what the MeshLab export wrote.
 MESHLAB_DIR = "meshlab"
@@ -31,12 +32,6 @@ def check_run_dir(run_dir) -> Path:
     if not (run_dir / "mesh.vtu").is_file():
         raise InputError("no mesh.vtu: not a finished run folder (vmesh run ... -o DIR)", run_dir)
     return run_dir
-
-
-def _names(field, key) -> dict:
-    from .mesh import names_from_field_data
-
-    return names_from_field_data(field, key.removesuffix("_names"))
 
 
 def match_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -88,7 +83,7 @@ def read_mesh_vtu(path, boundary_path=None, node_distribution: str = "gauss_loba
     bfaces = faces.reshape(-1, (p + 1) ** 2)[once]
     bcells = once // 6
     bids = np.zeros(len(once), np.int64)
-    bnames = _names(grid.field_data, "boundary_names") or {0: "wall"}
+    bnames = names_from_field_data(grid.field_data, "boundary") or {0: "wall"}
     if boundary_path is not None and Path(boundary_path).is_file():
         b = pv.read(str(boundary_path))
         if "boundary_id" in b.cell_data and b.n_cells:
@@ -96,7 +91,7 @@ def read_mesh_vtu(path, boundary_path=None, node_distribution: str = "gauss_loba
             hit = match_rows(corners[once], np.sort(quads, axis=1))
             ok = hit >= 0
             bids[hit[ok]] = np.asarray(b.cell_data["boundary_id"])[ok]
-        bnames = _names(b.field_data, "boundary_names") or bnames
+        bnames = names_from_field_data(b.field_data, "boundary") or bnames
     return HexMesh(
         points=np.asarray(grid.points, np.float64),
         cells=cells,
@@ -106,7 +101,7 @@ def read_mesh_vtu(path, boundary_path=None, node_distribution: str = "gauss_loba
         boundary_ids=bids,
         boundary_cells=bcells,
         boundary_names=bnames,
-        label_names=_names(grid.field_data, "label_names"),
+        label_names=names_from_field_data(grid.field_data, "label"),
         node_distribution=node_distribution,
     )
 

@@ -301,6 +301,14 @@ def write_skeleton_vtk(path, skeleton: Skeleton) -> Path:
 # ---------------------------------------------------------------------------
 
 
+_SWC_TYPE_TAG = re.compile(r"swc_type_(-?\d+)")  # the node tag read_swc gives each SWC type
+
+
+def _swc_type(tags) -> int | None:
+    """The SWC type named by one of ``tags`` (``swc_type_<n>``), else None."""
+    return next((int(m.group(1)) for m in map(_SWC_TYPE_TAG.fullmatch, tags) if m), None)
+
+
 def read_swc(path) -> Skeleton:
     """Read an SWC file (``id type x y z radius parent`` per line, ``#`` comments).
 
@@ -389,15 +397,16 @@ def write_swc(path, skeleton: Skeleton) -> Path:
         "# id type x y z radius parent",
     ]
     edge_of = {(int(a), int(b)): k for k, (a, b) in enumerate(skeleton.edges.tolist())}
-    used = {int(t[9:]) for tags in skeleton.node_tags for t in tags if re.fullmatch(r"swc_type_-?\d+", t)}
+    given = [_swc_type(tags) for tags in skeleton.node_tags]
+    used = {t for t in given if t is not None}
     custom: dict[tuple, int] = {}
     types = []
     for i, p in zip(order, parent):
-        swc_type = next((int(t[9:]) for t in skeleton.node_tags[i] if re.fullmatch(r"swc_type_-?\d+", t)), None)
+        swc_type = given[i]
         if swc_type is None:
             k = edge_of.get((p, i), edge_of.get((i, p))) if p >= 0 else None
-            own = {t for t in skeleton.node_tags[i]} | (set(skeleton.edge_tags[k]) if k is not None else set())
-            key = tuple(sorted(t for t in own if not re.fullmatch(r"swc_type_-?\d+", t) and t.strip() and "+" not in t))
+            own = set(skeleton.node_tags[i]) | (set(skeleton.edge_tags[k]) if k is not None else set())
+            key = tuple(sorted(t for t in own if not _SWC_TYPE_TAG.fullmatch(t) and t.strip() and "+" not in t))
             swc_type = 0
             if key:
                 if key not in custom:
