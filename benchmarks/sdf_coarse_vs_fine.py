@@ -8,7 +8,10 @@ synthetic case, or for the surfaces given with ``--input``:
 * 10^4..10^6 query points are placed like a mesher's (wall samples moved along the
   inward normal from 0.3 radii outside to the centreline, see
   ``vmesh.geometry.sdf.vessel_query_points``);
-* each point set is projected with the fine, the coarse and the two-step SDF.
+* each point set is projected with the fine, the coarse and the two-step SDF, and with
+  the octree index (``OctreeSignedDistance``, ``build_sdf index=octree``) over every coarse
+  surface and over the fine one (rows whose coarse level ends in ", octree"; ``--no-octree``
+  leaves them out). Times are the best of 3 runs.
 
 Columns: ``qps`` = points per wall-clock second (2 cores), ``cpu_qps`` = points per
 CPU-second (less sensitive to other jobs on the machine), ``err`` = distance of the
@@ -232,6 +235,7 @@ def main(argv=None) -> int:
     ap.add_argument("--coarse", type=int, nargs="+", default=[5_000, 20_000], help="coarse surface face counts")
     ap.add_argument("--coarse-error", type=float, default=0.015, help="also decimate to this tolerance (fraction of the local radius; decimate_surface max_error); 0 = off")
     ap.add_argument("--decimation", default="fast_simplification", choices=("fast_simplification", "pymeshlab"), help="decimation backend")
+    ap.add_argument("--no-octree", action="store_true", help="leave out the octree index rows")
     ap.add_argument("--backends", action="store_true", help="compare closest-point backends instead")
     ap.add_argument("--backend-points", type=int, default=100_000)
     ap.add_argument("--out", help="JSON rows output (default: benchmarks/results/sdf_coarse_vs_fine.json; with --input, sdf_coarse_vs_fine_<name>.json in the current folder, so the shipped results stay)")
@@ -251,7 +255,7 @@ def main(argv=None) -> int:
             print(f"{name}: {fine.n_faces} triangles, no coarse level below it; skipped", file=sys.stderr)
             continue
         labels, surfaces = zip(*coarse)
-        case_rows = compare_coarse_fine(fine, surfaces, counts=args.points, case=name, labels=labels)
+        case_rows = compare_coarse_fine(fine, surfaces, counts=args.points, case=name, labels=labels, octree=not args.no_octree)
         rows += case_rows
         print(f"{name}: {fine.n_faces} triangles{' (capped)' if was_open else ''}, {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     print(f"\nload average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; decimation: {args.decimation}\n")

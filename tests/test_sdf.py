@@ -190,15 +190,18 @@ def test_build_sdf_refuses_open_surface(real_path):
 
 
 def test_measure_sdf_chain_preset(real_path, tmp_path):
-    chain = FilterChain.load("sdf_benchmark").with_overrides({"measure_sdf.points": [2000], "decimate_surface.target_faces": 3000})
+    chain = FilterChain.load("sdf_benchmark").with_overrides({"measure_sdf.points": [2000], "decimate_surface.target_faces": 3000, "decimate_surface.max_error": "auto"})
     ctx = chain.run(surface=real_path("aneurysm_ica_aneurisk_c0015_open.vtp"), out_dir=tmp_path / "out")
     import json
 
     rows = json.loads((tmp_path / "out" / "sdf_coarse_vs_fine.json").read_text())
     keys = {"case", "triangles_fine", "triangles_coarse", "points", "build_s_fine", "build_s_coarse", "qps_fine", "qps_coarse", "speedup", "err_max_rel", "err_mean_rel"}
-    assert len(rows) == 1 and keys <= set(rows[0])
-    assert rows[0]["triangles_coarse"] == 3000 and rows[0]["points"] == 2000
+    assert [r["coarse_level"] for r in rows] == ["3000 faces", "3000 faces, octree", "fine surface, octree"]
+    assert all(keys <= set(r) for r in rows)
+    assert rows[0]["triangles_coarse"] == 3000 and rows[0]["points"] == 2000 and rows[0]["coarse_index"] == "bvh"
     assert 0 <= rows[0]["err_mean_rel"] <= rows[0]["err_max_rel"] < 0.2
+    # the octree answers on the same surface: the same off-surface error, none on the fine one
+    assert abs(rows[1]["err_max_rel"] - rows[0]["err_max_rel"]) < 0.01 and rows[2]["err_max_rel"] < 1e-6
     assert len(ctx.caps) == 3
 
 

@@ -51,6 +51,7 @@ __all__ = [
     "MeshingError",
     "SignedDistance",
     "TwoStepSignedDistance",
+    "OctreeSignedDistance",
 ]
 
 
@@ -60,6 +61,10 @@ def __getattr__(name):
         from .geometry import sdf
 
         return getattr(sdf, name)
+    if name == "OctreeSignedDistance":
+        from .geometry.octree_sdf import OctreeSignedDistance
+
+        return OctreeSignedDistance
     raise AttributeError(f"module 'vmesh' has no attribute {name!r}")
 
 from . import batch  # noqa: E402,F401  (vmesh.batch.run; dask is imported only when a batch runs)
