@@ -37,6 +37,7 @@ import numpy as np
 
 from . import bvh as _bvh
 from .bvh import _nb, _point_triangle, _sign_one
+from .sdf import SurfaceQueries
 
 # offsets in a cell, in quarter cells: the 27 lattice points (0, 1/2, 1) and 8 checks (1/4, 3/4)
 _OFF27 = np.stack(np.meshgrid([0, 2, 4], [0, 2, 4], [0, 2, 4], indexing="ij"), axis=-1).reshape(-1, 3)
@@ -56,7 +57,7 @@ _CREASE_COS = np.cos(np.radians(40.0))
 _CREASE_NEAR = 0.25
 
 
-class OctreeSignedDistance:
+class OctreeSignedDistance(SurfaceQueries):
     """Signed distance of a :class:`~vmesh.geometry.sdf.SignedDistance` answered from an
     octree of verified candidate triangles (module docstring), with the exact BVH query
     where the octree has no answer.
@@ -239,42 +240,9 @@ class OctreeSignedDistance:
         err = np.abs(signed - exact).reshape(k, c)
         return np.all(err <= self.max_error * r_cell[:, None], axis=1)
 
-    # -- queries -------------------------------------------------------------
-    def project(self, points):
-        """Closest surface points, signed distances and closest faces (see
-        :meth:`SignedDistance.project <vmesh.geometry.sdf.SignedDistance.project>`)."""
-        from .sdf import _as_points
-
-        c, d, f, _ = self._query(_as_points(points))
-        return c, d, f
-
-    def distance(self, points) -> np.ndarray:
-        """Signed distance ``(n,)``: positive inside the vessel, negative outside."""
-        return self.project(points)[1]
-
-    def closest_points(self, points) -> np.ndarray:
-        """Closest points ``(n, 3)`` on the surface."""
-        return self.project(points)[0]
-
-    def gradient(self, points) -> np.ndarray:
-        """Unit gradient ``(n, 3)`` of the signed distance, pointing into the vessel."""
-        from .sdf import _as_points, _gradient
-
-        p = _as_points(points)
-        c, d, _, normal = self._query(p)
-        return _gradient(p, c, d, normal, 1e-9 * self.diagonal)
-
-    def inside(self, points) -> np.ndarray:
-        """Boolean ``(n,)``: True for points strictly inside the vessel."""
-        return self.distance(points) > 0
-
-    def surface_normals(self, points) -> np.ndarray:
-        """Outward unit (pseudo)normals ``(n, 3)`` at the closest points."""
-        from .sdf import _as_points
-
-        return self._query(_as_points(points))[3]
-
+    # -- queries (project, distance, gradient, ... from SurfaceQueries) --------
     def winding_number(self, points) -> np.ndarray:
+        """Winding number of the surface (:meth:`SignedDistance.winding_number`)."""
         return self.exact.winding_number(points)
 
     def intersect_lines(self, points, directions, reach, side=None):
@@ -282,6 +250,7 @@ class OctreeSignedDistance:
         return self.exact.intersect_lines(points, directions, reach, side)
 
     def pseudonormals(self, closest, face):
+        """Outward pseudonormals at closest points (:meth:`SignedDistance.pseudonormals`)."""
         return self.exact.pseudonormals(closest, face)
 
     def _closest(self, p):
@@ -320,12 +289,7 @@ class OctreeSignedDistance:
             r = ex._tree.closest(q)
             sq[miss], face[miss], closest[miss], feature[miss] = r
             signed[miss], normal[miss], unsure[miss] = _bvh.pseudonormal_signs(q, r[0], r[2], r[1], r[3], ex.faces, ex.face_normals, ex._edge_normals, ex.vertex_normals, ex.degenerate_faces, ex._suspect_vertex)
-        if ex.sign_method != "pseudonormal":
-            unsure[:] = True
-        if unsure.any():
-            idx = np.flatnonzero(unsure)
-            outside = ex.winding_number(p[idx]) < 0.5
-            signed[idx] = np.where(outside, -1.0, 1.0) * np.abs(signed[idx])
+        ex._resolve_unsure(p, signed, unsure)
         return sq, face, closest, feature, signed, normal
 
     def _query(self, p: np.ndarray):

@@ -141,7 +141,81 @@ def folded_faces(faces: np.ndarray, face_unit_normals: np.ndarray, edge_of_half:
     return out
 
 
-class SignedDistance:
+class SurfaceQueries:
+    """Batch queries shared by the signed distances (:class:`SignedDistance`,
+    :class:`TwoStepSignedDistance`, :class:`~vmesh.geometry.octree_sdf.OctreeSignedDistance`):
+    each subclass answers ``_query(p) -> (closest, signed, face, normal)`` and these run it
+    in chunks of ``_CHUNK`` points (bounded temporary memory)."""
+
+    # -- queries -----------------------------------------------------------
+    def project(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest surface points, signed distances and closest faces.
+
+        Parameters
+        ----------
+        points : (n, 3) array_like
+
+        Returns
+        -------
+        closest : (n, 3) float64
+            Closest points on the surface.
+        distance : (n,) float64
+            Signed distance, positive inside the vessel.
+        face : (n,) int64
+            Index of the triangle containing each closest point.
+
+        Points with a NaN or infinite coordinate get NaN closest points and distances
+        (so ``inside`` is False there) and face -1.
+        """
+        p = _as_points(points)
+        closest = np.empty_like(p)
+        distance = np.empty(len(p))
+        face = np.empty(len(p), np.int64)
+        for part, (c, d, i, _) in self._chunks(p):
+            closest[part], distance[part], face[part] = c, d, i
+        return closest, distance, face
+
+    def distance(self, points) -> np.ndarray:
+        """Signed distance ``(n,)``: positive inside the vessel, negative outside."""
+        return self.project(points)[1]
+
+    def closest_points(self, points) -> np.ndarray:
+        """Closest points ``(n, 3)`` on the surface (``project(points)[0]``)."""
+        return self.project(points)[0]
+
+    def gradient(self, points) -> np.ndarray:
+        """Unit gradient ``(n, 3)`` of the signed distance: points into the vessel.
+
+        Off the surface it is ``±(p - closest) / |p - closest|``; on the surface (and at
+        the medial axis, where it is not unique) it falls back to the inward normal at
+        the closest point.
+        """
+        p = _as_points(points)
+        out = np.empty_like(p)
+        for part, (c, d, _, normal) in self._chunks(p):
+            out[part] = _gradient(p[part], c, d, normal, 1e-9 * self.diagonal)
+        return out
+
+    def inside(self, points) -> np.ndarray:
+        """Boolean ``(n,)``: True for points strictly inside the vessel."""
+        return self.distance(points) > 0
+
+    def surface_normals(self, points) -> np.ndarray:
+        """Outward unit (pseudo)normals ``(n, 3)`` of the surface at the closest points."""
+        p = _as_points(points)
+        out = np.empty_like(p)
+        for part, result in self._chunks(p):
+            out[part] = result[3]
+        return out
+
+    def _chunks(self, p: np.ndarray):
+        """``(slice, _query result)`` per chunk of ``p``."""
+        for s in range(0, len(p), _CHUNK):
+            part = slice(s, s + _CHUNK)
+            yield part, self._query(p[part])
+
+
+class SignedDistance(SurfaceQueries):
     """Signed distance, closest point and gradient of a closed triangle surface.
 
     Parameters
@@ -234,62 +308,6 @@ class SignedDistance:
         return f"SignedDistance({self.name or 'surface'}: {self.n_faces} triangles, sign={self.sign_method})"
 
     # -- queries -----------------------------------------------------------
-    def project(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Closest surface points, signed distances and closest faces.
-
-        Parameters
-        ----------
-        points : (n, 3) array_like
-
-        Returns
-        -------
-        closest : (n, 3) float64
-            Closest points on the surface.
-        distance : (n,) float64
-            Signed distance, positive inside the vessel.
-        face : (n,) int64
-            Index of the triangle containing each closest point.
-
-        Points with a NaN or infinite coordinate get NaN closest points and distances
-        (so ``inside`` is False there) and face -1.
-        """
-        p = _as_points(points)
-        closest = np.empty_like(p)
-        distance = np.empty(len(p))
-        face = np.empty(len(p), np.int64)
-        for s in range(0, len(p), _CHUNK):
-            part = slice(s, s + _CHUNK)
-            c, d, i, _ = self._query(p[part])
-            closest[part], distance[part], face[part] = c, d, i
-        return closest, distance, face
-
-    def distance(self, points) -> np.ndarray:
-        """Signed distance ``(n,)``: positive inside the vessel, negative outside."""
-        return self.project(points)[1]
-
-    def closest_points(self, points) -> np.ndarray:
-        """Closest points ``(n, 3)`` on the surface (``project(points)[0]``)."""
-        return self.project(points)[0]
-
-    def gradient(self, points) -> np.ndarray:
-        """Unit gradient ``(n, 3)`` of the signed distance: points into the vessel.
-
-        Off the surface it is ``±(p - closest) / |p - closest|``; on the surface (and at
-        the medial axis, where it is not unique) it falls back to the inward normal at
-        the closest point.
-        """
-        p = _as_points(points)
-        out = np.empty_like(p)
-        for s in range(0, len(p), _CHUNK):
-            part = slice(s, s + _CHUNK)
-            c, d, _, normal = self._query(p[part])
-            out[part] = _gradient(p[part], c, d, normal, 1e-9 * self.diagonal)
-        return out
-
-    def inside(self, points) -> np.ndarray:
-        """Boolean ``(n,)``: True for points strictly inside the vessel."""
-        return self.distance(points) > 0
-
     def winding_number(self, points) -> np.ndarray:
         """Generalised winding number ``(n,)`` (≈1 inside, ≈0 outside), fast approximation."""
         import igl
@@ -317,15 +335,6 @@ class SignedDistance:
         t, _ = self._tree.intersect_lines(p, d, reach, side)
         hit = ~np.isnan(t)
         return np.where(hit[:, None], p + np.where(hit, t, 0.0)[:, None] * d, p), hit
-
-    def surface_normals(self, points) -> np.ndarray:
-        """Outward unit (pseudo)normals ``(n, 3)`` of the surface at the closest points."""
-        p = _as_points(points)
-        out = np.empty_like(p)
-        for s in range(0, len(p), _CHUNK):
-            part = slice(s, s + _CHUNK)
-            out[part] = self._query(p[part])[3]
-        return out
 
     # -- internals -----------------------------------------------------------
     def _closest(self, p: np.ndarray):
@@ -368,13 +377,18 @@ class SignedDistance:
         number near suspect faces and with ``sign_method="winding_number"``.
         """
         signed, normal, unsure = _bvh.pseudonormal_signs(p, sq, closest, face, feature, self.faces, self.face_normals, self._edge_normals, self.vertex_normals, self.degenerate_faces, self._suspect_vertex)
+        self._resolve_unsure(p, signed, unsure)
+        return signed, normal
+
+    def _resolve_unsure(self, p, signed, unsure) -> None:
+        """Winding-number signs (in place) where pseudonormals are not trusted: at points
+        flagged ``unsure``, or everywhere with ``sign_method="winding_number"``."""
         if self.sign_method != "pseudonormal":
             unsure[:] = True
         if unsure.any():
             idx = np.flatnonzero(unsure)
             outside = self.winding_number(p[idx]) < 0.5
             signed[idx] = np.where(outside, -1.0, 1.0) * np.abs(signed[idx])
-        return signed, normal
 
     def _outside(self, p, closest, face, normal) -> np.ndarray:
         if self.sign_method != "pseudonormal":
@@ -386,7 +400,7 @@ class SignedDistance:
         return outside
 
 
-class TwoStepSignedDistance:
+class TwoStepSignedDistance(SurfaceQueries):
     """Project with a coarse surface first, then refine the result on the fine one.
 
     The coarse AABB query does the expensive search (points far from the surface
@@ -428,40 +442,6 @@ class TwoStepSignedDistance:
     def __repr__(self) -> str:
         return f"TwoStepSignedDistance(coarse {self.coarse.n_faces} -> fine {self.fine.n_faces} triangles)"
 
-    def project(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Closest fine-surface points, signed distances and fine faces (see :meth:`SignedDistance.project`)."""
-        p = _as_points(points)
-        closest = np.empty_like(p)
-        distance = np.empty(len(p))
-        face = np.empty(len(p), np.int64)
-        for s in range(0, len(p), _CHUNK):
-            part = slice(s, s + _CHUNK)
-            c, d, i, _ = self._query(p[part])
-            closest[part], distance[part], face[part] = c, d, i
-        return closest, distance, face
-
-    def distance(self, points) -> np.ndarray:
-        """Signed distance ``(n,)`` to the fine surface, positive inside."""
-        return self.project(points)[1]
-
-    def closest_points(self, points) -> np.ndarray:
-        """Closest points ``(n, 3)`` on the fine surface."""
-        return self.project(points)[0]
-
-    def gradient(self, points) -> np.ndarray:
-        """Unit gradient ``(n, 3)`` of the signed distance, pointing into the vessel."""
-        p = _as_points(points)
-        out = np.empty_like(p)
-        for s in range(0, len(p), _CHUNK):
-            part = slice(s, s + _CHUNK)
-            c, d, _, normal = self._query(p[part])
-            out[part] = _gradient(p[part], c, d, normal, 1e-9 * self.diagonal)
-        return out
-
-    def inside(self, points) -> np.ndarray:
-        """Boolean ``(n,)``: True for points strictly inside the vessel."""
-        return self.distance(points) > 0
-
     def winding_number(self, points) -> np.ndarray:
         """Winding number of the fine surface."""
         return self.fine.winding_number(points)
@@ -469,10 +449,6 @@ class TwoStepSignedDistance:
     def intersect_lines(self, points, directions, reach, side=None) -> tuple[np.ndarray, np.ndarray]:
         """Nearest crossings of lines with the fine surface (:meth:`SignedDistance.intersect_lines`)."""
         return self.fine.intersect_lines(points, directions, reach, side)
-
-    def surface_normals(self, points) -> np.ndarray:
-        """Outward unit normals of the fine surface at the closest points."""
-        return self._query(_as_points(points))[3]
 
     def _query(self, p: np.ndarray):
         bad = _non_finite(p)
