@@ -27,7 +27,7 @@ from ..registry import Parameter, register_filter
         Parameter("untangle_restart_below", "float", 0.2, "When untangling leaves an element below this, untangle once more from its result (fresh targets) and keep the better; 0 = never.", min=0.0, max=0.9),
     ],
     reads=("blocks", "surface"),
-    optional_reads=("coarse_surface", "caps", "skeleton"),
+    optional_reads=("coarse_surface", "caps", "skeleton", "sdf"),
     writes=("mesh",),
     category="meshing",
 )
@@ -85,7 +85,6 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         node_distribution=node_distribution,
     )
     ctx.mesh = mesh
-    ctx.mesh_refinement = ref
     ctx.count(elements=mesh.n_cells, nodes=mesh.n_points)
     ctx.report.counts.update(elements=mesh.n_cells, nodes=mesh.n_points, blocks=blocks.n_blocks)
     ctx.report.sections["order"] = order
@@ -127,6 +126,7 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below):
         Parameter("untagged", "str", "vessel", "Label name of elements whose block has no tag."),
     ],
     reads=("mesh", "blocks"),
+    writes=("mesh",),  # label arrays on the mesh
     category="meshing",
 )
 def label_elements(ctx, untagged):
@@ -159,7 +159,7 @@ def label_elements(ctx, untagged):
     ],
     reads=("mesh", "surface"),
     optional_reads=("blocks", "skeleton"),
-    writes=("quality",),
+    writes=("quality", "mesh"),  # mesh: its scaled_jacobian cell array
     category="quality",
 )
 def compute_quality(ctx, histogram, fail_on_invalid, bins):
