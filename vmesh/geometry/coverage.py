@@ -169,12 +169,11 @@ def measure_coverage(
     cap_faces : list of (m_i,) int arrays
         Triangles of each cap in ``surface_faces`` (left out of the wall).
     cap_names : list of str
-    mesh_points : (n, 3) array
-    boundary_faces : (k, (p+1)²) int array
-        The mesh's boundary faces in tensor order; ``boundary_ids`` is 0 on the wall.
-    order : int
+    mesh_points, boundary_faces, boundary_ids, order
+        The mesh's nodes, its boundary faces ((p+1)² nodes in tensor order), their ids
+        (0 on the wall) and the order p.
     skeleton_points, skeleton_edges, skeleton_radii : arrays
-        The skeleton the mesh was built on (local radius, naming of missing parts).
+        The skeleton the mesh was built on (local radius, names of missing parts).
     distance : float
         Wall farther than this many local radii from the mesh boundary is uncovered.
     patch_area : float
@@ -183,39 +182,27 @@ def measure_coverage(
     depth : float
         ... and reaching farther than this many local radii from the mesh is a missing part.
     end_depth : float
-        The depth allowed to a patch that lies beyond one of the mesh's end faces (a
-        rounded closed end past the last cross-section, where no flat cap was found):
-        a hemispherical end reaches one radius beyond.
+        Depth allowed to a patch beyond one of the mesh's end faces (a rounded closed
+        end past the last section, where no flat cap was found: a hemisphere is 1 r deep).
     branches : list of node arrays, optional
         Skeleton branches (node paths), to name the branch of a missing part.
 
     Returns
     -------
     summary : dict
-        ``uncovered_share``, ``uncovered_area``, ``surface_area``, ``volume_ratio``,
-        ``mesh_volume``, ``surface_volume``, ``wall_node_max_rel``, ``wall_node_mean_rel``,
-        ``surface_max_rel``, ``patches``, ``missing`` (list of dicts).
+        The report's ``coverage`` section: shares, areas, volumes, relative distances,
+        patch counts and the missing parts as dicts.
     missing : list of MissingPart
         Largest first.
     """
     from .bvh import TriangleBVH
 
-    V = np.ascontiguousarray(surface_vertices, np.float64)
-    F = np.ascontiguousarray(surface_faces, np.int64)
+    V, F = np.ascontiguousarray(surface_vertices, np.float64), np.ascontiguousarray(surface_faces, np.int64)
     X = np.ascontiguousarray(mesh_points, np.float64)
-    wall = np.ones(len(F), bool)
-    cap_of_vertex = np.full(len(V), -1, np.int64)
-    for k, cf in enumerate(cap_faces):
-        cf = np.asarray(cf, np.int64)
-        cf = cf[(cf >= 0) & (cf < len(F))]
-        wall[cf] = False
-        cap_of_vertex[F[cf].ravel()] = k
-    if not wall.any():
-        wall[:] = True
+    wall, cap_of_vertex = _wall_and_caps(F, len(V), cap_faces)
     WF = F[wall]
     tri = boundary_triangles(boundary_faces, order)
     mesh_tree = TriangleBVH(X, tri)
-
     # input wall -> mesh boundary, at four area-weighted samples per triangle
     area = 0.5 * np.linalg.norm(np.cross(V[WF[:, 1]] - V[WF[:, 0]], V[WF[:, 2]] - V[WF[:, 0]]), axis=1)
     samples = _face_samples(V, WF)
@@ -228,26 +215,71 @@ def measure_coverage(
     beyond = (np.asarray(boundary_ids)[(tri_s % (len(tri) // 2)) // per_face] > 0).reshape(-1, 4)
     total = float(area.sum())
     uncovered_area = float((area[:, None] * far).sum() / 4.0)
-    share = uncovered_area / total if total > 0 else 0.0
     beyond_area = float((area[:, None] * (far & beyond)).sum() / 4.0)
+    d_n = _wall_node_distances(X, boundary_faces, boundary_ids, V, WF, skeleton_points, skeleton_edges, skeleton_radii)
+    surface_volume, mesh_volume = enclosed_volume(V, F), enclosed_volume(X, tri)
+    missing, n_patches, n_missing = _missing_parts(
+        V, WF, area, rel, far, beyond, r_s.reshape(-1, 4)[:, 0], node_s.reshape(-1, 4)[:, 0], cap_of_vertex, cap_names,
+        patch_area, depth, end_depth, _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3))),
+    )
+    summary = {
+        "distance_rel": float(distance),
+        "uncovered_share": uncovered_area / total if total > 0 else 0.0,
+        "uncovered_area": uncovered_area,
+        "surface_area": total,
+        "beyond_ends_share": beyond_area / total if total > 0 else 0.0,
+        "surface_max_rel": float(rel.max()) if rel.size else 0.0,
+        "surface_mean_rel": float((rel.mean(axis=1) * area).sum() / total) if total > 0 else 0.0,
+        "volume_ratio": mesh_volume / surface_volume if surface_volume > 0 else float("nan"),
+        "mesh_volume": mesh_volume,
+        "surface_volume": surface_volume,
+        "wall_node_max_rel": float(d_n.max()),
+        "wall_node_mean_rel": float(d_n.mean()),
+        "patches": int(n_patches),
+        "missing_parts": int(n_missing),
+        "missing": [m.as_dict() for m in missing],
+    }
+    return summary, missing
 
-    # mesh wall nodes -> input wall
+
+def _wall_node_distances(X, boundary_faces, boundary_ids, V, WF, skeleton_points, skeleton_edges, skeleton_radii):
+    """Distance of every mesh wall node to the input wall, relative to the local radius."""
+    from .bvh import TriangleBVH
+
     wall_nodes = np.unique(np.asarray(boundary_faces)[np.asarray(boundary_ids) == 0])
-    if len(wall_nodes):
-        r_n = skeleton_radius(X[wall_nodes], skeleton_points, skeleton_edges, skeleton_radii)[0]
-        d_n = np.sqrt(TriangleBVH(V, WF).closest(X[wall_nodes])[0]) / r_n
-    else:
-        d_n = np.zeros(1)
+    if len(wall_nodes) == 0:
+        return np.zeros(1)
+    r_n = skeleton_radius(X[wall_nodes], skeleton_points, skeleton_edges, skeleton_radii)[0]
+    return np.sqrt(TriangleBVH(V, WF).closest(X[wall_nodes])[0]) / r_n
 
-    surface_volume = enclosed_volume(V, F)
-    mesh_volume = enclosed_volume(X, tri)
 
-    # connected uncovered patches; a face is uncovered when most of its samples are
+def _wall_and_caps(F, n_vertices, cap_faces):
+    """Wall mask of the faces (caps left out; all faces when everything is cap) and the
+    cap index of each vertex on a cap (-1 elsewhere)."""
+    wall = np.ones(len(F), bool)
+    cap_of_vertex = np.full(n_vertices, -1, np.int64)
+    for k, cf in enumerate(cap_faces):
+        cf = np.asarray(cf, np.int64)
+        cf = cf[(cf >= 0) & (cf < len(F))]
+        wall[cf] = False
+        cap_of_vertex[F[cf].ravel()] = k
+    if not wall.any():
+        wall[:] = True
+    return wall, cap_of_vertex
+
+
+def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names, patch_area, depth, end_depth, node_of_branch):
+    """Connected uncovered patches of the wall (a face is uncovered when at least two of its
+    four samples are) and the missing parts among them, largest first.
+
+    Returns the parts (at most :data:`MAX_PATCHES`), the patch count and the count of
+    missing parts."""
+    total = float(area.sum())
     label, n_patches = _patches(WF, len(V), far.sum(axis=1) >= 2)
     missing = []
+    label, n_patches = _patches(WF, len(V), far.sum(axis=1) >= 2)
     if n_patches:
         face_rel = rel.max(axis=1)
-        face_r = r_s.reshape(-1, 4)[:, 0]
         face_area = area * far.mean(axis=1)
         sel = label >= 0
         lab = label[sel]
@@ -263,12 +295,11 @@ def measure_coverage(
         sections = patch_area_sum / (np.pi * patch_r**2)
         big = np.flatnonzero((sections > patch_area) & (patch_depth > np.where(at_end, end_depth, depth)))
         big = big[np.argsort(-patch_area_sum[big])]
-        node_of_branch = _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3)))
         for k in big[:MAX_PATCHES]:
             faces_k = np.flatnonzero(label == k)
             verts = np.unique(WF[faces_k])
             caps = sorted({cap_names[c] for c in cap_of_vertex[verts] if c >= 0})
-            node = int(node_s.reshape(-1, 4)[deep_face[k], 0])
+            node = int(face_node[deep_face[k]])
             w = face_area[faces_k]
             centre = (V[WF[faces_k]].mean(axis=1) * w[:, None]).sum(axis=0) / max(w.sum(), 1e-300)
             missing.append(
@@ -286,24 +317,7 @@ def measure_coverage(
         n_missing = len(big)
     else:
         n_missing = 0
-    summary = {
-        "distance_rel": float(distance),
-        "uncovered_share": share,
-        "uncovered_area": uncovered_area,
-        "surface_area": total,
-        "beyond_ends_share": beyond_area / total if total > 0 else 0.0,
-        "surface_max_rel": float(rel.max()) if rel.size else 0.0,
-        "surface_mean_rel": float((rel.mean(axis=1) * area).sum() / total) if total > 0 else 0.0,
-        "volume_ratio": mesh_volume / surface_volume if surface_volume > 0 else float("nan"),
-        "mesh_volume": mesh_volume,
-        "surface_volume": surface_volume,
-        "wall_node_max_rel": float(d_n.max()),
-        "wall_node_mean_rel": float(d_n.mean()),
-        "patches": int(n_patches),
-        "missing_parts": int(n_missing),
-        "missing": [m.as_dict() for m in missing],
-    }
-    return summary, missing
+    return missing, n_patches, n_missing
 
 
 def _branch_of_node(branches, n_nodes):
