@@ -256,6 +256,7 @@ def test_redistribute_sections():
 # synthetic cases: validity and topology
 # ---------------------------------------------------------------------------
 @pytest.mark.parametrize("case", ALL_CASES)
+@pytest.mark.slow
 def test_synthetic_block_structure(case, synthetic):
     ctx, sdf, skeleton, blocks = synthetic(case)
     checks = block_structure_checks(blocks)
