@@ -187,3 +187,16 @@ def test_coverage_numbers_at_refinement_2():
     assert cov["wall_node_max_rel"] < 1e-9
     assert 0.98 < cov["volume_ratio"] < 1.01
     assert cov["surface_area"] > 0 and cov["mesh_volume"] > 0
+
+
+def test_high_order_boundary_covers_closer():
+    """Order-2 boundary faces (split into sub-triangles) follow the wall better than order 1."""
+    V, F, caps = tube([0, 0, 0], [0, 0, 1], RADIUS, LENGTH, n_around=96)
+    skeleton = (np.c_[np.zeros((11, 2)), np.linspace(0, LENGTH, 11)], np.c_[np.arange(10), np.arange(1, 11)], np.full(11, RADIUS))
+    result = {}
+    for order in (1, 2):
+        sm = mesh_blocks(cylinder_blocks(radius=RADIUS, length=LENGTH, sections=3), project_cylinder(RADIUS), Refinement(order=order))
+        result[order] = _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1"])[0]
+    assert result[2]["missing_parts"] == 0 and result[2]["uncovered_share"] == 0.0
+    assert result[2]["surface_max_rel"] < 0.5 * result[1]["surface_max_rel"]
+    assert result[1]["volume_ratio"] < result[2]["volume_ratio"] < 1.001
