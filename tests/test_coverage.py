@@ -91,10 +91,10 @@ def test_missing_side_branch_is_named(cylinder_mesh):
     assert summary["missing_parts"] == 1
     part = missing[0]
     assert part.caps == ["outlet_2"]
-    assert part.skeleton_node == 5  # the axis node at the branch's mouth
+    assert part.skeleton_node in (4, 5, 6)  # an axis node at the branch's mouth (z = 4 .. 6)
     assert part.depth > 3 and part.cross_sections > 3  # 47 area units; π r² with the main vessel's r = 2
     assert 4.0 < part.position[0] < 8.0 and abs(part.position[2] - 5) < 1  # the branch spans x = 1.5 .. 9.5
-    assert "cap 'outlet_2'" in part.describe() and "skeleton node 5" in part.describe()
+    assert "cap 'outlet_2'" in part.describe() and f"near skeleton node {part.skeleton_node} (branch 0)" in part.describe()
     assert summary["uncovered_share"] > 0.2
 
 

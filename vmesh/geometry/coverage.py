@@ -40,6 +40,7 @@ class MissingPart:
     depth: float
     position: np.ndarray
     caps: list = field(default_factory=list)
+    #: skeleton node nearest to where the part leaves the meshed vessel (its shallowest face)
     skeleton_node: int = -1
     branch: int = -1
 
@@ -49,7 +50,7 @@ class MissingPart:
         if self.caps:
             where.append("cap" + ("s " if len(self.caps) > 1 else " ") + ", ".join(f"'{c}'" for c in self.caps))
         if self.skeleton_node >= 0:
-            where.append(f"nearest skeleton node {self.skeleton_node} (branch {self.branch})")
+            where.append(f"leaving the meshed vessel near skeleton node {self.skeleton_node} (branch {self.branch})")
         x, y, z = self.position
         where.append(f"around ({x:.4g}, {y:.4g}, {z:.4g})")
         return ", ".join(where)
@@ -299,7 +300,7 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
             faces_k = np.flatnonzero(label == k)
             verts = np.unique(WF[faces_k])
             caps = sorted({cap_names[c] for c in cap_of_vertex[verts] if c >= 0})
-            node = int(face_node[deep_face[k]])
+            node = int(face_node[faces_k[np.argmin(face_rel[faces_k])]])  # where the part leaves the meshed vessel
             w = face_area[faces_k]
             centre = (V[WF[faces_k]].mean(axis=1) * w[:, None]).sum(axis=0) / max(w.sum(), 1e-300)
             missing.append(
