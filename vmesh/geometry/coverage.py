@@ -117,13 +117,36 @@ def skeleton_radius(points, skeleton_points, skeleton_edges, skeleton_radii):
     return radii[near], nodes[near], gap
 
 
-def _face_samples(vertices, faces):
-    """Four area-weighted sample points per triangle: the centroid and the centres of
-    the three corner sub-triangles."""
-    t = vertices[faces]
+def _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, skeleton, distance):
+    """Distances from four area-weighted samples per wall triangle (the centroid and the
+    centres of the three corner sub-triangles) to the mesh boundary, × local radius.
+
+    The corner samples are queried only where they can be farther than ``distance``: a
+    distance moves no more than the point does, so a triangle whose centroid is closer
+    than ``distance`` minus its corners' offset keeps the centroid's value for them.
+
+    Returns rel (m, 4), beyond (m, 4: the closest mesh face is an end face), the local
+    radius and the nearest skeleton node of each triangle's centroid."""
+    t = V[WF]
     c = t.mean(axis=1)
     corner = (2.0 / 3.0) * t + (1.0 / 3.0) * c[:, None, :]
-    return np.concatenate([c[:, None, :], corner], axis=1).reshape(-1, 3)
+    face_r, face_node, _ = skeleton_radius(c, *skeleton)
+    sq, tri_c = mesh_tree.closest(c)[:2]
+    half = len(tri) // 2
+    per_face = max(half // max(len(boundary_ids), 1), 1)
+    end_face = np.asarray(boundary_ids)[(np.arange(len(tri)) % max(half, 1)) // per_face] > 0
+    rel_c = np.sqrt(sq) / face_r
+    reach = np.linalg.norm(corner - c[:, None, :], axis=2).max(axis=1) / face_r
+    rel = np.repeat(rel_c[:, None], 4, axis=1)
+    beyond = np.repeat(end_face[tri_c][:, None], 4, axis=1)
+    check = np.flatnonzero(rel_c + reach > distance)
+    if len(check):
+        p = corner[check].reshape(-1, 3)
+        r_k = skeleton_radius(p, *skeleton)[0]
+        sq_k, tri_k = mesh_tree.closest(p)[:2]
+        rel[check, 1:] = (np.sqrt(sq_k) / r_k).reshape(-1, 3)
+        beyond[check, 1:] = end_face[tri_k].reshape(-1, 3)
+    return rel, beyond, face_r, face_node
 
 
 def _patches(faces, n_vertices, uncovered):
@@ -206,21 +229,15 @@ def measure_coverage(
     mesh_tree = TriangleBVH(X, tri)
     # input wall -> mesh boundary, at four area-weighted samples per triangle
     area = 0.5 * np.linalg.norm(np.cross(V[WF[:, 1]] - V[WF[:, 0]], V[WF[:, 2]] - V[WF[:, 0]]), axis=1)
-    samples = _face_samples(V, WF)
-    r_s, node_s, _ = skeleton_radius(samples, skeleton_points, skeleton_edges, skeleton_radii)
-    sq, tri_s = mesh_tree.closest(samples)[:2]
-    rel = (np.sqrt(sq) / r_s).reshape(-1, 4)
+    rel, beyond, face_r, face_node = _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, (skeleton_points, skeleton_edges, skeleton_radii), distance)
     far = rel > distance
-    # samples whose closest mesh boundary is an end face (inlet/outlet) lie beyond an end
-    per_face = len(tri) // (2 * len(boundary_faces)) if len(boundary_faces) else 1
-    beyond = (np.asarray(boundary_ids)[(tri_s % (len(tri) // 2)) // per_face] > 0).reshape(-1, 4)
     total = float(area.sum())
     uncovered_area = float((area[:, None] * far).sum() / 4.0)
     beyond_area = float((area[:, None] * (far & beyond)).sum() / 4.0)
     d_n = _wall_node_distances(X, boundary_faces, boundary_ids, V, WF, skeleton_points, skeleton_edges, skeleton_radii)
     surface_volume, mesh_volume = enclosed_volume(V, F), enclosed_volume(X, tri)
     missing, n_patches, n_missing = _missing_parts(
-        V, WF, area, rel, far, beyond, r_s.reshape(-1, 4)[:, 0], node_s.reshape(-1, 4)[:, 0], cap_of_vertex, cap_names,
+        V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names,
         patch_area, depth, end_depth, _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3))),
     )
     summary = {
