@@ -72,3 +72,24 @@ def y_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("y_run") / "run"
     FilterChain.load("default").run(surface=surface, skeleton=skeleton, out_dir=out)
     return out
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """With ``VMESH_TEST_TIMES=FILE``, append each test's wall and CPU seconds (setup, call
+    and teardown; all threads) to FILE as it finishes: on a shared, loaded machine the CPU
+    time tells which tests belong in the slow lane better than the wall time does."""
+    import os
+    import resource
+    import time
+
+    def cpu():  # this process's threads and its finished child processes (Dask workers, CLI runs)
+        children = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return time.process_time() + children.ru_utime + children.ru_stime
+
+    path = os.environ.get("VMESH_TEST_TIMES")
+    wall, cpu0 = time.perf_counter(), cpu()
+    yield
+    if path:
+        with open(path, "a") as f:
+            f.write(f"{time.perf_counter() - wall:.2f}\t{cpu() - cpu0:.2f}\t{item.nodeid}\n")

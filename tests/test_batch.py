@@ -188,6 +188,7 @@ def check_meshes(out: Path, summary: list[dict]) -> None:
 # ---------------------------------------------------------------------------
 # on a real scheduler
 # ---------------------------------------------------------------------------
+@pytest.mark.slow
 def test_sweep_on_dask_scheduler(dask_procs, tmp_path):
     dask_procs.ensure_workers()
     manifest = sweep_toml(tmp_path / "sweep.toml")
@@ -217,6 +218,7 @@ def test_sweep_on_dask_scheduler(dask_procs, tmp_path):
     assert not (out / batch.STAGING).exists()
 
 
+@pytest.mark.slow
 def test_resume_after_interrupt(dask_procs, tmp_path):
     dask_procs.ensure_workers()
     bad = tmp_path / "corrupt.ply"
@@ -260,6 +262,7 @@ def test_resume_after_interrupt(dask_procs, tmp_path):
     assert "failed: broken:" in r.stderr
 
 
+@pytest.mark.slow
 def test_worker_killed_mid_batch(dask_procs, tmp_path):
     dask_procs.ensure_workers()
     manifest = sweep_csv(tmp_path / "rows.csv")
@@ -282,6 +285,7 @@ def test_worker_killed_mid_batch(dask_procs, tmp_path):
     assert dask_procs.alive() == ["w1"]
 
 
+@pytest.mark.slow
 def test_default_local_cluster(tmp_path):
     """Without --scheduler, ``vmesh batch`` starts (and stops) a local cluster."""
     manifest = sweep_csv(tmp_path / "rows.csv", scales=[1.0], layers=LAYERS[:2])
@@ -378,6 +382,7 @@ def test_sweep_toml_errors(tmp_path):
         batch.read_manifest(m)
 
 
+@pytest.mark.slow
 def test_prefix_cache_reuses_the_signed_distance(tmp_path):
     cache = PrefixCache(max_entries=2)
     chain = vmesh.FilterChain.load("batch_sweep").with_overrides({"mesh_transfinite.element_length": 0.75, "compute_quality.histogram": ""})
@@ -421,6 +426,7 @@ def test_scale_radius_keeps_the_centerline_and_caps():
         vmesh.FilterChain([("scale_radius", {"scale": 1.1})]).run(surface=surface)
 
 
+@pytest.mark.slow
 def test_python_api_local_cluster(tmp_path):
     """``vmesh.batch.run`` with a client it is given (an in-process cluster: fast to start)."""
     with distributed.Client(processes=False, n_workers=1, threads_per_worker=2, dashboard_address="127.0.0.1:0") as client:

@@ -256,6 +256,7 @@ def test_redistribute_sections():
 # synthetic cases: validity and topology
 # ---------------------------------------------------------------------------
 @pytest.mark.parametrize("case", ALL_CASES)
+@pytest.mark.slow
 def test_synthetic_block_structure(case, synthetic):
     ctx, sdf, skeleton, blocks = synthetic(case)
     checks = block_structure_checks(blocks)
@@ -500,6 +501,7 @@ def test_filter_rejects_odd_blocks_around():
         ("thoracic_aorta_open.vtp", "thoracic_aorta_centerlines.vtp"),
     ],
 )
+@pytest.mark.slow
 def test_real_case_with_centerline(real_path, surface_name, centerline_name):
     from vmesh.io.skeleton import SKELETON_READERS
 
@@ -563,6 +565,7 @@ def _check_real_blocks(ctx):
     return ctx.blocks.info["fixes"]
 
 
+@pytest.mark.slow
 def test_real_coarctation_extracted_merges_crowded_junctions(real_path):
     # the brachiocephalic trunk and the left carotid leave the arch so close together that
     # the half cross-sections of the first junction reach past the second: merged into a
@@ -571,6 +574,7 @@ def test_real_coarctation_extracted_merges_crowded_junctions(real_path):
     assert fixes[0].startswith("merged junction nodes") and any(f.startswith("split junction node") for f in fixes)
 
 
+@pytest.mark.slow
 def test_real_thoracic_aorta_extracted_splits_its_nfurcation(real_path):
     # the arch's 4-junction (two branches leaving 45-50 degrees out of its plane) is split
     # along the aorta, not into a common trunk of the two branches pushed into the wall
@@ -598,5 +602,6 @@ def test_real_carotid_extracted_builds(real_path):
 
 
 @pytest.mark.parametrize("surface_name", ["aneurysm_ica_aneurisk_c0015_open.vtp", "aorta_simvascular_demo.vtp", "ica_swc_surface.vtp"])
+@pytest.mark.slow
 def test_real_extracted_builds(real_path, surface_name):
     _check_real_blocks(_extracted_blocks(real_path(surface_name)))

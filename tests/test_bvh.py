@@ -74,6 +74,7 @@ def test_morton_order_is_a_permutation_that_groups_neighbours():
     assert step < 0.25 * np.linalg.norm(np.diff(p, axis=0), axis=1).mean()
 
 
+@pytest.mark.slow
 def test_decimation_to_tolerance_reaches_it(real_path):
     """decimate_surface max_error: every fine vertex within the tolerance of the coarse surface."""
     from vmesh.preprocess import wall_radius_deviation
@@ -103,6 +104,7 @@ def _brute_force_lines(v, f, o, d, reach):
     return np.where(ok, t, np.nan)
 
 
+@pytest.mark.slow
 def test_line_crossings_match_brute_force_both_and_one_sided():
     """intersect_lines: the crossing nearest to the origin within reach, both sides or one."""
     path = synthetic_case("y_bifurcation")[0]

@@ -91,6 +91,7 @@ def test_aneurysm_dome_is_meshed_without_folds():
     assert sj.min() >= 0.2 and sj.mean() >= 0.85
 
 
+@pytest.mark.slow
 def test_junction_folds_are_untangled():
     """Without untangling the crotches of two close junctions have poor (once: folded) elements;
     with it every element is good."""
@@ -180,6 +181,7 @@ def test_high_order_bifurcation_reads_back_in_pyvista(tmp_path, order):
     assert (vol > 0).all()
 
 
+@pytest.mark.slow
 def test_real_thoracic_aorta_junction_is_valid(real_path):
     """The VMTK centerline of the thoracic aorta has no branch down the descending aorta, so
     the blocks at the 4-junction of the arch used to span the descending aorta's mouth and

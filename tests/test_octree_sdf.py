@@ -29,6 +29,7 @@ def _compare(exact, tree, p, radius, tol):
     return err
 
 
+@pytest.mark.slow
 def test_sphere_octree_matches_exact():
     v, f = icosphere(2.0, level=5)
     exact = SignedDistance(v, f, name="sphere")
@@ -42,6 +43,7 @@ def test_sphere_octree_matches_exact():
     assert np.array_equal(tree.inside(p[:2000]), exact.inside(p[:2000]))
 
 
+@pytest.mark.slow
 def test_vessel_octree_distances_within_tolerance():
     surface = prepared("synthetic", "y_bifurcation")
     exact = SignedDistance.from_surface(surface)
@@ -81,6 +83,7 @@ def test_serial_and_parallel_batches_agree_and_odd_points():
     assert np.isnan(d[2]) and f[2] == -1 and not tree.inside(q[2:])[0]
 
 
+@pytest.mark.slow
 def test_octree_under_two_step_and_line_casts():
     surface = prepared("synthetic", "y_bifurcation")
     ctx = FilterChain([("decimate_surface", {"target_faces": 3000}), ("build_sdf", {"source": "coarse", "refine_on_fine": True, "index": "octree"})]).run(surface=surface)

@@ -84,6 +84,7 @@ def test_repair_filter_orients_inward_real_case(real_path):
     "name, n_caps",
     [("coarctation_bpm120_open.stl", 5), ("aneurysm_ica_aneurisk_c0015_open.vtp", 3), ("thoracic_aorta_open.vtp", 6)],
 )
+@pytest.mark.slow
 def test_capping_closes_real_surfaces(real_path, name, n_caps):
     ctx = FilterChain(["repair_surface", "cap_open_ends"]).run(surface=real_path(name))
     check_closed_outward(ctx.surface)
@@ -215,6 +216,7 @@ def test_taubin_smooths_noise_without_shrinking():
 
 # -- decimation --------------------------------------------------------------------
 @pytest.mark.parametrize("backend", ["pymeshlab", "fast_simplification"])
+@pytest.mark.slow
 def test_decimation_reaches_target_within_one_percent(real_path, backend):
     for name, params in (("ica_swc_surface.vtp", {"target_faces": 12000}), ("carotid_vmtk.vtp", {"target_ratio": 0.25})):
         surface = read_surface(real_path(name))
@@ -228,6 +230,7 @@ def test_decimation_reaches_target_within_one_percent(real_path, backend):
         assert 0 < dev < 0.01
 
 
+@pytest.mark.slow
 def test_fast_decimation_keeps_the_surface_manifold(real_path):
     """fast-simplification leaves a non-manifold edge on the capped coarctation at 11,170
     faces (11,170-12,000 all do); decimate falls back to pymeshlab, so the coarse signed

@@ -10,8 +10,25 @@ from vmesh.registry import Parameter
 def test_filter_list_has_every_stage():
     names = vmesh.filter_list()
     assert len(names) == len(set(names))
-    for name in ("surface_info", "mesh_transfinite", "label_elements", "compute_quality", "write_mesh"):
+    for name in ("surface_info", "mesh_transfinite", "label_elements", "compute_quality", "check_coverage", "write_mesh"):
         assert name in names
+
+
+@pytest.mark.parametrize("preset", ["default", "batch_sweep"])
+def test_meshing_chains_check_coverage_after_quality(preset):
+    """Every run of the meshing presets checks that the mesh covers the vessel (issue 17)."""
+    steps = [s.filter for s in vmesh.FilterChain.load(preset).steps]
+    assert steps[steps.index("compute_quality") + 1] == "check_coverage"
+
+
+def test_every_filter_signature_matches_its_parameters():
+    """register_filter refuses a mismatch; this lists every registered filter's agreement."""
+    import inspect
+
+    for name in vmesh.filter_list():
+        f = vmesh.get_filter(name)
+        taken = list(inspect.signature(f.function).parameters)[1:]
+        assert sorted(taken) == sorted(f.parameter_names), name
 
 
 def test_every_filter_is_documented():

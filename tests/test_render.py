@@ -1,6 +1,7 @@
 """``vmesh render``: pictures and the HTML page for a synthetic and a real case."""
 
 import numpy as np
+import pytest
 
 from vmesh.cli import main
 from vmesh.render import PICTURES
@@ -40,6 +41,7 @@ def test_render_synthetic(y_run, tmp_path, capsys):
     check_pictures(tmp_path / "shots")
 
 
+@pytest.mark.slow
 def test_render_real(real_path, tmp_path, capsys):
     from vmesh.chain import FilterChain
 

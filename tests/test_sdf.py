@@ -143,11 +143,13 @@ def _check_sign_and_projection(surface, n=20000):
 
 
 @pytest.mark.parametrize("name", list(REAL_CASES))
+@pytest.mark.slow
 def test_real_signs_agree_with_winding_number(real_path, name):
     _check_sign_and_projection(prepared("real", name, real_path), n=8000)
 
 
 @pytest.mark.parametrize("name", SYNTHETIC)
+@pytest.mark.slow
 def test_synthetic_signs_agree_with_winding_number(name):
     _check_sign_and_projection(prepared("synthetic", name), n=4000)
 

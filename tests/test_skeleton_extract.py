@@ -261,6 +261,7 @@ def _synthetic(case):
 
 
 @pytest.mark.parametrize("case", SYNTHETIC_CASES)
+@pytest.mark.slow
 def test_synthetic_case_topology_and_positions(case):
     surface, truth, sdf = _synthetic(case)
     skeleton, stats = se.extract_skeleton(sdf.distance, surface.bounds, surface=(surface.vertices, surface.faces))
@@ -328,6 +329,7 @@ from vmesh.realdata import REAL_CASES  # noqa: E402
 
 
 @pytest.mark.parametrize("case", sorted(REAL_CASES))
+@pytest.mark.slow
 def test_real_surface_gives_one_skeleton_with_an_end_at_every_cap(case, real_path):
     from vmesh.io.surface import read_surface
 

@@ -390,6 +390,7 @@ def test_graft_branches_gives_a_missed_cap_the_branch_of_another_skeleton():
     assert out2.n_nodes == given.n_nodes and [g["nodes"] for g in grafts] == [0, 0]
 
 
+@pytest.mark.slow
 def test_clean_skeleton_grafts_the_missing_descending_aorta(real_path):
     """The VMTK centerline of the thoracic aorta has no line down the descending aorta: its
     cap had no skeleton end, the arch blocks spanned its mouth and the mesh had min SJ 0.08

@@ -37,10 +37,13 @@ import re
 import shutil
 import sys
 import time
-import tomllib
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
 
 import numpy as np
 

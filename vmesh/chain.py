@@ -8,9 +8,12 @@ import shutil
 import sys
 import tempfile
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
 
 from . import __version__
 from .context import Context, StepReport
@@ -49,7 +52,7 @@ def find_chain_file(name_or_path: str | Path) -> Path:
         presets = list_presets()
         if p.name in presets:
             return presets[p.name]
-        raise InputError(f"no such chain file or preset" + suggest(p.name, presets) + f" (presets: {', '.join(presets)})", p)
+        raise InputError("no such chain file or preset" + suggest(p.name, presets) + f" (presets: {', '.join(presets)})", p)
     raise InputError("chain file not found", p)
 
 

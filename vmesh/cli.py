@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tomllib
-from pathlib import Path
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
 
 from . import __version__
 from .errors import VmeshError

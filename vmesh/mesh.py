@@ -36,21 +36,6 @@ def tensor_to_vtk(order: int) -> np.ndarray:
 
 
 @lru_cache(maxsize=None)
-def tensor_to_vtk_quad(order: int) -> np.ndarray:
-    """Permutation of a (p+1)^2 tensor-order face to VTK quad / Lagrange quadrilateral order."""
-    p = order
-    if p == 1:
-        return np.array([0, 1, 3, 2])
-    import vtk
-
-    perm = np.empty((p + 1) ** 2, np.int64)
-    for j in range(p + 1):
-        for i in range(p + 1):
-            perm[vtk.vtkLagrangeQuadrilateral.PointIndexFromIJK(i, j, [p, p])] = i + (p + 1) * j
-    return perm
-
-
-@lru_cache(maxsize=None)
 def tensor_to_hex27() -> np.ndarray:
     """Permutation of a p = 2 tensor-order cell to VTK's tri-quadratic hexahedron
     (meshio's ``hexahedron27``, which meshio maps to Gmsh's hex27 order when writing .msh)."""

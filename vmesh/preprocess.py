@@ -204,7 +204,6 @@ def repair(
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
     data = {k: np.asarray(a) for k, a in (face_data or {}).items() if len(a) == len(f)}
-    n0 = len(v)
     v, f, report.merged_vertices = merge_close_vertices(v, f, merge_tolerance)
 
     def keep_faces(mask):

@@ -9,9 +9,10 @@ and description. Filters register themselves with :func:`register_filter`.
 from __future__ import annotations
 
 import difflib
+import inspect
 import math
 import textwrap
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -249,6 +250,7 @@ def register_filter(
         names = [p.name for p in parameters]
         if len(set(names)) != len(names):
             raise ValueError(f"filter '{fname}': duplicate parameter names")
+        _check_signature(fname, function, names)
         doc = " ".join((function.__doc__ or "").strip().split("\n\n")[0].split())
         _REGISTRY[fname] = Filter(
             name=fname,
@@ -265,6 +267,25 @@ def register_filter(
         return function
 
     return wrap
+
+
+def _check_signature(name: str, function: Callable, names: list[str]) -> None:
+    """The function must take ``ctx`` and then exactly the declared parameters (by keyword):
+    a parameter missing from either side would only fail when the filter runs."""
+    args = list(inspect.signature(function).parameters.values())
+    if not args or args[0].kind not in (args[0].POSITIONAL_ONLY, args[0].POSITIONAL_OR_KEYWORD):
+        raise ValueError(f"filter '{name}': the function's first argument must be the context")
+    if any(a.kind is a.VAR_KEYWORD for a in args):
+        return
+    taken = [a.name for a in args[1:] if a.kind in (a.POSITIONAL_OR_KEYWORD, a.KEYWORD_ONLY)]
+    undeclared = [a for a in taken if a not in names]
+    unused = [n for n in names if n not in taken]
+    if undeclared or unused:
+        raise ValueError(
+            f"filter '{name}': parameters and function signature differ"
+            + (f"; declared but not taken: {', '.join(unused)}" if unused else "")
+            + (f"; taken but not declared: {', '.join(undeclared)}" if undeclared else "")
+        )
 
 
 def _ensure_loaded():

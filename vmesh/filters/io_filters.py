@@ -39,7 +39,7 @@ def surface_info(ctx, require_closed, require_manifold):
     ],
     reads=("surface",),
     optional_reads=("skeleton",),
-    writes=("surface",),
+    writes=("surface", "skeleton"),
     category="input",
 )
 def transform_surface(ctx, scale, translate):

@@ -27,7 +27,7 @@ from ..registry import Parameter, register_filter
         Parameter("untangle_restart_below", "float", 0.2, "When untangling leaves an element below this, untangle once more from its result (fresh targets) and keep the better; 0 = never.", min=0.0, max=0.9),
     ],
     reads=("blocks", "surface"),
-    optional_reads=("coarse_surface", "caps", "skeleton"),
+    optional_reads=("coarse_surface", "caps", "skeleton", "sdf"),
     writes=("mesh",),
     category="meshing",
 )
@@ -85,7 +85,6 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         node_distribution=node_distribution,
     )
     ctx.mesh = mesh
-    ctx.mesh_refinement = ref
     ctx.count(elements=mesh.n_cells, nodes=mesh.n_points)
     ctx.report.counts.update(elements=mesh.n_cells, nodes=mesh.n_points, blocks=blocks.n_blocks)
     ctx.report.sections["order"] = order
@@ -127,6 +126,7 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below):
         Parameter("untagged", "str", "vessel", "Label name of elements whose block has no tag."),
     ],
     reads=("mesh", "blocks"),
+    writes=("mesh",),  # label arrays on the mesh
     category="meshing",
 )
 def label_elements(ctx, untagged):
@@ -159,7 +159,7 @@ def label_elements(ctx, untagged):
     ],
     reads=("mesh", "surface"),
     optional_reads=("blocks", "skeleton"),
-    writes=("quality",),
+    writes=("quality", "mesh"),  # mesh: its scaled_jacobian cell array
     category="quality",
 )
 def compute_quality(ctx, histogram, fail_on_invalid, bins):
@@ -210,6 +210,48 @@ def boundary_distance(mesh, surface, blocks, projector) -> dict:
         "node_max": float(d_n.max()),
         "node_max_rel_diagonal": float(d_n.max() / surface.diagonal),
     }
+
+
+@register_filter(
+    description="Check that the mesh covers the vessel: share of the input wall farther than a tenth of a radius from the mesh, volume ratio, wall-node distances; fail naming a missing branch or cap.",
+    parameters=[
+        Parameter("distance", "float", 0.1, "Input wall farther than this from the mesh boundary counts as uncovered.", unit="× radius", min=0.001, max=10.0),
+        Parameter("patch_area", "float", 1.0, "A connected uncovered patch larger than this many local cross-sections (π r²) ...", unit="× π r²", min=0.0),
+        Parameter("depth", "float", 0.3, "... that reaches farther than this from the mesh is a missing part of the vessel (facet sag stays below it).", unit="× radius", min=0.0),
+        Parameter("end_depth", "float", 1.5, "Depth allowed to a patch beyond one of the mesh's end faces (a rounded closed end past the last cross-section).", unit="× radius", min=0.0),
+        Parameter("fail_on_missing", "bool", True, "Fail when part of the vessel is missing from the mesh (false: a warning)."),
+    ],
+    reads=("mesh", "surface", "skeleton"),
+    optional_reads=("caps",),
+    category="quality",
+)
+def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing):
+    """Measured against the repaired, capped surface the chain started from, its caps left
+    out (the mesh ends there); the local radius is the skeleton's. The result is the
+    report's ``coverage`` section (see :mod:`vmesh.geometry.coverage`)."""
+    from ..geometry.coverage import measure_coverage
+
+    mesh, skeleton, caps = ctx.mesh, ctx.skeleton, ctx.caps or []
+    summary, missing = measure_coverage(
+        ctx.surface.vertices, ctx.surface.faces, [c.faces for c in caps], [c.name for c in caps],
+        mesh.points, mesh.boundary_faces, mesh.boundary_ids, mesh.order,
+        skeleton.points, skeleton.edges, skeleton.radii,
+        distance=distance, patch_area=patch_area, depth=depth, end_depth=end_depth, branches=skeleton.branches(),
+    )
+    ctx.report.sections["coverage"] = summary
+    ctx.count(uncovered=summary["uncovered_share"], volume_ratio=summary["volume_ratio"], missing=summary["missing_parts"])
+    if not missing:
+        return
+    worst = missing[0]
+    more = f" (and {len(missing) - 1} more part(s))" if len(missing) > 1 else ""
+    message = (
+        f"the mesh leaves out part of the vessel: {100 * worst.share:.1f} % of the wall ({worst.cross_sections:.1f} cross-sections, "
+        f"up to {worst.depth:.2g} radii from the mesh) at {worst.describe()}{more}; the skeleton does not reach into it "
+        "(give a centerline that does, or keep clean_skeleton.graft_to_caps on; check_coverage.fail_on_missing=false only warns)"
+    )
+    if fail_on_missing:
+        raise MeshingError(message)
+    ctx.warn(message)
 
 
 @register_filter(

@@ -118,7 +118,8 @@ def _check_point(inlet_point):
         Parameter("orient", "bool", True, "Make neighbouring faces agree on orientation, then turn each piece outward (positive enclosed volume)."),
     ],
     reads=("surface",),
-    writes=("surface",),
+    optional_reads=("caps",),
+    writes=("surface", "caps"),  # caps: cleared (they index the old faces)
     category="preprocessing",
 )
 def repair_surface(ctx, merge_tolerance, keep, orient):
@@ -348,7 +349,8 @@ def smooth_loop(ctx, iterations, region, junction_distance, edge_threshold, weig
         ),
     ],
     reads=("surface",),
-    writes=("coarse_surface",),
+    optional_reads=("caps",),
+    writes=("coarse_surface", "surface", "caps"),  # surface and caps with output="surface"
     category="preprocessing",
 )
 def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary, preserve_topology, quality_threshold, aggressiveness, output, max_error):

@@ -116,14 +116,6 @@ class _Branch:
     straighten: np.ndarray | None = None  # (K+1,) blend of section normals towards the chord
 
 
-class _State:
-    """Everything the builder knows; rebuilt pieces are recomputed from it."""
-
-
-def _fail_path(path) -> Path | None:
-    return None if path is None else Path(path)
-
-
 def build_blocks(
     skeleton: Skeleton,
     distance,
@@ -879,7 +871,6 @@ class _Builder:
 
     def place_sections(self):
         """Section positions along each branch: clear of junctions, otherwise at the nodes."""
-        opt, sk = self.opt, self.sk
         clear = self._clearance()
         self.clear = clear
         for br in self.branches:
@@ -1047,7 +1038,7 @@ class _Builder:
 
     def regular_sections(self):
         """Vertices of every regular (non-junction) section."""
-        t, opt = self.template, self.opt
+        t = self.template
         idx = []  # (branch, k)
         for bi, br in enumerate(self.branches):
             K = len(br.nodes)

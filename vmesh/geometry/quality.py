@@ -9,7 +9,6 @@ import numpy as np
 def lagrange_derivative_matrix(nodes: np.ndarray) -> np.ndarray:
     """D[a, b] = derivative of the b-th 1-D Lagrange basis function at node a."""
     x = np.asarray(nodes, float)
-    n = len(x)
     diff = x[:, None] - x[None, :]
     np.fill_diagonal(diff, 1.0)
     w = 1.0 / np.prod(diff, axis=1)  # barycentric weights

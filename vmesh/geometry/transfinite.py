@@ -299,7 +299,6 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
     if blocks.vertex_on_surface.any():
         V[blocks.vertex_on_surface] = project(V[blocks.vertex_on_surface])
     H = blocks.hexes
-    nb = len(H)
     topo = block_topology(blocks)
     counts = requested_counts(blocks, topo, ref)
     n_edge = counts[topo.edge_class]  # elements per unique edge

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, ParameterError
+from ..errors import ParameterError
 
 
 @dataclass(frozen=True)
@@ -50,10 +50,6 @@ EXPORT_FORMATS = {
 
 #: Aliases accepted for ``format``.
 FORMAT_ALIASES = {"msh": "gmsh", "inp": "abaqus", "exo": "exodus", "exodusii": "exodus", "e": "exodus", "ex2": "exodus", "mesh": "medit", "foam": "openfoam", "polymesh": "openfoam"}
-
-
-def format_names() -> list[str]:
-    return list(EXPORT_FORMATS)
 
 
 def resolve_format(path, fmt: str | None = None) -> ExportFormat:
@@ -257,10 +253,3 @@ def boundary_element_faces(mesh) -> np.ndarray:
         # VTK/meshio quad9: 4 corners, 4 edge midpoints (edge 0-1, 1-2, 2-3, 3-0), centre
         return mesh.boundary_faces[:, [0, 2, 8, 6, 1, 5, 7, 3, 4]]
     raise ParameterError(f"boundary elements of order {p} are not supported here")
-
-
-def check_writable(path: Path) -> None:
-    """Raise a one-line :class:`InputError` when ``path``'s folder cannot hold the export."""
-    parent = Path(path).parent
-    if parent.exists() and not parent.is_dir():
-        raise InputError("is not a folder", parent)

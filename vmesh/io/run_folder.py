@@ -9,8 +9,11 @@ when the chain ran ``export_meshlab``, ``meshlab/`` with the input and coarse su
 from __future__ import annotations
 
 import json
-import tomllib
 from pathlib import Path
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
 
 import numpy as np
 

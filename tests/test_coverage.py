@@ -1,0 +1,202 @@
+"""Coverage check: how much of the input vessel the mesh boundary misses (issue 17 item 5).
+
+The unit tests mesh a straight O-grid cylinder (tests/cylinder_blocks.py) and compare it
+with generated input surfaces: the same tube (covered), the tube with a side branch the
+mesh leaves out, a rounded closed end past the mesh's last section (allowed) and a tube
+running on far past it (missing). The slow tests run the default chain.
+"""
+
+import numpy as np
+import pytest
+
+from conftest import synthetic_case
+from cylinder_blocks import cylinder_blocks, project_cylinder
+from vmesh.errors import MeshingError
+from vmesh.geometry.coverage import boundary_triangles, enclosed_volume, measure_coverage
+from vmesh.geometry.transfinite import Refinement, mesh_blocks
+
+RADIUS, LENGTH = 2.0, 10.0
+
+
+def _ring(centre, axis, radius, n):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    u = np.cross(axis, [0.0, 0.0, 1.0] if abs(axis[2]) < 0.9 else [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    a = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    return np.asarray(centre, float) + radius * (np.cos(a)[:, None] * u + np.sin(a)[:, None] * v)
+
+
+def tube(start, axis, radius, length, n_around=48, n_along=40, start_cap=True, end="cap"):
+    """Triangulated tube: vertex rings along ``axis``; a flat fan cap at the start (when
+    ``start_cap``) and at the end (``end="cap"``), a hemisphere (``"dome"``) or nothing.
+
+    Returns vertices, faces and the face indices of each flat cap (start, end)."""
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    rings = [_ring(np.asarray(start) + t * axis, axis, radius, n_around) for t in np.linspace(0, length, n_along + 1)]
+    if end == "dome":
+        for phi in np.linspace(0, np.pi / 2, 9)[1:-1]:
+            rings.append(_ring(np.asarray(start) + (length + radius * np.sin(phi)) * axis, axis, radius * np.cos(phi), n_around))
+    V = np.vstack(rings)
+    k = np.arange(n_around)
+    F = []
+    for r in range(len(rings) - 1):
+        a, b = r * n_around + k, r * n_around + (k + 1) % n_around
+        F += [np.c_[a, b, b + n_around], np.c_[a, b + n_around, a + n_around]]
+    F = np.vstack(F)
+    caps = []
+    for which, centre, ring0, flip in ((start_cap, start, 0, True), (end in ("cap", "dome"), np.asarray(start) + (length + (radius if end == "dome" else 0)) * axis, len(rings) - 1, False)):
+        if not which:
+            caps.append(np.zeros(0, np.int64))
+            continue
+        c = len(V)
+        V = np.vstack([V, centre])
+        a, b = ring0 * n_around + k, ring0 * n_around + (k + 1) % n_around
+        fan = np.c_[a, np.full(n_around, c), b] if flip else np.c_[a, b, np.full(n_around, c)]
+        caps.append(np.arange(len(F), len(F) + n_around) if end != "dome" or flip else np.zeros(0, np.int64))
+        F = np.vstack([F, fan])
+    return V, F, caps
+
+
+@pytest.fixture(scope="module")
+def cylinder_mesh():
+    """An O-grid cylinder of radius 2 along z in [0, 10], its skeleton (the axis) and radius."""
+    sm = mesh_blocks(cylinder_blocks(radius=RADIUS, length=LENGTH, sections=5), project_cylinder(RADIUS), Refinement(order=1))
+    skeleton = (np.c_[np.zeros((11, 2)), np.linspace(0, LENGTH, 11)], np.c_[np.arange(10), np.arange(1, 11)], np.full(11, RADIUS))
+    return sm, skeleton
+
+
+def _measure(sm, skeleton, V, F, caps, names, **kw):
+    return measure_coverage(V, F, caps, names, sm.points, sm.boundary_faces, sm.boundary_ids, sm.order, *skeleton, branches=[np.arange(11)], **kw)
+
+
+def test_complete_tube_is_covered(cylinder_mesh):
+    sm, skeleton = cylinder_mesh
+    V, F, caps = tube([0, 0, 0], [0, 0, 1], RADIUS, LENGTH)
+    summary, missing = _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1"])
+    assert missing == [] and summary["missing_parts"] == 0
+    assert summary["uncovered_share"] < 0.01
+    assert summary["surface_max_rel"] < 0.1  # facet sag of the boundary faces
+    assert summary["wall_node_max_rel"] < 1e-2  # wall nodes lie on the true cylinder, the tube is a 48-gon
+    assert 0.95 < summary["volume_ratio"] < 1.01
+
+
+def test_missing_side_branch_is_named(cylinder_mesh):
+    sm, skeleton = cylinder_mesh
+    V1, F1, caps1 = tube([0, 0, 0], [0, 0, 1], RADIUS, LENGTH)
+    V2, F2, caps2 = tube([1.5, 0, 5], [1, 0, 0], 1.0, 8.0, n_around=24, n_along=16, start_cap=False)
+    V, F = np.vstack([V1, V2]), np.vstack([F1, F2 + len(V1)])
+    caps = [caps1[0], caps1[1], caps2[1] + len(F1)]
+    summary, missing = _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1", "outlet_2"])
+    assert summary["missing_parts"] == 1
+    part = missing[0]
+    assert part.caps == ["outlet_2"]
+    assert part.skeleton_node in (4, 5, 6)  # an axis node at the branch's mouth (z = 4 .. 6)
+    assert part.depth > 3 and part.cross_sections > 3  # 47 area units; π r² with the main vessel's r = 2
+    assert 4.0 < part.position[0] < 8.0 and abs(part.position[2] - 5) < 1  # the branch spans x = 1.5 .. 9.5
+    assert "cap 'outlet_2'" in part.describe() and f"near skeleton node {part.skeleton_node} (branch 0)" in part.describe()
+    assert summary["uncovered_share"] > 0.2
+
+
+def test_rounded_closed_end_is_allowed(cylinder_mesh):
+    """A hemispherical end beyond the mesh's outlet face: no flat cap was found there,
+    the mesh stops at the last cross-section, nothing is missing."""
+    sm, skeleton = cylinder_mesh
+    V, F, caps = tube([0, 0, 0], [0, 0, 1], RADIUS, LENGTH, end="dome")
+    summary, missing = _measure(sm, skeleton, V, F, caps, ["inlet", "dome"])
+    assert missing == []
+    assert summary["beyond_ends_share"] > 0.05  # the dome is reported
+    assert summary["volume_ratio"] < 0.95
+
+
+def test_vessel_running_on_past_the_mesh_end_is_missing(cylinder_mesh):
+    sm, skeleton = cylinder_mesh
+    V, F, caps = tube([0, 0, 0], [0, 0, 1], RADIUS, 2 * LENGTH)
+    summary, missing = _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1"])
+    assert len(missing) == 1 and missing[0].caps == ["outlet_1"]
+    assert missing[0].skeleton_node == 10  # the skeleton's end
+    assert summary["uncovered_share"] > 0.4
+
+
+def test_warning_threshold_parameters(cylinder_mesh):
+    """A larger patch threshold or depth lets the same missing part through."""
+    sm, skeleton = cylinder_mesh
+    V, F, caps = tube([0, 0, 0], [0, 0, 1], RADIUS, 2 * LENGTH)
+    assert _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1"], patch_area=1000.0)[1] == []
+    assert _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1"], end_depth=100.0)[1] == []
+
+
+def test_boundary_triangles_and_volume():
+    """Higher-order faces split into 2 p² triangles; the enclosed volume of a unit cube."""
+    cube = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], float)
+    quads = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]])
+    tri = boundary_triangles(quads[:, [0, 1, 3, 2]], 1)  # tensor order: (0,0) (1,0) (0,1) (1,1)
+    assert tri.shape == (12, 3)
+    assert enclosed_volume(cube, tri) == pytest.approx(1.0)
+    assert boundary_triangles(np.arange(9)[None], 2).shape == (8, 3)
+
+
+def _y_without_a_branch():
+    """The synthetic Y-bifurcation's skeleton without one daughter branch (its end nodes)."""
+    from vmesh.io.skeleton import read_skeleton
+    from vmesh.skeleton import Skeleton
+
+    surface, skeleton = synthetic_case("y_bifurcation")
+    sk = read_skeleton(skeleton)
+    deg = sk.degrees
+    branch = [b for b in sk.branches() if deg[b[0]] == 1 or deg[b[-1]] == 1][-1]
+    keep = np.setdiff1d(np.arange(sk.n_nodes), [x for x in branch if deg[x] < 3])
+    remap = np.full(sk.n_nodes, -1)
+    remap[keep] = np.arange(len(keep))
+    edges = sk.edges[np.all(np.isin(sk.edges, keep), axis=1)]
+    return surface, Skeleton(sk.points[keep], sk.radii[keep], remap[edges])
+
+
+def _chain(**overrides):
+    import vmesh
+
+    chain = vmesh.FilterChain.load("default")
+    steps = [s for s in chain.steps if s.filter not in ("write_mesh", "write_blocks", "write_skeleton_layer", "export_meshlab")]
+    return vmesh.FilterChain(steps, name="default").with_overrides({"compute_quality.histogram": "", **overrides})
+
+
+@pytest.mark.slow
+def test_chain_fails_naming_the_missing_branch():
+    """A centerline that misses a daughter branch (and no grafting): one clear error naming its cap."""
+    surface, skeleton = _y_without_a_branch()
+    chain = _chain(**{"clean_skeleton.graft_to_caps": False})
+    with pytest.raises(MeshingError, match=r"check_coverage.*leaves out part of the vessel.*cap 'outlet_2'.*skeleton node"):
+        chain.run(surface=surface, skeleton=skeleton)
+    ctx = chain.with_overrides({"check_coverage.fail_on_missing": False}).run(surface=surface, skeleton=skeleton)
+    cov = ctx.report.sections["coverage"]
+    assert cov["missing_parts"] == 1 and cov["missing"][0]["caps"] == ["outlet_2"]
+    assert cov["uncovered_share"] > 0.15 and cov["volume_ratio"] < 0.85
+    assert any("leaves out part of the vessel" in w for w in ctx.report.warnings)
+
+
+@pytest.mark.slow
+def test_coverage_numbers_at_refinement_2():
+    """The complete Y-bifurcation at refinement 2: ≤ 1 % of the wall farther than 0.1 r
+    from the mesh, every wall node on the input wall, the volume within 2 %."""
+    surface, skeleton = synthetic_case("y_bifurcation")
+    ctx = _chain(**{"mesh_transfinite.refinement": 2}).run(surface=surface, skeleton=skeleton)
+    cov = ctx.report.sections["coverage"]
+    assert cov["missing_parts"] == 0 and cov["missing"] == []
+    assert cov["uncovered_share"] <= 0.01
+    assert cov["surface_max_rel"] < 0.1
+    assert cov["wall_node_max_rel"] < 1e-9
+    assert 0.98 < cov["volume_ratio"] < 1.01
+    assert cov["surface_area"] > 0 and cov["mesh_volume"] > 0
+
+
+def test_high_order_boundary_covers_closer():
+    """Order-2 boundary faces (split into sub-triangles) follow the wall better than order 1."""
+    V, F, caps = tube([0, 0, 0], [0, 0, 1], RADIUS, LENGTH, n_around=96)
+    skeleton = (np.c_[np.zeros((11, 2)), np.linspace(0, LENGTH, 11)], np.c_[np.arange(10), np.arange(1, 11)], np.full(11, RADIUS))
+    result = {}
+    for order in (1, 2):
+        sm = mesh_blocks(cylinder_blocks(radius=RADIUS, length=LENGTH, sections=3), project_cylinder(RADIUS), Refinement(order=order))
+        result[order] = _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1"])[0]
+    assert result[2]["missing_parts"] == 0 and result[2]["uncovered_share"] == 0.0
+    assert result[2]["surface_max_rel"] < 0.5 * result[1]["surface_max_rel"]
+    assert result[1]["volume_ratio"] < result[2]["volume_ratio"] < 1.001
