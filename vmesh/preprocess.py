@@ -8,7 +8,7 @@ them. Caps are tracked through every step by a per-face integer label
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
@@ -80,6 +80,10 @@ def remove_unreferenced_vertices(vertices: np.ndarray, faces: np.ndarray):
 # ---------------------------------------------------------------------------
 # repair
 # ---------------------------------------------------------------------------
+#: Dropped pieces listed one by one in a repair report (the rest are only counted).
+MAX_LISTED_COMPONENTS = 20
+
+
 @dataclass
 class RepairReport:
     """What :func:`repair` changed (all counts)."""
@@ -91,13 +95,36 @@ class RepairReport:
     nonmanifold_edges: int = 0
     removed_components: int = 0
     removed_component_faces: int = 0
+    #: pieces dropped beside the kept one that are large enough to be vessels:
+    #: ``{"faces", "area", "area_fraction", "bbox_min", "bbox_max"}`` each, largest first
+    dropped_components: list = field(default_factory=list)
+    #: pieces dropped as debris (area below ``debris_area`` × the kept piece's)
+    debris_components: int = 0
     flipped_faces: int = 0
     oriented_outward: bool = False
     non_orientable: bool = False
     unreferenced_vertices: int = 0
 
     def as_dict(self) -> dict:
-        return dict(self.__dict__)
+        d = dict(self.__dict__)
+        d["dropped_components"] = [dict(c) for c in self.dropped_components]
+        return d
+
+
+def component_areas(vertices: np.ndarray, faces: np.ndarray, label: np.ndarray) -> np.ndarray:
+    """Surface area of each connected piece (``label`` per face)."""
+    return np.bincount(label, weights=face_areas(vertices, faces), minlength=int(label.max()) + 1 if len(label) else 0)
+
+
+def component_summary(vertices: np.ndarray, faces: np.ndarray, label: np.ndarray, pieces) -> list[dict]:
+    """Faces, area and bounding box of the connected pieces ``pieces`` (``label`` per face)."""
+    areas = component_areas(vertices, faces, label)
+    n_faces = np.bincount(label, minlength=len(areas))
+    out = []
+    for k in pieces:
+        corners = vertices[faces[label == k].ravel()]
+        out.append({"faces": int(n_faces[k]), "area": float(areas[k]), "bbox_min": corners.min(axis=0).tolist(), "bbox_max": corners.max(axis=0).tolist()})
+    return out
 
 
 def merge_close_vertices(vertices: np.ndarray, faces: np.ndarray, tolerance: float):
@@ -175,12 +202,13 @@ def repair(
     orient: bool = True,
     outward: bool = True,
     face_data: dict | None = None,
+    debris_area: float = 1e-3,
 ):
     """Clean a triangle surface.
 
     Steps: weld duplicate vertices, drop faces with repeated vertices and duplicate
     faces (same three vertices in any order), drop unused vertices, keep the largest
-    connected piece (by face count) when ``keep="largest"``, orient faces consistently,
+    connected piece (by area) when ``keep="largest"``, orient faces consistently,
     and turn each piece outward (positive signed volume).
 
     Parameters
@@ -195,6 +223,10 @@ def repair(
         Make orientation consistent; then flip pieces enclosing negative volume.
     face_data : dict of str -> (m, ...) arrays, optional
         Per-face arrays, filtered along with the faces.
+    debris_area : float
+        Dropped pieces smaller than this fraction of the kept piece's area are counted as
+        debris (``report.debris_components``); larger ones are listed with their size and
+        bounding box (``report.dropped_components``).
 
     Returns
     -------
@@ -225,10 +257,19 @@ def repair(
     if keep == "largest":
         count, label = topology.face_components(f, len(v))
         if count > 1:
-            sizes = np.bincount(label)
-            largest = int(np.argmax(sizes))
+            areas = component_areas(v, f, label)
+            largest = int(np.argmax(areas))
             report.removed_components = count - 1
-            report.removed_component_faces = int(len(f) - sizes[largest])
+            report.removed_component_faces = int(np.sum(label != largest))
+            fraction = areas / areas[largest] if areas[largest] > 0 else np.zeros(count)
+            others = np.argsort(-areas, kind="stable")
+            others = others[others != largest]
+            debris = fraction[others] < debris_area
+            report.debris_components = int(debris.sum())
+            listed = others[~debris][:MAX_LISTED_COMPONENTS]
+            report.dropped_components = [
+                {**piece, "area_fraction": float(fraction[k])} for k, piece in zip(listed, component_summary(v, f, label, listed))
+            ]
             keep_faces(label == largest)
     elif keep != "all":
         raise ValueError(f"keep must be 'largest' or 'all', got {keep!r}")

@@ -71,13 +71,18 @@ def build_chain(args, surface_open: bool, has_surface: bool, has_skeleton: bool,
     """The filter chain the command runs, from its options (the skeleton, when given, is
     read before the chain runs so that a bad file fails before any work).
 
-    Open surfaces are capped, closed ones get their flat caps detected, so that the
-    skeleton's ends can be put on the caps; ``inlet_point`` (the centerline's inlet)
+    The surface is repaired first (as in the default chain); open surfaces are capped,
+    closed ones get their flat caps detected, so that the skeleton's ends can be put on
+    the caps; ``inlet_point`` (the centerline's inlet)
     names the cap nearest to it the inlet.
     """
     from ..chain import FilterChain
 
     chain = FilterChain(name="skeleton", description="vmesh skeleton command")
+    if has_surface and _registered("repair_surface"):
+        # as `vmesh run default`: weld, drop degenerate faces and stray pieces, orient
+        # consistently (capping and the signed distance need it)
+        chain.append("repair_surface")
     need_sdf = has_surface and (not has_skeleton or not args.no_clean) and _registered("build_sdf")
     caps_filter = "cap_open_ends" if surface_open else ("detect_caps" if not args.no_clean else None)
     if has_surface and caps_filter and _registered(caps_filter):
@@ -183,8 +188,8 @@ def run(args) -> int:
         try:
             render_skeleton_png(png, skeleton, ctx.surface)
             print(f"wrote {png}")
-        except (RuntimeError, OSError, ImportError) as exc:  # no OpenGL context: the skeleton is still written
-            print(f"warning: could not render {png}: {type(exc).__name__}: {exc}", file=sys.stderr)
+        except Exception as exc:  # no OpenGL context: the skeleton is still written
+            print(f"warning: could not render {png}: {' '.join(str(exc).split())[:160] or 'no picture'}", file=sys.stderr)
     return 0
 
 
