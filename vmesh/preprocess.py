@@ -100,6 +100,8 @@ class RepairReport:
     dropped_components: list = field(default_factory=list)
     #: pieces dropped as debris (area below ``debris_area`` × the kept piece's)
     debris_components: int = 0
+    #: holes in the wall that were filled: ``{"edges", "diameter", "center"}`` each
+    filled_holes: list = field(default_factory=list)
     flipped_faces: int = 0
     oriented_outward: bool = False
     non_orientable: bool = False
@@ -108,6 +110,7 @@ class RepairReport:
     def as_dict(self) -> dict:
         d = dict(self.__dict__)
         d["dropped_components"] = [dict(c) for c in self.dropped_components]
+        d["filled_holes"] = [dict(h) for h in self.filled_holes]
         return d
 
 
@@ -203,6 +206,7 @@ def repair(
     outward: bool = True,
     face_data: dict | None = None,
     debris_area: float = 1e-3,
+    fill_wall_holes: bool = True,
 ):
     """Clean a triangle surface.
 
@@ -227,6 +231,10 @@ def repair(
         Dropped pieces smaller than this fraction of the kept piece's area are counted as
         debris (``report.debris_components``); larger ones are listed with their size and
         bounding box (``report.dropped_components``).
+    fill_wall_holes : bool
+        Close the boundary loops that are holes in the wall rather than open ends (see
+        :func:`wall_hole_loops`) with a faired patch (``report.filled_holes``); needs
+        ``orient``. Filled faces get 0 in every face array.
 
     Returns
     -------
@@ -282,6 +290,12 @@ def repair(
     if orient:
         f, report.flipped_faces, orientable = orient_consistently(f)
         report.non_orientable = not orientable
+    if fill_wall_holes and orient and not report.non_orientable:
+        holes = wall_hole_loops(v, f)
+        if holes:
+            n_faces = len(f)
+            v, f, report.filled_holes = fill_holes(v, f, holes)
+            data = {k: np.concatenate([a, np.zeros((len(f) - n_faces, *a.shape[1:]), a.dtype)]) for k, a in data.items()}
     if outward:
         count, label = topology.face_components(f, len(v))
         for piece in range(count):
@@ -291,6 +305,66 @@ def repair(
                 report.flipped_faces += int(sel.sum())
         report.oriented_outward = True
     return v, f, data, report
+
+
+#: A boundary loop is a hole in the wall when the faces around it are this nearly parallel
+#: to the loop (mean |cos| between their normals and the loop's normal). Around an open
+#: end the wall runs along the vessel, across the loop: for a circular tube cut at any
+#: angle the mean is at most 2/pi = 0.64 (a cut along the axis), about 0.3 or less for
+#: usual ends. Around a hole spanning ±45° of a tube's circumference it is 0.75, and it
+#: grows towards 1 for smaller holes.
+HOLE_ALIGNMENT = 0.7
+
+
+def wall_hole_loops(vertices: np.ndarray, faces: np.ndarray, alignment: float = HOLE_ALIGNMENT) -> list[np.ndarray]:
+    """The boundary loops of a consistently oriented surface that are holes in its wall
+    (the faces around them lie nearly in the loop's plane), not open ends of a vessel."""
+    loops = topology.boundary_loops(faces)
+    if not loops:
+        return []
+    normals = topology.face_normals(vertices, faces)
+    face_of_vertex = sp.coo_matrix(
+        (np.ones(faces.size), (faces.ravel(), np.repeat(np.arange(len(faces)), 3))), shape=(len(vertices), len(faces))
+    ).tocsr()
+    holes = []
+    for loop in loops:
+        rim = vertices[loop]
+        area_vector = 0.5 * np.cross(rim - rim.mean(axis=0), np.roll(rim, -1, axis=0) - rim.mean(axis=0)).sum(axis=0)
+        norm = np.linalg.norm(area_vector)
+        if norm == 0 or len(loop) < 3:
+            continue
+        around = np.unique(face_of_vertex[loop].indices)
+        if np.mean(np.abs(normals[around] @ (area_vector / norm))) > alignment:
+            holes.append(loop)
+    return holes
+
+
+def fill_holes(vertices: np.ndarray, faces: np.ndarray, loops) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+    """Close ``loops`` with ring patches (as caps), then fair the new vertices so that each
+    patch continues the wall around it (least squared umbrella Laplacian, the original
+    vertices fixed). Returns the surface and ``{"edges", "diameter", "center"}`` per hole."""
+    v_parts, f_parts, n = [vertices], [faces], len(vertices)
+    filled = []
+    for loop in loops:
+        pts, tris = cap_loop(vertices, loop)
+        f_parts.append(np.where(tris >= len(vertices), tris - len(vertices) + n, tris))
+        v_parts.append(pts)
+        n += len(pts)
+        rim = vertices[loop]
+        filled.append({"edges": int(len(loop)), "diameter": float(2 * np.linalg.norm(rim - rim.mean(axis=0), axis=1).mean()), "center": rim.mean(axis=0).tolist()})
+    v, f = np.vstack(v_parts), np.vstack(f_parts)
+    free = np.arange(len(vertices), len(v))
+    fixed = np.arange(len(vertices))
+    lap = uniform_laplacian(len(v), f)
+    energy = (lap.T @ lap).tocsr()
+    rhs = -(energy[free][:, fixed] @ v[fixed])
+    from scipy.sparse.linalg import spsolve
+
+    solved = spsolve(energy[free][:, free].tocsc(), rhs)
+    if np.all(np.isfinite(solved)):
+        v = v.copy()
+        v[free] = np.asarray(solved).reshape(-1, 3)
+    return v, f, filled
 
 
 # ---------------------------------------------------------------------------

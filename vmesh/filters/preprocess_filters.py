@@ -103,7 +103,7 @@ def _check_point(inlet_point):
 # filters
 # ---------------------------------------------------------------------------
 @register_filter(
-    description="Clean the surface: weld duplicate vertices, drop degenerate and duplicate faces, keep the largest piece, orient faces consistently and outward.",
+    description="Clean the surface: weld duplicate vertices, drop degenerate and duplicate faces, keep the largest piece, orient faces consistently and outward, fill holes in the wall.",
     parameters=[
         Parameter(
             "merge_tolerance",
@@ -116,13 +116,14 @@ def _check_point(inlet_point):
         ),
         Parameter("keep", "str", "largest", "Keep only the largest connected piece (by area), or all pieces. Dropped pieces are named in a warning and in report.json (surface.dropped_components).", choices=("largest", "all")),
         Parameter("orient", "bool", True, "Make neighbouring faces agree on orientation, then turn each piece outward (positive enclosed volume)."),
+        Parameter("fill_holes", "bool", True, "Close holes in the wall (boundary loops whose surrounding faces lie nearly in the loop's plane, unlike open ends) with a patch faired into the wall, with a warning naming each; open ends are left to cap_open_ends."),
         Parameter("debris_area", "float", 1e-3, "Dropped pieces smaller than this fraction of the kept piece's area are debris: only counted, not named in a warning.", unit="× kept area", min=0.0, max=1.0),
     ],
     reads=("surface",),
     writes=("surface",),
     category="preprocessing",
 )
-def repair_surface(ctx, merge_tolerance, keep, orient, debris_area):
+def repair_surface(ctx, merge_tolerance, keep, orient, fill_holes, debris_area):
     """Repair the input surface and report what was removed or flipped.
 
     Open surfaces are oriented outward by their volume relative to the centroid (an
@@ -131,7 +132,7 @@ def repair_surface(ctx, merge_tolerance, keep, orient, debris_area):
     s = ctx.surface
     v, f, data, report = pre.repair(
         s.vertices, s.faces, merge_tolerance=merge_tolerance * s.diagonal, keep=keep, orient=orient, outward=orient, face_data=s.face_data,
-        debris_area=debris_area,
+        debris_area=debris_area, fill_wall_holes=fill_holes,
     )
     if len(f) == 0:
         raise InputError("no faces left after removing degenerate and duplicate faces", _surface_name(ctx))
@@ -146,6 +147,14 @@ def repair_surface(ctx, merge_tolerance, keep, orient, debris_area):
         flipped_faces=report.flipped_faces,
     )
     _report_dropped_components(ctx, report)
+    if report.filled_holes:
+        largest = max(report.filled_holes, key=lambda h: h["diameter"])
+        ctx.count(filled_holes=len(report.filled_holes))
+        ctx.warn(
+            f"filled {len(report.filled_holes)} hole(s) in the wall (the largest {largest['diameter']:.3g} across, "
+            f"at ({', '.join(f'{x:.4g}' for x in largest['center'])})): check the input surface there "
+            f"(repair_surface.fill_holes=false leaves them open)"
+        )
     if report.non_orientable:
         ctx.warn("surface is not orientable: orientation left partly inconsistent")
     if report.nonmanifold_edges:
