@@ -1,0 +1,120 @@
+"""Hostile inputs through the command line: every run either gives a valid mesh or fails
+with one ``vmesh: error:`` line (no Python text), and never leaves a half-written output.
+
+The inputs are generated (tests/hostile_inputs.py): a small tube with stray line and
+vertex cells, degenerate triangles, duplicated vertices, a hole in the wall, a pinched
+(self-touching) middle, tiny and huge coordinates, NaN coordinates, a volume mesh, quads,
+several pieces; and files that are no mesh at all.
+"""
+
+import json
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from hostile_inputs import HOSTILE_INPUTS
+
+#: Python's own words: a traceback, or an exception or warning class name.
+PYTHON_TEXT = re.compile(r"Traceback|File \"|\b[A-Z][A-Za-z]*(Error|Exception|Warning)\b")
+
+#: Inputs that are no surface at all: the reader must refuse them (fast).
+NOT_MESHES = ("empty_file", "not_a_mesh", "binary_garbage", "nan_coordinates", "only_lines")
+
+#: Inputs that are meshable after repair: the run must give a valid mesh.
+MESHABLE = ("stray_cells", "degenerate_triangles", "duplicated_vertices", "hole_in_wall", "volume_mesh", "mixed_quads", "two_pieces",
+            "tiny", "huge")
+
+
+def run_cli(*args, timeout=300):
+    return subprocess.run([sys.executable, "-m", "vmesh", *map(str, args)], capture_output=True, text=True, timeout=timeout)
+
+
+def check_outcome(r, out):
+    """A valid mesh, or one clean error line and no output; returns the report or None."""
+    leftovers = sorted(p.name for p in out.parent.glob(f".{out.name}.*"))
+    assert not leftovers, f"staging folders left: {leftovers}"
+    assert not PYTHON_TEXT.search(r.stderr), r.stderr[-2000:]
+    errors = [line for line in r.stderr.splitlines() if line.startswith("vmesh: error:")]
+    if r.returncode != 0:
+        assert len(errors) == 1, r.stderr[-2000:]
+        assert not out.exists(), "a failed run must not write its output folder"
+        return None
+    assert not errors
+    import pyvista as pv
+
+    grid = pv.read(str(out / "mesh.vtu"))
+    assert grid.n_cells > 0
+    report = json.loads((out / "report.json").read_text())
+    sj = report["quality"]["scaled_jacobian"]
+    assert sj["n_invalid"] == 0 and sj["min"] > 0
+    assert np.all(np.asarray(grid.cell_data["scaled_jacobian"]) > 0)
+    return report
+
+
+class _Result:
+    def __init__(self, returncode, stderr):
+        self.returncode, self.stderr = returncode, stderr
+
+
+@pytest.mark.parametrize("name", NOT_MESHES)
+def test_not_a_mesh_is_refused_in_one_line(tmp_path, capsys, name):
+    from vmesh.cli import main
+
+    surface, skeleton = HOSTILE_INPUTS[name](tmp_path)
+    out = tmp_path / "out"
+    code = main(["run", "default", "-q", "-i", str(surface), "-o", str(out), *(["-s", str(skeleton)] if skeleton else [])])
+    r = _Result(code, capsys.readouterr().err)
+    assert r.returncode == 2
+    assert check_outcome(r, out) is None
+    assert str(surface) in r.stderr  # the error names the file
+    assert not (tmp_path / "out.failed").exists()  # nothing ran: nothing to inspect
+
+
+def test_not_a_mesh_in_a_real_process(tmp_path):
+    surface, _ = HOSTILE_INPUTS["binary_garbage"](tmp_path)
+    r = run_cli("run", "default", "-i", surface, "-o", tmp_path / "out")
+    assert r.returncode == 2 and check_outcome(r, tmp_path / "out") is None
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", MESHABLE)
+def test_repairable_input_meshes(tmp_path, name):
+    surface, skeleton = HOSTILE_INPUTS[name](tmp_path)
+    out = tmp_path / "out"
+    r = run_cli("run", "default", "-q", "-i", surface, "-s", skeleton, "-o", out)
+    report = check_outcome(r, out)
+    assert report is not None, r.stderr[-2000:]
+    if name == "hole_in_wall":
+        assert len(report["repair"]["filled_holes"]) == 1
+    if name == "two_pieces":
+        dropped = report["surface"]["dropped_components"]
+        assert len(dropped) == 1 and dropped[0]["faces"] == 12 and report["surface"]["debris_components"] == 1
+        assert any("separate pieces" in w for w in report["warnings"])
+    if name == "stray_cells":
+        assert any("dropped 2 line and 1 vertex cell" in w for w in report["warnings"])
+    if name == "volume_mesh":
+        assert any("volume mesh" in w for w in report["warnings"])
+
+
+@pytest.mark.slow
+def test_self_touching_vessel_meshes_or_fails_cleanly(tmp_path):
+    surface, skeleton = HOSTILE_INPUTS["self_touching"](tmp_path)
+    out = tmp_path / "out"
+    r = run_cli("run", "default", "-q", "-i", surface, "-s", skeleton, "-o", out)
+    if check_outcome(r, out) is None:
+        assert (tmp_path / "out.failed" / "failure.log").is_file()
+        assert f"{tmp_path / 'out.failed'}/" in r.stderr
+
+
+@pytest.mark.slow
+def test_hostile_inputs_with_extracted_skeleton(tmp_path):
+    """Without a centerline the extraction runs on the repaired surface."""
+    for name in ("stray_cells", "two_pieces", "hole_in_wall"):
+        d = tmp_path / name
+        d.mkdir()
+        surface, _ = HOSTILE_INPUTS[name](d)
+        out = d / "out"
+        check_outcome(run_cli("run", "default", "-q", "-i", surface, "-o", out), out)
