@@ -118,3 +118,70 @@ def test_hostile_inputs_with_extracted_skeleton(tmp_path):
         surface, _ = HOSTILE_INPUTS[name](d)
         out = d / "out"
         check_outcome(run_cli("run", "default", "-q", "-i", surface, "-o", out), out)
+
+
+# -- repairs, in process (fast) ------------------------------------------------------------
+def _repair_chain(path, **params):
+    from vmesh.chain import FilterChain
+
+    return FilterChain([("repair_surface", params)]).run(surface=path)
+
+
+def test_several_pieces_keep_the_largest_and_name_the_others(tmp_path):
+    surface, _ = HOSTILE_INPUTS["two_pieces"](tmp_path)
+    ctx = _repair_chain(surface)
+    assert ctx.surface.info().n_components == 1 and ctx.surface.vertices[:, 0].max() <= 40.0 + 1e-9
+    dropped = ctx.report.sections["surface"]["dropped_components"]
+    assert len(dropped) == 1
+    box = dropped[0]
+    assert box["faces"] == 12 and np.allclose(box["bbox_min"], [100, 0, 0]) and np.allclose(box["bbox_max"], [102, 2, 2])
+    assert ctx.report.sections["surface"]["debris_components"] == 1  # the tiny triangle: counted only
+    (warning,) = [w for w in ctx.report.warnings if "separate pieces" in w]
+    assert "(100, 0, 0) - (102, 2, 2)" in warning and "1 debris piece" in warning
+    # keep=all keeps every piece
+    assert _repair_chain(surface, keep="all").surface.info().n_components == 3
+
+
+def test_downstream_sees_only_the_kept_piece(tmp_path):
+    from vmesh.chain import FilterChain
+
+    surface, _ = HOSTILE_INPUTS["two_pieces"](tmp_path)
+    ctx = FilterChain(["repair_surface", "cap_open_ends", "build_sdf"]).run(surface=surface)
+    assert len(ctx.caps) == 2
+    assert ctx.sdf.distance(np.array([[101.0, 1, 1]]))[0] < 0  # inside the dropped box: outside the vessel
+    assert ctx.sdf.distance(np.array([[20.0, 0, 0]]))[0] > 0
+
+
+def test_hole_in_the_wall_is_filled_open_ends_are_not(tmp_path):
+    surface, _ = HOSTILE_INPUTS["hole_in_wall"](tmp_path)
+    ctx = _repair_chain(surface)
+    info = ctx.surface.info()
+    assert info.n_boundary_loops == 2  # the two open ends stay for cap_open_ends
+    (hole,) = ctx.report.sections["repair"]["filled_holes"]
+    assert abs(hole["center"][0] - 20) < 1e-6 and hole["center"][1] > 2
+    # the patch continues the wall: no new vertex far inside the tube (a flat patch dips to r = 2)
+    new = ctx.surface.vertices[np.linalg.norm(ctx.surface.vertices[:, 1:], axis=1) < 2.999]
+    assert len(new) and np.linalg.norm(new[:, 1:], axis=1).min() > 2.5
+    assert any("filled 1 hole(s) in the wall" in w for w in ctx.report.warnings)
+    assert _repair_chain(surface, fill_holes=False).surface.info().n_boundary_loops == 3
+
+
+def test_open_tube_ends_cut_obliquely_are_not_holes():
+    """Ends cut at up to 60° from the cross-section stay open ends."""
+    from hostile_inputs import tube
+    from vmesh import preprocess as pre
+
+    v, f = tube()
+    for angle in (0, 30, 60):
+        w = v.copy()
+        w[:, 0] += np.tan(np.radians(angle)) * w[:, 1] * (w[:, 0] > 20)  # shear the right half: an oblique end
+        w[:, 0] -= np.tan(np.radians(angle)) * w[:, 1] * (w[:, 0] < 1e-9)
+        assert pre.wall_hole_loops(w, f) == []
+
+
+def test_degenerate_triangles_and_duplicated_vertices_are_repaired(tmp_path):
+    for name in ("degenerate_triangles", "duplicated_vertices"):
+        surface, _ = HOSTILE_INPUTS[name](tmp_path)
+        ctx = _repair_chain(surface)
+        info = ctx.surface.info()
+        assert info.manifold and info.consistently_oriented and info.n_boundary_loops == 2 and info.n_components == 1
