@@ -185,3 +185,38 @@ def test_degenerate_triangles_and_duplicated_vertices_are_repaired(tmp_path):
         ctx = _repair_chain(surface)
         info = ctx.surface.info()
         assert info.manifold and info.consistently_oriented and info.n_boundary_loops == 2 and info.n_components == 1
+
+
+def test_fins_on_nonmanifold_edges_are_dropped():
+    """A face hanging off a wall edge (three faces on one edge) is dropped; the tube stays
+    a manifold with its two open ends."""
+    from hostile_inputs import tube
+    from vmesh import preprocess as pre
+
+    v, f = tube()
+    a, b = f[500, 0], f[500, 1]
+    tip = (v[a] + v[b]) / 2 * [1, 1.5, 1.5]  # outside the wall
+    v2 = np.vstack([v, tip])
+    f2 = np.vstack([f, [[b, a, len(v)]], [[a, b, len(v)]]])  # a fin (two faces back to back)
+    assert len(pre.nonmanifold_fins(v2, f2)) == 2
+    out_v, out_f, _, report = pre.repair(v2, f2)
+    assert report.duplicate_faces == 1 and report.nonmanifold_faces == 1 and report.nonmanifold_edges == 0
+    assert len(out_f) == len(f) and len(out_v) == len(v)
+    out_v, out_f, _, report = pre.repair(v2, f2[:-1])  # a single fin face
+    assert report.nonmanifold_faces == 1 and len(out_f) == len(f)
+
+
+def test_real_two_piece_tree_is_repaired(real_path):
+    """hepatic_artery.stl: two pieces, a duplicate face and a face overlapping its
+    neighbours on a non-manifold edge: the largest piece, closed and oriented."""
+    from vmesh import preprocess as pre
+    from vmesh.io.surface import read_surface
+
+    s = read_surface(real_path("hepatic_artery.stl"))
+    v, f, _, report = pre.repair(s.vertices, s.faces)
+    assert report.nonmanifold_faces == 1 and len(report.filled_holes) == 1
+    assert len(report.dropped_components) == 1 and report.dropped_components[0]["faces"] == 128
+    from vmesh.surface import SurfaceMesh
+
+    info = SurfaceMesh(v, f).info()
+    assert info.closed and info.manifold and info.consistently_oriented and info.orientation == "outward"

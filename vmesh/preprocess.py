@@ -93,6 +93,8 @@ class RepairReport:
     duplicate_faces: int = 0
     zero_area_faces: int = 0
     nonmanifold_edges: int = 0
+    #: faces dropped so that every edge has at most two faces (see :func:`nonmanifold_fins`)
+    nonmanifold_faces: int = 0
     removed_components: int = 0
     removed_component_faces: int = 0
     #: pieces dropped beside the kept one that are large enough to be vessels:
@@ -232,7 +234,8 @@ def repair(
         debris (``report.debris_components``); larger ones are listed with their size and
         bounding box (``report.dropped_components``).
     fill_wall_holes : bool
-        Close the boundary loops that are holes in the wall rather than open ends (see
+        Drop the extra faces of non-manifold edges (:func:`nonmanifold_fins`), then close
+        the boundary loops that are holes in the wall rather than open ends (see
         :func:`wall_hole_loops`) with a faired patch (``report.filled_holes``); needs
         ``orient``. Filled faces get 0 in every face array.
 
@@ -262,6 +265,11 @@ def repair(
     keep_faces(unique)
     if len(f) == 0:
         return v[:0], f, data, report
+    if fill_wall_holes:  # the holes the dropped fins leave are filled below
+        fins = nonmanifold_fins(v, f)
+        report.nonmanifold_faces = len(fins)
+        if len(fins):
+            keep_faces(~np.isin(np.arange(len(f)), fins))
     if keep == "largest":
         count, label = topology.face_components(f, len(v))
         if count > 1:
@@ -305,6 +313,42 @@ def repair(
                 report.flipped_faces += int(sel.sum())
         report.oriented_outward = True
     return v, f, data, report
+
+
+def nonmanifold_fins(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Faces to drop so that no edge has more than two faces.
+
+    At an edge with three or more faces the wall continues through the pair that runs
+    on most smoothly: one face using the edge in each direction (as consistently oriented
+    neighbours do; any two when no such pair exists), with the most nearly equal normals.
+    The other faces are fins or overlaps of a bad segmentation export; the holes they
+    leave are holes in the wall (see :func:`wall_hole_loops`). Edges are handled one at a
+    time with the faces already dropped left out, until none has more than two faces.
+    """
+    he = topology.directed_edges(faces)
+    key = np.sort(he, axis=1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    crowded = np.flatnonzero(counts[inv] > 2)  # half-edges of non-manifold edges
+    if len(crowded) == 0:
+        return np.zeros(0, np.int64)
+    normals = topology.face_normals(vertices, faces)
+    order = crowded[np.argsort(inv[crowded], kind="stable")]
+    edge_ids, starts = np.unique(inv[order], return_index=True)
+    dropped: set[int] = set()
+    for group in np.split(order, starts[1:]):
+        face_ids = group // 3
+        alive = np.array([int(g) not in dropped for g in face_ids])
+        face_ids, forward = face_ids[alive], (he[group, 0] < he[group, 1])[alive]
+        if len(face_ids) <= 2:
+            continue
+        smooth = normals[face_ids] @ normals[face_ids].T
+        opposite = forward[:, None] != forward[None, :]
+        score = np.where(opposite, smooth, smooth - 4.0)  # a consistently oriented pair first
+        np.fill_diagonal(score, -np.inf)
+        i, j = np.unravel_index(int(np.argmax(score)), score.shape)
+        dropped.update(int(g) for k, g in enumerate(face_ids) if k not in (i, j))
+    return np.array(sorted(dropped), np.int64)
 
 
 #: A boundary loop is a hole in the wall when the faces around it are this nearly parallel
