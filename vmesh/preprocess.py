@@ -351,34 +351,49 @@ def nonmanifold_fins(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.array(sorted(dropped), np.int64)
 
 
-#: A boundary loop is a hole in the wall when the faces around it are this nearly parallel
-#: to the loop (mean |cos| between their normals and the loop's normal). Around an open
-#: end the wall runs along the vessel, across the loop: for a circular tube cut at any
-#: angle the mean is at most 2/pi = 0.64 (a cut along the axis), about 0.3 or less for
-#: usual ends. Around a hole spanning ±45° of a tube's circumference it is 0.75, and it
-#: grows towards 1 for smaller holes.
+#: A boundary loop is a hole in the wall when the faces touching it, and the surface
+#: within ``HOLE_REACH`` loop radii of its centre, lie nearly in the loop's plane: their
+#: mean |cos| between normal and loop normal (area-weighted in the ball) exceeds
+#: ``HOLE_ALIGNMENT`` and ``HOLE_AREA_ALIGNMENT``. Around an open end the wall runs along
+#: the vessel, across the loop plane: for a tube cut at any angle the ring mean is at most
+#: 2/pi = 0.64, and an end whose last row of faces was left in the cap plane (a flange)
+#: still has its wall inside the ball (0.4 or less on real ends). Around a hole spanning
+#: ±45° of a tube's circumference the two are 0.75 and 0.7, growing towards 1 for smaller
+#: holes.
 HOLE_ALIGNMENT = 0.7
+HOLE_AREA_ALIGNMENT = 0.5
+HOLE_REACH = 1.5
 
 
-def wall_hole_loops(vertices: np.ndarray, faces: np.ndarray, alignment: float = HOLE_ALIGNMENT) -> list[np.ndarray]:
+def wall_hole_loops(vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
     """The boundary loops of a consistently oriented surface that are holes in its wall
-    (the faces around them lie nearly in the loop's plane), not open ends of a vessel."""
+    (the surface around them lies nearly in the loop's plane), not open ends of a vessel."""
     loops = topology.boundary_loops(faces)
     if not loops:
         return []
+    from scipy.spatial import cKDTree
+
     normals = topology.face_normals(vertices, faces)
+    areas = face_areas(vertices, faces)
+    centres = vertices[faces].mean(axis=1)
+    tree = cKDTree(centres)
     face_of_vertex = sp.coo_matrix(
         (np.ones(faces.size), (faces.ravel(), np.repeat(np.arange(len(faces)), 3))), shape=(len(vertices), len(faces))
     ).tocsr()
     holes = []
     for loop in loops:
         rim = vertices[loop]
-        area_vector = 0.5 * np.cross(rim - rim.mean(axis=0), np.roll(rim, -1, axis=0) - rim.mean(axis=0)).sum(axis=0)
+        centre = rim.mean(axis=0)
+        area_vector = 0.5 * np.cross(rim - centre, np.roll(rim, -1, axis=0) - centre).sum(axis=0)
         norm = np.linalg.norm(area_vector)
         if norm == 0 or len(loop) < 3:
             continue
-        around = np.unique(face_of_vertex[loop].indices)
-        if np.mean(np.abs(normals[around] @ (area_vector / norm))) > alignment:
+        axis = area_vector / norm
+        ring = np.unique(face_of_vertex[loop].indices)
+        if np.mean(np.abs(normals[ring] @ axis)) <= HOLE_ALIGNMENT:
+            continue
+        ball = np.asarray(tree.query_ball_point(centre, HOLE_REACH * np.linalg.norm(rim - centre, axis=1).mean()), np.int64)
+        if len(ball) and np.sum(areas[ball] * np.abs(normals[ball] @ axis)) > HOLE_AREA_ALIGNMENT * np.sum(areas[ball]):
             holes.append(loop)
     return holes
 
