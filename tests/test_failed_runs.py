@@ -134,3 +134,18 @@ def test_stopped_run_removes_its_staging_folder(tmp_path, tube_files, sig):
     assert "Traceback" not in err
     assert not list(tmp_path.glob(".out.*")) and not out.exists()
     assert (tmp_path / "out.failed" / "failure.log").is_file() and str(tmp_path / "out.failed") in errors[0]
+
+
+def test_batch_row_diagnostics_leave_the_staging_folder(tmp_path):
+    """A failed batch row's OUT.failed/ moves out of the batch's staging folder (removed
+    at the end of a batch) to OUT/<name>.failed/, and the error names the new place."""
+    from vmesh.batch import _keep_row_diagnostics
+
+    tmp = tmp_path / ".vmesh-batch" / "row.abc"
+    left = tmp_path / ".vmesh-batch" / "row.abc.failed"
+    left.mkdir(parents=True)
+    (left / "failure.log").write_text("log")
+    error = _keep_row_diagnostics(tmp, tmp_path / "row.failed", f"step 9: see {left}/invalid_blocks.vtu")
+    assert (tmp_path / "row.failed" / "failure.log").is_file() and not left.exists()
+    assert error == f"step 9: see {tmp_path / 'row.failed'}/invalid_blocks.vtu"
+    assert _keep_row_diagnostics(tmp_path / "other", tmp_path / "other.failed", "x") == "x"

@@ -1,7 +1,9 @@
 """Read and write triangle surfaces (STL, OBJ, PLY, VTP, VTK, VTU, OFF).
 
 VTK-family files and STL/OBJ/PLY are read with pyvista (VTK's readers), OFF with
-meshio. Quads and polygons are fan-triangulated; per-face arrays are kept.
+meshio. Quads and polygons are triangulated; per-face arrays are kept. Line and vertex
+cells among the faces are dropped, and a volume mesh (tetrahedra, hexahedra...) gives
+its boundary surface; both are noted for the run's warnings.
 """
 
 from __future__ import annotations
@@ -140,10 +142,8 @@ def _read_pyvista(path: Path, notes: list):
         return empty
     if surface.n_cells == 0:
         return empty
-    if not surface.is_all_triangles:
-        n_before = surface.n_cells
+    if not surface.is_all_triangles:  # quads and polygons: an ordinary surface, no note
         surface = surface.triangulate()
-        notes.append(f"{path.name}: quads and polygons triangulated ({n_before} faces -> {surface.n_cells} triangles)")
     faces = surface.faces.reshape(-1, 4)[:, 1:].astype(np.int64)
     face_data = {
         k: np.asarray(surface.cell_data[k])
