@@ -400,8 +400,8 @@ def _keep_failed_run(exc: BaseException, ctx, stage: Path, out_dir: Path, chain:
     elif isinstance(exc, (KeyboardInterrupt, Stopped)):
         what = exc.signal_name if isinstance(exc, Stopped) else "SIGINT"
         message = f"stopped by {what}" + (f" during step {current[0]} '{current[1]}'" if current else "")
-    else:  # raised outside a filter (writing the results)
-        message = f"the run stopped on an internal error after its last step ({' '.join(str(exc).split())[:120]})"
+    else:  # raised outside a filter (writing the results): a bug, the traceback goes to the log
+        message = f"the run stopped on an internal error after its last step (a bug in vmesh, please report it with {failed / 'failure.log'})"
     message = message.replace(str(stage), str(failed))
     if isinstance(exc, ChainError) and "vmesh --debug shows the traceback" in message:
         message = message.replace("; vmesh --debug shows the traceback", f" with {failed / 'failure.log'}")
