@@ -147,7 +147,10 @@ def run(args) -> int:
             raise InputError("INPUT is a centerline; give the surface as INPUT and the centerline with --skeleton", source)
         skeleton_path = str(source)
     else:
-        surface = read_surface(source)
+        notes: list[str] = []
+        surface = read_surface(source, notes)
+        for note in notes:  # what reading changed (a volume mesh's boundary, stray cells dropped)
+            print(f"warning: {note}", file=sys.stderr)
     if args.out and Path(args.out).suffix.lower() not in SKELETON_WRITERS:
         raise InputError(f"unknown skeleton format '{Path(args.out).suffix}' (supported: {', '.join(sorted(SKELETON_WRITERS))})", args.out)
     if args.png and Path(args.png).suffix.lower() != ".png":
