@@ -106,7 +106,9 @@ def test_failed_run_leaves_no_output(tmp_path):
     with pytest.raises(InputError, match="open boundary loops"):
         chain.run(surface=open_surf, out_dir=tmp_path / "out")
     assert not (tmp_path / "out").exists()
-    assert not list(tmp_path.iterdir())  # no staging folder left behind
+    # no staging folder left behind; what the run reached is in out.failed/
+    assert [p.name for p in tmp_path.iterdir()] == ["out.failed"]
+    assert (tmp_path / "out.failed" / "x.ply").is_file() and (tmp_path / "out.failed" / "failure.log").is_file()
 
 
 def test_rerun_replaces_the_run_folder_and_refuses_other_outputs(tmp_path):

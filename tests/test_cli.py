@@ -94,3 +94,46 @@ def test_info(tmp_path):
     pv.Cylinder(resolution=16).triangulate().save(path)
     r = vmesh_cli("info", path)
     assert r.returncode == 0 and "open boundary loops 0" in r.stdout and "outward" in r.stdout
+
+
+def test_skeleton_command_repairs_inconsistent_orientation(tmp_path, capsys):
+    """`vmesh skeleton` repairs the surface first, as `vmesh run default` does (it stopped
+    at cap_open_ends on a surface with inconsistently oriented faces)."""
+    import numpy as np
+
+    from hostile_inputs import _write_ply, tube, tube_skeleton
+    from vmesh.cli import main
+
+    v, f = tube(n_around=24, n_along=30)
+    flip = np.random.default_rng(0).random(len(f)) < 0.3
+    f[flip] = f[flip][:, ::-1]
+    surface = _write_ply(tmp_path / "mixed_orientation.ply", v, f)
+    centerline = tube_skeleton(tmp_path / "centerline.json")
+    out = tmp_path / "skel.json"
+    code = main(["skeleton", str(surface), "--skeleton", str(centerline), "--out", str(out), "--no-png", "-q"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert out.is_file() and "repair_surface" not in captured.err
+
+
+def test_internal_error_is_one_line(tmp_path, capsys, monkeypatch):
+    """A bug outside any filter still prints one line, with the traceback in a log file."""
+    from vmesh import cli
+
+    def broken(path):
+        raise ZeroDivisionError("division by zero")
+
+    monkeypatch.setattr("vmesh.io.surface.read_surface", broken)
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    path = tmp_path / "c.stl"
+    path.write_text("solid\nendsolid\n")
+    code = cli.main(["info", str(path)])
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert code == cli.EXIT_INTERNAL and len(lines) == 1 and lines[0].startswith("vmesh: error: 'info' stopped on an internal error")
+    assert "ZeroDivisionError" not in err
+    (log,) = tmp_path.glob("vmesh-error-*.log")
+    assert "ZeroDivisionError: division by zero" in log.read_text() and str(log) in err

@@ -68,3 +68,80 @@ def test_real_surfaces_load(real_path):
         info = vmesh.read_surface(real_path(name)).info()
         assert info.n_boundary_loops == loops, name
         assert info.manifold and info.n_components == 1
+
+
+# -- files holding more than a triangle surface -----------------------------------------
+def test_stray_line_and_vertex_cells_are_dropped(tmp_path):
+    """A VTP with lines and vertices among its triangles (a crash in vmesh 0.x)."""
+    import pyvista as pv
+
+    s = cylinder()
+    lines = np.array([2, 0, 5, 2, 3, 7])
+    poly = pv.PolyData(s.vertices, faces=np.column_stack([np.full(s.n_faces, 3), s.faces]).ravel(), lines=lines, verts=np.array([1, 4]))
+    poly.cell_data["region"] = np.arange(poly.n_cells)  # verts, lines, then polygons
+    path = tmp_path / "stray.vtp"
+    poly.save(path)
+    notes = []
+    r = vmesh.read_surface(path, notes)
+    assert r.n_faces == s.n_faces and r.info().closed
+    assert notes == [f"stray.vtp: dropped 2 line and 1 vertex cell(s) among its {s.n_faces} surface faces"]
+    # per-face arrays stay with their faces (the polygons come after 1 vertex and 2 lines)
+    assert np.array_equal(np.sort(r.face_data["region"]), np.arange(3, 3 + s.n_faces))
+
+
+def test_volume_mesh_gives_its_boundary(tmp_path):
+    import pyvista as pv
+
+    grid = pv.ImageData(dimensions=(4, 5, 6)).cast_to_unstructured_grid().triangulate()  # tetrahedra
+    path = tmp_path / "block.vtu"
+    grid.save(path)
+    notes = []
+    r = vmesh.read_surface(path, notes)
+    info = r.info()
+    assert info.closed and info.manifold and info.n_components == 1
+    assert np.isclose(info.volume, 3 * 4 * 5)
+    assert len(notes) == 1 and "volume mesh" in notes[0] and f"{grid.n_cells} cells" in notes[0]
+
+
+def test_volume_mesh_with_surface_cells(tmp_path):
+    """Tetrahedra plus a few triangles (a mesh with its boundary faces): the boundary of the volume."""
+    import pyvista as pv
+
+    tets = pv.ImageData(dimensions=(3, 3, 3)).cast_to_unstructured_grid().triangulate()
+    tri = pv.UnstructuredGrid(np.array([3, 0, 1, 3]), np.array([pv.CellType.TRIANGLE]), np.asarray(tets.points))
+    both = tets.merge(tri, merge_points=True)
+    path = tmp_path / "both.vtu"
+    both.save(path)
+    notes = []
+    r = vmesh.read_surface(path, notes)
+    assert r.info().closed and np.isclose(r.info().volume, 8.0)
+    assert "1 lower-dimensional cells ignored" in notes[0]
+
+
+def test_nan_coordinates_refused_unused_nan_ignored(tmp_path):
+    s = cylinder()
+    v = np.vstack([s.vertices, [[np.nan, 0, 0]]])  # an unused vertex: harmless
+    from hostile_inputs import _write_ply
+
+    r = vmesh.read_surface(_write_ply(tmp_path / "unused.ply", v, s.faces))
+    assert r.n_faces == s.n_faces
+    v[3] = np.nan
+    with pytest.raises(vmesh.InputError, match="1 vertex coordinate"):
+        vmesh.read_surface(_write_ply(tmp_path / "nan.ply", v, s.faces))
+
+
+@pytest.mark.parametrize("content", [b"", b"solid x\nendsolid x\n", b"\x00" * 300])
+def test_not_a_surface(tmp_path, content):
+    path = tmp_path / "x.stl"
+    path.write_bytes(content)
+    with pytest.raises(vmesh.InputError) as info:
+        vmesh.read_surface(path)
+    assert str(path) in str(info.value) and "Error" not in str(info.value)
+
+
+def test_real_volume_mesh_lima(real_path):
+    notes = []
+    r = vmesh.read_surface(real_path("kd_lima_mesh.vtu"), notes)
+    info = r.info()
+    assert info.closed and info.manifold and info.n_components == 1
+    assert "volume mesh" in notes[0]

@@ -503,8 +503,26 @@ def mesh_row(task: dict) -> dict:
         shutil.rmtree(tmp, ignore_errors=True)
         result["status"] = "failed"
         result["error"] = " ".join(f"{exc}".split()) if isinstance(exc, VmeshError) else " ".join(f"{type(exc).__name__}: {exc}".split())
+        result["error"] = _keep_row_diagnostics(tmp, out / f"{name}.failed", result["error"])
         result["seconds"], result["cpu_seconds"] = round(time.perf_counter() - t0, 3), round(time.thread_time() - c0, 3)
         return result
+
+
+def _keep_row_diagnostics(tmp: Path, failed: Path, error: str) -> str:
+    """Move the diagnostics a failed row's run left (``TMP.failed/``, see
+    :mod:`vmesh.io.failed_run`) out of the staging folder to ``OUT/<name>.failed/``;
+    returns the error text naming the new place."""
+    from .io.atomic import replace_dir
+    from .io.failed_run import failed_dir
+
+    left = failed_dir(tmp)
+    if not left.is_dir():
+        return error
+    try:
+        replace_dir(left, failed)
+    except OSError:
+        return error
+    return error.replace(str(left), str(failed))
 
 
 def _commit_row(tmp: Path, final: Path, staging: Path, key: str) -> None:

@@ -7,6 +7,7 @@ import os
 import shutil
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,8 +18,9 @@ except ModuleNotFoundError:  # Python 3.10
 
 from . import __version__
 from .context import Context, StepReport
-from .errors import ChainError, InputError, ParameterError, VmeshError
+from .errors import ChainError, InputError, ParameterError, Stopped, VmeshError
 from .io.atomic import replace_dir
+from .io.failed_run import OWNER_FILE, failed_dir, keep_failed, mark_owner, remove_failed, remove_stale_stages, write_diagnostics
 from .monitor import ResourceMonitor
 from .registry import get_filter, suggest
 
@@ -273,12 +275,13 @@ class FilterChain:
         ctx = context or Context()
         if cache is not None:
             ctx.cache = cache
+        notes: list[str] = []  # what reading the input changed (volume mesh, stray cells...)
         if surface is not None:
             if isinstance(surface, SurfaceMesh):
                 ctx.surface = surface
             else:
                 ctx.inputs["surface"] = str(surface)
-                ctx.surface = read_surface(surface)
+                ctx.surface = read_surface(surface, notes)
         if skeleton is not None:
             if isinstance(skeleton, Skeleton):
                 ctx.skeleton = skeleton
@@ -290,12 +293,17 @@ class FilterChain:
         say = _printer(progress)
         if progress:
             ctx.progress = lambda frac, msg="": say("tick", fraction=frac, message=msg)
+        for note in notes:
+            ctx.warn(note)
         stage = None
         if out_dir is not None:
             out_dir.parent.mkdir(parents=True, exist_ok=True)
+            remove_stale_stages(out_dir)  # left by killed runs
             stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=out_dir.parent))
+            mark_owner(stage)
             ctx.stage_dir, ctx.out_dir = stage, out_dir
         t0 = time.perf_counter()
+        current = None  # (step number, filter name) while a step runs
         try:
             n = len(resolved.steps)
             # a prefix cache (batches) restores the steps up to the signed distance when it can
@@ -305,16 +313,21 @@ class FilterChain:
                     continue
                 f = get_filter(step.filter)
                 ctx._step = StepReport(step.filter, step.params)
+                current = (i + 1, step.filter)
                 say("start", index=i + 1, total=n, name=step.filter)
-                with ResourceMonitor() as mon:
+                with ResourceMonitor() as mon, _Heartbeat(say if progress is True else None, step.filter):
                     try:
                         f.function(ctx, **step.params)
                     except VmeshError as exc:
-                        raise type(exc)(f"step {i + 1} '{step.filter}': {exc}") from exc
+                        raise _with_message(exc, f"step {i + 1} '{step.filter}': {exc}") from exc
                     except MemoryError:
-                        raise ChainError(f"step {i + 1} '{step.filter}' ran out of memory") from None
+                        raise ChainError(
+                            f"step {i + 1} '{step.filter}' ran out of memory: decimate the surface "
+                            f"(decimate_surface.target_faces) or mesh a smaller part"
+                        ) from None
                     except Exception as exc:
-                        raise ChainError(f"step {i + 1} '{step.filter}' failed: {type(exc).__name__}: {exc}") from exc
+                        raise ChainError(internal_error_text(i + 1, step.filter)) from exc
+                current = None
                 ctx._step.seconds = mon.seconds
                 ctx._step.peak_memory_mb = mon.peak_mb
                 ctx._step.extra_memory_mb = mon.extra_mb
@@ -333,13 +346,116 @@ class FilterChain:
                 report["inputs"] = dict(ctx.inputs)
                 report["chain"] = resolved.name
                 (stage / "report.json").write_text(json.dumps(report, indent=2))
+                (stage / OWNER_FILE).unlink(missing_ok=True)
                 replace_dir(stage, out_dir)  # the whole folder: no earlier run's files stay beside the new ones
                 ctx.stage_dir = None
+                remove_failed(out_dir)
+        except BaseException as exc:
+            if stage is not None and stage.exists():
+                raise _keep_failed_run(exc, ctx, stage, out_dir, resolved, current) from exc.__cause__
+            raise
         finally:
             ctx._step = None
             if stage is not None and stage.exists():
                 shutil.rmtree(stage, ignore_errors=True)
         return ctx
+
+
+#: What to try when a filter stops on an internal error, beyond its own parameters.
+INTERNAL_ERROR_REMEDIES = {
+    "extract_skeleton": "give a centerline with --skeleton",
+    "read_skeleton": "check the centerline file (vmesh skeleton FILE)",
+    "repair_surface": "repair the surface in MeshLab or another mesh editor",
+    "cap_open_ends": "cap the surface in MeshLab or another mesh editor, or try cap_open_ends.method",
+}
+
+
+def internal_error_text(number: int, filter_name: str, log: str | Path | None = None) -> str:
+    """The one line for an unexpected error inside a filter (no Python text: the traceback
+    goes to the failure log, or is shown by ``vmesh --debug``)."""
+    remedy = INTERNAL_ERROR_REMEDIES.get(filter_name)
+    return (
+        f"step {number} '{filter_name}' stopped on an internal error (a bug in vmesh, please report it"
+        + (f" with {log}" if log else "; vmesh --debug shows the traceback")
+        + f"): try other parameters (vmesh filters {filter_name})"
+        + (f" or {remedy}" if remedy else "")
+    )
+
+
+def _with_message(exc: BaseException, message: str) -> BaseException:
+    """An exception of the same kind as ``exc`` with a new message (a ChainError if its
+    class takes other arguments)."""
+    try:
+        new = type(exc)(message)
+    except Exception:
+        new = ChainError(message)
+    return new
+
+
+def _keep_failed_run(exc: BaseException, ctx, stage: Path, out_dir: Path, chain: "FilterChain", current) -> BaseException:
+    """Turn the staging folder of a failed or stopped run into ``OUT.failed/`` (log,
+    report so far, skeleton, what the filter wrote) and return the exception to raise,
+    its message naming that folder."""
+    failed = failed_dir(out_dir)
+    step = current[1] if current else None
+    if isinstance(exc, VmeshError):
+        message = str(exc)
+    elif isinstance(exc, (KeyboardInterrupt, Stopped)):
+        what = exc.signal_name if isinstance(exc, Stopped) else "SIGINT"
+        message = f"stopped by {what}" + (f" during step {current[0]} '{current[1]}'" if current else "")
+    else:  # raised outside a filter (writing the results): a bug, the traceback goes to the log
+        message = f"the run stopped on an internal error after its last step (a bug in vmesh, please report it with {failed / 'failure.log'})"
+    message = message.replace(str(stage), str(failed))
+    if isinstance(exc, ChainError) and "vmesh --debug shows the traceback" in message:
+        message = message.replace("; vmesh --debug shows the traceback", f" with {failed / 'failure.log'}")
+    try:
+        (stage / "chain.toml").write_text(chain.to_toml("# vmesh filter chain of a failed run (every parameter resolved)"))
+    except OSError:
+        pass
+    write_diagnostics(stage, ctx, message, step, exc.__cause__ if isinstance(exc, ChainError) and exc.__cause__ else exc)
+    try:
+        keep_failed(stage, out_dir)
+        kept = True
+    except OSError:
+        kept = False
+    ctx.stage_dir = None
+    if kept:
+        message += f"; what the run reached (log, report, skeleton) is in {failed}/"
+    if isinstance(exc, (KeyboardInterrupt, Stopped)):
+        exc.failed_dir = failed if kept else None
+        exc.message = message
+        return exc
+    new = _with_message(exc, message) if isinstance(exc, VmeshError) else ChainError(message)
+    new.failed_dir = failed if kept else None
+    return new
+
+
+#: Seconds without progress after which a running step says it is still running.
+_HEARTBEAT_S = 30.0
+
+
+class _Heartbeat:
+    """While a step runs, say every ``interval`` seconds that it is still running when it
+    reported no progress of its own meanwhile (so a long stage never looks hung)."""
+
+    def __init__(self, say, name: str, interval: float | None = None):
+        self.say, self.name, self.interval = say, name, interval or _HEARTBEAT_S
+        self._stop = threading.Event()
+
+    def _beat(self):
+        t0 = time.perf_counter()
+        while not self._stop.wait(self.interval):
+            self.say("alive", name=self.name, seconds=time.perf_counter() - t0)
+
+    def __enter__(self):
+        if self.say is not None:
+            self._thread = threading.Thread(target=self._beat, daemon=True)
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        return False
 
 
 #: Files that mark a folder as a finished vmesh run (written last, by every run).
@@ -375,9 +491,10 @@ def _printer(progress):
 
     def say(event, **info):
         if event == "start":
-            state["last"] = -1.0
+            state["last"], state["ticked"] = -1.0, False
             print(f"[{info['index']}/{info['total']}] {info['name']} ...", file=sys.stderr, flush=True)
         elif event == "tick":
+            state["tick_t"], state["ticked"] = time.perf_counter(), True
             frac = info["fraction"]
             if tty:
                 bar = "#" * int(30 * frac)
@@ -387,6 +504,9 @@ def _printer(progress):
             elif frac - state["last"] >= 0.25 or frac >= 1 > state["last"]:
                 state["last"] = frac
                 print(f"    {100 * frac:5.1f}% {info['message']}", file=sys.stderr, flush=True)
+        elif event == "alive":
+            if time.perf_counter() - state.get("tick_t", 0.0) >= 0.9 * _HEARTBEAT_S:
+                print(("\n" if tty and state.get("ticked") else "") + f"    ... {info['name']} still running ({info['seconds']:.0f} s)", file=sys.stderr, flush=True)
         elif event == "end":
             s = info["step"]
             counts = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in s.counts.items())

@@ -1,22 +1,31 @@
 """The ``vmesh`` command line.
 
-Errors in user input print one line, ``vmesh: error: <file>: <problem>``, and exit
-with status 2; nothing is written.
+Every failure prints one line, ``vmesh: error: <file or step>: <problem>: <remedy>``, and
+exits non-zero (2 for bad input and failed stages, 1 for internal errors, 128 + the signal
+for a stopped run); no Python traceback reaches the terminal (``vmesh --debug`` shows it).
+A failed run writes no mesh; it leaves its diagnostics in ``OUT.failed/``.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
+import threading
 try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
+import warnings
+from pathlib import Path
 
 from . import __version__
-from .errors import VmeshError
+from .errors import Stopped, VmeshError
 
 EXIT_USAGE = 2
+#: Exit status of an unexpected (internal) error.
+EXIT_INTERNAL = 1
 
 #: Sub-commands contributed by other modules: name -> (add_arguments, run)
 EXTRA_COMMANDS: dict = {}
@@ -134,21 +143,82 @@ def main(argv=None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_USAGE
+    restore = _stop_on_signals()
     try:
-        return int(args.func(args) or 0)
+        with warnings.catch_warnings():
+            if not args.debug and not sys.warnoptions:
+                warnings.simplefilter("ignore")  # library warnings are no message for a user
+            return int(args.func(args) or 0)
     except VmeshError as exc:
         if args.debug:
             raise
-        print(f"vmesh: error: {exc}", file=sys.stderr)
+        print(f"vmesh: error: {one_line(str(exc))}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print("vmesh: interrupted", file=sys.stderr)
-        return 130
+    except (KeyboardInterrupt, Stopped) as exc:
+        if args.debug:
+            raise
+        print(f"vmesh: error: {one_line(getattr(exc, 'message', None) or _stopped_text(exc))}", file=sys.stderr)
+        return 128 + (exc.signal_number if isinstance(exc, Stopped) else signal.SIGINT)
     except BrokenPipeError:  # output piped into `head` and the like
-        import os
-
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except Exception as exc:  # a bug: one line for the user, the traceback in a log file
+        if args.debug:
+            raise
+        log = _write_traceback(exc)
+        where = f" (traceback in {log})" if log else ""
+        print(f"vmesh: error: '{args.command}' stopped on an internal error, a bug in vmesh: please report it{where}; "
+              f"vmesh --debug {args.command} ... shows the traceback", file=sys.stderr)
+        return EXIT_INTERNAL
+    finally:
+        restore()
+
+
+def one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+def _stopped_text(exc) -> str:
+    return f"stopped by {exc.signal_name}" if isinstance(exc, Stopped) else "interrupted (SIGINT)"
+
+
+def _stop_on_signals():
+    """Turn SIGTERM and SIGHUP into :class:`Stopped` (as SIGINT is KeyboardInterrupt), so
+    that a stopped run removes its staging folder and leaves OUT.failed/; returns a
+    function restoring the previous handlers."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    previous = {}
+
+    def stop(number, frame):
+        raise Stopped(signal.Signals(number).name, number)
+
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        try:
+            previous[sig] = signal.signal(sig, stop)
+        except (ValueError, OSError):
+            pass
+
+    def restore():
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+    return restore
+
+
+def _write_traceback(exc: BaseException) -> str | None:
+    """Write the traceback of an unexpected error to a log file; its path, or None."""
+    import tempfile
+    import traceback
+
+    try:
+        fd, path = tempfile.mkstemp(prefix="vmesh-error-", suffix=".log")
+        with os.fdopen(fd, "w") as f:
+            f.write(f"vmesh {__version__}: {' '.join(sys.argv)}\n\n")
+            f.write("".join(traceback.format_exception(type(exc), exc, exc.__traceback__)))
+        return path
+    except OSError:
+        return None
 
 
 def _load_extra_commands():

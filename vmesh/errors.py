@@ -32,3 +32,14 @@ class ChainError(VmeshError):
 
 class MeshingError(VmeshError):
     """A stage could not produce a valid result (e.g. an invalid block)."""
+
+
+class Stopped(BaseException):
+    """The run was stopped by a signal (SIGTERM from ``timeout`` or a batch scheduler,
+    SIGHUP); a BaseException like KeyboardInterrupt, so that no ``except Exception``
+    swallows it and every ``finally`` clean-up runs."""
+
+    def __init__(self, signal_name: str, signal_number: int = 15):
+        self.signal_name = signal_name
+        self.signal_number = signal_number
+        super().__init__(f"stopped by {signal_name}")

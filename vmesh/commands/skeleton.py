@@ -71,13 +71,18 @@ def build_chain(args, surface_open: bool, has_surface: bool, has_skeleton: bool,
     """The filter chain the command runs, from its options (the skeleton, when given, is
     read before the chain runs so that a bad file fails before any work).
 
-    Open surfaces are capped, closed ones get their flat caps detected, so that the
-    skeleton's ends can be put on the caps; ``inlet_point`` (the centerline's inlet)
+    The surface is repaired first (as in the default chain); open surfaces are capped,
+    closed ones get their flat caps detected, so that the skeleton's ends can be put on
+    the caps; ``inlet_point`` (the centerline's inlet)
     names the cap nearest to it the inlet.
     """
     from ..chain import FilterChain
 
     chain = FilterChain(name="skeleton", description="vmesh skeleton command")
+    if has_surface and _registered("repair_surface"):
+        # as `vmesh run default`: weld, drop degenerate faces and stray pieces, orient
+        # consistently (capping and the signed distance need it)
+        chain.append("repair_surface")
     need_sdf = has_surface and (not has_skeleton or not args.no_clean) and _registered("build_sdf")
     caps_filter = "cap_open_ends" if surface_open else ("detect_caps" if not args.no_clean else None)
     if has_surface and caps_filter and _registered(caps_filter):
@@ -142,7 +147,10 @@ def run(args) -> int:
             raise InputError("INPUT is a centerline; give the surface as INPUT and the centerline with --skeleton", source)
         skeleton_path = str(source)
     else:
-        surface = read_surface(source)
+        notes: list[str] = []
+        surface = read_surface(source, notes)
+        for note in notes:  # what reading changed (a volume mesh's boundary, stray cells dropped)
+            print(f"warning: {note}", file=sys.stderr)
     if args.out and Path(args.out).suffix.lower() not in SKELETON_WRITERS:
         raise InputError(f"unknown skeleton format '{Path(args.out).suffix}' (supported: {', '.join(sorted(SKELETON_WRITERS))})", args.out)
     if args.png and Path(args.png).suffix.lower() != ".png":
@@ -183,8 +191,8 @@ def run(args) -> int:
         try:
             render_skeleton_png(png, skeleton, ctx.surface)
             print(f"wrote {png}")
-        except (RuntimeError, OSError, ImportError) as exc:  # no OpenGL context: the skeleton is still written
-            print(f"warning: could not render {png}: {type(exc).__name__}: {exc}", file=sys.stderr)
+        except Exception as exc:  # no OpenGL context: the skeleton is still written
+            print(f"warning: could not render {png}: {' '.join(str(exc).split())[:160] or 'no picture'}", file=sys.stderr)
     return 0
 
 

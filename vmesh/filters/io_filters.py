@@ -20,7 +20,7 @@ from ..registry import Parameter, register_filter
 def surface_info(ctx, require_closed, require_manifold):
     """Diagnose the surface and record the result in the report's ``surface`` section."""
     info = ctx.surface.info()
-    ctx.report.sections["surface"] = info.as_dict()
+    ctx.report.sections.setdefault("surface", {}).update(info.as_dict())  # keeps what repair_surface recorded
     ctx.count(triangles=info.n_triangles, open_loops=info.n_boundary_loops, nonmanifold_edges=info.n_nonmanifold_edges)
     name = ctx.surface.name or "surface"
     if require_closed and not info.closed:

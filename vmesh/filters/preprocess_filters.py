@@ -103,7 +103,7 @@ def _check_point(inlet_point):
 # filters
 # ---------------------------------------------------------------------------
 @register_filter(
-    description="Clean the surface: weld duplicate vertices, drop degenerate and duplicate faces, keep the largest piece, orient faces consistently and outward.",
+    description="Clean the surface: weld duplicate vertices, drop degenerate and duplicate faces, keep the largest piece, orient faces consistently and outward, fill holes in the wall.",
     parameters=[
         Parameter(
             "merge_tolerance",
@@ -114,15 +114,17 @@ def _check_point(inlet_point):
             min=0.0,
             max=0.01,
         ),
-        Parameter("keep", "str", "largest", "Keep only the largest connected piece (by faces), or all pieces.", choices=("largest", "all")),
+        Parameter("keep", "str", "largest", "Keep only the largest connected piece (by area), or all pieces. Dropped pieces are named in a warning and in report.json (surface.dropped_components).", choices=("largest", "all")),
         Parameter("orient", "bool", True, "Make neighbouring faces agree on orientation, then turn each piece outward (positive enclosed volume)."),
+        Parameter("fill_holes", "bool", True, "Close holes in the wall (boundary loops whose surrounding faces lie nearly in the loop's plane, unlike open ends) with a patch faired into the wall, with a warning naming each; open ends are left to cap_open_ends."),
+        Parameter("debris_area", "float", 1e-3, "Dropped pieces smaller than this fraction of the kept piece's area are debris: only counted, not named in a warning.", unit="× kept area", min=0.0, max=1.0),
     ],
     reads=("surface",),
     optional_reads=("caps",),
     writes=("surface", "caps"),  # caps: cleared (they index the old faces)
     category="preprocessing",
 )
-def repair_surface(ctx, merge_tolerance, keep, orient):
+def repair_surface(ctx, merge_tolerance, keep, orient, fill_holes, debris_area):
     """Repair the input surface and report what was removed or flipped.
 
     Open surfaces are oriented outward by their volume relative to the centroid (an
@@ -130,7 +132,8 @@ def repair_surface(ctx, merge_tolerance, keep, orient):
     """
     s = ctx.surface
     v, f, data, report = pre.repair(
-        s.vertices, s.faces, merge_tolerance=merge_tolerance * s.diagonal, keep=keep, orient=orient, outward=orient, face_data=s.face_data
+        s.vertices, s.faces, merge_tolerance=merge_tolerance * s.diagonal, keep=keep, orient=orient, outward=orient, face_data=s.face_data,
+        debris_area=debris_area, fill_wall_holes=fill_holes,
     )
     if len(f) == 0:
         raise InputError("no faces left after removing degenerate and duplicate faces", _surface_name(ctx))
@@ -144,6 +147,15 @@ def repair_surface(ctx, merge_tolerance, keep, orient):
         removed_components=report.removed_components,
         flipped_faces=report.flipped_faces,
     )
+    _report_dropped_components(ctx, report)
+    if report.filled_holes:
+        largest = max(report.filled_holes, key=lambda h: h["diameter"])
+        ctx.count(filled_holes=len(report.filled_holes))
+        ctx.warn(
+            f"filled {len(report.filled_holes)} hole(s) in the wall (the largest {largest['diameter']:.3g} across, "
+            f"at ({', '.join(f'{x:.4g}' for x in largest['center'])})): check the input surface there "
+            f"(repair_surface.fill_holes=false leaves them open)"
+        )
     if report.non_orientable:
         ctx.warn("surface is not orientable: orientation left partly inconsistent")
     if report.nonmanifold_edges:
@@ -153,6 +165,28 @@ def repair_surface(ctx, merge_tolerance, keep, orient):
     if ctx.caps:
         ctx.caps = None
         ctx.warn("caps were dropped: run cap_open_ends or detect_caps after repair_surface")
+
+
+def _report_dropped_components(ctx, report) -> None:
+    """Name the pieces ``repair`` dropped (size, bounding box) in a warning and in the
+    report's ``surface`` section; debris is only counted."""
+    section = ctx.report.sections.setdefault("surface", {})
+    section["dropped_components"] = [dict(c) for c in report.dropped_components]
+    section["debris_components"] = report.debris_components
+    if report.dropped_components:
+        listed = "; ".join(
+            f"{c['faces']} faces, {100 * c['area_fraction']:.2g} % of its area, box "
+            f"({', '.join(f'{x:.4g}' for x in c['bbox_min'])}) - ({', '.join(f'{x:.4g}' for x in c['bbox_max'])})"
+            for c in report.dropped_components[:5]
+        )
+        more = len(report.dropped_components) - 5
+        ctx.warn(
+            f"the surface has {report.removed_components + 1} separate pieces: meshing the largest "
+            f"({ctx.surface.n_faces} faces) and dropping {len(report.dropped_components)} other(s) [{listed}]"
+            + (f" and {more} more" if more > 0 else "")
+            + (f", and {report.debris_components} debris piece(s)" if report.debris_components else "")
+            + " (repair_surface.keep=all keeps every piece; mesh each piece from its own file)"
+        )
 
 
 @register_filter(

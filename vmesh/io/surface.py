@@ -1,7 +1,9 @@
 """Read and write triangle surfaces (STL, OBJ, PLY, VTP, VTK, VTU, OFF).
 
 VTK-family files and STL/OBJ/PLY are read with pyvista (VTK's readers), OFF with
-meshio. Quads and polygons are fan-triangulated; per-face arrays are kept.
+meshio. Quads and polygons are triangulated; per-face arrays are kept. Line and vertex
+cells among the faces are dropped, and a volume mesh (tetrahedra, hexahedra...) gives
+its boundary surface; both are noted for the run's warnings.
 """
 
 from __future__ import annotations
@@ -52,8 +54,13 @@ def _quiet_vtk():
     vtk.vtkObject.GlobalWarningDisplayOff()
 
 
-def read_surface(path: str | Path) -> SurfaceMesh:
+def read_surface(path: str | Path, notes: list | None = None) -> SurfaceMesh:
     """Read a surface file into a :class:`SurfaceMesh` of triangles.
+
+    Whatever the file holds besides surface faces is handled, not fatal: line and vertex
+    cells are dropped, quads and polygons are triangulated, and a volume mesh (tetrahedra,
+    hexahedra...) gives its boundary surface. What was changed is appended to ``notes``
+    (one sentence each) when given, for the run's log and report.
 
     Raises
     ------
@@ -64,61 +71,86 @@ def read_surface(path: str | Path) -> SurfaceMesh:
     path = check_input_file(path, SURFACE_FORMATS, "surface")
     suffix = path.suffix.lower()
     fmt = SURFACE_FORMATS[suffix]
+    notes = [] if notes is None else notes
     try:
         if suffix == ".off":
             vertices, faces, face_data = _read_meshio(path)
         else:
-            vertices, faces, face_data = _read_pyvista(path)
+            vertices, faces, face_data = _read_pyvista(path, notes)
     except InputError:
         raise
+    except MemoryError:
+        raise InputError(f"too large to read as {fmt} (out of memory)", path) from None
     except Exception as exc:  # readers raise anything on corrupt input
         raise InputError(f"could not read as {fmt}: {_short(exc)}", path) from None
     if len(faces) == 0 or len(vertices) == 0:
         raise InputError(f"no surface faces found (empty or corrupt {fmt} file)", path)
-    if not np.all(np.isfinite(vertices)):
-        raise InputError("vertex coordinates contain NaN or infinite values", path)
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise InputError("face vertex indices are out of range (corrupt file)", path)
+    bad = ~np.all(np.isfinite(vertices[np.unique(faces)]), axis=1)
+    if bad.any():
+        raise InputError(f"{int(bad.sum())} vertex coordinate(s) are NaN or infinite: repair or re-export the surface", path)
     return SurfaceMesh(vertices, faces, name=path.name, face_data=face_data)
 
 
 def _short(exc: Exception) -> str:
-    text = " ".join(str(exc).split()) or type(exc).__name__
-    return text[:200]
+    """An exception's message without its class name (users see the problem, not Python)."""
+    text = " ".join(str(exc).split())
+    return text[:200] if text else "the file is not valid"
 
 
-def _read_pyvista(path: Path):
+def _cell_dimensions(cell_types: np.ndarray) -> np.ndarray:
+    """Topological dimension (0 vertex, 1 line, 2 surface, 3 volume) of each VTK cell type."""
+    import vtk
+
+    utilities = getattr(vtk, "vtkCellTypeUtilities", None) or vtk.vtkCellTypes
+    kinds = np.unique(cell_types)
+    dims = np.array([utilities.GetDimension(int(t)) for t in kinds], np.int64)
+    return dims[np.searchsorted(kinds, cell_types)]
+
+
+def _read_pyvista(path: Path, notes: list):
+    """Vertices, triangles and per-triangle arrays of any VTK-readable file: surface cells
+    (triangulated) of a surface, the boundary of a volume mesh; other cells are dropped."""
     import pyvista as pv
 
     _quiet_vtk()
     mesh = pv.read(str(path))
     if isinstance(mesh, pv.MultiBlock):
         mesh = mesh.combine()
-    if not isinstance(mesh, pv.PolyData):
-        mesh = mesh.extract_surface(algorithm="dataset_surface")
-    # drop lines/vertices, keep polygons, triangulate quads and polygons
-    if mesh.n_cells == 0 or mesh.n_points == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), {}
-    if mesh.n_lines or mesh.n_verts:
-        mesh = mesh.extract_cells(np.flatnonzero(_polygon_mask(mesh))).extract_surface(algorithm="dataset_surface")
-    if mesh.n_cells == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), {}
-    if not mesh.is_all_triangles:
-        mesh = mesh.triangulate()
-    faces = mesh.faces.reshape(-1, 4)[:, 1:].astype(np.int64)
+    empty = np.zeros((0, 3)), np.zeros((0, 3), np.int64), {}
+    if mesh is None or mesh.n_cells == 0 or mesh.n_points == 0:
+        return empty
+    # one cell-type array for every kind of data set (PolyData has none of its own);
+    # the cast keeps the cells (vertices, lines, polygons, strips) and their arrays
+    grid = mesh if isinstance(mesh, pv.UnstructuredGrid) else mesh.cast_to_unstructured_grid()
+    dims = _cell_dimensions(np.asarray(grid.celltypes))
+    n_by_dim = np.bincount(dims, minlength=4)
+    if n_by_dim[3]:
+        surface = grid.extract_cells(np.flatnonzero(dims == 3)).extract_surface(algorithm="dataset_surface")
+        notes.append(
+            f"{path.name} is a volume mesh ({n_by_dim[3]} cells): meshing its boundary surface ({surface.n_cells} faces)"
+            + (f"; {n_by_dim[:3].sum()} lower-dimensional cells ignored" if n_by_dim[:3].sum() else "")
+        )
+    elif n_by_dim[2]:
+        surface = grid if n_by_dim[2] == grid.n_cells else grid.extract_cells(np.flatnonzero(dims == 2))
+        surface = surface.extract_surface(algorithm="dataset_surface")
+        dropped = [f"{n} {what}" for n, what in ((n_by_dim[1], "line"), (n_by_dim[0], "vertex")) if n]
+        if dropped:
+            notes.append(f"{path.name}: dropped {' and '.join(dropped)} cell(s) among its {n_by_dim[2]} surface faces")
+    else:
+        return empty
+    if surface.n_cells == 0:
+        return empty
+    if not surface.is_all_triangles:  # quads and polygons: an ordinary surface, no note
+        surface = surface.triangulate()
+    faces = surface.faces.reshape(-1, 4)[:, 1:].astype(np.int64)
     face_data = {
-        k: np.asarray(mesh.cell_data[k])
-        for k in mesh.cell_data.keys()
-        if len(mesh.cell_data[k]) == len(faces) and not k.startswith("vtk")
+        k: np.asarray(surface.cell_data[k])
+        for k in surface.cell_data.keys()
+        if len(surface.cell_data[k]) == len(faces) and not k.startswith("vtk")
     }
-    return np.asarray(mesh.points, float), faces, face_data
-
-
-def _polygon_mask(mesh) -> np.ndarray:
-    import pyvista as pv
-
-    ctypes = np.asarray(mesh.celltypes)
-    return np.isin(ctypes, [pv.CellType.TRIANGLE, pv.CellType.QUAD, pv.CellType.POLYGON, pv.CellType.TRIANGLE_STRIP])
+    return np.asarray(surface.points, float), faces, face_data
 
 
 def _read_meshio(path: Path):

@@ -1,0 +1,151 @@
+"""Failed and stopped runs: no mesh, a clean one-line error, and ``OUT.failed/`` with what
+the run reached (log, report, skeleton, files the failing filter wrote), removed by the
+next successful run; SIGTERM/SIGINT remove the staging folder; stale staging folders of
+killed runs are removed by the next run into the same output."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from hostile_inputs import tube_skeleton, _write_ply, tube
+from vmesh.chain import FilterChain
+from vmesh.errors import ChainError, MeshingError
+from vmesh.io.failed_run import OWNER_FILE, remove_stale_stages
+from vmesh.registry import _REGISTRY, register_filter
+
+
+@pytest.fixture
+def tube_files(tmp_path):
+    v, f = tube(n_around=24, n_along=30)
+    return _write_ply(tmp_path / "tube.ply", v, f), tube_skeleton(tmp_path / "tube.json")
+
+
+@pytest.fixture
+def failing_filters():
+    """Two filters that fail after writing a diagnostic file: one with a vmesh error that
+    names the file, one with an unexpected Python error."""
+
+    @register_filter("fail_with_file_test", description="Fail naming a file it wrote.", parameters=[], reads=("surface",), category="test")
+    def fail_with_file(ctx):
+        path = ctx.output_path("invalid_blocks.vtu")
+        path.write_text("diagnostic")
+        raise MeshingError(f"2 block(s) stay invalid; the invalid block(s) are in {path}")
+
+    @register_filter("fail_unexpectedly_test", description="Fail with a Python error.", parameters=[], reads=("surface",), category="test")
+    def fail_unexpectedly(ctx):
+        (single,) = [1, 2]  # noqa: F841  (a bug: too many values to unpack)
+
+    yield
+    for name in ("fail_with_file_test", "fail_unexpectedly_test"):
+        _REGISTRY.pop(name, None)
+
+
+def test_failed_run_keeps_its_diagnostics(tmp_path, tube_files, failing_filters):
+    surface, skeleton = tube_files
+    out = tmp_path / "out"
+    chain = FilterChain(["repair_surface", "fail_with_file_test"])
+    with pytest.raises(MeshingError) as info:
+        chain.run(surface=surface, skeleton=skeleton, out_dir=out)
+    failed = tmp_path / "out.failed"
+    message = str(info.value)
+    assert not out.exists() and failed.is_dir()
+    assert f"{failed}/invalid_blocks.vtu" in message and ".partial-" not in message  # names the file that persists
+    assert (failed / "invalid_blocks.vtu").read_text() == "diagnostic"
+    report = json.loads((failed / "report.json").read_text())
+    assert report["failed"]["step"] == "fail_with_file_test" and report["steps"][0]["filter"] == "repair_surface"
+    assert "repair_surface" in (failed / "failure.log").read_text()
+    assert (failed / "skeleton.json").is_file()  # the skeleton reached
+    assert not list(tmp_path.glob(".out.*"))  # no staging folder left
+    # the next successful run removes it
+    FilterChain(["repair_surface"]).run(surface=surface, out_dir=out)
+    assert (out / "report.json").is_file() and not failed.exists()
+
+
+def test_unexpected_error_is_one_line_with_the_traceback_in_the_log(tmp_path, tube_files, failing_filters):
+    surface, _ = tube_files
+    out = tmp_path / "out"
+    with pytest.raises(ChainError) as info:
+        FilterChain(["repair_surface", "fail_unexpectedly_test"]).run(surface=surface, out_dir=out)
+    message = str(info.value)
+    assert "step 2 'fail_unexpectedly_test'" in message and "internal error" in message
+    assert "ValueError" not in message and "unpack" not in message  # no Python text
+    log = (tmp_path / "out.failed" / "failure.log").read_text()
+    assert "Traceback" in log and "ValueError: too many values to unpack" in log
+    assert str(tmp_path / "out.failed" / "failure.log") in message
+
+
+def test_unexpected_error_without_output_folder(tube_files, failing_filters):
+    surface, _ = tube_files
+    with pytest.raises(ChainError, match="vmesh --debug shows the traceback"):
+        FilterChain(["fail_unexpectedly_test"]).run(surface=surface)
+
+
+def _dead_pid():
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    return p.pid
+
+
+def test_stale_staging_folders_are_removed(tmp_path, tube_files):
+    surface, _ = tube_files
+    out = tmp_path / "out"
+    dead = tmp_path / ".out.partial-dead"
+    dead.mkdir()
+    (dead / OWNER_FILE).write_text(f"{_dead_pid()} {os.uname().nodename}\n")
+    alive = tmp_path / ".out.partial-alive"
+    alive.mkdir()
+    (alive / OWNER_FILE).write_text(f"{os.getpid()} {os.uname().nodename}\n")
+    unowned_old = tmp_path / ".out.partial-old"
+    unowned_old.mkdir()
+    os.utime(unowned_old, (time.time() - 3600, time.time() - 3600))
+    half_swapped = tmp_path / ".out.old-x"
+    half_swapped.mkdir()
+    other = tmp_path / ".other.partial-dead"
+    other.mkdir()
+    FilterChain(["repair_surface"]).run(surface=surface, out_dir=out)
+    assert not dead.exists() and not unowned_old.exists() and not half_swapped.exists()
+    assert alive.exists() and other.exists()  # a running run's folder, another output's folder
+    assert remove_stale_stages(out) == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_stopped_run_removes_its_staging_folder(tmp_path, tube_files, sig):
+    surface, _ = tube_files
+    out = tmp_path / "out"
+    # no centerline: the extraction keeps it busy for a while
+    p = subprocess.Popen([sys.executable, "-m", "vmesh", "run", "default", "-i", str(surface), "-o", str(out)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not list(tmp_path.glob(".out.partial-*")) and time.time() < deadline and p.poll() is None:
+        time.sleep(0.05)
+    assert list(tmp_path.glob(".out.partial-*")), "the run never started staging"
+    time.sleep(0.5)
+    p.send_signal(sig)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 128 + sig, err[-2000:]
+    errors = [line for line in err.splitlines() if line.startswith("vmesh: error:")]
+    assert len(errors) == 1 and f"stopped by {signal.Signals(sig).name}" in errors[0], err[-2000:]
+    assert "Traceback" not in err
+    assert not list(tmp_path.glob(".out.*")) and not out.exists()
+    assert (tmp_path / "out.failed" / "failure.log").is_file() and str(tmp_path / "out.failed") in errors[0]
+
+
+def test_batch_row_diagnostics_leave_the_staging_folder(tmp_path):
+    """A failed batch row's OUT.failed/ moves out of the batch's staging folder (removed
+    at the end of a batch) to OUT/<name>.failed/, and the error names the new place."""
+    from vmesh.batch import _keep_row_diagnostics
+
+    tmp = tmp_path / ".vmesh-batch" / "row.abc"
+    left = tmp_path / ".vmesh-batch" / "row.abc.failed"
+    left.mkdir(parents=True)
+    (left / "failure.log").write_text("log")
+    error = _keep_row_diagnostics(tmp, tmp_path / "row.failed", f"step 9: see {left}/invalid_blocks.vtu")
+    assert (tmp_path / "row.failed" / "failure.log").is_file() and not left.exists()
+    assert error == f"step 9: see {tmp_path / 'row.failed'}/invalid_blocks.vtu"
+    assert _keep_row_diagnostics(tmp_path / "other", tmp_path / "other.failed", "x") == "x"
