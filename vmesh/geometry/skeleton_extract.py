@@ -1224,7 +1224,8 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
         for key, value in counts_free.items():
             counts[key] += value
     for c in sorted(set(range(len(caps))) - taken):
-        _attach_cap(graph, caps[c], c, spacing)
+        if not _attach_cap(graph, caps[c], c, spacing, sdf):
+            counts["added_outside"] = counts.get("added_outside", 0) + 1
         counts["added"] += 1
     return counts
 
@@ -1506,27 +1507,62 @@ def _on_cap_face(point: np.ndarray, cap) -> bool:
     return abs(depth) < 0.3 * float(cap.radius) and lateral < 1.2 * float(cap.radius)
 
 
-def _attach_cap(graph: BranchGraph, cap, index: int, spacing: float) -> None:
-    """Add a branch from the skeleton point nearest to a cap's centre to the cap."""
+def _attach_cap(graph: BranchGraph, cap, index: int, spacing: float, sdf: SdfFunction | None = None, candidates: int = 64) -> bool:
+    """Add a branch from the skeleton to a cap that no end reached.
+
+    The branch starts at the skeleton point nearest to the cap's centre from which a
+    straight line to the centre stays inside the vessel (``sdf`` positive along it);
+    failing that, from which a line to the point two cap radii behind the cap does
+    (the branch then bends there). Ends of other branches are no start: a branch
+    continuing through one would carry that end to the wrong cap. Without ``sdf``
+    the nearest point is taken. Returns whether a branch inside the vessel was found.
+    """
     centre = np.asarray(cap.center, float)
-    best = None
+    radius = float(cap.radius)
+    where, pts = [], []
     for u, v, k, data in graph.graph.edges(keys=True, data=True):
-        if len(data["pts"]):
-            dist = np.linalg.norm(data["pts"] - centre, axis=1)
-            i = int(np.argmin(dist))
-            if best is None or dist[i] < best[0]:
-                best = (dist[i], ("branch", u, v, k, i))
+        where += [("branch", u, v, k, i) for i in range(len(data["pts"]))]
+        pts.append(data["pts"])
     for n in graph.graph.nodes:
-        dist = float(np.linalg.norm(graph.pos(n) - centre))
-        if best is None or dist < best[0]:
-            best = (dist, ("node", n))
-    if best is None:
-        return
-    where = best[1]
-    base = where[1] if where[0] == "node" else graph.split(*where[1:])
-    end = graph.add_node(centre, float(cap.radius), end=("cap", index))
-    pts = _straight(graph.pos(base), centre, spacing)
-    graph.add_branch(base, end, pts, np.full(len(pts), float(cap.radius)))
+        if graph.degree(n) != 1:
+            where.append(("node", n))
+            pts.append(graph.pos(n)[None])
+    if not where:
+        return False
+    pts = np.concatenate(pts)
+    order = np.argsort(np.linalg.norm(pts - centre, axis=1))[:candidates]
+    behind = centre - 2.0 * radius * np.asarray(cap.normal, float)
+    pick, via = int(order[0]), None
+    if sdf is not None:
+        t = (np.arange(1, 17) / 17.0)[None, :, None]
+        depths = []
+        for target in (centre, behind):
+            probes = pts[order][:, None, :] + t * (target - pts[order][:, None, :])
+            depths.append(evaluate_sdf(sdf, probes.reshape(-1, 3)).reshape(len(order), -1).min(axis=1))
+        # via the bend, the last stretch (from the bend to the cap) must be inside too
+        depths[1] = np.minimum(depths[1], evaluate_sdf(sdf, behind + t[0] * (centre - behind)).min())
+        pick = -1
+        for least in (0.25 * radius, 0.0):  # well inside if possible (a path along the wall makes thin nodes)
+            for depth, bend in zip(depths, (None, behind)):
+                ok = np.flatnonzero(depth > least)
+                if len(ok):
+                    pick, via = int(order[ok[0]]), bend
+                    break
+            if pick >= 0:
+                break
+    found = pick >= 0
+    if not found:
+        pick = int(order[0])
+    location = where[pick]
+    base = location[1] if location[0] == "node" else graph.split(*location[1:])
+    end = graph.add_node(centre, radius, end=("cap", index))
+    start = graph.pos(base)
+    if via is None:
+        path = _straight(start, centre, spacing)
+    else:
+        path = np.concatenate([_straight(start, via, spacing), via[None], _straight(via, centre, spacing)])
+    graph.add_branch(base, end, path, np.full(len(path), radius))
+    return found
 
 
 # ---------------------------------------------------------------------------
@@ -1613,12 +1649,15 @@ def junction_clearances(graph: BranchGraph, factor: float, cap: float = 4.0) -> 
 
 def _center_loop_cuts(graph: BranchGraph, sdf: SdfFunction, spacing: float) -> None:
     """Centre the node where a cycle without junctions was cut (a voxel position)."""
-    cuts = [n for n in graph.graph.nodes if graph.degree(n) == 2]
+    g = graph.graph
+    # a cut cycle is one node whose single branch is a loop (a node between two
+    # branches, e.g. where a cap branch was attached to an end, is no cut)
+    cuts = [n for n in g.nodes if g.degree(n) == 2 and g.number_of_edges(n, n) == 1]
     if not cuts:
         return
     tangents, radii = [], []
     for n in cuts:
-        (u, v, k), = list(graph.graph.edges(n, keys=True))
+        u, v, k = next(iter(g.edges(n, keys=True)))
         pts, rad = graph.polyline(u, v, k)
         window = max(3, len(pts) // 20)
         t = pts[min(window, len(pts) - 1)] - pts[-1 - min(window, len(pts) - 1)]
@@ -1885,6 +1924,7 @@ def extract_skeleton(
         expected_cycles = surface_genus(*surface)
     stats["expected_cycles"] = expected_cycles
     removed = {"specks": 0, "spurs": 0, "merged_junctions": 0, "small_cycles": 0, "bridges": 0}
+
     graph.dissolve_all()
     for _ in range(20):
         step = {

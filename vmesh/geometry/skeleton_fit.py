@@ -1,0 +1,143 @@
+"""How a skeleton fits its surface: nodes inside the wall, units, radii.
+
+A centerline read from a file may not belong to the surface it comes with: it may be in
+other units (cm against mm), be the centerline of another vessel, or carry radii in other
+units; and a few of its nodes may graze or cross the wall (the chord of a sharp bend, a
+centerline computed on a finer surface). :func:`centerline_fit` tells these apart from
+the signed distance; :func:`ensure_inside` brings grazing nodes onto the vessel's side of
+the wall, since every later stage needs its nodes strictly inside.
+
+Pure functions of numpy arrays and a signed distance ``distance(points) -> (k,)``,
+positive inside.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..skeleton import Skeleton
+from .skeleton_ops import ascend_distance, edge_lengths
+
+#: Scale factors between the usual length units (m, cm, mm, um): what a centerline in
+#: other units than its surface is off by.
+UNIT_FACTORS = (10.0, 100.0, 1000.0, 0.1, 0.01, 0.001)
+
+
+def node_scale(skeleton: Skeleton) -> np.ndarray:
+    """Per-node length scale: the radius where it is known, else the median known radius,
+    else the median segment length."""
+    r = skeleton.radii
+    good = np.isfinite(r) & (r > 0)
+    if good.any():
+        return np.where(good, r, float(np.median(r[good])))
+    lengths = edge_lengths(skeleton.points, skeleton.edges)
+    return np.full(skeleton.n_nodes, float(np.median(lengths)) if len(lengths) and np.median(lengths) > 0 else 1.0)
+
+
+@dataclass
+class CenterlineFit:
+    """How a centerline sits in a surface (:func:`centerline_fit`).
+
+    Attributes
+    ----------
+    far_outside : float
+        Share of the nodes farther outside the wall than their own radius.
+    inside : float
+        Share of the nodes inside the wall.
+    scale : float or None
+        A unit factor (:data:`UNIT_FACTORS`) that puts most nodes inside when the
+        coordinates are multiplied by it, when most of them are outside as given.
+    radius_ratio : float or None
+        Median ratio of the given radii to the signed distance at the nodes inside
+        (about 1 for radii of this surface).
+    extent, surface_extent : float
+        Largest bounding-box side of the centerline and of the surface.
+    """
+
+    far_outside: float
+    inside: float
+    scale: float | None = None
+    radius_ratio: float | None = None
+    extent: float = 0.0
+    surface_extent: float = 0.0
+    details: dict = field(default_factory=dict)
+
+
+def _inside_share(distance, points: np.ndarray) -> float:
+    return float(np.mean(np.asarray(distance(points), float) > 0)) if len(points) else 0.0
+
+
+def centerline_fit(skeleton: Skeleton, distance, surface_bounds) -> CenterlineFit:
+    """Measure how ``skeleton`` fits the surface of ``distance``.
+
+    Most nodes more than their own radius outside the wall cannot be cleaned into place,
+    nor a centerline 10 times smaller or larger than its surface: either the coordinates
+    are in other units (then multiplying them by one of :data:`UNIT_FACTORS` makes the
+    centerline span about the surface, with most nodes inside; units scale about the
+    origin) or the centerline belongs to another vessel. The radii are compared with the
+    signed distance at the nodes inside.
+    """
+    pts = skeleton.points
+    d = np.asarray(distance(pts), float)
+    scale = node_scale(skeleton)
+    lo, hi = (np.asarray(b, float) for b in surface_bounds)
+    fit = CenterlineFit(
+        far_outside=float(np.mean(d < -scale)) if len(d) else 0.0,
+        inside=float(np.mean(d > 0)) if len(d) else 0.0,
+        extent=float(np.ptp(pts, axis=0).max()) if len(pts) else 0.0,
+        surface_extent=float((hi - lo).max()),
+    )
+    ratio = fit.surface_extent / max(fit.extent, 1e-300)
+    if fit.far_outside > 0.5 or not (0.25 <= ratio <= 4.0):
+        # a factor fits when the scaled centerline spans about the surface and lies in it
+        shares = {f: _inside_share(distance, pts * f) for f in UNIT_FACTORS if 0.5 <= ratio / f <= 4.0}
+        fit.details["inside_when_scaled"] = shares
+        good = {f: share for f, share in shares.items() if share > 0.5}
+        if good:
+            fit.scale = max(good, key=good.get)
+    r = skeleton.radii
+    known = (d > 0) & np.isfinite(r) & (r > 0)
+    if known.sum() >= 3:
+        fit.radius_ratio = float(np.median(r[known] / d[known]))
+    return fit
+
+
+def ensure_inside(
+    skeleton: Skeleton, distance, gradient=None, depth: float = 0.1, include_ends: bool = False
+) -> tuple[Skeleton, int, np.ndarray]:
+    """Move nodes that graze or cross the wall up the signed distance.
+
+    A node whose signed distance is below ``depth`` x its radius (endpoints only with
+    ``include_ends``: they may sit on a cap, which is on the wall) walks up the signed
+    distance towards its radius as depth, stopping on the medial ridge
+    (:func:`~vmesh.geometry.skeleton_ops.ascend_distance`): onto the vessel's axis.
+
+    Returns
+    -------
+    skeleton : Skeleton
+        With the moved nodes; a moved node without a radius gets its new depth.
+    n_moved : int
+    stuck : (k,) int64
+        Nodes that are still not inside (signed distance <= 0) after the walk.
+    """
+    if skeleton.n_nodes == 0:
+        return skeleton.copy(), 0, np.zeros(0, np.int64)
+    scale = node_scale(skeleton)
+    d = np.asarray(distance(skeleton.points), float)
+    check = np.ones(skeleton.n_nodes, bool) if include_ends else skeleton.degrees != 1
+    low = check & (d < depth * scale)
+    if not low.any():
+        return skeleton.copy(), 0, np.zeros(0, np.int64)
+    idx = np.flatnonzero(low)
+    new, dn = ascend_distance(skeleton.points[idx], scale[idx], distance, gradient)
+    better = dn > d[idx]
+    points, radii = skeleton.points.copy(), skeleton.radii.copy()
+    points[idx[better]] = new[better]
+    moved = idx[better]
+    depth_now = np.where(better, dn, d[idx])
+    fix_r = better & (dn > 0) & ~(np.isfinite(radii[idx]) & (radii[idx] > 0))
+    radii[idx[fix_r]] = dn[fix_r]
+    stuck = idx[depth_now <= 0]
+    return skeleton.copy(points=points, radii=radii), int(len(moved)), stuck.astype(np.int64)
