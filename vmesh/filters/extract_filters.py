@@ -136,6 +136,15 @@ def extract_skeleton(
         )
     except ValueError as exc:
         raise InputError(f"skeleton extraction failed: {exc}", name) from None
+    unreached = stats["ends"].pop("unreached", [])
+    if unreached:
+        where = "; ".join(f"{caps[c].name} at {np.round(caps[c].center, 3).tolist()}" for c in unreached)
+        raise InputError(
+            f"skeleton extraction: no path inside the vessel leads from the skeleton to cap(s) {where}: the vessel "
+            "behind would be missing from the mesh (is the surface broken there, or the voxel size too coarse: "
+            "lower extract_skeleton.voxel_size)",
+            name,
+        )
     from ..geometry.skeleton_fit import ensure_inside
 
     grad = getattr(sdf, "gradient", None)

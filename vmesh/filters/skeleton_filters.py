@@ -87,7 +87,7 @@ def _surface_bounds(ctx):
     return ctx.skeleton.points.min(axis=0), ctx.skeleton.points.max(axis=0)
 
 
-def _check_fit(ctx, skel, step: str) -> bool:
+def _check_fit(ctx, skel) -> bool:
     """Fail when the skeleton does not fit the surface (other units, another vessel);
     returns whether its radii should be measured from the surface instead (all equal,
     or in other units than its coordinates)."""
@@ -103,13 +103,13 @@ def _check_fit(ctx, skel, step: str) -> bool:
     sizes = f"(its extent {fit.extent:.4g}, the surface's {fit.surface_extent:.4g})"
     if fit.scale is not None:
         raise InputError(
-            f"{step}: the centerline is in other units than the surface {sizes}: multiplied by {fit.scale:g} it spans "
+            f"the centerline is in other units than the surface {sizes}: multiplied by {fit.scale:g} it spans "
             f"the surface with {100 * fit.details['inside_when_scaled'][fit.scale]:.0f} % of its nodes inside; "
             f"rerun with --set estimate_radii.scale={fit.scale:g}"
         )
     if fit.far_outside > 0.5:
         raise InputError(
-            f"{step}: {100 * fit.far_outside:.0f} % of centerline nodes lie outside the surface (farther than their radius "
+            f"{100 * fit.far_outside:.0f} % of centerline nodes lie outside the surface (farther than their radius "
             f"from the wall) {sizes}: is this the centerline of this vessel? Give its own centerline, or none to extract one"
         )
     r = skel.radii[np.isfinite(skel.radii) & (skel.radii > 0)]
@@ -159,7 +159,7 @@ def estimate_radii(ctx, overwrite, scale):
     if scale != 1.0:
         skel = ctx.skeleton = skel.copy(points=skel.points * scale, radii=skel.radii * scale)
     if ctx.sdf is not None:
-        overwrite = _check_fit(ctx, skel, "estimate_radii") or overwrite
+        overwrite = _check_fit(ctx, skel) or overwrite
     if ctx.sdf is None:
         if overwrite:
             raise InputError("estimate_radii: overwrite needs the sdf layer (add build_sdf before it)")
@@ -280,7 +280,7 @@ def clean_skeleton(
     listed in the report section ``grafted_branches``."""
     skel = ctx.skeleton
     if ctx.sdf is not None and outside != "keep" and "skeleton_fit" not in ctx.report.sections:
-        _check_fit(ctx, skel, "clean_skeleton")  # estimate_radii did not check it
+        _check_fit(ctx, skel)  # estimate_radii did not check it
     if not np.isfinite(skel.radii).all() and ctx.sdf is not None:
         skel, _ = ops.estimate_radii(skel, ctx.sdf.distance)
     counts = {}
@@ -329,20 +329,20 @@ def clean_skeleton(
         if missing and graft_to_caps and ctx.sdf is not None:
             where = "; ".join(f"{c.name} at {np.round(c.center, 3).tolist()} (radius {c.radius:.3g})" for c in missing)
             raise InputError(
-                f"clean_skeleton: no skeleton end reaches cap(s) {where}: the vessel behind would be missing from the "
+                f"no skeleton end reaches cap(s) {where}: the vessel behind would be missing from the "
                 "mesh. Give a centerline that reaches every open end, or none (to extract one)"
             )
         if missing:
             ctx.warn(f"no skeleton end near cap(s) {', '.join(c.name for c in missing)}")
     if outside != "keep" and ctx.sdf is not None:
-        skel, counts["pulled_in"] = _keep_inside(ctx, skel, "clean_skeleton")
+        skel, counts["pulled_in"] = _keep_inside(ctx, skel)
     skel.edge_tags = ops.derive_edge_tags(skel)  # new segments take the tags of their nodes
     ctx.skeleton = skel
     ctx.count(**counts)
     _count_summary(ctx, skel)
 
 
-def _keep_inside(ctx, skel, step: str):
+def _keep_inside(ctx, skel):
     """Move nodes that graze or cross the wall onto the vessel's axis (every later stage
     needs them inside); a node that cannot be brought inside is an error naming it."""
     from ..geometry.skeleton_fit import ensure_inside
@@ -353,7 +353,7 @@ def _keep_inside(ctx, skel, step: str):
         k = int(stuck[0])
         d = float(np.asarray(distance(skel.points[[k]]), float)[0])
         raise InputError(
-            f"{step}: skeleton node {k} at {np.round(skel.points[k], 4).tolist()} lies outside the surface (signed distance "
+            f"skeleton node {k} at {np.round(skel.points[k], 4).tolist()} lies outside the surface (signed distance "
             f"{d:.3g}) and no walk up the signed distance brings it inside ({len(stuck)} such node(s)): the centerline "
             "leaves the vessel there (is the surface broken or the centerline of another vessel?)"
         )
@@ -435,7 +435,7 @@ def resample_skeleton(ctx, spacing, radius_change, smooth_radii, min_segments):
     before = skel.n_nodes
     skel = ops.resample_skeleton(skel, spacing, radius_change or None, smooth_radii, min_segments)
     if ctx.sdf is not None:  # a resampled chord across a bend can graze the wall
-        skel, moved = _keep_inside(ctx, skel, "resample_skeleton")
+        skel, moved = _keep_inside(ctx, skel)
         ctx.count(pulled_in=moved)
     ctx.skeleton = skel
     ctx.count(nodes_before=before)

@@ -1191,7 +1191,9 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
     * With ``caps`` (objects with ``center``, ``normal``, ``radius``): each end is
       matched to the cap of its open end and extended straight to the cap centre;
       a cap without a skeleton end (its branch was too short to survive thinning)
-      gets a new branch from the nearest skeleton point.
+      gets a new branch from the nearest skeleton point with a path inside the
+      vessel to it (:func:`_attach_cap`); caps without one are listed under
+      ``unreached``.
     * Other ends are extended along their end tangent to the wall. A flat end
       (the cross-section keeps its full width up to the wall) ends on the axis
       through the centre of the end face, at the last cross-section behind it that
@@ -1201,7 +1203,8 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
       ends where the inscribed radius has dropped to ``end_depth`` x the radius at
       the medial end.
 
-    Returns the number of ends of each kind (``cap``, ``flat``, ``rounded``, ``added``).
+    Returns the number of ends of each kind (``cap``, ``flat``, ``rounded``, ``added``)
+    and, when some cap could not be reached, the list ``unreached`` of their indices.
     """
     counts = {"cap": 0, "flat": 0, "rounded": 0, "added": 0}
     ends = [n for n in graph.graph.nodes if graph.degree(n) == 1]
@@ -1224,9 +1227,10 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
         for key, value in counts_free.items():
             counts[key] += value
     for c in sorted(set(range(len(caps))) - taken):
-        if not _attach_cap(graph, caps[c], c, spacing, sdf):
-            counts["added_outside"] = counts.get("added_outside", 0) + 1
-        counts["added"] += 1
+        if _attach_cap(graph, caps[c], c, spacing, sdf):
+            counts["added"] += 1
+        else:
+            counts.setdefault("unreached", []).append(c)
     return counts
 
 
@@ -1515,7 +1519,8 @@ def _attach_cap(graph: BranchGraph, cap, index: int, spacing: float, sdf: SdfFun
     failing that, from which a line to the point two cap radii behind the cap does
     (the branch then bends there). Ends of other branches are no start: a branch
     continuing through one would carry that end to the wrong cap. Without ``sdf``
-    the nearest point is taken. Returns whether a branch inside the vessel was found.
+    the nearest point is taken. Returns whether a branch was added: none when every
+    such path runs through the outside (more than half a cap radius).
     """
     centre = np.asarray(cap.center, float)
     radius = float(cap.radius)
@@ -1542,7 +1547,9 @@ def _attach_cap(graph: BranchGraph, cap, index: int, spacing: float, sdf: SdfFun
         # via the bend, the last stretch (from the bend to the cap) must be inside too
         depths[1] = np.minimum(depths[1], evaluate_sdf(sdf, behind + t[0] * (centre - behind)).min())
         pick = -1
-        for least in (0.25 * radius, 0.0):  # well inside if possible (a path along the wall makes thin nodes)
+        # well inside if possible (a path along the wall makes thin nodes); a path that
+        # grazes the wall is centred later; one through the outside is no path
+        for least in (0.25 * radius, 0.0, -0.5 * radius):
             for depth, bend in zip(depths, (None, behind)):
                 ok = np.flatnonzero(depth > least)
                 if len(ok):
@@ -1550,9 +1557,8 @@ def _attach_cap(graph: BranchGraph, cap, index: int, spacing: float, sdf: SdfFun
                     break
             if pick >= 0:
                 break
-    found = pick >= 0
-    if not found:
-        pick = int(order[0])
+        if pick < 0:
+            return False
     location = where[pick]
     base = location[1] if location[0] == "node" else graph.split(*location[1:])
     end = graph.add_node(centre, radius, end=("cap", index))
@@ -1562,7 +1568,7 @@ def _attach_cap(graph: BranchGraph, cap, index: int, spacing: float, sdf: SdfFun
     else:
         path = np.concatenate([_straight(start, via, spacing), via[None], _straight(via, centre, spacing)])
     graph.add_branch(base, end, path, np.full(len(path), radius))
-    return found
+    return True
 
 
 # ---------------------------------------------------------------------------
