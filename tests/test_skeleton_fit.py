@@ -270,3 +270,22 @@ def test_a_cap_no_skeleton_end_reaches_is_an_error():
     ctx = Context(surface=surface, skeleton=truth, sdf=sdf, caps=caps)
     with pytest.raises(InputError, match=r"no skeleton end reaches cap\(s\) outlet_9"):
         get_filter("clean_skeleton")(ctx)
+
+
+def test_a_cap_overlapping_a_reached_cap_needs_no_branch():
+    """sv_rpa_su201: a closed surface whose end face was detected as two caps 0.75 apart
+    (radii 0.72 and 0.46); the second got a grafted stub 0.63 long, a junction the block
+    builder could not build. Two open ends cannot overlap: the second is part of the first."""
+    surface, sdf, truth = vessel()
+    caps = []
+    for k, e in enumerate(truth.endpoints.tolist(), 1):
+        n = truth.points[e] - truth.points[truth.neighbors(e)[0]]
+        caps.append(Cap(k, f"outlet_{k}", truth.points[e].copy(), n / np.linalg.norm(n), float(truth.radii[e])))
+    piece = caps[1]
+    side = np.cross(piece.normal, [0.0, 0.0, 1.0])
+    caps.append(Cap(9, "outlet_9", piece.center + 0.5 * piece.radius * side / np.linalg.norm(side), side / np.linalg.norm(side), 0.5 * piece.radius))
+    ctx = Context(surface=surface, skeleton=truth, sdf=sdf, caps=caps)
+    get_filter("clean_skeleton")(ctx)
+    assert ctx.report.counts.get("grafted", 0) == 0
+    assert any("outlet_9 overlaps cap outlet_2" in w for w in ctx.report.warnings)
+    assert ctx.skeleton.summary()["endpoints"] == 3

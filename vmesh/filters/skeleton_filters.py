@@ -325,7 +325,13 @@ def clean_skeleton(
             max_distance=cap_distance,
         )
         counts["ends_at_caps"] = int((matched >= 0).sum())
-        missing = [c for c, m in zip(caps, matched) if m < 0]
+        reached = {i for i, m in enumerate(matched) if m >= 0}
+        for i in sorted(set(range(len(caps))) - reached):
+            o = _overlapping_cap(caps, i, reached)
+            if o is not None:
+                ctx.warn(f"cap {caps[i].name} overlaps cap {caps[o].name}, whose skeleton end stands for both")
+                reached.add(i)
+        missing = [caps[i] for i in range(len(caps)) if i not in reached]
         if missing and graft_to_caps and ctx.sdf is not None:
             where = "; ".join(f"{c.name} at {np.round(c.center, 3).tolist()} (radius {c.radius:.3g})" for c in missing)
             raise InputError(
@@ -360,6 +366,16 @@ def _keep_inside(ctx, skel):
     return skel, moved
 
 
+def _overlapping_cap(caps, c: int, others) -> int | None:
+    """A cap among ``others`` whose disc overlaps cap ``c`` (centres closer than the sum of
+    the radii): two open ends cannot overlap, so ``c`` is a piece of that end (a cap face
+    detected in two parts), not a vessel of its own."""
+    for o in others:
+        if o != c and np.linalg.norm(np.asarray(caps[o].center) - caps[c].center) < caps[o].radius + caps[c].radius:
+            return o
+    return None
+
+
 def _graft_missing_branches(ctx, skel, caps, cap_distance, join):
     """Graft a branch of an extracted skeleton to each cap that no endpoint of ``skel``
     belongs to (see :func:`~vmesh.geometry.skeleton_ops.graft_branches`); returns the
@@ -367,7 +383,7 @@ def _graft_missing_branches(ctx, skel, caps, cap_distance, join):
     centers = np.array([c.center for c in caps], float)
     radii = np.array([c.radius for c in caps], float)
     reached = {c for _, c in ops.match_ends_to_caps(skel, centers, radii, cap_distance)}
-    missing = [c for c in range(len(caps)) if c not in reached]
+    missing = [c for c in range(len(caps)) if c not in reached and _overlapping_cap(caps, c, reached) is None]
     if not missing:
         return skel, 0
     if ctx.sdf is None:

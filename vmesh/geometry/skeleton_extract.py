@@ -1193,7 +1193,8 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
       a cap without a skeleton end (its branch was too short to survive thinning)
       gets a new branch from the nearest skeleton point with a path inside the
       vessel to it (:func:`_attach_cap`); caps without one are listed under
-      ``unreached``.
+      ``unreached``. A cap overlapping a reached one (a cap face detected in two
+      parts) needs no end of its own.
     * Other ends are extended along their end tangent to the wall. A flat end
       (the cross-section keeps its full width up to the wall) ends on the axis
       through the centre of the end face, at the last cross-section behind it that
@@ -1227,6 +1228,9 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
         for key, value in counts_free.items():
             counts[key] += value
     for c in sorted(set(range(len(caps))) - taken):
+        centre = np.asarray(caps[c].center, float)
+        if any(np.linalg.norm(np.asarray(caps[o].center, float) - centre) < caps[o].radius + caps[c].radius for o in taken):
+            continue  # overlaps a reached cap: two open ends cannot, it is a piece of that one
         if _attach_cap(graph, caps[c], c, spacing, sdf):
             counts["added"] += 1
         else:
