@@ -1544,18 +1544,21 @@ def _attach_cap(graph: BranchGraph, cap, index: int, spacing: float, sdf: SdfFun
     pick, via = int(order[0]), None
     if sdf is not None:
         t = (np.arange(1, 17) / 17.0)[None, :, None]
-        depths = []
+        paths = []  # (depth, weight) along each candidate path, for the direct and the bent one
         for target in (centre, behind):
             probes = pts[order][:, None, :] + t * (target - pts[order][:, None, :])
-            depths.append(evaluate_sdf(sdf, probes.reshape(-1, 3)).reshape(len(order), -1).min(axis=1))
-        # via the bend, the last stretch (from the bend to the cap) must be inside too
-        depths[1] = np.minimum(depths[1], evaluate_sdf(sdf, behind + t[0] * (centre - behind)).min())
+            if target is behind:  # via the bend: the last stretch, to the cap, too
+                probes = np.concatenate([probes, np.broadcast_to(behind + t[0] * (centre - behind), (len(order), 16, 3))], axis=1)
+            depth = evaluate_sdf(sdf, probes.reshape(-1, 3)).reshape(len(order), -1)
+            # the cap centre is on the surface: the margin asked for fades out over a cap radius
+            weight = np.clip(np.linalg.norm(probes - centre, axis=2) / radius, 0.0, 1.0)
+            paths.append((depth, weight))
         pick = -1
         # well inside if possible (a path along the wall makes thin nodes); a path that
         # grazes the wall is centred later; one through the outside is no path
         for least in (0.25 * radius, 0.0, -0.5 * radius):
-            for depth, bend in zip(depths, (None, behind)):
-                ok = np.flatnonzero(depth > least)
+            for (depth, weight), bend in zip(paths, (None, behind)):
+                ok = np.flatnonzero((depth >= least * weight).all(axis=1))
                 if len(ok):
                     pick, via = int(order[ok[0]]), bend
                     break
