@@ -166,7 +166,11 @@ def estimate_radii(ctx, overwrite, scale):
         if not np.isfinite(skel.radii).any():
             raise InputError("the skeleton has no radii and there is no sdf layer to measure them (add build_sdf before estimate_radii)")
     distance = ctx.sdf.distance if ctx.sdf is not None else None
-    ctx.skeleton, filled = ops.estimate_radii(skel, distance, overwrite=overwrite)
+    before = skel.radii
+    if distance is not None:
+        skel = _radii_from_sections(skel, distance, overwrite)
+    ctx.skeleton, _ = ops.estimate_radii(skel, distance, overwrite=False)
+    filled = int((~np.isclose(ctx.skeleton.radii, before, equal_nan=True)).sum())
     ctx.count(radii_filled=filled, radius_min=float(np.min(ctx.skeleton.radii)), radius_max=float(np.max(ctx.skeleton.radii)))
 
 
@@ -346,6 +350,23 @@ def clean_skeleton(
     ctx.skeleton = skel
     ctx.count(**counts)
     _count_summary(ctx, skel)
+
+
+def _radii_from_sections(skel, distance, overwrite: bool):
+    """Radii of the nodes to fill (all with ``overwrite``) from their cross-sections (the
+    signed distance near an open end measures the way to the cap); a junction's, which
+    has no section plane, are left to the signed distance (the inscribed sphere)."""
+    from ..geometry.skeleton_fit import section_radii
+
+    todo = np.ones(skel.n_nodes, bool) if overwrite else ~(np.isfinite(skel.radii) & (skel.radii > 0))
+    if not todo.any():
+        return skel
+    junction = skel.degrees >= 3
+    radii = skel.radii.copy()
+    radii[todo] = np.nan
+    measured = section_radii(skel, distance, todo & ~junction)
+    radii[todo & ~junction] = measured[todo & ~junction]
+    return skel.copy(radii=radii)
 
 
 def _keep_inside(ctx, skel):

@@ -141,3 +141,48 @@ def ensure_inside(
     radii[idx[fix_r]] = dn[fix_r]
     stuck = idx[depth_now <= 0]
     return skeleton.copy(points=points, radii=radii), int(len(moved)), stuck.astype(np.int64)
+
+
+def node_tangents(skeleton: Skeleton) -> np.ndarray:
+    """Unit axis direction at every node: the principal direction of its segments (sign
+    free, so segment orientation does not matter); zero for isolated nodes."""
+    n = skeleton.n_nodes
+    a, b = skeleton.edges.T
+    u = skeleton.points[b] - skeleton.points[a]
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+    outer = u[:, :, None] * u[:, None, :]
+    tensor = np.zeros((n, 3, 3))
+    np.add.at(tensor, a, outer)
+    np.add.at(tensor, b, outer)
+    return np.linalg.eigh(tensor)[1][:, :, 2]
+
+
+def section_radii(skeleton: Skeleton, distance, nodes: np.ndarray | None = None, rays: int = 12) -> np.ndarray:
+    """Radius of the vessel's cross-section at every node: the shortest of ``rays`` rays in
+    the plane orthogonal to the axis to the wall (the inscribed circle).
+
+    Next to an open end the signed distance measures the way to the cap, not to the wall
+    (a node 0.01 before the cap of a 12 mm aorta has a signed distance of 0.01); rays in
+    the section plane run parallel to the cap and meet the wall. Rays look as far as twice
+    the widest signed distance on the node's branch. Only ``nodes`` (a boolean mask) are
+    measured when given. NaN where a ray meets no wall, the node is outside or not asked.
+    """
+    from .skeleton_extract import distance_to_wall, plane_basis
+    from .skeleton_ops import branch_paths
+
+    n = skeleton.n_nodes
+    d = np.asarray(distance(skeleton.points), float)
+    reach = np.zeros(n)
+    for path in branch_paths(n, skeleton.edges):
+        np.maximum.at(reach, path, 2.0 * max(float(d[path].max()), 0.0))
+    out = np.full(n, np.nan)
+    ok = np.flatnonzero((d > 0) & (reach > 0) & (np.ones(n, bool) if nodes is None else np.asarray(nodes, bool)))
+    if len(ok) == 0:
+        return out
+    e1, e2 = plane_basis(node_tangents(skeleton)[ok])
+    ang = 2 * np.pi * np.arange(rays) / rays
+    dirs = (np.cos(ang)[None, :, None] * e1[:, None, :] + np.sin(ang)[None, :, None] * e2[:, None, :]).reshape(-1, 3)
+    hit = distance_to_wall(distance, np.repeat(skeleton.points[ok], rays, axis=0), dirs, np.repeat(reach[ok], rays), samples=8)
+    hit = hit.reshape(len(ok), rays).min(axis=1)
+    out[ok] = np.where(np.isfinite(hit) & (hit > 0), hit, np.nan)
+    return out
