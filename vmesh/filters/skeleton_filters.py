@@ -143,7 +143,7 @@ def _check_fit(ctx, skel) -> bool:
         ),
     ],
     reads=("skeleton",),
-    optional_reads=("sdf", "surface"),
+    optional_reads=("sdf", "surface", "caps"),
     writes=("skeleton",),
     category="skeleton",
 )
@@ -168,7 +168,7 @@ def estimate_radii(ctx, overwrite, scale):
     distance = ctx.sdf.distance if ctx.sdf is not None else None
     before = skel.radii
     if distance is not None:
-        skel = _radii_from_sections(skel, distance, overwrite)
+        skel = _radii_from_sections(skel, distance, overwrite, ctx.caps or ())
     ctx.skeleton, _ = ops.estimate_radii(skel, distance, overwrite=False)
     filled = int((~np.isclose(ctx.skeleton.radii, before, equal_nan=True)).sum())
     ctx.count(radii_filled=filled, radius_min=float(np.min(ctx.skeleton.radii)), radius_max=float(np.max(ctx.skeleton.radii)))
@@ -352,7 +352,7 @@ def clean_skeleton(
     _count_summary(ctx, skel)
 
 
-def _radii_from_sections(skel, distance, overwrite: bool):
+def _radii_from_sections(skel, distance, overwrite: bool, caps=()):
     """Radii of the nodes to fill (all with ``overwrite``) from their cross-sections (the
     signed distance near an open end measures the way to the cap); a junction's, which
     has no section plane, are left to the signed distance (the inscribed sphere)."""
@@ -364,7 +364,7 @@ def _radii_from_sections(skel, distance, overwrite: bool):
     junction = skel.degrees >= 3
     radii = skel.radii.copy()
     radii[todo] = np.nan
-    measured = section_radii(skel, distance, todo & ~junction)
+    measured = section_radii(skel, distance, todo & ~junction, caps)
     radii[todo & ~junction] = measured[todo & ~junction]
     return skel.copy(radii=radii)
 

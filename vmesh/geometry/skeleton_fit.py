@@ -157,7 +157,7 @@ def node_tangents(skeleton: Skeleton) -> np.ndarray:
     return np.linalg.eigh(tensor)[1][:, :, 2]
 
 
-def section_radii(skeleton: Skeleton, distance, nodes: np.ndarray | None = None, rays: int = 12) -> np.ndarray:
+def section_radii(skeleton: Skeleton, distance, nodes: np.ndarray | None = None, caps=(), rays: int = 12) -> np.ndarray:
     """Radius of the vessel's cross-section at every node: the shortest of ``rays`` rays in
     the plane orthogonal to the axis to the wall (the inscribed circle).
 
@@ -165,7 +165,10 @@ def section_radii(skeleton: Skeleton, distance, nodes: np.ndarray | None = None,
     (a node 0.01 before the cap of a 12 mm aorta has a signed distance of 0.01); rays in
     the section plane run parallel to the cap and meet the wall. Rays look as far as twice
     the widest signed distance on the node's branch. Only ``nodes`` (a boolean mask) are
-    measured when given. NaN where a ray meets no wall, the node is outside or not asked.
+    measured when given. A ray that ends on the face of one of ``caps`` (objects with
+    ``center``, ``normal``, ``radius``: a section plane tilted against a cap meets it
+    right next to the cap) does not count. NaN where no ray meets the wall, the node is
+    outside or not asked.
     """
     from .skeleton_extract import distance_to_wall, plane_basis
     from .skeleton_ops import branch_paths
@@ -182,7 +185,15 @@ def section_radii(skeleton: Skeleton, distance, nodes: np.ndarray | None = None,
     e1, e2 = plane_basis(node_tangents(skeleton)[ok])
     ang = 2 * np.pi * np.arange(rays) / rays
     dirs = (np.cos(ang)[None, :, None] * e1[:, None, :] + np.sin(ang)[None, :, None] * e2[:, None, :]).reshape(-1, 3)
-    hit = distance_to_wall(distance, np.repeat(skeleton.points[ok], rays, axis=0), dirs, np.repeat(reach[ok], rays), samples=8)
+    origins = np.repeat(skeleton.points[ok], rays, axis=0)
+    hit = distance_to_wall(distance, origins, dirs, np.repeat(reach[ok], rays), samples=8)
+    ends = origins + np.where(np.isfinite(hit), hit, 0.0)[:, None] * dirs
+    for cap in caps:
+        rel = ends - np.asarray(cap.center, float)
+        depth = rel @ np.asarray(cap.normal, float)
+        lateral = np.linalg.norm(rel - depth[:, None] * np.asarray(cap.normal, float), axis=1)
+        on_face = (np.abs(depth) < 0.05 * cap.radius) & (lateral < 1.05 * cap.radius)
+        hit[on_face] = np.inf
     hit = hit.reshape(len(ok), rays).min(axis=1)
     out[ok] = np.where(np.isfinite(hit) & (hit > 0), hit, np.nan)
     return out
