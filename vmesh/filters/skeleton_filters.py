@@ -353,19 +353,26 @@ def clean_skeleton(
 
 
 def _radii_from_sections(skel, distance, overwrite: bool, caps=()):
-    """Radii of the nodes to fill (all with ``overwrite``) from their cross-sections (the
+    """Radii of the nodes to fill (all with ``overwrite``): from their cross-sections (the
     signed distance near an open end measures the way to the cap); a junction's, which
-    has no section plane, are left to the signed distance (the inscribed sphere)."""
+    has no section plane, from the signed distance (the inscribed sphere); an end's, which
+    sits on a cap or an end face, from its branch (as the rest still missing)."""
     from ..geometry.skeleton_fit import section_radii
 
     todo = np.ones(skel.n_nodes, bool) if overwrite else ~(np.isfinite(skel.radii) & (skel.radii > 0))
     if not todo.any():
         return skel
-    junction = skel.degrees >= 3
+    deg = skel.degrees
     radii = skel.radii.copy()
     radii[todo] = np.nan
-    measured = section_radii(skel, distance, todo & ~junction, caps)
-    radii[todo & ~junction] = measured[todo & ~junction]
+    inner = todo & (deg == 2)
+    radii[inner] = section_radii(skel, distance, inner, caps)[inner]
+    junction = np.flatnonzero(todo & (deg >= 3))
+    if len(junction):
+        d = np.asarray(distance(skel.points[junction]), float)
+        radii[junction] = np.where(d > 0, d, np.nan)
+    if np.isfinite(radii).any():
+        radii = ops.fill_missing_along_branches(skel.n_nodes, skel.edges, skel.points, radii)
     return skel.copy(radii=radii)
 
 
