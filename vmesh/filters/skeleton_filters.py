@@ -353,24 +353,30 @@ def clean_skeleton(
 
 
 def _radii_from_sections(skel, distance, overwrite: bool, caps=()):
-    """Radii of the nodes to fill (all with ``overwrite``): from their cross-sections (the
-    signed distance near an open end measures the way to the cap); a junction's, which
-    has no section plane, from the signed distance (the inscribed sphere); an end's, which
-    sits on a cap or an end face, from its branch (as the rest still missing)."""
-    from ..geometry.skeleton_fit import section_radii
+    """Radii of the nodes to fill (all with ``overwrite``): the signed distance (the
+    inscribed sphere), except where the wall nearest to a node lies along the axis (an
+    open end's cap or an end face, to which the signed distance measures the way): there
+    the node's cross-section. An end, which sits on a cap or an end face, gets its radius
+    from its branch (as the nodes still missing)."""
+    from ..geometry.skeleton_fit import node_tangents, section_radii
 
     todo = np.ones(skel.n_nodes, bool) if overwrite else ~(np.isfinite(skel.radii) & (skel.radii > 0))
     if not todo.any():
         return skel
-    deg = skel.degrees
     radii = skel.radii.copy()
     radii[todo] = np.nan
-    inner = todo & (deg == 2)
-    radii[inner] = section_radii(skel, distance, inner, caps)[inner]
-    junction = np.flatnonzero(todo & (deg >= 3))
-    if len(junction):
-        d = np.asarray(distance(skel.points[junction]), float)
-        radii[junction] = np.where(d > 0, d, np.nan)
+    nodes = np.flatnonzero(todo & (skel.degrees >= 2))
+    if len(nodes):
+        p = skel.points[nodes]
+        d = np.asarray(distance(p), float)
+        extent = float(np.ptp(skel.points, axis=0).max()) or 1.0
+        towards_wall = ops.distance_gradient(distance, p, np.maximum(0.1 * np.abs(d), 1e-9 * extent))
+        along = np.abs(np.einsum("ij,ij->i", towards_wall, node_tangents(skel)[nodes])) > np.cos(np.radians(45.0))
+        along &= skel.degrees[nodes] == 2  # a junction has no section plane
+        mask = np.zeros(skel.n_nodes, bool)
+        mask[nodes[along]] = True
+        section = section_radii(skel, distance, mask, caps)[nodes]
+        radii[nodes] = np.where(along, section, np.where(d > 0, d, np.nan))
     if np.isfinite(radii).any():
         radii = ops.fill_missing_along_branches(skel.n_nodes, skel.edges, skel.points, radii)
     return skel.copy(radii=radii)
