@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..errors import InputError
 from ..registry import Parameter, register_filter
 
@@ -134,6 +136,27 @@ def extract_skeleton(
         )
     except ValueError as exc:
         raise InputError(f"skeleton extraction failed: {exc}", name) from None
+    unreached = stats["ends"].pop("unreached", [])
+    if unreached:
+        where = "; ".join(f"{caps[c].name} at {np.round(caps[c].center, 3).tolist()}" for c in unreached)
+        raise InputError(
+            f"skeleton extraction: no path inside the vessel leads from the skeleton to cap(s) {where}: the vessel "
+            "behind would be missing from the mesh (is the surface broken there, or the voxel size too coarse: "
+            "lower extract_skeleton.voxel_size)",
+            name,
+        )
+    from ..geometry.skeleton_fit import ensure_inside
+
+    grad = getattr(sdf, "gradient", None)
+    skeleton, moved, stuck = ensure_inside(skeleton, sdf.distance, grad if callable(grad) else None)
+    if len(stuck):
+        k = int(stuck[0])
+        raise InputError(
+            f"skeleton extraction: node {k} at {np.round(skeleton.points[k], 4).tolist()} lies outside the surface and "
+            f"cannot be moved inside ({len(stuck)} such node(s)): is the surface closed and free of holes?",
+            name,
+        )
+    stats["pulled_in"] = moved
     skeleton.name = f"extracted from {name}"
     if caps:
         names = {i: c.name for i, c in enumerate(caps)}

@@ -37,11 +37,19 @@ from ..registry import Parameter, register_filter
             min=0.0,
             max=2.0,
         ),
+        Parameter(
+            "scale",
+            "float",
+            1.0,
+            "Multiply the centerline's coordinates and radii by this (a centerline in other units than the surface: "
+            "10 for cm -> mm, 1000 for m -> mm, 0.1 for mm -> cm).",
+            min=1e-9,
+        ),
     ],
     writes=("skeleton",),
     category="skeleton",
 )
-def load_skeleton(ctx, path, vtk_kind, merge_tolerance):
+def load_skeleton(ctx, path, vtk_kind, merge_tolerance, scale):
     """Read the skeleton from a file; tags in the file (JSON tags, SWC types, VTK label arrays) are kept."""
     from ..io.skeleton import read_skeleton
 
@@ -50,6 +58,8 @@ def load_skeleton(ctx, path, vtk_kind, merge_tolerance):
     p = Path(path)
     options = {"kind": vtk_kind, "merge_tolerance": merge_tolerance} if p.suffix.lower() in (".vtp", ".vtk") else {}
     skel = read_skeleton(p, **options)
+    if scale != 1.0:
+        skel = skel.copy(points=skel.points * scale, radii=skel.radii * scale)
     ctx.inputs["skeleton"] = str(p)
     ctx.skeleton = skel
     _count_summary(ctx, skel)
@@ -68,28 +78,99 @@ def _sdf_functions(sdf):
     return sdf.distance, grad if callable(grad) else None
 
 
+def _surface_bounds(ctx):
+    if ctx.surface is not None:
+        return ctx.surface.bounds
+    bounds = getattr(ctx.sdf, "bounds", None)
+    if bounds is not None:
+        return bounds
+    return ctx.skeleton.points.min(axis=0), ctx.skeleton.points.max(axis=0)
+
+
+def _check_fit(ctx, skel) -> bool:
+    """Fail when the skeleton does not fit the surface (other units, another vessel);
+    returns whether its radii should be measured from the surface instead (all equal,
+    or in other units than its coordinates)."""
+    from ..geometry.skeleton_fit import centerline_fit
+
+    fit = centerline_fit(skel, ctx.sdf.distance, _surface_bounds(ctx))
+    ctx.report.sections["skeleton_fit"] = {
+        "far_outside": round(fit.far_outside, 4),
+        "inside": round(fit.inside, 4),
+        "scale": fit.scale,
+        "radius_ratio": None if fit.radius_ratio is None else round(fit.radius_ratio, 4),
+    }
+    sizes = f"(its extent {fit.extent:.4g}, the surface's {fit.surface_extent:.4g})"
+    if fit.scale is not None:
+        raise InputError(
+            f"the centerline is in other units than the surface {sizes}: multiplied by {fit.scale:g} it spans "
+            f"the surface with {100 * fit.details['inside_when_scaled'][fit.scale]:.0f} % of its nodes inside; "
+            f"rerun with --set estimate_radii.scale={fit.scale:g}"
+        )
+    if fit.far_outside > 0.5:
+        raise InputError(
+            f"{100 * fit.far_outside:.0f} % of centerline nodes lie outside the surface (farther than their radius "
+            f"from the wall) {sizes}: is this the centerline of this vessel? Give its own centerline, or none to extract one"
+        )
+    r = skel.radii[np.isfinite(skel.radii) & (skel.radii > 0)]
+    depth = np.asarray(ctx.sdf.distance(skel.points), float)
+    depth = depth[depth > 0]
+    varies = len(depth) >= 3 and np.ptp(np.percentile(depth, [10, 90])) > 0.5 * np.median(depth)
+    off = fit.radius_ratio is not None and not (0.8 <= fit.radius_ratio <= 1.25)
+    if skel.n_nodes >= 3 and len(r) == skel.n_nodes and np.ptp(r) <= 1e-9 * r.max() and (varies or off):
+        ctx.warn(f"all {skel.n_nodes} centerline radii are {r[0]:.4g}: taken as unknown and measured from the surface")
+        return True
+    if fit.radius_ratio is not None and not (1 / 3 <= fit.radius_ratio <= 3):
+        ctx.warn(
+            f"the centerline's radii are {fit.radius_ratio:.3g} times the surface's inscribed radii (other units?): "
+            "measured from the surface instead"
+        )
+        return True
+    return False
+
+
 @register_filter(
     description="Fill missing skeleton radii from the signed distance (inscribed sphere radius), else by interpolation along branches.",
     parameters=[
         Parameter("overwrite", "bool", False, "Recompute every radius from the signed distance, not only the missing ones."),
+        Parameter(
+            "scale",
+            "float",
+            1.0,
+            "Multiply the skeleton's coordinates and radii by this first (a centerline in other units than the surface: "
+            "10 for cm -> mm, 1000 for m -> mm, 0.1 for mm -> cm).",
+            min=1e-9,
+        ),
     ],
     reads=("skeleton",),
-    optional_reads=("sdf",),
+    optional_reads=("sdf", "surface", "caps"),
     writes=("skeleton",),
     category="skeleton",
 )
-def estimate_radii(ctx, overwrite):
-    """A centerline file without radii (plain polylines, CSV without a radius column) gets the
-    distance from each node to the wall; nodes outside the wall, or all nodes without an SDF,
-    get radii interpolated along their branch from the known ones."""
+def estimate_radii(ctx, overwrite, scale):
+    """A centerline file without radii (plain polylines, CSV without a radius column, an
+    SWC with zero radii) gets the distance from each node to the wall; nodes outside the
+    wall, or all nodes without an SDF, get radii interpolated along their branch from the
+    known ones. Radii that are all equal (a placeholder) or far from the surface's
+    inscribed radii (other units) are measured from the surface instead, with a warning.
+    With the sdf, a centerline that does not fit the surface (other units, another
+    vessel) is an error that says so."""
     skel = ctx.skeleton
+    if scale != 1.0:
+        skel = ctx.skeleton = skel.copy(points=skel.points * scale, radii=skel.radii * scale)
+    if ctx.sdf is not None:
+        overwrite = _check_fit(ctx, skel) or overwrite
     if ctx.sdf is None:
         if overwrite:
             raise InputError("estimate_radii: overwrite needs the sdf layer (add build_sdf before it)")
         if not np.isfinite(skel.radii).any():
             raise InputError("the skeleton has no radii and there is no sdf layer to measure them (add build_sdf before estimate_radii)")
     distance = ctx.sdf.distance if ctx.sdf is not None else None
-    ctx.skeleton, filled = ops.estimate_radii(skel, distance, overwrite=overwrite)
+    before = skel.radii
+    if distance is not None:
+        skel = _radii_from_sections(skel, distance, overwrite, ctx.caps or ())
+    ctx.skeleton, _ = ops.estimate_radii(skel, distance, overwrite=False)
+    filled = int((~np.isclose(ctx.skeleton.radii, before, equal_nan=True)).sum())
     ctx.count(radii_filled=filled, radius_min=float(np.min(ctx.skeleton.radii)), radius_max=float(np.max(ctx.skeleton.radii)))
 
 
@@ -202,6 +283,8 @@ def clean_skeleton(
     to where they part, and trimming/extending the ends to the caps. Grafted branches are
     listed in the report section ``grafted_branches``."""
     skel = ctx.skeleton
+    if ctx.sdf is not None and outside != "keep" and "skeleton_fit" not in ctx.report.sections:
+        _check_fit(ctx, skel)  # estimate_radii did not check it
     if not np.isfinite(skel.radii).all() and ctx.sdf is not None:
         skel, _ = ops.estimate_radii(skel, ctx.sdf.distance)
     counts = {}
@@ -246,13 +329,85 @@ def clean_skeleton(
             max_distance=cap_distance,
         )
         counts["ends_at_caps"] = int((matched >= 0).sum())
-        missing = [c.name for c, m in zip(caps, matched) if m < 0]
+        reached = {i for i, m in enumerate(matched) if m >= 0}
+        for i in sorted(set(range(len(caps))) - reached):
+            o = _overlapping_cap(caps, i, reached)
+            if o is not None:
+                ctx.warn(f"cap {caps[i].name} overlaps cap {caps[o].name}, whose skeleton end stands for both")
+                reached.add(i)
+        missing = [caps[i] for i in range(len(caps)) if i not in reached]
+        if missing and graft_to_caps and ctx.sdf is not None:
+            where = "; ".join(f"{c.name} at {np.round(c.center, 3).tolist()} (radius {c.radius:.3g})" for c in missing)
+            raise InputError(
+                f"no skeleton end reaches cap(s) {where}: the vessel behind would be missing from the "
+                "mesh. Give a centerline that reaches every open end, or none (to extract one)"
+            )
         if missing:
-            ctx.warn(f"no skeleton end near cap(s) {', '.join(missing)}")
+            ctx.warn(f"no skeleton end near cap(s) {', '.join(c.name for c in missing)}")
+    if outside != "keep" and ctx.sdf is not None:
+        skel, counts["pulled_in"] = _keep_inside(ctx, skel)
     skel.edge_tags = ops.derive_edge_tags(skel)  # new segments take the tags of their nodes
     ctx.skeleton = skel
     ctx.count(**counts)
     _count_summary(ctx, skel)
+
+
+def _radii_from_sections(skel, distance, overwrite: bool, caps=()):
+    """Radii of the nodes to fill (all with ``overwrite``): the signed distance (the
+    inscribed sphere), except where the wall nearest to a node lies along the axis (an
+    open end's cap or an end face, to which the signed distance measures the way): there
+    the node's cross-section. An end, which sits on a cap or an end face, gets its radius
+    from its branch (as the nodes still missing)."""
+    from ..geometry.skeleton_fit import node_tangents, section_radii
+
+    todo = np.ones(skel.n_nodes, bool) if overwrite else ~(np.isfinite(skel.radii) & (skel.radii > 0))
+    if not todo.any():
+        return skel
+    radii = skel.radii.copy()
+    radii[todo] = np.nan
+    nodes = np.flatnonzero(todo & (skel.degrees >= 2))
+    if len(nodes):
+        p = skel.points[nodes]
+        d = np.asarray(distance(p), float)
+        extent = float(np.ptp(skel.points, axis=0).max()) or 1.0
+        towards_wall = ops.distance_gradient(distance, p, np.maximum(0.1 * np.abs(d), 1e-9 * extent))
+        along = np.abs(np.einsum("ij,ij->i", towards_wall, node_tangents(skel)[nodes])) > np.cos(np.radians(45.0))
+        along &= skel.degrees[nodes] == 2  # a junction has no section plane
+        mask = np.zeros(skel.n_nodes, bool)
+        mask[nodes[along]] = True
+        section = section_radii(skel, distance, mask, caps)[nodes]
+        radii[nodes] = np.where(along, section, np.where(d > 0, d, np.nan))
+    if np.isfinite(radii).any():
+        radii = ops.fill_missing_along_branches(skel.n_nodes, skel.edges, skel.points, radii)
+    return skel.copy(radii=radii)
+
+
+def _keep_inside(ctx, skel):
+    """Move nodes that graze or cross the wall onto the vessel's axis (every later stage
+    needs them inside); a node that cannot be brought inside is an error naming it."""
+    from ..geometry.skeleton_fit import ensure_inside
+
+    distance, gradient = _sdf_functions(ctx.sdf)
+    skel, moved, stuck = ensure_inside(skel, distance, gradient)
+    if len(stuck):
+        k = int(stuck[0])
+        d = float(np.asarray(distance(skel.points[[k]]), float)[0])
+        raise InputError(
+            f"skeleton node {k} at {np.round(skel.points[k], 4).tolist()} lies outside the surface (signed distance "
+            f"{d:.3g}) and no walk up the signed distance brings it inside ({len(stuck)} such node(s)): the centerline "
+            "leaves the vessel there (is the surface broken or the centerline of another vessel?)"
+        )
+    return skel, moved
+
+
+def _overlapping_cap(caps, c: int, others) -> int | None:
+    """A cap among ``others`` whose disc overlaps cap ``c`` (centres closer than the sum of
+    the radii): two open ends cannot overlap, so ``c`` is a piece of that end (a cap face
+    detected in two parts), not a vessel of its own."""
+    for o in others:
+        if o != c and np.linalg.norm(np.asarray(caps[o].center) - caps[c].center) < caps[o].radius + caps[c].radius:
+            return o
+    return None
 
 
 def _graft_missing_branches(ctx, skel, caps, cap_distance, join):
@@ -262,7 +417,7 @@ def _graft_missing_branches(ctx, skel, caps, cap_distance, join):
     centers = np.array([c.center for c in caps], float)
     radii = np.array([c.radius for c in caps], float)
     reached = {c for _, c in ops.match_ends_to_caps(skel, centers, radii, cap_distance)}
-    missing = [c for c in range(len(caps)) if c not in reached]
+    missing = [c for c in range(len(caps)) if c not in reached and _overlapping_cap(caps, c, reached) is None]
     if not missing:
         return skel, 0
     if ctx.sdf is None:
@@ -328,7 +483,11 @@ def resample_skeleton(ctx, spacing, radius_change, smooth_radii, min_segments):
         ctx.warn("some radii were missing: estimated first")
         skel, _ = ops.estimate_radii(skel, ctx.sdf.distance if ctx.sdf is not None else None)
     before = skel.n_nodes
-    ctx.skeleton = ops.resample_skeleton(skel, spacing, radius_change or None, smooth_radii, min_segments)
+    skel = ops.resample_skeleton(skel, spacing, radius_change or None, smooth_radii, min_segments)
+    if ctx.sdf is not None:  # a resampled chord across a bend can graze the wall
+        skel, moved = _keep_inside(ctx, skel)
+        ctx.count(pulled_in=moved)
+    ctx.skeleton = skel
     ctx.count(nodes_before=before)
     _count_summary(ctx, ctx.skeleton)
 

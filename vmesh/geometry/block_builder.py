@@ -483,7 +483,8 @@ class _Builder:
             k = int(np.flatnonzero(inner)[0])
             raise MeshingError(
                 f"skeleton node {k} lies outside the surface (signed distance {d[k]:.3g}); "
-                f"{int(inner.sum())} node(s) outside: run clean_skeleton to pull them inside"
+                f"{int(inner.sum())} node(s) outside: add clean_skeleton (outside='pull') and resample_skeleton with the sdf "
+                "before build_block_structure, which bring grazing nodes inside and stop on a centerline of another vessel"
             )
         if np.any(deg == 0):
             self.warn(f"{int((deg == 0).sum())} isolated skeleton node(s) ignored")

@@ -1191,7 +1191,10 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
     * With ``caps`` (objects with ``center``, ``normal``, ``radius``): each end is
       matched to the cap of its open end and extended straight to the cap centre;
       a cap without a skeleton end (its branch was too short to survive thinning)
-      gets a new branch from the nearest skeleton point.
+      gets a new branch from the nearest skeleton point with a path inside the
+      vessel to it (:func:`_attach_cap`); caps without one are listed under
+      ``unreached``. A cap overlapping a reached one (a cap face detected in two
+      parts) needs no end of its own.
     * Other ends are extended along their end tangent to the wall. A flat end
       (the cross-section keeps its full width up to the wall) ends on the axis
       through the centre of the end face, at the last cross-section behind it that
@@ -1201,7 +1204,8 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
       ends where the inscribed radius has dropped to ``end_depth`` x the radius at
       the medial end.
 
-    Returns the number of ends of each kind (``cap``, ``flat``, ``rounded``, ``added``).
+    Returns the number of ends of each kind (``cap``, ``flat``, ``rounded``, ``added``)
+    and, when some cap could not be reached, the list ``unreached`` of their indices.
     """
     counts = {"cap": 0, "flat": 0, "rounded": 0, "added": 0}
     ends = [n for n in graph.graph.nodes if graph.degree(n) == 1]
@@ -1224,8 +1228,13 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
         for key, value in counts_free.items():
             counts[key] += value
     for c in sorted(set(range(len(caps))) - taken):
-        _attach_cap(graph, caps[c], c, spacing)
-        counts["added"] += 1
+        centre = np.asarray(caps[c].center, float)
+        if any(np.linalg.norm(np.asarray(caps[o].center, float) - centre) < caps[o].radius + caps[c].radius for o in taken):
+            continue  # overlaps a reached cap: two open ends cannot, it is a piece of that one
+        if _attach_cap(graph, caps[c], c, spacing, sdf):
+            counts["added"] += 1
+        else:
+            counts.setdefault("unreached", []).append(c)
     return counts
 
 
@@ -1506,27 +1515,67 @@ def _on_cap_face(point: np.ndarray, cap) -> bool:
     return abs(depth) < 0.3 * float(cap.radius) and lateral < 1.2 * float(cap.radius)
 
 
-def _attach_cap(graph: BranchGraph, cap, index: int, spacing: float) -> None:
-    """Add a branch from the skeleton point nearest to a cap's centre to the cap."""
+def _attach_cap(graph: BranchGraph, cap, index: int, spacing: float, sdf: SdfFunction | None = None, candidates: int = 64) -> bool:
+    """Add a branch from the skeleton to a cap that no end reached.
+
+    The branch starts at the skeleton point nearest to the cap's centre from which a
+    straight line to the centre stays inside the vessel (``sdf`` positive along it);
+    failing that, from which a line to the point two cap radii behind the cap does
+    (the branch then bends there). Ends of other branches are no start: a branch
+    continuing through one would carry that end to the wrong cap. Without ``sdf``
+    the nearest point is taken. Returns whether a branch was added: none when every
+    such path runs through the outside (more than half a cap radius).
+    """
     centre = np.asarray(cap.center, float)
-    best = None
+    radius = float(cap.radius)
+    where, pts = [], []
     for u, v, k, data in graph.graph.edges(keys=True, data=True):
-        if len(data["pts"]):
-            dist = np.linalg.norm(data["pts"] - centre, axis=1)
-            i = int(np.argmin(dist))
-            if best is None or dist[i] < best[0]:
-                best = (dist[i], ("branch", u, v, k, i))
+        where += [("branch", u, v, k, i) for i in range(len(data["pts"]))]
+        pts.append(data["pts"])
     for n in graph.graph.nodes:
-        dist = float(np.linalg.norm(graph.pos(n) - centre))
-        if best is None or dist < best[0]:
-            best = (dist, ("node", n))
-    if best is None:
-        return
-    where = best[1]
-    base = where[1] if where[0] == "node" else graph.split(*where[1:])
-    end = graph.add_node(centre, float(cap.radius), end=("cap", index))
-    pts = _straight(graph.pos(base), centre, spacing)
-    graph.add_branch(base, end, pts, np.full(len(pts), float(cap.radius)))
+        if graph.degree(n) != 1:
+            where.append(("node", n))
+            pts.append(graph.pos(n)[None])
+    if not where:
+        return False
+    pts = np.concatenate(pts)
+    order = np.argsort(np.linalg.norm(pts - centre, axis=1))[:candidates]
+    behind = centre - 2.0 * radius * np.asarray(cap.normal, float)
+    pick, via = int(order[0]), None
+    if sdf is not None:
+        t = (np.arange(1, 17) / 17.0)[None, :, None]
+        paths = []  # (depth, weight) along each candidate path, for the direct and the bent one
+        for target in (centre, behind):
+            probes = pts[order][:, None, :] + t * (target - pts[order][:, None, :])
+            if target is behind:  # via the bend: the last stretch, to the cap, too
+                probes = np.concatenate([probes, np.broadcast_to(behind + t[0] * (centre - behind), (len(order), 16, 3))], axis=1)
+            depth = evaluate_sdf(sdf, probes.reshape(-1, 3)).reshape(len(order), -1)
+            # the cap centre is on the surface: the margin asked for fades out over a cap radius
+            weight = np.clip(np.linalg.norm(probes - centre, axis=2) / radius, 0.0, 1.0)
+            paths.append((depth, weight))
+        pick = -1
+        # well inside if possible (a path along the wall makes thin nodes); a path that
+        # grazes the wall is centred later; one through the outside is no path
+        for least in (0.25 * radius, 0.0, -0.5 * radius):
+            for (depth, weight), bend in zip(paths, (None, behind)):
+                ok = np.flatnonzero((depth >= least * weight).all(axis=1))
+                if len(ok):
+                    pick, via = int(order[ok[0]]), bend
+                    break
+            if pick >= 0:
+                break
+        if pick < 0:
+            return False
+    location = where[pick]
+    base = location[1] if location[0] == "node" else graph.split(*location[1:])
+    end = graph.add_node(centre, radius, end=("cap", index))
+    start = graph.pos(base)
+    if via is None:
+        path = _straight(start, centre, spacing)
+    else:
+        path = np.concatenate([_straight(start, via, spacing), via[None], _straight(via, centre, spacing)])
+    graph.add_branch(base, end, path, np.full(len(path), radius))
+    return True
 
 
 # ---------------------------------------------------------------------------
@@ -1613,12 +1662,15 @@ def junction_clearances(graph: BranchGraph, factor: float, cap: float = 4.0) -> 
 
 def _center_loop_cuts(graph: BranchGraph, sdf: SdfFunction, spacing: float) -> None:
     """Centre the node where a cycle without junctions was cut (a voxel position)."""
-    cuts = [n for n in graph.graph.nodes if graph.degree(n) == 2]
+    g = graph.graph
+    # a cut cycle is one node whose single branch is a loop (a node between two
+    # branches, e.g. where a cap branch was attached to an end, is no cut)
+    cuts = [n for n in g.nodes if g.degree(n) == 2 and g.number_of_edges(n, n) == 1]
     if not cuts:
         return
     tangents, radii = [], []
     for n in cuts:
-        (u, v, k), = list(graph.graph.edges(n, keys=True))
+        u, v, k = next(iter(g.edges(n, keys=True)))
         pts, rad = graph.polyline(u, v, k)
         window = max(3, len(pts) // 20)
         t = pts[min(window, len(pts) - 1)] - pts[-1 - min(window, len(pts) - 1)]
@@ -1885,6 +1937,7 @@ def extract_skeleton(
         expected_cycles = surface_genus(*surface)
     stats["expected_cycles"] = expected_cycles
     removed = {"specks": 0, "spurs": 0, "merged_junctions": 0, "small_cycles": 0, "bridges": 0}
+
     graph.dissolve_all()
     for _ in range(20):
         step = {

@@ -321,8 +321,9 @@ def polylines_overlap(lines: list[np.ndarray], radii: list[np.ndarray] | None = 
     every outlet) rather than only touching at their ends.
 
     A line overlaps another when more than ``fraction`` of its inner points (and at least
-    three) lie within 5 % of the radius (or 1e-6 of the extent without radii) of a point of
-    another line.
+    three) lie within 5 % of the radius of a point of another line; without radii, within
+    half the line's median point spacing (lines through the same trunk, sampled apart,
+    are that close; lines that only meet at a junction part after a point or two).
     """
     if len(lines) < 2:
         return False
@@ -338,7 +339,8 @@ def polylines_overlap(lines: list[np.ndarray], radii: list[np.ndarray] | None = 
             r = np.nan_to_num(np.asarray(radii[i], float)[1:-1], nan=float(np.nanmedian(radii[i])))
             tol = np.maximum(0.05 * r, 1e-6 * scale)
         else:
-            tol = np.full(len(inner), 1e-6 * scale)
+            spacing = np.linalg.norm(np.diff(line, axis=0), axis=1)
+            tol = np.full(len(inner), max(0.5 * float(np.median(spacing)), 1e-6 * scale))
         d, _ = cKDTree(allp[owner != i]).query(inner)
         close = int((d <= tol).sum())
         if close >= 3 and close > fraction * len(inner):

@@ -182,6 +182,7 @@ def read_centerline_vtk(path, kind: str = "auto", merge_tolerance: float = 0.2) 
     ptags = _tags_from_arrays(mesh.point_data, mesh.n_points)
     ctags = _tags_from_arrays(mesh.cell_data, mesh.n_cells)[mesh.n_verts : mesh.n_verts + len(lines)]
     if kind == "vmtk":
+        lines = join_tracts(lines, mesh.cell_data, mesh.n_verts, pts)
         return _vmtk_skeleton(pts, radius, ptags, [l for l in lines if len(l)], merge_tolerance, name)
     if kind == "simvascular":
         key, gid = _array(mesh.point_data, ("GlobalNodeId",))
@@ -190,6 +191,39 @@ def read_centerline_vtk(path, kind: str = "auto", merge_tolerance: float = 0.2) 
         _, path_len = _array(mesh.point_data, ("Path",))
         return _graph_skeleton(pts, radius, ptags, lines, ctags, name, node_ids=gid.astype(np.int64), path_length=path_len)
     return _graph_skeleton(pts, radius, ptags, lines, ctags, name)
+
+
+def join_tracts(lines: list[np.ndarray], cell_data, n_verts: int, points: np.ndarray) -> list[np.ndarray]:
+    """Join the tracts of branch-split VMTK centerlines into one line per centerline.
+
+    ``vmtkbranchextractor`` cuts every inlet-to-outlet centerline into tracts (cell
+    arrays ``CenterlineIds`` and ``TractIds``; ``Blanking`` marks the tracts inside a
+    bifurcation) whose end points repeat the next tract's first point under another
+    id. Merged as separate lines, the tracts fall apart into pieces; joined in tract
+    order they are the centerlines again. Lines without these arrays are returned as
+    they are.
+    """
+    _, centerline = _array(cell_data, ("CenterlineIds",))
+    _, tract = _array(cell_data, ("TractIds",))
+    if centerline is None or tract is None:
+        return lines
+    centerline = np.asarray(centerline).reshape(-1)[n_verts : n_verts + len(lines)]
+    tract = np.asarray(tract).reshape(-1)[n_verts : n_verts + len(lines)]
+    if len(centerline) != len(lines) or len(np.unique(np.c_[centerline, tract], axis=0)) != len(lines):
+        return lines  # not one cell per (centerline, tract): leave the lines alone
+    scale = float(np.ptp(points, axis=0).max()) or 1.0
+    joined = []
+    for c in np.unique(centerline):
+        cells = np.flatnonzero(centerline == c)
+        cells = cells[np.argsort(tract[cells], kind="stable")]
+        parts = [lines[cells[0]]]
+        for k in cells[1:].tolist():
+            nxt = lines[k]
+            if len(nxt) and len(parts[-1]) and np.linalg.norm(points[nxt[0]] - points[parts[-1][-1]]) <= 1e-6 * scale:
+                nxt = nxt[1:]  # the joint point, repeated
+            parts.append(nxt)
+        joined.append(np.concatenate(parts))
+    return joined
 
 
 def _line_cells(mesh_lines: list[np.ndarray]) -> np.ndarray:
