@@ -325,6 +325,11 @@ def setup_boundary_layer(ctx, refinement, elements_layer, grading, first_layer, 
     bl = resolve_boundary_layer(h1, relative, thickness, elements_layer, q, float(np.median(block_t)) if len(block_t) else None)
     if bl.thickness is not None:
         ctx.blocks = set_layer_thickness(blocks, bl.thickness)
+    elif bl.first_height is not None and len(block_t) and bl.first_height * bl.elements > np.min(block_t):
+        ctx.warn(
+            f"first-layer height {bl.first_height:.4g} {u} x {bl.elements} elements exceeds the boundary-layer blocks' thickness "
+            f"(min {np.min(block_t):.4g} {u}): the layer is uniform there (give fewer elements_layer or a boundary_layer_thickness)"
+        )
     section.update(bl.describe(u))
     ctx.report.sections["boundary_layer"] = section
     out = {"layer": bl.elements * refinement, "first_layer": None, "first_layer_absolute": False, "growth": None}
