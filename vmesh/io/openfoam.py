@@ -230,3 +230,28 @@ def read_polymesh(case) -> dict:
         patches[name] = {"type": entries.get("type"), "nFaces": int(entries["nFaces"]), "startFace": int(entries["startFace"])}
     n_cells = int(max(owner.max(initial=-1), neighbour.max(initial=-1)) + 1)
     return {"points": points, "faces": faces, "owner": owner, "neighbour": neighbour, "patches": patches, "n_cells": n_cells}
+
+
+def read_field(case, time, name) -> np.ndarray:
+    """The internal field ``time/name`` of an ASCII case ((n,) or (n, 3); uniform fields
+    expanded to the cell count)."""
+    path = Path(case) / str(time) / name
+    if not path.is_file():
+        raise InputError("no such field", path)
+    text = _strip(path.read_text())
+    m = re.search(r"internalField\s+nonuniform\s+List<(\w+)>\s*(\d+)\s*\((.*?)\)\s*;", text, flags=re.S)
+    if m:
+        values = np.array(re.findall(r"[-+0-9.eE]+", m.group(3)), float)
+        return values.reshape(int(m.group(2)), -1).squeeze()
+    m = re.search(r"internalField\s+uniform\s+(\([^)]*\)|[-+0-9.eE]+)\s*;", text)
+    if not m:
+        raise InputError("no internalField", path)
+    value = np.array(re.findall(r"[-+0-9.eE]+", m.group(1)), float)
+    n = read_polymesh(case)["n_cells"]
+    return np.tile(value, (n, 1)).squeeze()
+
+
+def patch_cells(poly: dict, name: str) -> np.ndarray:
+    """Cells next to the faces of patch ``name`` (one per face)."""
+    p = poly["patches"][name]
+    return poly["owner"][p["startFace"]: p["startFace"] + p["nFaces"]]
