@@ -11,6 +11,8 @@ from vmesh.errors import MeshingError, ParameterError
 from vmesh.geometry.boundary_layer import (
     block_layer_thickness,
     first_cell_heights,
+    first_edge_lengths,
+    record_first_layer,
     first_layer_from_y_plus,
     parse_length,
     ratio_for,
@@ -81,6 +83,11 @@ def test_absolute_first_height_on_a_cylinder():
     mesh, ctx = cylinder_mesh(first_layer_height="0.02mm")
     h = _first_heights(mesh)
     assert np.allclose(h, 0.02, rtol=0.02)
+    edges = first_edge_lengths(mesh)
+    assert len(edges) == 4 * len(h) and np.allclose(edges, 0.02, rtol=1e-6)  # along the layer lines: exact
+    record_first_layer(ctx, mesh, 0.02)
+    measured = ctx.report.sections["boundary_layer"]
+    assert measured["measured_first_height"]["within_5_percent"] == measured["measured_first_edge"]["within_5_percent"] == 1.0
     assert ctx.report.sections["units"]["length"] == "mm"
     # the same height asked in micrometres, on the same input in cm: 0.002 cm
     mesh_cm, _ = cylinder_mesh(units="cm", first_layer_height="20um")

@@ -95,7 +95,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         node_distribution=node_distribution,
         units=ctx.report.sections["units"]["length"],
     )
-    record_first_layer(ctx, mesh)
+    record_first_layer(ctx, mesh, ctx.report.sections["boundary_layer"]["target_first_height"])
     ctx.mesh = mesh
     ctx.mesh_refinement = ref
     ctx.count(elements=mesh.n_cells, nodes=mesh.n_points)

@@ -333,6 +333,7 @@ def setup_boundary_layer(ctx, refinement, elements_layer, grading, first_layer, 
     section.update(bl.describe(u))
     ctx.report.sections["boundary_layer"] = section
     out = {"layer": bl.elements * refinement, "first_layer": None, "first_layer_absolute": False, "growth": None}
+    section["target_first_height"] = bl.first_height
     if bl.first_height is not None:
         out.update(first_layer=bl.first_height, first_layer_absolute=True)
     elif bl.first_relative is not None:
@@ -342,11 +343,39 @@ def setup_boundary_layer(ctx, refinement, elements_layer, grading, first_layer, 
     return out
 
 
-def record_first_layer(ctx, mesh) -> None:
-    """Measure the first-cell heights at the wall into the report's ``boundary_layer``."""
+def first_edge_lengths(mesh) -> np.ndarray:
+    """Length of the element edge from each corner of each wall face to the next node off
+    the wall (4 per wall face): the first-layer height along the boundary-layer lines."""
+    from ..io.export import boundary_local_faces, face_corner_ids, tensor_faces
+
+    wall = np.flatnonzero(np.asarray(mesh.boundary_ids) == 0)
+    if len(wall) == 0:
+        return np.zeros(0)
+    p = mesh.order
+    local = boundary_local_faces(mesh)[wall]
+    corners = tensor_faces(p)[:, face_corner_ids(p)][local]  # (k, 4) tensor ids, i + (p+1)(j + (p+1)k)
+    axis = local // 2
+    step = (p + 1) ** axis * np.where(local % 2 == 0, 1, -1)  # one element inwards along the face's axis
+    cells = np.asarray(mesh.cells)[np.asarray(mesh.boundary_cells)[wall]]
+    inner = np.take_along_axis(cells, corners + p * step[:, None], axis=1)
+    return np.linalg.norm(mesh.points[inner] - mesh.points[np.take_along_axis(cells, corners, axis=1)], axis=2).ravel()
+
+
+def _stats(values: np.ndarray, target: float | None) -> dict:
+    out = {k: float(f(values)) for k, f in (("median", np.median), ("mean", np.mean), ("min", np.min), ("max", np.max))}
+    if target:
+        out["within_5_percent"] = float(np.mean(np.abs(values / target - 1.0) <= 0.05))
+    return out
+
+
+def record_first_layer(ctx, mesh, target: float | None = None) -> None:
+    """Measure the first-layer heights at the wall into the report's ``boundary_layer``:
+    wall-normal per wall face (:func:`first_cell_heights`) and along the layer lines per
+    wall-face corner (:func:`first_edge_lengths`), with the fraction within 5 % of ``target``."""
     h = first_cell_heights(mesh)
     if len(h) == 0:
         return
     section = ctx.report.sections.setdefault("boundary_layer", {})
-    section["measured_first_height"] = {k: float(f(h)) for k, f in (("median", np.median), ("mean", np.mean), ("min", np.min), ("max", np.max))}
+    section["measured_first_height"] = _stats(h, target)
+    section["measured_first_edge"] = _stats(first_edge_lengths(mesh), target)
     ctx.count(first_height=float(np.median(h)))
