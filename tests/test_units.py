@@ -31,13 +31,16 @@ def test_run_units_option_and_every_output(tmp_path, capsys):
     surface, skeleton = synthetic_case("straight_tube")
     out = tmp_path / "run"
     assert main(["run", "default", "-i", str(surface), "-s", str(skeleton), "-o", str(out), "--units", "cm",
-                 "--set", "mesh_transfinite.first_layer_height=0.1mm"]) == 0
+                 "--set", "mesh_transfinite.first_layer_height=0.1mm", "--set", "mesh_transfinite.boundary_layer_thickness=2mm",
+                 "--set", "mesh_transfinite.elements_layer=5"]) == 0
     assert "units=cm" in capsys.readouterr().out  # the log's summary table
     report = json.loads((out / "report.json").read_text())
     assert report["units"] == {"length": "cm", "source": "given (--units)", "metres_per_unit": 0.01}
     assert report["inputs"]["units"] == "cm"
-    assert report["boundary_layer"]["first_height"] == "0.01 cm"
-    assert abs(report["boundary_layer"]["measured_first_height"]["median"] / 0.01 - 1) < 0.05
+    layer = report["boundary_layer"]
+    assert (layer["first_height"], layer["thickness"], layer["elements"]) == ("0.01 cm", "0.2 cm", 5)
+    assert abs(layer["measured_first_height"]["median"] / 0.01 - 1) < 0.05
+    assert layer["measured_first_edge"]["within_5_percent"] > 0.95
     assert main(["export", str(out), "--format", "msh,inp,exo,mesh,xdmf", "-q"]) == 0
     assert "$Units\ncm\n" in (out / "mesh.msh").read_text()[:100]
     assert "** units: cm" in (out / "mesh.inp").read_text()[:300]
