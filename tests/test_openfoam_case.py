@@ -121,3 +121,15 @@ def test_simplefoam_y_bifurcation(y_run, tmp_path, capsys):
     estimate = 8 * BLOOD_NU * length * 0.05 / radius**2
     assert 0.3 * estimate < drop < 5 * estimate, (drop, estimate)
     assert np.linalg.norm(U, axis=1).max() < 10 * 0.05  # no runaway velocities
+
+
+def test_cli_case_errors_write_nothing(y_run, tmp_path, capsys):
+    before = sorted(p.name for p in y_run.iterdir())
+    assert main(["export", str(y_run), "--format", "msh,openfoam", "--case", "steady", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"vmesh: error: {y_run}: an OpenFOAM steady case needs lengths in metres, the mesh is in mm: add --to-units m\n"
+    assert main(["export", str(y_run), "--format", "msh", "--case", "steady", "--to-units", "m"]) == 2
+    assert "--case writes an OpenFOAM case: add --format openfoam" in capsys.readouterr().err
+    assert main(["export", str(y_run), "--format", "openfoam", "--case", "steady", "--to-units", "m", "--inlet-velocity", "-1"]) == 2
+    assert "--inlet-velocity -1.0 must be positive" in capsys.readouterr().err
+    assert sorted(p.name for p in y_run.iterdir()) == before

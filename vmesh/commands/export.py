@@ -61,6 +61,8 @@ def run(args) -> int:
         targets.append((fmt, Path(args.out) if args.out else run_dir / default_filename(fmt)))
     flow = _flow_case(args, run_dir, targets)
     mesh = _in_units(read_run_mesh(run_dir), run_dir, args)
+    if flow is not None and mesh.units != "m":
+        raise ParameterError(f"an OpenFOAM {flow.kind} case needs lengths in metres, the mesh is in {mesh.units or 'unknown units'}: add --to-units m", run_dir)
     for fmt, path in targets:
         if fmt != "meshlab" and mesh.order > fmt.max_order and not args.linearize:
             export_mesh(path, mesh, fmt.name)  # raises the one-line refusal
