@@ -424,3 +424,158 @@ def test_cli_export_bad_input(y_run, tmp_path, capsys):
     assert main(["export", str(tmp_path), "--format", "msh"]) == 2
     assert "no mesh.vtu" in capsys.readouterr().err
     assert sorted(p.name for p in y_run.iterdir()) == before
+
+
+# --- every format read back by its real consumer, on a small labelled block mesh -----------
+
+
+@pytest.fixture(scope="module")
+def small():
+    """A labelled cylinder (aneurysm and vessel regions; wall, inlet, outlet_1), 576 hexahedra."""
+    from cfd_meshes import cylinder_mesh
+
+    mesh, _ = cylinder_mesh(tags=[("inlet", "vessel"), ("aneurysm", "cap_end")])
+    mesh.cell_data["scaled_jacobian"] = np.ones(mesh.n_cells)
+    return mesh
+
+
+def small_expected(mesh):
+    labels, bounds = expected(mesh)
+    assert labels == {"vessel": 288, "aneurysm": 288} and bounds == {"wall": 96, "inlet": 96, "outlet_1": 96}
+    return labels, bounds
+
+
+def gmsh_groups(path):
+    """``{(dim, name): element count}`` of every physical group, as gmsh's own reader sees them."""
+    gmsh = pytest.importorskip("gmsh")
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.open(str(path))
+        return {
+            (dim, gmsh.model.getPhysicalName(dim, tag)): sum(len(gmsh.model.mesh.getElements(dim, e)[1][0]) for e in gmsh.model.getEntitiesForPhysicalGroup(dim, tag))
+            for dim, tag in gmsh.model.getPhysicalGroups()
+        }
+    finally:
+        gmsh.finalize()
+
+
+def meshio_groups(path):
+    """``{name: element count}`` of every named group as meshio reads a .msh (cell sets)."""
+    import meshio
+
+    r = meshio.read(path)
+    return {k: sum(len(x) for x in v) for k, v in r.cell_sets.items() if not k.startswith("gmsh:")}, r
+
+
+def test_round_trip_gmsh_meshio_and_gmsh_see_every_group(small, tmp_path):
+    labels, bounds = small_expected(small)
+    path = export_mesh(tmp_path / "m.msh", small)
+    groups, r = meshio_groups(path)
+    assert groups == {**labels, **bounds}  # volume and surface groups apart, none lost
+    assert {k: int(v[1]) for k, v in r.field_data.items()} == {**{k: 3 for k in labels}, **{k: 2 for k in bounds}}
+    assert sum(len(c.data) for c in r.cells if c.type == "hexahedron") == small.n_cells
+    assert gmsh_groups(path) == {**{(3, k): v for k, v in labels.items()}, **{(2, k): v for k, v in bounds.items()}}
+    assert "$Units\nmm\n$EndUnits" in path.read_text()[:200]
+
+
+def test_gmsh_names_stay_distinct_for_old_labels(small, tmp_path):
+    """A mesh labelled before labels were cleaned (a volume label named like a patch)."""
+    import dataclasses
+
+    old = dataclasses.replace(small, label_names={0: "aneurysm", 1: "inlet"})
+    path = export_mesh(tmp_path / "old.msh", old)
+    groups, _ = meshio_groups(path)
+    assert groups == {"aneurysm": 288, "inlet_volume": 288, "wall": 96, "inlet": 96, "outlet_1": 96}
+    assert gmsh_groups(path)[(3, "inlet_volume")] == 288
+
+
+def test_round_trip_vtu_abaqus_exodus_medit_xdmf(small, tmp_path):
+    import meshio
+
+    from vmesh.io.abaqus import read_surfaces
+    from vmesh.io.exodus import read_sets
+    from vmesh.io.mesh import names_from_field_data, units_from_field_data
+
+    labels, bounds = small_expected(small)
+    for fmt in ("vtu", "inp", "exo", "mesh", "xdmf"):
+        path = export_mesh(tmp_path / f"m.{fmt}", small)
+        r = meshio.read(path)
+        assert len(r.points) == small.n_points, fmt
+        assert sum(len(c.data) for c in r.cells if c.type == "hexahedron") == small.n_cells, fmt
+        if fmt == "vtu":
+            assert {n: int((r.cell_data["label"][0] == k).sum()) for k, n in names_from_field_data(r.field_data, "label").items()} == labels
+            assert units_from_field_data(r.field_data) == "mm"
+        elif fmt == "inp":
+            assert {k: sum(map(len, v)) for k, v in r.cell_sets.items() if k in labels} == labels
+            assert read_surfaces(path) == bounds
+            assert "** units: mm" in path.read_text()[:500]
+        elif fmt == "exo":
+            sets = read_sets(path)
+            assert sets["blocks"] == labels and sets["side_sets"] == bounds
+        elif fmt == "mesh":
+            hexes, quads = r.cell_data["medit:ref"]
+            assert {small.label_names[k - 1]: int(c) for k, c in zip(*np.unique(hexes, return_counts=True))} == labels
+            assert {small.boundary_names[k - 1]: int(c) for k, c in zip(*np.unique(quads, return_counts=True))} == bounds
+        elif fmt == "xdmf":
+            assert {small.label_names[k]: int(c) for k, c in zip(*np.unique(r.cell_data["label"][0], return_counts=True))} == labels
+
+
+def test_round_trip_meshlab_in_pymeshlab(small, tmp_path):
+    import pymeshlab
+
+    from vmesh.io.meshlab import write_meshlab_folder
+
+    write_meshlab_folder(tmp_path / "ml", small)
+    ms = pymeshlab.MeshSet()
+    ms.load_project(str(tmp_path / "ml" / "vmesh.mlp"))
+    layers = {ms.mesh(i).label(): ms.mesh(i) for i in range(ms.mesh_number())}
+    assert len(layers["boundary_label"].polygonal_face_list()) == len(small.boundary_faces)
+    # one colour per label on the boundary
+    assert len(np.unique(layers["boundary_label"].face_color_matrix(), axis=0)) == 2
+
+
+def test_round_trip_openfoam_zones_and_patches(small, tmp_path):
+    """pyvista's OpenFOAM reader (and checkMesh where OpenFOAM is installed) see the patches
+    and the label cellZones."""
+    import pyvista as pv
+
+    from vmesh.io.openfoam import read_polymesh
+
+    labels, bounds = small_expected(small)
+    case = export_mesh(tmp_path / "case", small, "openfoam")
+    poly = read_polymesh(case)
+    assert {k: v["nFaces"] for k, v in poly["patches"].items()} == bounds
+    zones = (case / "constant" / "polyMesh" / "cellZones").read_text()
+    for name, n in labels.items():
+        assert f"{name}\n{{\n    type cellZone;\ncellLabels      List<label> \n{n}\n" in zones
+    layer_sets = {p.name for p in (case / "constant" / "polyMesh" / "sets").iterdir()}
+    assert layer_sets == {"core", "ring", "boundary_layer"}
+    reader = pv.OpenFOAMReader(str(case / "case.foam"))
+    data = reader.read()
+    assert data["internalMesh"].n_cells == small.n_cells
+    assert {k: data["boundary"][k].n_cells for k in data["boundary"].keys()} == bounds
+
+
+def test_names_table_in_report(y_run):
+    import json
+
+    table = json.loads((y_run / "report.json").read_text())["labels"]["table"]
+    names = {(row["kind"], row["name"]) for row in table}
+    assert ("elements", "vessel") in names and ("boundary faces", "inlet") in names
+    assert not any("+" in n or n.startswith(("inlet", "outlet")) for kind, n in names if kind == "elements")
+    for row in table:
+        assert row["name"] in row["msh"] and row["name"] in row["inp"] and row["name"] in row["openfoam"]
+
+
+def test_cli_export_to_units(y_run, tmp_path, capsys):
+    from vmesh.io.openfoam import read_polymesh
+
+    mesh = read_run_mesh(y_run)
+    assert main(["export", str(y_run), "--format", "openfoam", "--to-units", "m", "-o", str(tmp_path / "foam")]) == 0
+    assert "lengths in m" in capsys.readouterr().out
+    assert np.allclose(read_polymesh(tmp_path / "foam")["points"], mesh.points * 1e-3)
+    assert main(["export", str(y_run), "--format", "msh", "--scale", "2", "-o", str(tmp_path / "s.msh")]) == 0
+    import meshio
+
+    assert np.allclose(meshio.read(tmp_path / "s.msh").points, mesh.points * 2)

@@ -58,7 +58,10 @@ def test_default_chain_on_synthetic_case(case):
     tags = {t for tt in ctx.blocks.block_tags for t in tt}
     for t in tags:
         assert mesh.cell_data[f"tag_{t}"].sum() > 0
-    assert set(mesh.label_names.values()) == {"+".join(sorted(t)) if t else "vessel" for t in ctx.blocks.block_tags}
+    from vmesh.io.names import label_names
+
+    assert set(mesh.label_names.values()) == set(label_names(ctx.blocks.block_tags, mesh.boundary_names.values()))
+    assert not any("+" in n or n.startswith(("inlet", "outlet")) for n in mesh.label_names.values())  # ends name patches only
 
 
 def test_aneurysm_tagged_elements_form_the_sac():

@@ -89,7 +89,10 @@ def cmd_run(args) -> int:
     chain.resolved()  # parameter errors before reading any input
     if not args.input:
         raise VmeshError("--input SURFACE is required")
-    ctx = chain.run(surface=args.input, skeleton=args.skeleton, out_dir=args.out, progress=not args.quiet)
+    from .context import Context
+
+    context = Context(inputs={"units": args.units}) if args.units else None  # the input's length unit, stated in report.json
+    ctx = chain.run(surface=args.input, skeleton=args.skeleton, out_dir=args.out, progress=not args.quiet, context=context)
     if not args.quiet:
         print(ctx.report.summary_table())
         for w in ctx.report.warnings:
@@ -126,6 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-s", "--skeleton", help="centerline file (json, swc, vtp, vtk, csv); extracted when absent")
     s.add_argument("--set", action="append", metavar="FILTER.PARAM=VALUE", help="override a parameter (repeatable)")
     s.add_argument("-o", "--out", help="output folder")
+    s.add_argument("--units", choices=("mm", "cm", "m"), help="length unit of the input (default: m if the surface's diagonal is below 2, else mm; stated in report.json)")
     s.add_argument("-q", "--quiet", action="store_true", help="no progress or summary")
     s.set_defaults(func=cmd_run)
 

@@ -71,6 +71,8 @@ class HexMesh:
         Names of the integer ``label`` cell values (skeleton tags).
     on_wall : (n,) bool
         Nodes placed on the vessel wall.
+    units : str or None
+        Length unit of ``points`` (``"mm"``, ``"cm"``, ``"m"``); ``None`` when unknown.
     """
 
     points: np.ndarray
@@ -84,6 +86,7 @@ class HexMesh:
     label_names: dict = field(default_factory=dict)
     on_wall: np.ndarray | None = None
     node_distribution: str = "gauss_lobatto"
+    units: str | None = None
 
     @property
     def n_points(self) -> int:
@@ -146,5 +149,11 @@ class HexMesh:
         data = {k: [np.asarray(v)] for k, v in self.cell_data.items()}
         return meshio.Mesh(self.points, cells, cell_data=data)
 
+    def scaled(self, factor: float, units: str | None = None) -> "HexMesh":
+        """A copy with the points multiplied by ``factor`` (a change of length unit to ``units``)."""
+        from dataclasses import replace
+
+        return replace(self, points=self.points * factor, units=units)
+
     def summary(self) -> dict:
-        return {"elements": self.n_cells, "nodes": self.n_points, "order": self.order, "boundary_faces": len(self.boundary_faces)}
+        return {"elements": self.n_cells, "nodes": self.n_points, "order": self.order, "boundary_faces": len(self.boundary_faces), "units": self.units}

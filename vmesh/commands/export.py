@@ -8,6 +8,7 @@ Examples
     vmesh export out/y --format inp,exo,openfoam    # several at once
     vmesh export out/y --format xdmf -o case/vessel.xdmf
     vmesh export out/y --format meshlab             # out/y/meshlab/ with vmesh.mlp
+    vmesh export out/y --format openfoam --case steady --to-units m   # a simpleFoam case, SI
 """
 
 from __future__ import annotations
@@ -31,6 +32,13 @@ def add_arguments(p) -> None:
     p.add_argument("-o", "--out", metavar="PATH", help="output file or folder (one format only; default RUN_DIR/mesh.<ext>, RUN_DIR/openfoam, RUN_DIR/meshlab)")
     p.add_argument("--linearize", action="store_true", help="write only element corners to formats that cannot hold the mesh order")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    p.add_argument("--to-units", choices=("m", "cm", "mm", "um"), help="convert lengths from the run's units (report.json 'units') to these")
+    p.add_argument("--scale", type=float, metavar="F", help="multiply every coordinate by F instead (units then unknown unless --to-units names them)")
+    p.add_argument("--case", choices=("steady", "transient"), help="openfoam: also write 0/, constant/ and system/ for simpleFoam (steady) or pimpleFoam (transient); needs metres")
+    p.add_argument("--inlet-velocity", type=float, default=0.1, metavar="U", help="--case: speed into every inlet patch, m/s (default 0.1)")
+    p.add_argument("--nu", type=float, default=3.3e-6, metavar="NU", help="--case: kinematic viscosity, m^2/s (default 3.3e-6, blood)")
+    p.add_argument("--iterations", type=int, default=1000, metavar="N", help="--case steady: simpleFoam iterations (default 1000)")
+    p.add_argument("--end-time", type=float, default=1.0, metavar="T", help="--case transient: pimpleFoam end time, s (default 1)")
 
 
 def run(args) -> int:
@@ -51,7 +59,10 @@ def run(args) -> int:
             continue
         fmt = resolve_format(run_dir, name)
         targets.append((fmt, Path(args.out) if args.out else run_dir / default_filename(fmt)))
-    mesh = read_run_mesh(run_dir)
+    flow = _flow_case(args, run_dir, targets)
+    mesh = _in_units(read_run_mesh(run_dir), run_dir, args)
+    if flow is not None and mesh.units != "m":
+        raise ParameterError(f"an OpenFOAM {flow.kind} case needs lengths in metres, the mesh is in {mesh.units or 'unknown units'}: add --to-units m", run_dir)
     for fmt, path in targets:
         if fmt != "meshlab" and mesh.order > fmt.max_order and not args.linearize:
             export_mesh(path, mesh, fmt.name)  # raises the one-line refusal
@@ -59,12 +70,44 @@ def run(args) -> int:
         if fmt == "meshlab":
             _export_meshlab(run_dir, mesh, path)
         else:
-            export_mesh(path, mesh, fmt.name, linearize=args.linearize)
+            export_mesh(path, mesh, fmt.name, linearize=args.linearize, flow=flow if fmt.name == "openfoam" else None)
         if not args.quiet:
             linear = fmt != "meshlab" and args.linearize and mesh.order > fmt.max_order
             nodes = len(np.unique(mesh.corner_cells())) if linear else mesh.n_points
-            print(f"wrote {path}{'/' if path.is_dir() else ''} ({'meshlab' if fmt == 'meshlab' else fmt.name}: {mesh.n_cells} elements, {nodes} nodes, p = {1 if linear else mesh.order})")
+            case = f", {flow.kind} case for {'simpleFoam' if flow.kind == 'steady' else 'pimpleFoam'}" if flow is not None and fmt != "meshlab" and fmt.name == "openfoam" else ""
+            print(f"wrote {path}{'/' if path.is_dir() else ''} ({'meshlab' if fmt == 'meshlab' else fmt.name}: {mesh.n_cells} elements, {nodes} nodes, "
+                  f"p = {1 if linear else mesh.order}, lengths in {mesh.units or 'unknown units'}{case})")
     return 0
+
+
+def _flow_case(args, run_dir, targets):
+    """The :class:`FlowCase` of ``--case`` (checked before anything is written), or None."""
+    from ..io.openfoam_case import FlowCase
+
+    if args.case is None:
+        return None
+    if not any(fmt != "meshlab" and fmt.name == "openfoam" for fmt, _ in targets):
+        raise ParameterError("--case writes an OpenFOAM case: add --format openfoam", run_dir)
+    for name, value in (("--inlet-velocity", args.inlet_velocity), ("--nu", args.nu), ("--iterations", args.iterations), ("--end-time", args.end_time)):
+        if not value > 0:
+            raise ParameterError(f"{name} {value} must be positive", run_dir)
+    return FlowCase(kind=args.case, inlet_velocity=args.inlet_velocity, nu=args.nu, iterations=args.iterations, end_time=args.end_time)
+
+
+def _in_units(mesh, run_dir: Path, args):
+    """The run's mesh with its recorded length unit, converted by --to-units / --scale."""
+    from ..io.export import convert_units
+    from ..io.mesh import units_from_field_data
+    from ..io.run_folder import read_report
+
+    import pyvista as pv
+
+    # the VTU's own record first: an export to vtu with --to-units rewrites mesh.vtu
+    mesh.units = units_from_field_data(pv.read(str(run_dir / "mesh.vtu")).field_data) or read_report(run_dir).get("units", {}).get("length")
+    try:
+        return convert_units(mesh, args.to_units, args.scale)
+    except ParameterError as exc:
+        raise ParameterError(exc.problem, run_dir) from None
 
 
 def _export_meshlab(run_dir: Path, mesh, path: Path) -> None:

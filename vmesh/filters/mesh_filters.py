@@ -14,11 +14,18 @@ from ..registry import Parameter, register_filter
         Parameter("refinement", "int", 1, "Multiplies every element count below (1 = as given).", min=1, max=16),
         Parameter("elements_around", "int", 2, "Elements per block edge around the circumference (and across core blocks).", min=1, max=64),
         Parameter("elements_ring", "int", 2, "Elements radially across the ring between core and boundary layer.", min=1, max=64),
-        Parameter("elements_layer", "int", 3, "Elements radially across the boundary-layer blocks.", min=1, max=64),
+        Parameter("elements_layer", "int", 3, "Elements radially across the boundary-layer blocks; 0 = derived from first_layer_height, growth (grading = growth) and the layer thickness.", min=0, max=64),
         Parameter("element_length", "float", 0.5, "Element length along the skeleton, relative to the local radius (divided by refinement).", unit="× radius", min=0.01, max=20.0),
         Parameter("grading", "str", "first_layer", "Boundary-layer node distribution: uniform, first_layer (first element thickness given) or growth (ratio given).", choices=("uniform", "first_layer", "growth")),
         Parameter("first_layer", "float", 0.02, "First boundary-layer element thickness relative to the local radius (grading = first_layer).", unit="× radius", min=1e-5, max=1.0),
         Parameter("growth", "float", 1.3, "Ratio of consecutive boundary-layer element thicknesses (grading = growth).", min=1.0, max=10.0),
+        Parameter("first_layer_height", "str", "", "Absolute first boundary-layer element height, a length with its unit ('0.05mm', '50um'; no unit = the input's units); replaces first_layer. Any three of first-layer height, boundary_layer_thickness, elements_layer and growth (grading = growth; uniform = 1) fix the fourth (docs/cfd.md)."),
+        Parameter("boundary_layer_thickness", "str", "", "Absolute total thickness of the boundary-layer blocks ('0.6mm'); '' = the block structure's (build_block_structure.layer_thickness × wall distance)."),
+        Parameter("y_plus", "float", 0.0, "Target y+ of the first element: sets first_layer_height from the flat-plate skin friction Cf = 0.026 Re^(-1/7) with flow_velocity, flow_density, flow_viscosity and reference_length (0 = off).", min=0.0, max=1000.0),
+        Parameter("flow_velocity", "float", 0.5, "Bulk velocity for the y+ estimate.", unit="m/s", min=1e-9, max=1e3),
+        Parameter("flow_density", "float", 1060.0, "Fluid density for the y+ estimate (blood: 1060).", unit="kg/m³", min=1e-6, max=1e5),
+        Parameter("flow_viscosity", "float", 3.5e-3, "Dynamic viscosity for the y+ estimate (blood: 3.5e-3).", unit="Pa·s", min=1e-9, max=1e3),
+        Parameter("reference_length", "str", "", "Length of the Reynolds number of the y+ estimate ('25mm'); '' = the widest vessel diameter (twice the largest block radius)."),
         Parameter("order", "int", 1, "Mesh order p: 1 linear hexahedra, 2..4 Lagrange hexahedra.", min=1, max=4),
         Parameter("node_distribution", "str", "gauss_lobatto", "High-order node positions inside each element.", choices=("gauss_lobatto", "equispaced")),
         Parameter("project_to", "str", "fine", "Surface the wall nodes are projected onto: the fine (input) or the coarse surface.", choices=("fine", "coarse")),
@@ -31,15 +38,20 @@ from ..registry import Parameter, register_filter
     writes=("mesh",),
     category="meshing",
 )
-def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_layer, element_length, grading, first_layer, growth, order, node_distribution, project_to, untangle, untangle_below, untangle_restart_below):
+def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_layer, element_length, grading, first_layer, growth,
+                     first_layer_height, boundary_layer_thickness, y_plus, flow_velocity, flow_density, flow_viscosity, reference_length,
+                     order, node_distribution, project_to, untangle, untangle_below, untangle_restart_below):
     """Edge nodes are projected onto the wall and re-spaced by arc length; Coons patches fill
     block faces (wall faces projected again) and transfinite interpolation fills the blocks.
     The boundary layer is resolved by grading, never by extra element layers: the element
     count is the same with and without grading."""
+    from ..geometry.boundary_layer import record_first_layer, setup_boundary_layer
     from ..geometry.projection import wall_projector
     from ..geometry.transfinite import Refinement, mesh_blocks
     from ..mesh import HexMesh
 
+    layer = setup_boundary_layer(ctx, refinement, elements_layer, grading, first_layer, growth, first_layer_height, boundary_layer_thickness,
+                                 y_plus, flow_velocity, flow_density, flow_viscosity, reference_length)
     surface = ctx.coarse_surface if project_to == "coarse" and ctx.coarse_surface is not None else ctx.surface
     caps = ctx.caps if surface is ctx.surface else None
     projector = wall_projector(surface, caps)
@@ -47,12 +59,10 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         around=elements_around * refinement,
         core=elements_around * refinement,
         ring=elements_ring * refinement,
-        layer=elements_layer * refinement,
         element_length=element_length / refinement,
-        first_layer=first_layer / refinement if grading == "first_layer" else None,
-        growth=growth ** (1.0 / refinement) if grading == "growth" else None,
         order=order,
         nodes=node_distribution,
+        **layer,
     )
     blocks = ctx.blocks
     sdf = ctx.sdf if ctx.sdf is not None and getattr(ctx.sdf, "n_faces", -1) == surface.n_faces else None
@@ -83,7 +93,9 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         boundary_names=dict(blocks.boundary_names),
         on_wall=sm.on_wall,
         node_distribution=node_distribution,
+        units=ctx.report.sections["units"]["length"],
     )
+    record_first_layer(ctx, mesh, ctx.report.sections["boundary_layer"]["target_first_height"])
     ctx.mesh = mesh
     ctx.count(elements=mesh.n_cells, nodes=mesh.n_points)
     ctx.report.counts.update(elements=mesh.n_cells, nodes=mesh.n_points, blocks=blocks.n_blocks)
@@ -121,9 +133,9 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below):
 
 
 @register_filter(
-    description="Give every element the skeleton tags of its block as labels (label id, names, one 0/1 array per tag).",
+    description="Give every element the skeleton tags of its block as labels (label id, clean names, one 0/1 array per tag).",
     parameters=[
-        Parameter("untagged", "str", "vessel", "Label name of elements whose block has no tag."),
+        Parameter("untagged", "str", "vessel", "Label name of elements whose block has no tag (other than inlet/outlet tags)."),
     ],
     reads=("mesh", "blocks"),
     writes=("mesh",),  # label arrays on the mesh
@@ -131,9 +143,14 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below):
 )
 def label_elements(ctx, untagged):
     """``label`` is an integer per element; ``report.json`` and the VTU field data map it to
-    names (several tags on one block give a combined name such as ``aneurysm+neck``)."""
+    names (:func:`vmesh.io.names.label_names`): the block's tags without the inlet/outlet/wall
+    tags (those name boundary patches only), joined by ``_`` (``aneurysm_neck``), else
+    ``untagged``. ``report.json`` gets ``labels.table``: each label's and boundary's name in
+    every export format."""
+    from ..io.names import label_names, names_table
+
     mesh, blocks = ctx.mesh, ctx.blocks
-    names = ["+".join(sorted(t)) if t else untagged for t in blocks.block_tags]
+    names = label_names(blocks.block_tags, mesh.boundary_names.values(), untagged)
     unique = sorted(set(names))
     block_label = np.array([unique.index(n) for n in names], np.int64)
     b = mesh.cell_data["block_id"]
@@ -146,7 +163,9 @@ def label_elements(ctx, untagged):
     counts = {unique[i]: int(c) for i, c in enumerate(np.bincount(mesh.cell_data["label"], minlength=len(unique)))}
     bnames = mesh.boundary_names
     bcounts = {bnames.get(int(i), f"boundary_{i}"): int(c) for i, c in zip(*np.unique(mesh.boundary_ids, return_counts=True))}
-    ctx.report.sections["labels"] = {"names": {int(k): v for k, v in mesh.label_names.items()}, "elements": counts, "boundary_faces": bcounts}
+    ctx.report.sections["labels"] = {
+        "names": {int(k): v for k, v in mesh.label_names.items()}, "elements": counts, "boundary_faces": bcounts, "table": names_table(mesh),
+    }
     ctx.count(labels=len(unique), boundaries=len(bcounts))
 
 

@@ -71,7 +71,7 @@ class Refinement:
         Target element length along the skeleton, relative to the local radius.
     first_layer : float or None
         First boundary-layer element thickness relative to the local radius
-        (``None``: uniform spacing).
+        (``None``: uniform spacing), or absolute when ``first_layer_absolute``.
     growth : float or None
         Alternatively, the ratio between consecutive boundary-layer elements.
     order : int
@@ -89,6 +89,12 @@ class Refinement:
     growth: float | None = None
     order: int = 1
     nodes: str = "gauss_lobatto"
+    first_layer_absolute: bool = False
+
+    def first_height(self, radius):
+        """First boundary-layer element thickness where the local radius is ``radius``."""
+        radius = np.asarray(radius, float)
+        return np.full(radius.shape, self.first_layer) if self.first_layer_absolute else self.first_layer * radius
 
 
 # ---------------------------------------------------------------------------
@@ -354,7 +360,7 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
         graded = (edge_kind[sel] == AXIS_LAYER) & (wall_end_first[sel] ^ wall_end_last[sel])
         if graded.any() and n > 1 and (ref.first_layer or ref.growth):
             if ref.first_layer:
-                q = geometric_ratio(ref.first_layer * edge_radius[sel][graded], length[graded], int(n))
+                q = geometric_ratio(ref.first_height(edge_radius[sel][graded]), length[graded], int(n))
             else:
                 q = np.full(graded.sum(), float(ref.growth))
             # sizes grow away from the wall: from t = 0 when the wall is at the first vertex
@@ -404,7 +410,7 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
                 layer = edge_kind[e] == AXIS_LAYER
                 if layer.any():
                     wall_first = blocks.vertex_on_surface[fc[sel][layer, c0]]
-                    h1 = ref.first_layer * edge_radius[e[layer]]
+                    h1 = ref.first_height(edge_radius[e[layer]])
                     _regrade_inplace(P, axis, layer, wall_first, h1, int(n_edge[e[layer][0]]), p, ref.nodes)
         wall = wall_face[sel]
         if wall.any():
@@ -452,7 +458,7 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
                 for axis in range(3):
                     c1 = [1, 3, 4][axis]  # corner next to corner 0 along this axis
                     wall_first[:, axis] = blocks.vertex_on_surface[H[members, 0]] & ~blocks.vertex_on_surface[H[members, c1]]
-                    h1[:, axis] = ref.first_layer * blocks.block_radius[members]
+                    h1[:, axis] = ref.first_height(blocks.block_radius[members])
             n3 = np.array([k // p for k in key])
             layer &= n3[None, :] >= 2  # one element across: nothing to re-space
             # per axis: which lattice lines along it are interior (before and after the axis)

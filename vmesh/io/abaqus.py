@@ -45,7 +45,9 @@ def write(path, mesh) -> Path:
     side = ABAQUS_FACE[boundary_local_faces(mesh)]
     bid = np.asarray(mesh.boundary_ids)
     with atomic_path(path) as tmp, open(tmp, "w") as fh:
-        fh.write("*HEADING\nvmesh block-structured hexahedral mesh\n")
+        fh.write(f"*HEADING\nvmesh block-structured hexahedral mesh{', lengths in ' + mesh.units if mesh.units else ''}\n")
+        if mesh.units:
+            fh.write(f"** units: {mesh.units}\n")
         for lab, name in lnames.items():
             fh.write(f"** label {lab}: {name} -> ELSET={lsafe[lab]}\n")
         for b, name in bnames.items():

@@ -52,6 +52,8 @@ def write(path, mesh) -> Path:
     with atomic_path(path) as tmp:
         with netCDF4.Dataset(tmp, "w", format="NETCDF3_64BIT_OFFSET") as nc:
             nc.title = f"vmesh {__version__} hexahedral mesh, {datetime.datetime.now().isoformat(timespec='seconds')}"
+            if mesh.units:
+                nc.units = mesh.units  # length unit of the coordinates
             nc.api_version = np.float32(5.1)
             nc.version = np.float32(5.1)
             nc.floating_point_word_size = np.int32(8)

@@ -84,7 +84,7 @@ def default_filename(fmt: ExportFormat, stem: str = "mesh") -> str:
     return "openfoam" if fmt.folder else stem + fmt.suffixes[0]
 
 
-def export_mesh(path, mesh, fmt: str | None = None, linearize: bool = False) -> Path:
+def export_mesh(path, mesh, fmt: str | None = None, linearize: bool = False, flow=None) -> Path:
     """Write ``mesh`` to ``path`` in format ``fmt`` (default: from the suffix), atomically.
 
     Parameters
@@ -97,6 +97,8 @@ def export_mesh(path, mesh, fmt: str | None = None, linearize: bool = False) -> 
     linearize : bool
         Write only the corner nodes of a high-order mesh to a format that cannot hold its
         order, instead of refusing.
+    flow : vmesh.io.openfoam_case.FlowCase, optional
+        For OpenFOAM: also write the solver case (``0/``, ``constant/``, ``system/``).
 
     Raises
     ------
@@ -120,7 +122,35 @@ def export_mesh(path, mesh, fmt: str | None = None, linearize: bool = False) -> 
     from importlib import import_module
 
     module = import_module(f"{__package__}.{f.name}")
+    if flow is not None:
+        if f.name != "openfoam":
+            raise ParameterError(f"a solver case (--case) is written for OpenFOAM only, not {f.name}", path)
+        return module.write(path, mesh, flow=flow)
     return module.write(path, mesh)
+
+
+def convert_units(mesh, to_units: str | None = None, scale: float | None = None):
+    """``mesh`` in ``to_units`` (from its recorded ``units``), or scaled by ``scale``
+    (its units then unknown unless ``to_units`` names them too).
+
+    Raises
+    ------
+    ParameterError
+        ``to_units`` without known mesh units, an unknown unit, or a non-positive scale.
+    """
+    from .mesh import UNIT_METRES
+
+    if to_units is not None and to_units not in UNIT_METRES:
+        raise ParameterError(f"--to-units {to_units!r} is not one of {', '.join(UNIT_METRES)}")
+    if scale is not None:
+        if not scale > 0:
+            raise ParameterError(f"--scale {scale} must be positive")
+        return mesh.scaled(scale, to_units)
+    if to_units is None or to_units == mesh.units:
+        return mesh
+    if mesh.units not in UNIT_METRES:
+        raise ParameterError(f"--to-units {to_units}: the run does not record its length unit (rerun with --units, or give --scale)")
+    return mesh.scaled(UNIT_METRES[mesh.units] / UNIT_METRES[to_units], to_units)
 
 
 # --- shared helpers ---------------------------------------------------------------------
@@ -239,6 +269,7 @@ def linear_mesh(mesh):
         boundary_names=dict(mesh.boundary_names),
         label_names=dict(mesh.label_names),
         on_wall=None if mesh.on_wall is None else mesh.on_wall[used],
+        units=mesh.units,
     )
 
 

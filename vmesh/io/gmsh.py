@@ -1,7 +1,11 @@
 """Gmsh MSH 4.1 (ASCII) writer: hexahedra of order 1-4 with physical groups.
 
 One volume entity (and 3D physical group) per element label and one surface entity (and
-2D physical group) per boundary (wall, inlet, outlet_k), named in ``$PhysicalNames``.
+2D physical group) per boundary (wall, inlet, outlet_k), named in ``$PhysicalNames``. Volume
+and surface groups never share a name (:mod:`vmesh.io.names`: labels such as ``vessel`` or
+``aneurysm`` name regions, ``wall``/``inlet``/``outlet_k`` name boundaries), since readers
+such as meshio key groups by name alone. The length unit is recorded in a ``$Units`` section
+(``mm``), which Gmsh and meshio skip as an unknown section.
 Nodes are stored once, on the first volume entity. Node orders are Gmsh's own
 (``gmsh.model.mesh.getElementProperties``), kept here as tables over the tensor order.
 """
@@ -14,6 +18,7 @@ import numpy as np
 
 from .atomic import atomic_path
 from .export import boundary_groups, cell_labels
+from .names import distinct_volume_names
 
 #: Gmsh element type ids of hexahedra and quadrilaterals by order.
 HEX_TYPES = {1: 5, 2: 12, 3: 92, 4: 93}
@@ -57,6 +62,7 @@ def write(path, mesh) -> Path:
     p = mesh.order
     labels, names = cell_labels(mesh)
     bnames = boundary_groups(mesh)
+    names = distinct_volume_names(names, bnames.values())
     hexes = mesh.cells[:, GMSH_HEX[p]] + 1
     quads = mesh.boundary_faces[:, GMSH_QUAD[p]] + 1
     n, m, k = mesh.n_points, len(hexes), len(quads)
@@ -64,6 +70,8 @@ def write(path, mesh) -> Path:
     surf_tags = {b: i + 1 for i, b in enumerate(bnames)}
     with atomic_path(path) as tmp, open(tmp, "w") as fh:
         fh.write("$MeshFormat\n4.1 0 8\n$EndMeshFormat\n")
+        if mesh.units:
+            fh.write(f"$Units\n{mesh.units}\n$EndUnits\n")
         fh.write(f"$PhysicalNames\n{len(names) + len(bnames)}\n")
         for lab, name in names.items():
             fh.write(f'3 {vol_tags[lab]} "{name}"\n')

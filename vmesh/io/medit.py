@@ -29,7 +29,8 @@ def write(path, mesh) -> Path:
     )
     with atomic_path(path) as tmp:
         meshio.write(tmp, out, file_format="medit")
-        head = "".join(f"# Hexahedra ref {k + 1}: {v}\n" for k, v in lnames.items())
+        head = f"# units: {mesh.units}\n" if mesh.units else ""
+        head += "".join(f"# Hexahedra ref {k + 1}: {v}\n" for k, v in lnames.items())
         head += "".join(f"# Quadrilaterals ref {k + 1}: {v}\n" for k, v in bnames.items())
         tmp.write_text(head + tmp.read_text())
     return path

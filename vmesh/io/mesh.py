@@ -8,6 +8,15 @@ import numpy as np
 
 from .atomic import atomic_path
 
+#: Metres per length unit (the ``units:<unit>`` field data of a VTU).
+UNIT_METRES = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6}
+
+
+def units_from_field_data(field) -> str | None:
+    """The length unit a VTU written by :func:`write_mesh` records (``units:<unit>``), or None."""
+    found = [k.split(":", 1)[1] for k in field.keys() if k.startswith("units:")]
+    return found[0] if found else None
+
 
 def name_field_data(names: dict, kind: str) -> dict[str, np.ndarray]:
     """Names of ids as integer field-data arrays: ``{"<kind>:<name>": [ids]}``.
@@ -46,6 +55,8 @@ def write_mesh(path, mesh) -> Path:
             grid = mesh.to_pyvista()
             for key, ids in {**name_field_data(mesh.label_names, "label"), **name_field_data(mesh.boundary_names, "boundary")}.items():
                 grid.field_data[key] = ids
+            if getattr(mesh, "units", None):
+                grid.field_data[f"units:{mesh.units}"] = np.array([UNIT_METRES[mesh.units]])  # metres per unit
             grid.save(str(tmp), binary=True)
         else:
             mesh.to_meshio().write(str(tmp))

@@ -1,6 +1,9 @@
 """OpenFOAM case writer: ``constant/polyMesh`` of a linear hexahedral mesh, one patch per
-boundary (``wall`` of type wall, inlets and outlets of type patch), plus a minimal
-``system/`` (controlDict, fvSchemes, fvSolution) and an empty ``<case>.foam`` for ParaView.
+boundary (``wall`` of type wall, inlets and outlets of type patch), one cellZone per element
+label (``cellZones``) and one cellSet per block layer (``sets/core``, ``sets/ring``,
+``sets/boundary_layer``), plus ``system/`` and an empty ``<case>.foam`` for ParaView. With a
+:class:`~vmesh.io.openfoam_case.FlowCase` the case runs as is (``0/``, ``constant/``,
+``system/`` for simpleFoam or pimpleFoam, :mod:`vmesh.io.openfoam_case`).
 
 Faces follow OpenFOAM's rules: internal faces first, in upper-triangular order (by owner,
 then neighbour), each with its normal pointing from owner to neighbour (the lower cell
@@ -36,7 +39,7 @@ FoamFile
 
 _SYSTEM = {
     "controlDict": (
-        "application     foamRun;\nsolver          incompressibleFluid;\nstartFrom       startTime;\nstartTime       0;\n"
+        "application     simpleFoam;\nstartFrom       startTime;\nstartTime       0;\n"
         "stopAt          endTime;\nendTime         1;\ndeltaT          1;\nwriteControl    timeStep;\nwriteInterval   1;\n"
     ),
     "fvSchemes": (
@@ -109,10 +112,50 @@ def _list(fh, header, rows: np.ndarray, fmt: str) -> None:
     fh.write(")\n")
 
 
-def write(path, mesh, case_name: str | None = None) -> Path:
+def _cell_list(fh, header, ids) -> None:
+    _list(fh, header, np.asarray(ids, np.int64)[:, None], "%d")
+
+
+def _write_zones(pm: Path, mesh, loc: str) -> None:
+    """``cellZones`` (one per label) and ``sets/<layer>`` cellSets (one per block layer)."""
+    from ..blocks import LAYER_NAMES
+    from .export import cell_labels
+
+    labels, names = cell_labels(mesh)
+    with open(pm / "cellZones", "w") as fh:
+        fh.write(_header("regIOobject", loc, "cellZones") + f"{len(names)}\n(\n")
+        for k, name in zip(names, safe_names(names.values())):
+            fh.write(f"{name}\n{{\n    type cellZone;\ncellLabels      List<label> \n")
+            _cell_list(fh, "", np.flatnonzero(labels == k))
+            fh.write(";\n}\n")
+        fh.write(")\n")
+    layer = mesh.cell_data.get("layer")
+    if layer is None:
+        return
+    (pm / "sets").mkdir()
+    for k, name in LAYER_NAMES.items():
+        ids = np.flatnonzero(np.asarray(layer) == k)
+        if len(ids):
+            with open(pm / "sets" / name, "w") as fh:
+                _cell_list(fh, _header("cellSet", f"{loc}/sets", name), ids)
+
+
+def write(path, mesh, case_name: str | None = None, flow=None) -> Path:
     """Write ``mesh`` as the OpenFOAM case folder ``path`` (atomically: the whole folder is
-    written under a temporary name and renamed at the end)."""
+    written under a temporary name and renamed at the end).
+
+    Parameters
+    ----------
+    flow : FlowCase, optional
+        Also write ``0/``, ``constant/`` and ``system/`` for this flow (lengths must be in metres).
+    """
+    from .openfoam_case import case_files
+
     path = Path(path)
+    if flow is not None and mesh.units != "m":
+        raise ParameterError(
+            f"an OpenFOAM {flow.kind} case needs lengths in metres, the mesh is in {mesh.units or 'unknown units'} (export with --to-units m)", path
+        )
     poly = poly_faces(mesh)
     names = boundary_groups(mesh)
     safe = dict(zip(names, safe_names(names.values())))
@@ -124,10 +167,15 @@ def write(path, mesh, case_name: str | None = None) -> Path:
         pm = tmp / "constant" / "polyMesh"
         pm.mkdir(parents=True)
         (tmp / "system").mkdir()
-        for name, body in _SYSTEM.items():
-            (tmp / "system" / name).write_text(_header("dictionary", "system", name) + body)
+        units_note = f"lengths in {mesh.units}" if mesh.units else "length unit unknown"
+        files = {f"system/{k}": ("dictionary", v) for k, v in _SYSTEM.items()}
+        if flow is not None:
+            files.update(case_files(flow, [safe[b] for b in names], units_note))
+        for rel, (cls, body) in files.items():
+            (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+            (tmp / rel).write_text(_header(cls, str(Path(rel).parent), Path(rel).name) + body)
         with open(pm / "points", "w") as fh:
-            _list(fh, _header("vectorField", loc, "points"), mesh.points, "(%.17g %.17g %.17g)")
+            _list(fh, _header("vectorField", loc, "points", units_note), mesh.points, "(%.17g %.17g %.17g)")
         with open(pm / "faces", "w") as fh:
             _list(fh, _header("faceList", loc, "faces"), poly["faces"], "4(%d %d %d %d)")
         with open(pm / "owner", "w") as fh:
@@ -141,6 +189,7 @@ def write(path, mesh, case_name: str | None = None) -> Path:
             body.append(f"    {safe[b]}\n    {{\n        type            {kind};\n{group}        nFaces          {n};\n        startFace       {start};\n    }}\n")
         body.append(")\n")
         (pm / "boundary").write_text(_header("polyBoundaryMesh", loc, "boundary") + "".join(body))
+        _write_zones(pm, mesh, loc)
         (tmp / f"{case_name or path.name}.foam").write_text("")
     return path
 
@@ -181,3 +230,28 @@ def read_polymesh(case) -> dict:
         patches[name] = {"type": entries.get("type"), "nFaces": int(entries["nFaces"]), "startFace": int(entries["startFace"])}
     n_cells = int(max(owner.max(initial=-1), neighbour.max(initial=-1)) + 1)
     return {"points": points, "faces": faces, "owner": owner, "neighbour": neighbour, "patches": patches, "n_cells": n_cells}
+
+
+def read_field(case, time, name) -> np.ndarray:
+    """The internal field ``time/name`` of an ASCII case ((n,) or (n, 3); uniform fields
+    expanded to the cell count)."""
+    path = Path(case) / str(time) / name
+    if not path.is_file():
+        raise InputError("no such field", path)
+    text = _strip(path.read_text())
+    m = re.search(r"internalField\s+nonuniform\s+List<(\w+)>\s*(\d+)\s*\((.*?)\)\s*;", text, flags=re.S)
+    if m:
+        values = np.array(re.findall(r"[-+0-9.eE]+", m.group(3)), float)
+        return values.reshape(int(m.group(2)), -1).squeeze()
+    m = re.search(r"internalField\s+uniform\s+(\([^)]*\)|[-+0-9.eE]+)\s*;", text)
+    if not m:
+        raise InputError("no internalField", path)
+    value = np.array(re.findall(r"[-+0-9.eE]+", m.group(1)), float)
+    n = read_polymesh(case)["n_cells"]
+    return np.tile(value, (n, 1)).squeeze()
+
+
+def patch_cells(poly: dict, name: str) -> np.ndarray:
+    """Cells next to the faces of patch ``name`` (one per face)."""
+    p = poly["patches"][name]
+    return poly["owner"][p["startFace"]: p["startFace"] + p["nFaces"]]

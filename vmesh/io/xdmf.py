@@ -39,7 +39,7 @@ def write(path, mesh) -> Path:
     data["boundary_id"] = [np.full(mesh.n_cells, -1, np.int64), np.asarray(mesh.boundary_ids, np.int64)]
     out = meshio.Mesh(mesh.points, cells, cell_data=data)
     _, lnames = cell_labels(mesh)
-    names = json.dumps({"label_names": lnames, "boundary_names": boundary_groups(mesh)})
+    names = json.dumps({"label_names": lnames, "boundary_names": boundary_groups(mesh), "units": mesh.units})
     h5 = path.with_suffix(".h5")
     # the .xdmf names its HDF5 file: write both under temporary names, fix the reference, rename
     with atomic_path(h5) as tmp_h5, atomic_path(path) as tmp:

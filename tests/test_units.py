@@ -1,0 +1,86 @@
+"""Length units: guessed or given for the input, stated in report.json, the summary and every
+output; converted on export (--to-units, --scale)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from cfd_meshes import cylinder_mesh
+from conftest import synthetic_case
+from vmesh.cli import main
+from vmesh.errors import ParameterError
+from vmesh.geometry.boundary_layer import guess_units
+from vmesh.io.export import convert_units, export_mesh
+
+
+def test_guess_units():
+    assert guess_units(0.15) == "m"  # a 15 cm aorta in metres
+    assert guess_units(1.9) == "m"
+    assert guess_units(12.0) == "mm"  # a small aneurysm in mm
+    assert guess_units(150.0) == "mm"
+
+
+def test_run_states_guessed_units(y_run):
+    report = json.loads((y_run / "report.json").read_text())
+    assert report["units"]["length"] == "mm" and report["units"]["source"].startswith("guessed from the bounding-box diagonal")
+    assert any(step["counts"].get("units") == "mm" for step in report["steps"])  # the summary table
+
+
+def test_run_units_option_and_every_output(tmp_path, capsys):
+    surface, skeleton = synthetic_case("straight_tube")
+    out = tmp_path / "run"
+    assert main(["run", "default", "-i", str(surface), "-s", str(skeleton), "-o", str(out), "--units", "cm",
+                 "--set", "mesh_transfinite.first_layer_height=0.1mm", "--set", "mesh_transfinite.boundary_layer_thickness=2mm",
+                 "--set", "mesh_transfinite.elements_layer=5"]) == 0
+    assert "units=cm" in capsys.readouterr().out  # the log's summary table
+    report = json.loads((out / "report.json").read_text())
+    assert report["units"] == {"length": "cm", "source": "given (--units)", "metres_per_unit": 0.01}
+    assert report["inputs"]["units"] == "cm"
+    layer = report["boundary_layer"]
+    assert (layer["first_height"], layer["thickness"], layer["elements"]) == ("0.01 cm", "0.2 cm", 5)
+    assert abs(layer["measured_first_height"]["median"] / 0.01 - 1) < 0.05
+    assert layer["measured_first_edge"]["within_5_percent"] > 0.95
+    assert main(["export", str(out), "--format", "msh,inp,exo,mesh,xdmf", "-q"]) == 0
+    assert "$Units\ncm\n" in (out / "mesh.msh").read_text()[:100]
+    assert "** units: cm" in (out / "mesh.inp").read_text()[:300]
+    assert "# units: cm" in (out / "mesh.mesh").read_text()[:100]
+    assert '"units": "cm"' in (out / "mesh.xdmf").read_text()
+    import netCDF4
+
+    with netCDF4.Dataset(out / "mesh.exo") as nc:
+        assert nc.units == "cm"
+    # vtu rewritten in metres records it, and a later export converts from it, not from report.json
+    assert main(["export", str(out), "--format", "vtu", "--to-units", "m", "-q"]) == 0
+    assert main(["export", str(out), "--format", "msh", "--to-units", "m", "-q"]) == 0
+    assert "$Units\nm\n" in (out / "mesh.msh").read_text()[:100]
+    with pytest.raises(SystemExit) as e:
+        main(["run", "default", "-i", str(surface), "-o", str(tmp_path / "x"), "--units", "inch"])
+    assert e.value.code == 2 and "invalid choice: 'inch'" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
+
+
+def test_convert_units():
+    mesh, _ = cylinder_mesh()
+    m = convert_units(mesh, "m")
+    assert m.units == "m" and np.allclose(m.points, mesh.points * 1e-3)
+    assert convert_units(mesh, "mm") is mesh
+    s = convert_units(mesh, scale=10.0)
+    assert s.units is None and np.allclose(s.points, mesh.points * 10)
+    with pytest.raises(ParameterError, match="must be positive"):
+        convert_units(mesh, scale=0.0)
+    mesh.units = None
+    with pytest.raises(ParameterError, match="does not record its length unit"):
+        convert_units(mesh, "m")
+
+
+def test_every_format_records_units(tmp_path):
+    import meshio
+
+    from vmesh.io.mesh import units_from_field_data
+
+    mesh, _ = cylinder_mesh()
+    m = convert_units(mesh, "m")
+    assert units_from_field_data(meshio.read(export_mesh(tmp_path / "a.vtu", m)).field_data) == "m"
+    foam = export_mesh(tmp_path / "foam", m, "openfoam")
+    assert "lengths in m" in (foam / "constant" / "polyMesh" / "points").read_text()[:800]
