@@ -101,3 +101,16 @@ def test_empty_data_and_quads(tmp_path):
     write_vtu(tmp_path / "h.vtu", np.vstack([pts, pts + [0, 0, 1]]), np.array([np.arange(8)]), 12)
     r = pv.read(tmp_path / "h.vtu")
     assert r.n_cells == 1 and np.isclose(r.volume, 1.0)
+
+
+def test_point_data(tmp_path):
+    import pyvista as pv
+
+    mesh = grid_mesh()
+    flags = (np.arange(mesh.n_points) % 3 == 0).astype(np.uint8)
+    write_vtu(tmp_path / "p.vtu", mesh.points, mesh.corner_cells(), 12, {"label": mesh.cell_data["label"]},
+              point_data={"on_surface": flags, "normal": np.tile([0.0, 0.0, 1.0], (mesh.n_points, 1))})
+    r = pv.read(tmp_path / "p.vtu")
+    assert np.array_equal(np.asarray(r.point_data["on_surface"]), flags)
+    assert np.asarray(r.point_data["normal"]).shape == (mesh.n_points, 3)
+    assert np.array_equal(np.asarray(r.cell_data["label"]), mesh.cell_data["label"])

@@ -91,10 +91,11 @@ def _field_data_xml(field_data: dict | None) -> list[str]:
     return lines
 
 
-def _cell_data_xml(block: _Appended, cell_data: dict | None) -> list[str]:
-    if not cell_data:
+def _data_xml(block: _Appended, section: str, data: dict | None) -> list[str]:
+    """``<CellData>`` or ``<PointData>`` with one appended array per entry."""
+    if not data:
         return []
-    return ["      <CellData>", *(f"        {block.tag(k, v)}" for k, v in cell_data.items()), "      </CellData>"]
+    return [f"      <{section}>", *(f"        {block.tag(k, v)}" for k, v in data.items()), f"      </{section}>"]
 
 
 def _points_xml(block: _Appended, points: np.ndarray) -> list[str]:
@@ -116,7 +117,8 @@ def _write(path, kind: str, body: list[str], block: _Appended, version: str = "1
         block.write(f)
 
 
-def write_vtu(path, points, cells, cell_type: int, cell_data: dict | None = None, field_data: dict | None = None) -> None:
+def write_vtu(path, points, cells, cell_type: int, cell_data: dict | None = None, field_data: dict | None = None,
+              point_data: dict | None = None) -> None:
     """Write an unstructured grid of one cell type.
 
     Parameters
@@ -129,6 +131,7 @@ def write_vtu(path, points, cells, cell_type: int, cell_data: dict | None = None
         VTK cell type (12 hexahedron, 72 Lagrange hexahedron...).
     cell_data : dict of str -> (m,) or (m, c) arrays, optional
     field_data : dict of str -> 1-D arrays, optional
+    point_data : dict of str -> (n,) or (n, c) arrays, optional
     """
     points = np.asarray(points)
     cells = np.asarray(cells)
@@ -136,7 +139,8 @@ def write_vtu(path, points, cells, cell_type: int, cell_data: dict | None = None
     block = _Appended()
     body = ["  <UnstructuredGrid>", *_field_data_xml(field_data),
             f'    <Piece NumberOfPoints="{len(points)}" NumberOfCells="{m}">', *_points_xml(block, points)]
-    body += _cell_data_xml(block, cell_data)
+    body += _data_xml(block, "PointData", point_data)
+    body += _data_xml(block, "CellData", cell_data)
     body += [
         "      <Cells>",
         f"        {block.tag('connectivity', _index_array(cells, len(points)).reshape(-1), 1)}",
@@ -167,7 +171,7 @@ def write_vtp_polygons(path, points, polygons, cell_data: dict | None = None, fi
     body = ["  <PolyData>", *_field_data_xml(field_data),
             f'    <Piece NumberOfPoints="{len(points)}" NumberOfVerts="0" NumberOfLines="0" NumberOfStrips="0"'
             f' NumberOfPolys="{m}">', *_points_xml(block, points)]
-    body += _cell_data_xml(block, cell_data)
+    body += _data_xml(block, "CellData", cell_data)
     body += [
         "      <Polys>",
         f"        {block.tag('connectivity', _index_array(polygons, len(points)).reshape(-1), 1)}",
