@@ -114,3 +114,58 @@ def test_point_data(tmp_path):
     assert np.array_equal(np.asarray(r.point_data["on_surface"]), flags)
     assert np.asarray(r.point_data["normal"]).shape == (mesh.n_points, 3)
     assert np.array_equal(np.asarray(r.cell_data["label"]), mesh.cell_data["label"])
+
+
+def _sphere_with_data():
+    import pyvista as pv
+
+    s = pv.Sphere(theta_resolution=24, phi_resolution=16).triangulate()
+    s.cell_data["region"] = (np.arange(s.n_cells) % 5).astype(np.int32)
+    s.cell_data["area"] = np.linspace(0, 1, s.n_cells)
+    return s
+
+
+@pytest.mark.parametrize("mode", ["ascii", "binary", "appended_raw", "appended_base64"])
+@pytest.mark.parametrize("compress", [False, True])
+@pytest.mark.parametrize("header64", [False, True])
+def test_vtp_reader_matches_vtk(tmp_path, mode, compress, header64):
+    """Every encoding VTK writes (inline ascii/base64, appended raw/base64, zlib or not,
+    32/64-bit headers) reads back as VTK reads it."""
+    import vtk
+
+    from vmesh.io.surface import _read_pyvista
+    from vmesh.io.vtk_xml import read_vtp_triangles
+
+    s = _sphere_with_data()
+    w = vtk.vtkXMLPolyDataWriter()
+    w.SetFileName(str(tmp_path / "s.vtp"))
+    w.SetInputData(s)
+    w.SetHeaderTypeToUInt64() if header64 else w.SetHeaderTypeToUInt32()
+    w.SetCompressorTypeToZLib() if compress else w.SetCompressorTypeToNone()
+    if mode == "ascii":
+        w.SetDataModeToAscii()
+    elif mode == "binary":
+        w.SetDataModeToBinary()
+    else:
+        w.SetDataModeToAppended()
+        w.SetEncodeAppendedData(mode == "appended_base64")
+    w.Write()
+    pts, tri, data = read_vtp_triangles(tmp_path / "s.vtp")
+    ref_pts, ref_tri, ref_data = _read_pyvista(tmp_path / "s.vtp")
+    assert np.allclose(pts, ref_pts) and np.array_equal(tri, ref_tri)
+    assert set(data) == set(ref_data) == {"region", "area"}
+    for k in data:
+        assert np.allclose(data[k], ref_data[k]) and data[k].dtype == ref_data[k].dtype
+
+
+def test_vtp_reader_leaves_other_cells_to_vtk(tmp_path):
+    """Quads (and lines, strips, other polygons) are refused, so read_surface asks VTK."""
+    from vmesh.io.surface import read_surface
+    from vmesh.io.vtk_xml import UnsupportedVTKXML, read_vtp_triangles
+
+    mesh = grid_mesh()
+    write_boundary(tmp_path / "b.vtp", mesh)
+    with pytest.raises(UnsupportedVTKXML):
+        read_vtp_triangles(tmp_path / "b.vtp")
+    surf = read_surface(tmp_path / "b.vtp")
+    assert surf.n_faces == 2 * len(mesh.boundary_faces)

@@ -1,7 +1,8 @@
 """Read and write triangle surfaces (STL, OBJ, PLY, VTP, VTK, VTU, OFF).
 
-VTK-family files and STL/OBJ/PLY are read with pyvista (VTK's readers), OFF with
-meshio. Quads and polygons are fan-triangulated; per-face arrays are kept.
+VTK XML PolyData (.vtp) is read with numpy (:func:`vmesh.io.vtk_xml.read_vtp_triangles`,
+VTK for what it does not handle), the other VTK-family files and STL/OBJ/PLY with
+pyvista (VTK's readers), OFF with meshio. Quads and polygons are fan-triangulated; per-face arrays are kept.
 """
 
 from __future__ import annotations
@@ -67,6 +68,8 @@ def read_surface(path: str | Path) -> SurfaceMesh:
     try:
         if suffix == ".off":
             vertices, faces, face_data = _read_meshio(path)
+        elif suffix == ".vtp":
+            vertices, faces, face_data = _read_vtp(path)
         else:
             vertices, faces, face_data = _read_pyvista(path)
     except InputError:
@@ -85,6 +88,17 @@ def read_surface(path: str | Path) -> SurfaceMesh:
 def _short(exc: Exception) -> str:
     text = " ".join(str(exc).split()) or type(exc).__name__
     return text[:200]
+
+
+def _read_vtp(path: Path):
+    """VTK XML PolyData read with numpy (no VTK import, which costs more than reading);
+    what that reader does not handle (strips, lines, other compressors...) goes to VTK."""
+    from .vtk_xml import UnsupportedVTKXML, read_vtp_triangles
+
+    try:
+        return read_vtp_triangles(path)
+    except UnsupportedVTKXML:
+        return _read_pyvista(path)
 
 
 def _read_pyvista(path: Path):

@@ -181,3 +181,128 @@ def write_vtp_polygons(path, points, polygons, cell_data: dict | None = None, fi
         "  </PolyData>",
     ]
     _write(path, "PolyData", body, block)
+
+
+# ----------------------------------------------------------------------------- reading
+class UnsupportedVTKXML(ValueError):
+    """A VTK XML feature this reader leaves to VTK (other compressors, strips, mixed cells...)."""
+
+
+_NUMPY_TYPES = {name: dtype for dtype, name in _VTK_TYPES.items()}
+_NUMPY_TYPES.update({"Int": np.dtype(np.int32), "Float": np.dtype(np.float32), "Char": np.dtype(np.int8), "UChar": np.dtype(np.uint8)})
+
+
+class _XMLArrays:
+    """Decodes the DataArrays of one VTK XML file: ascii, base64 ``binary`` inline, and
+    appended raw or base64 data, uncompressed or zlib-compressed."""
+
+    def __init__(self, data: bytes):
+        import xml.etree.ElementTree as ET
+
+        start = data.find(b"<AppendedData")
+        self.appended = b""
+        self.appended_base64 = False
+        if start >= 0:
+            tag_end = data.index(b">", start)
+            self.appended_base64 = b'encoding="base64"' in data[start:tag_end]
+            body_start = data.index(b"_", tag_end) + 1
+            body_end = data.rfind(b"</AppendedData>")
+            self.appended = data[body_start:body_end]
+            if self.appended_base64:
+                self.appended = self.appended.strip()
+            data = data[:start] + b"</VTKFile>"
+        self.root = ET.fromstring(data)
+        a = self.root.attrib
+        self.order = "<" if a.get("byte_order", "LittleEndian") == "LittleEndian" else ">"
+        self.header = np.dtype(self.order + ("u8" if a.get("header_type", "UInt32") == "UInt64" else "u4"))
+        compressor = a.get("compressor", "")
+        if compressor not in ("", "vtkZLibDataCompressor"):
+            raise UnsupportedVTKXML(f"compressor {compressor}")
+        self.compressed = bool(compressor)
+
+    def array(self, element) -> np.ndarray:
+        """The values of one ``<DataArray>`` as (n,) or (n, components)."""
+        a = element.attrib
+        if a.get("type") not in _NUMPY_TYPES:
+            raise UnsupportedVTKXML(f"DataArray type {a.get('type')}")
+        dtype = _NUMPY_TYPES[a["type"]].newbyteorder(self.order)
+        fmt = a.get("format", "ascii")
+        if fmt == "ascii":
+            values = np.array((element.text or "").split(), dtype=dtype.newbyteorder("="))
+        elif fmt == "binary":
+            values = np.frombuffer(self._payload(element.text.strip().encode(), True), dtype)
+        elif fmt == "appended":
+            values = np.frombuffer(self._payload(self.appended[int(a.get("offset", 0)):], self.appended_base64), dtype)
+        else:
+            raise UnsupportedVTKXML(f"DataArray format {fmt}")
+        comp = int(a.get("NumberOfComponents", 1))
+        return values.reshape(-1, comp) if comp > 1 else values
+
+    def _payload(self, raw: bytes, base64: bool) -> bytes:
+        import base64 as b64
+        import zlib
+
+        h = self.header.itemsize
+        if not self.compressed:
+            if base64:  # VTK encodes the byte count and the data as one base64 block
+                head = b64.b64decode(raw[: _b64_len(h)])[:h]
+                n = int(np.frombuffer(head, self.header)[0])
+                return b64.b64decode(raw[: _b64_len(h + n)])[h:h + n]
+            n = int(np.frombuffer(raw[:h], self.header)[0])
+            return raw[h:h + n]
+        # compressed: [blocks, block size, last block size, compressed sizes...] then the blocks
+        if base64:
+            first = np.frombuffer(b64.b64decode(raw[: _b64_len(3 * h)])[: 3 * h], self.header)
+            n_head = (3 + int(first[0])) * h
+            head = np.frombuffer(b64.b64decode(raw[: _b64_len(n_head)])[:n_head], self.header)
+            sizes = head[3:].astype(np.int64)
+            body = b64.b64decode(raw[_b64_len(n_head): _b64_len(n_head) + _b64_len(int(sizes.sum()))])
+        else:
+            n_blocks = int(np.frombuffer(raw[:h], self.header)[0])
+            sizes = np.frombuffer(raw[3 * h:(3 + n_blocks) * h], self.header).astype(np.int64)
+            body = raw[(3 + n_blocks) * h:(3 + n_blocks) * h + int(sizes.sum())]
+        ends = np.cumsum(sizes)
+        return b"".join(zlib.decompress(body[e - s:e]) for s, e in zip(sizes.tolist(), ends.tolist()))
+
+
+def _b64_len(n_bytes: int) -> int:
+    return -(-n_bytes // 3) * 4
+
+
+def read_vtp_triangles(path) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Points, triangles and per-triangle cell arrays of a VTK XML PolyData of triangles.
+
+    Raises :class:`UnsupportedVTKXML` for what it leaves to VTK: several pieces, vertices,
+    lines, strips or other polygons, other compressors or data types.
+    """
+    x = _XMLArrays(Path(path).read_bytes())
+    if x.root.attrib.get("type") != "PolyData":
+        raise UnsupportedVTKXML(f"VTKFile type {x.root.attrib.get('type')}")
+    pieces = x.root.findall("./PolyData/Piece")
+    if len(pieces) != 1:
+        raise UnsupportedVTKXML(f"{len(pieces)} pieces")
+    piece = pieces[0]
+    for kind in ("NumberOfVerts", "NumberOfLines", "NumberOfStrips"):
+        if int(piece.attrib.get(kind, 0)):
+            raise UnsupportedVTKXML(kind)
+    n_points, n_polys = int(piece.attrib.get("NumberOfPoints", 0)), int(piece.attrib.get("NumberOfPolys", 0))
+    points_el = piece.find("./Points/DataArray")
+    points = x.array(points_el).astype(np.float64).reshape(-1, 3) if points_el is not None and n_points else np.zeros((0, 3))
+    if n_polys == 0:
+        return points, np.zeros((0, 3), np.int64), {}
+    arrays = {el.attrib.get("Name"): el for el in piece.findall("./Polys/DataArray")}
+    conn = x.array(arrays["connectivity"]).astype(np.int64)
+    ends = x.array(arrays["offsets"]).astype(np.int64)
+    if len(ends) == n_polys + 1 and ends[0] == 0:
+        ends = ends[1:]
+    if len(ends) != n_polys or len(conn) != 3 * n_polys or np.any(np.diff(ends, prepend=0) != 3):
+        raise UnsupportedVTKXML("polygons other than triangles")  # VTK's triangulation handles non-convex ones
+    faces = conn.reshape(-1, 3)
+    face_data = {}
+    for el in piece.findall("./CellData/DataArray"):
+        name = el.attrib.get("Name")
+        if name and not name.startswith("vtk"):
+            values = x.array(el)
+            if len(values) == n_polys:
+                face_data[name] = values.astype(values.dtype.newbyteorder("="))
+    return points, faces, face_data
