@@ -169,3 +169,23 @@ def test_vtp_reader_leaves_other_cells_to_vtk(tmp_path):
         read_vtp_triangles(tmp_path / "b.vtp")
     surf = read_surface(tmp_path / "b.vtp")
     assert surf.n_faces == 2 * len(mesh.boundary_faces)
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".vtp"])
+def test_surface_written_without_vtk_reads_back(tmp_path, suffix):
+    """write_surface's numpy writers (.ply, .vtp) round-trip exactly and VTK reads them."""
+    import pyvista as pv
+
+    from vmesh.io.surface import read_surface, write_surface
+    from vmesh.surface import SurfaceMesh
+
+    s = _sphere_with_data()
+    faces = np.asarray(s.faces).reshape(-1, 4)[:, 1:]
+    surf = SurfaceMesh(np.asarray(s.points, float), faces, face_data={"region": np.asarray(s.cell_data["region"])})
+    path = write_surface(tmp_path / f"s{suffix}", surf)
+    back = read_surface(path)
+    assert np.array_equal(back.vertices, surf.vertices) and np.array_equal(back.faces, surf.faces)
+    if suffix == ".vtp":
+        assert np.array_equal(back.face_data["region"], surf.face_data["region"])
+    r = pv.read(path)
+    assert r.n_points == surf.n_vertices and r.n_cells == surf.n_faces

@@ -154,9 +154,30 @@ def write_surface(path: str | Path, surface: SurfaceMesh, binary: bool = True) -
             import meshio
 
             meshio.write_points_cells(str(tmp), surface.vertices, [("triangle", surface.faces)], file_format="off")
+        elif suffix == ".vtp":  # numpy writers: no VTK import for the common formats
+            from .vtk_xml import write_vtp_polygons
+
+            write_vtp_polygons(tmp, surface.vertices, surface.faces, getattr(surface, "face_data", None) or None)
+        elif suffix == ".ply" and binary:
+            _write_ply_triangles(tmp, surface.vertices, surface.faces)
         else:
             mesh = surface.to_pyvista()
             if suffix == ".vtu":
                 mesh = mesh.cast_to_unstructured_grid()
             mesh.save(str(tmp), binary=binary) if suffix in (".stl", ".ply", ".vtk", ".vtp", ".vtu") else mesh.save(str(tmp))
     return path
+
+
+def _write_ply_triangles(path, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Binary little-endian PLY of triangles (double coordinates: nothing lost on a round trip)."""
+    vertices = np.ascontiguousarray(vertices, "<f8").reshape(-1, 3)
+    face = np.empty(len(faces), np.dtype([("n", "u1"), ("v", "<i4", (3,))]))
+    face["n"] = 3
+    face["v"] = faces
+    header = ["ply", "format binary_little_endian 1.0", "comment vmesh surface", f"element vertex {len(vertices)}",
+              "property double x", "property double y", "property double z", f"element face {len(face)}",
+              "property list uchar int vertex_indices", "end_header"]
+    with open(path, "wb") as f:
+        f.write(("\n".join(header) + "\n").encode())
+        f.write(vertices.tobytes())
+        f.write(face.tobytes())
