@@ -131,14 +131,26 @@ def main(argv=None):
             for s in STAGES:
                 f[s] = fit(tree_rows, lambda r, s=s: r["stage_s"][s])
             fits[tree] = f
-    md = report(rows, fits, load_before)
+            if not args.no_write:  # after every tree: a long run stopped later keeps what it measured
+                write(rows, fits, load_before, quiet=True)
     if not args.no_write:
+        write(rows, fits, load_before)
+    else:
+        report(rows, fits, load_before)
+    return 0
+
+
+def write(rows: list[dict], fits: dict, load_before: str, quiet: bool = False) -> None:
+    import contextlib
+    import io
+
+    with contextlib.redirect_stdout(io.StringIO()) if quiet else contextlib.nullcontext():
+        md = report(rows, fits, load_before)
         header = ("# Cost against mesh size\n\nWritten by `python benchmarks/scaling.py`: whole `vmesh run default` processes "
                   "over `mesh_transfinite.refinement`, seconds per stage from each run's report.json, and the least-squares "
                   "cost per million hexahedra beyond the fixed costs. Shared 2-core machine: times are noisy.")
         js, mdp = C.write_results("scaling", rows, md, header, extra={"fits": fits, "target_s_per_million": TARGET_S_PER_MILLION})
         print(f"\nwritten {js.relative_to(ROOT)}, {mdp.name}")
-    return 0
 
 
 def report(rows: list[dict], fits: dict, load_before: str) -> str:
