@@ -157,14 +157,18 @@ def report(rows: list[dict], fits: dict, load_before: str) -> str:
     head = ["tree", "ref", "hexahedra", "wall s", "start s", *[f"{s} s" for s in STAGES], "SJ min", "invalid", "untangled"]
     lines = []
     for r in rows:
-        if r["status"] != "ok":
-            lines.append([r["tree"], str(r["refinement"]), r["status"], C.fmt(r.get("wall_s")), r["error"], *[""] * (len(STAGES) + 3)])
+        if r["status"] != "ok":  # the reason goes below the table
+            lines.append([r["tree"], str(r["refinement"]), r["status"], C.fmt(r.get("wall_s")), *[""] * (len(STAGES) + 4)])
             continue
         lines.append([r["tree"], str(r["refinement"]), f"{r['hexahedra']:,}", f"{r['wall_s']:.2f}", f"{r['start_s']:.2f}",
                       *[f"{r['stage_s'][s]:.2f}" for s in STAGES], C.fmt(r.get("sj_min"), ".3f"), C.fmt(r.get("invalid")),
                       C.fmt(r.get("untangled_nodes"))])
     print()
     md = C.table(head, lines)
+    reasons = [f"{r['tree']} refinement {r['refinement']}: {r['status']}: {r['error']}" for r in rows if r["status"] != "ok"]
+    if reasons:
+        print("\n" + "\n".join(reasons))
+        md += "\n\n" + "\n".join(f"- {line}" for line in reasons)
     fit_lines = []
     for tree, f in fits.items():
         if f["wall"] is None:

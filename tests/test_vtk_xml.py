@@ -189,3 +189,15 @@ def test_surface_written_without_vtk_reads_back(tmp_path, suffix):
         assert np.array_equal(back.face_data["region"], surf.face_data["region"])
     r = pv.read(path)
     assert r.n_points == surf.n_vertices and r.n_cells == surf.n_faces
+
+
+def test_int64_cell_data_narrowed_only_when_it_fits(tmp_path):
+    import pyvista as pv
+
+    mesh = grid_mesh()
+    k = mesh.n_cells
+    data = {"small": np.arange(k, dtype=np.int64), "big": np.arange(k, dtype=np.int64) + 2**40}
+    write_vtu(tmp_path / "i.vtu", mesh.points, mesh.corner_cells(), 12, data)
+    r = pv.read(tmp_path / "i.vtu")
+    assert r.cell_data["small"].dtype == np.int32 and np.array_equal(r.cell_data["small"], data["small"])
+    assert r.cell_data["big"].dtype == np.int64 and np.array_equal(r.cell_data["big"], data["big"])
