@@ -6,5 +6,5 @@ Each module registers itself in :data:`vmesh.cli.EXTRA_COMMANDS` as
 
 import importlib
 
-for _name in ("skeleton", "export", "render", "batch"):  # modules are appended here as stages add commands
+for _name in ("skeleton", "export", "render", "batch", "compile"):  # modules are appended here as stages add commands
     importlib.import_module(f"{__name__}.{_name}")

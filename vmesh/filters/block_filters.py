@@ -198,18 +198,27 @@ def write_blocks(ctx, filename, edges_filename):
     1 ring, 2 boundary layer), ``min_corner_jacobian`` and per corner ``on_surface``; the PLY
     holds every block edge once with ``wall`` = 1 on the vessel wall."""
     from ..io.atomic import atomic_path
+    from ..io.vtk_xml import write_vtu
+    from ..mesh import VTK_HEXAHEDRON
 
     blocks = ctx.blocks
     path = ctx.output_path(filename)
     if path is None:
         ctx.warn(f"no output folder: {filename} not written")
         return
-    grid = blocks.to_pyvista()
     boundary = blocks.face_boundary
-    grid.cell_data["wall_faces"] = (boundary == 0).sum(axis=1).astype(np.uint8)
-    grid.cell_data["open_end"] = np.where(boundary > 0, boundary, 0).max(axis=1).astype(np.int32)
-    with atomic_path(path) as tmp:
-        grid.save(str(tmp), binary=True)
+    cell_data = {
+        "block_id": np.arange(blocks.n_blocks),
+        "segment_id": blocks.block_segment,
+        "node_id": blocks.block_node,
+        "layer": blocks.block_layer,
+        "min_corner_jacobian": blocks.corner_jacobians().min(axis=1),
+        "wall_faces": (boundary == 0).sum(axis=1).astype(np.uint8),
+        "open_end": np.where(boundary > 0, boundary, 0).max(axis=1).astype(np.int32),
+    }
+    with atomic_path(path) as tmp:  # raw VTK XML: no VTK import for this file
+        write_vtu(tmp, blocks.vertices, blocks.hexes, VTK_HEXAHEDRON, cell_data,
+                  point_data={"on_surface": blocks.vertex_on_surface.astype(np.uint8)})
     written = [str(path.name)]
     if edges_filename:
         e, wall = block_edges(blocks)

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from .atomic import atomic_path
+from .vtk_xml import write_vtp_polygons, write_vtu
 
 #: Metres per length unit (the ``units:<unit>`` field data of a VTU).
 UNIT_METRES = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6}
@@ -46,18 +47,17 @@ def names_from_field_data(field, kind: str) -> dict[int, str]:
 
 
 def write_mesh(path, mesh) -> Path:
-    """Write ``mesh`` atomically. ``.vtu`` goes through VTK (Lagrange hexahedra for p > 1,
-    label and boundary names as field data, :func:`name_field_data`); other extensions
-    through meshio."""
+    """Write ``mesh`` atomically. ``.vtu`` is raw binary VTK XML (:func:`vmesh.io.vtk_xml.write_vtu`:
+    Lagrange hexahedra for p > 1, every cell array, label and boundary names as field data,
+    :func:`name_field_data`); other extensions go through meshio."""
     path = Path(path)
     with atomic_path(path) as tmp:
         if path.suffix.lower() == ".vtu":
-            grid = mesh.to_pyvista()
-            for key, ids in {**name_field_data(mesh.label_names, "label"), **name_field_data(mesh.boundary_names, "boundary")}.items():
-                grid.field_data[key] = ids
+            cells, cell_type = mesh.vtk_cells()
+            field = {**name_field_data(mesh.label_names, "label"), **name_field_data(mesh.boundary_names, "boundary")}
             if getattr(mesh, "units", None):
-                grid.field_data[f"units:{mesh.units}"] = np.array([UNIT_METRES[mesh.units]])  # metres per unit
-            grid.save(str(tmp), binary=True)
+                field[f"units:{mesh.units}"] = np.array([UNIT_METRES[mesh.units]])  # metres per unit
+            write_vtu(tmp, mesh.points, cells, cell_type, mesh.cell_data, field)
         else:
             mesh.to_meshio().write(str(tmp))
     return path
@@ -67,8 +67,7 @@ def write_boundary(path, mesh) -> Path:
     """Boundary faces as quads with ``boundary_id`` (0 wall, k open end k) and the owning element's data."""
     path = Path(path)
     with atomic_path(path) as tmp:
-        b = mesh.boundary_to_pyvista()
-        for key, ids in name_field_data(mesh.boundary_names, "boundary").items():
-            b.field_data[key] = ids
-        b.save(str(tmp), binary=True)
+        # every mesh node is kept, so the faces' node ids are the mesh's
+        data = {"boundary_id": mesh.boundary_ids, **{k: np.asarray(v)[mesh.boundary_cells] for k, v in mesh.cell_data.items()}}
+        write_vtp_polygons(tmp, mesh.points, mesh.corner_boundary_faces(), data, name_field_data(mesh.boundary_names, "boundary"))
     return path

@@ -1,9 +1,10 @@
 """Read and write triangle surfaces (STL, OBJ, PLY, VTP, VTK, VTU, OFF).
 
-VTK-family files and STL/OBJ/PLY are read with pyvista (VTK's readers), OFF with
-meshio. Quads and polygons are triangulated; per-face arrays are kept. Line and vertex
-cells among the faces are dropped, and a volume mesh (tetrahedra, hexahedra...) gives
-its boundary surface; both are noted for the run's warnings.
+VTK XML PolyData (.vtp) of triangles is read with numpy (:func:`vmesh.io.vtk_xml.read_vtp_triangles`);
+other .vtp files, the other VTK-family files and STL/OBJ/PLY are read with pyvista (VTK's
+readers), OFF with meshio. Quads and polygons are triangulated; per-face arrays are kept. Line
+and vertex cells among the faces are dropped, and a volume mesh (tetrahedra, hexahedra...)
+gives its boundary surface; both are noted for the run's warnings.
 """
 
 from __future__ import annotations
@@ -75,6 +76,8 @@ def read_surface(path: str | Path, notes: list | None = None) -> SurfaceMesh:
     try:
         if suffix == ".off":
             vertices, faces, face_data = _read_meshio(path)
+        elif suffix == ".vtp":
+            vertices, faces, face_data = _read_vtp(path, notes)
         else:
             vertices, faces, face_data = _read_pyvista(path, notes)
     except InputError:
@@ -107,6 +110,17 @@ def _cell_dimensions(cell_types: np.ndarray) -> np.ndarray:
     kinds = np.unique(cell_types)
     dims = np.array([utilities.GetDimension(int(t)) for t in kinds], np.int64)
     return dims[np.searchsorted(kinds, cell_types)]
+
+
+def _read_vtp(path: Path, notes: list):
+    """VTK XML PolyData read with numpy (no VTK import, which costs more than reading);
+    what that reader does not handle (strips, lines, other compressors...) goes to VTK."""
+    from .vtk_xml import UnsupportedVTKXML, read_vtp_triangles
+
+    try:
+        return read_vtp_triangles(path)
+    except UnsupportedVTKXML:
+        return _read_pyvista(path, notes)
 
 
 def _read_pyvista(path: Path, notes: list):
@@ -172,9 +186,30 @@ def write_surface(path: str | Path, surface: SurfaceMesh, binary: bool = True) -
             import meshio
 
             meshio.write_points_cells(str(tmp), surface.vertices, [("triangle", surface.faces)], file_format="off")
+        elif suffix == ".vtp":  # numpy writers: no VTK import for the common formats
+            from .vtk_xml import write_vtp_polygons
+
+            write_vtp_polygons(tmp, surface.vertices, surface.faces, getattr(surface, "face_data", None) or None)
+        elif suffix == ".ply" and binary:
+            _write_ply_triangles(tmp, surface.vertices, surface.faces)
         else:
             mesh = surface.to_pyvista()
             if suffix == ".vtu":
                 mesh = mesh.cast_to_unstructured_grid()
             mesh.save(str(tmp), binary=binary) if suffix in (".stl", ".ply", ".vtk", ".vtp", ".vtu") else mesh.save(str(tmp))
     return path
+
+
+def _write_ply_triangles(path, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Binary little-endian PLY of triangles (double coordinates: nothing lost on a round trip)."""
+    vertices = np.ascontiguousarray(vertices, "<f8").reshape(-1, 3)
+    face = np.empty(len(faces), np.dtype([("n", "u1"), ("v", "<i4", (3,))]))
+    face["n"] = 3
+    face["v"] = faces
+    header = ["ply", "format binary_little_endian 1.0", "comment vmesh surface", f"element vertex {len(vertices)}",
+              "property double x", "property double y", "property double z", f"element face {len(face)}",
+              "property list uchar int vertex_indices", "end_header"]
+    with open(path, "wb") as f:
+        f.write(("\n".join(header) + "\n").encode())
+        f.write(vertices.tobytes())
+        f.write(face.tobytes())
