@@ -104,8 +104,8 @@ def test_valid_mesh_never_gets_worse():
     sm, kw = cylinder()
     rng = np.random.default_rng(3)
     X0 = sm.points.copy()
-    free = ~kw["boundary"]
-    X0[free] += rng.normal(size=(free.sum(), 3)) * 0.03
+    free = ~kw["boundary"] & (np.linalg.norm(X0[:, :2], axis=1) < 1.5)  # off the thin boundary layer
+    X0[free] += rng.normal(size=(free.sum(), 3)) * 0.015
     q0 = hex8_scaled_jacobian(X0, sm.cells)
     assert q0.min() > 0
     X, info = optimise(X0, sm.cells, 1, untangle_below=0.0, smooth_below=0.95, **kw)

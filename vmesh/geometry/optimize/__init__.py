@@ -51,6 +51,18 @@ def _boundary_nodes(sub: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+def _first_layer(sub: np.ndarray, wall: np.ndarray) -> np.ndarray:
+    """Nodes off the wall joined to a wall node by an edge of a (sub-)hexahedron."""
+    out = np.zeros(len(wall), bool)
+    for a in (1, 2, 4):
+        for c in range(8):
+            if not c & a:
+                u, w = sub[:, c], sub[:, c ^ a]
+                out[w[wall[u] & ~wall[w]]] = True
+                out[u[wall[w] & ~wall[u]]] = True
+    return out
+
+
 class _Stage:
     """The hexahedra around a set of active nodes, with their targets, incidence and colouring."""
 
@@ -75,32 +87,49 @@ def _delta(qmin: float) -> float:
     return 1e-3 if qmin > 1e-3 else float(np.sqrt(1e-3 * (1e-3 - min(qmin, 0.0)) + 1e-6))
 
 
-def _sweep(X, st, kind, normal, caps, delta, mode, project, wall_normals, stats):
+def _offset(project, trial, height):
+    """Points at ``height`` from the wall, straight above the wall points closest to ``trial``."""
+    foot = np.asarray(project(trial), float)
+    up = trial - foot
+    return foot + up * (height / np.maximum(np.linalg.norm(up, axis=1), 1e-300))[:, None]
+
+
+def _sweep(X, st, kind, normal, caps, delta, mode, goal, project, wall_normals, stats, height, dirty):
     """One Gauss–Seidel sweep over every colour of the stage; returns the number of nodes moved."""
     moved = 0
     if wall_normals is not None:
-        w = st.nodes[kind[st.nodes] == K.WALL]
+        w = st.nodes[(kind[st.nodes] == K.WALL) | (kind[st.nodes] == K.OFFSET)]
         if len(w):
             nrm = np.asarray(wall_normals(X[w]), float)
             normal[w] = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
     for nodes in st.colours:
         trial = np.empty((len(nodes), 3))
         state = np.empty((len(nodes), 4))
-        K.sweep_colour(X, st.hexes, st.scale, st.ptr, st.inc, nodes, kind, normal, caps, delta, mode, trial, state)
-        stats["updates"] += len(nodes)
-        wall_trial = (kind[nodes] == K.WALL) & (state[:, 3] > 0)
+        parallel = len(nodes) >= K.PARALLEL_FROM
+        (K.sweep_colour_parallel if parallel else K.sweep_colour_serial)(X, st.hexes, st.scale, st.ptr, st.inc, nodes, kind, normal, caps, delta, mode, goal, trial, state, dirty)
+        stats["updates"] += int((state[:, 0] != -1.0).sum())
+        kinds = kind[nodes]
+        wall_trial = ((kinds == K.WALL) | (kinds == K.OFFSET)) & (state[:, 3] > 0)
         if wall_trial.any():
             ids = np.flatnonzero(wall_trial)
-            proj = np.ascontiguousarray(project(trial[ids]), dtype=np.float64)
+            proj = np.empty((len(ids), 3))
+            on = kinds[ids] == K.WALL
+            proj[on] = project(trial[ids[on]])
+            if not on.all():
+                off = ids[~on]
+                proj[~on] = _offset(project, trial[off], height[nodes[off]])
             sub_state = np.ascontiguousarray(state[ids])
-            K.accept_trials(X, st.hexes, st.scale, st.ptr, st.inc, nodes[ids], proj, delta, mode, sub_state)
+            (K.accept_trials_parallel if len(ids) >= K.PARALLEL_FROM else K.accept_trials_serial)(X, st.hexes, st.scale, st.ptr, st.inc, nodes[ids], proj, delta, mode, sub_state, dirty)
             state[ids, 3] = sub_state[:, 3]
         moved += int((state[:, 3] > 0).sum())
     return moved
 
 
-def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats, sweeps, goal, moved_mask):
+def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats, sweeps, goal, moved_mask, height, X0, patience=10):
     """Sweeps over a stage until its worst element reaches ``goal`` or stops improving."""
+    todo = st.nodes[np.isnan(height[st.nodes])]
+    if len(todo):
+        height[todo] = np.linalg.norm(X0[todo] - np.asarray(project(X0[todo]), float), axis=1)
     caps = K.step_caps(X, st.hexes, st.ptr, st.inc, st.nodes, len(X), 0.5)
     from ..quality import hex8_scaled_jacobian
 
@@ -109,9 +138,11 @@ def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats
     best = (float(q.min()), float(np.minimum(q - goal, 0.0).sum()))
     stall = 0
     before = X[st.nodes].copy()
+    dirty = np.zeros(len(X), bool)
+    dirty[st.nodes] = True
     for _ in range(sweeps):
         delta = delta_of(float(q.min()))
-        if _sweep(X, st, kind, normal, caps, delta, mode, project, wall_normals, stats) == 0:
+        if _sweep(X, st, kind, normal, caps, delta, mode, goal, project, wall_normals, stats, height, dirty) == 0:
             break
         q = hex8_scaled_jacobian(X, st.hexes)
         if q.min() >= goal:
@@ -121,7 +152,7 @@ def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats
             stall = 0
         else:
             stall += 1
-            if stall >= 3:
+            if stall >= patience:
                 break
         best = (max(best[0], now[0]), max(best[1], now[1]))
     moved_mask[st.nodes[np.any(X[st.nodes] != before, axis=1)]] = True
@@ -142,8 +173,10 @@ def optimise(
     untangle_below: float = 0.2,
     smooth_below: float = 0.5,
     max_fraction: float = 0.01,
-    sweeps: int = 40,
+    sweeps: int = 150,
     smooth_sweeps: int = 8,
+    keep_first_layer: bool = True,
+    untangle_mode: int = K.ESCOBAR,
 ) -> tuple[np.ndarray, dict]:
     """Untangle and smooth the neighbourhood of low-quality hexahedra.
 
@@ -176,6 +209,9 @@ def optimise(
         up to this fraction of the nodes.
     sweeps, smooth_sweeps : int
         Most Gauss–Seidel sweeps per untangling region, and of the smoothing pass.
+    keep_first_layer : bool
+        Interior nodes one edge from the wall slide at their initial distance from it (the
+        first boundary-layer height is kept) instead of moving freely.
 
     Returns
     -------
@@ -213,6 +249,13 @@ def optimise(
         kind[plane] = K.PLANE
         normal[plane] = cap_normals[plane]
     kind[wall & caps] = K.FIXED
+    height = np.zeros(n)
+    if keep_first_layer and project is not None and wall_normals is not None and wall.any():
+        # the first boundary layer keeps its height: interior nodes one edge from the wall
+        # slide at their distance from it
+        top = _first_layer(sub, wall) & (kind == K.FREE)
+        kind[top] = K.OFFSET
+        height[top] = np.nan  # measured on the initial mesh when a stage first reaches them
     fixed = kind == K.FIXED
     X0 = X.copy()
     stats = {"updates": 0}
@@ -228,7 +271,7 @@ def optimise(
         budget = max(int(max_fraction * n), 2 * int((active & ~fixed).sum()))
         for ring in range(64):
             st = _Stage(X0, sub, active, n, fixed)
-            qs = _run_stage(X, st, kind, normal, _delta, K.UNTANGLE, project, wall_normals, stats, sweeps, untangle_below, untangled)
+            qs = _run_stage(X, st, kind, normal, _delta, untangle_mode, project, wall_normals, stats, sweeps, untangle_below, untangled, height, X0)
             info["rings"] = ring
             if qs.min() > 0:
                 break
@@ -244,7 +287,7 @@ def optimise(
         active = np.zeros(n, bool)
         active[sub[low].ravel()] = True
         st = _Stage(X0, sub, active, n, fixed)
-        _run_stage(X, st, kind, normal, lambda qmin: 1e-3 if qmin > 0 else _delta(qmin), K.SMOOTH, project, wall_normals, stats, smooth_sweeps, 1.0, smoothed)
+        _run_stage(X, st, kind, normal, lambda qmin: 1e-3 if qmin > 0 else _delta(qmin), K.SMOOTH, project, wall_normals, stats, smooth_sweeps, 1.0, smoothed, height, X0)
         q = hex8_scaled_jacobian(X, sub)
 
     info["after"] = {"min": float(q.min()), "mean": float(q.mean())}

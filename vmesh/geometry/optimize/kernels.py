@@ -27,11 +27,12 @@ import numba as nb
 import numpy as np
 
 #: node kinds: free in 3-D, sliding on the wall (tangent plane, then projection), sliding in a
-#: cap plane, fixed
-FREE, WALL, PLANE, FIXED = 0, 1, 2, 3
+#: cap plane, fixed, sliding at a fixed distance from the wall (first boundary layer: tangent
+#: plane, then put back at that distance)
+FREE, WALL, PLANE, FIXED, OFFSET = 0, 1, 2, 3, 4
 #: acceptance rules: the functional decreases (untangling); the functional decreases and the
 #: incident elements' minimum and sum of scaled Jacobians do not (smoothing a valid mesh)
-UNTANGLE, SMOOTH = 0, 1
+UNTANGLE, SMOOTH, ESCOBAR = 0, 1, 2
 
 
 @nb.njit(cache=True, inline="always")
@@ -43,12 +44,13 @@ def _pos(X, v, node, x0, x1, x2, d):
 
 
 @nb.njit(cache=True, inline="always")
-def _edge(X, hexes, scale, e, c, a, v, l, x0, x1, x2, cx, cy, cz):
+def _edge(X, hexes, scale, se, e, c, a, v, l, x0, x1, x2, cx, cy, cz):
     """Scaled edge of corner ``c`` of hexahedron ``e`` along axis ``a`` (towards +a) and its
-    coefficient ``k`` in the moving node (local corner ``l``): ``d edge / dx = k I``."""
+    coefficient ``k`` in the moving node (local corner ``l``): ``d edge / dx = k I``; the
+    edge is divided by the target length ``1 / scale[se, a]``."""
     nbr = c ^ (1 << a)
     w = hexes[e, nbr]
-    s = (1.0 if ((c >> a) & 1) == 0 else -1.0) * scale[e, a]
+    s = (1.0 if ((c >> a) & 1) == 0 else -1.0) * scale[se, a]
     ex = s * (_pos(X, v, w, x0, x1, x2, 0) - cx)
     ey = s * (_pos(X, v, w, x0, x1, x2, 1) - cy)
     ez = s * (_pos(X, v, w, x0, x1, x2, 2) - cz)
@@ -76,9 +78,9 @@ def local_functional(X, hexes, scale, ptr, inc, v, x0, x1, x2, delta, hessian):
             cy = _pos(X, v, n0, x0, x1, x2, 1)
             cz = _pos(X, v, n0, x0, x1, x2, 2)
             # the three scaled edges and their coefficients in x (scalars: no allocation)
-            e00, e01, e02, k0 = _edge(X, hexes, scale, e, c, 0, v, l, x0, x1, x2, cx, cy, cz)
-            e10, e11, e12, k1 = _edge(X, hexes, scale, e, c, 1, v, l, x0, x1, x2, cx, cy, cz)
-            e20, e21, e22, k2 = _edge(X, hexes, scale, e, c, 2, v, l, x0, x1, x2, cx, cy, cz)
+            e00, e01, e02, k0 = _edge(X, hexes, scale, e, e, c, 0, v, l, x0, x1, x2, cx, cy, cz)
+            e10, e11, e12, k1 = _edge(X, hexes, scale, e, e, c, 1, v, l, x0, x1, x2, cx, cy, cz)
+            e20, e21, e22, k2 = _edge(X, hexes, scale, e, e, c, 2, v, l, x0, x1, x2, cx, cy, cz)
             # cofactors: grad of det with respect to each edge
             C0x = e11 * e22 - e12 * e21
             C0y = e12 * e20 - e10 * e22
@@ -213,14 +215,59 @@ def _newton_direction(g0, g1, g2, h00, h01, h02, h11, h12, h22, kind, n0, n1, n2
 
 
 @nb.njit(cache=True)
+def _mark(hexes, ptr, inc, v, dirty):
+    """Node ``v`` moved: it and every node sharing a hexahedron with it are worth another try."""
+    for t in range(ptr[v], ptr[v + 1]):
+        e = inc[t] >> 3
+        for c in range(8):
+            dirty[hexes[e, c]] = True
+
+
+@nb.njit(cache=True)
+def _worst_corner_direction(X, hexes, ptr, inc, v, x0, x1, x2):
+    """Gradient, with respect to node ``v``, of the volume of the worst corner around it (the
+    corner of smallest scaled Jacobian that ``v`` belongs to): the max-min ascent direction."""
+    unit = np.ones((1, 3))
+    best = np.inf
+    bx = by = bz = 0.0
+    for t in range(ptr[v], ptr[v + 1]):
+        e = inc[t] >> 3
+        l = inc[t] & 7
+        for q in range(4):
+            c = l if q == 0 else l ^ (1 << (q - 1))
+            n0 = hexes[e, c]
+            cx = _pos(X, v, n0, x0, x1, x2, 0)
+            cy = _pos(X, v, n0, x0, x1, x2, 1)
+            cz = _pos(X, v, n0, x0, x1, x2, 2)
+            e00, e01, e02, k0 = _edge(X, hexes, unit, 0, e, c, 0, v, l, x0, x1, x2, cx, cy, cz)
+            e10, e11, e12, k1 = _edge(X, hexes, unit, 0, e, c, 1, v, l, x0, x1, x2, cx, cy, cz)
+            e20, e21, e22, k2 = _edge(X, hexes, unit, 0, e, c, 2, v, l, x0, x1, x2, cx, cy, cz)
+            C0x, C0y, C0z = e11 * e22 - e12 * e21, e12 * e20 - e10 * e22, e10 * e21 - e11 * e20
+            C1x, C1y, C1z = e21 * e02 - e22 * e01, e22 * e00 - e20 * e02, e20 * e01 - e21 * e00
+            C2x, C2y, C2z = e01 * e12 - e02 * e11, e02 * e10 - e00 * e12, e00 * e11 - e01 * e10
+            D = e00 * C0x + e01 * C0y + e02 * C0z
+            ln = np.sqrt((e00 * e00 + e01 * e01 + e02 * e02) * (e10 * e10 + e11 * e11 + e12 * e12) * (e20 * e20 + e21 * e21 + e22 * e22))
+            sj = D / max(ln, 1e-300)
+            if sj < best:
+                best = sj
+                bx = (k0 * C0x + k1 * C1x + k2 * C2x) / max(ln, 1e-300)
+                by = (k0 * C0y + k1 * C1y + k2 * C2y) / max(ln, 1e-300)
+                bz = (k0 * C0z + k1 * C1z + k2 * C2z) / max(ln, 1e-300)
+    return bx, by, bz
+
+
+@nb.njit(cache=True)
 def _acceptable(mode, f, qmin, qsum, f0, qmin0, qsum0):
+    if f0 == np.inf:  # a max-min trial: the worst element must get better
+        return qmin > qmin0 and (mode == UNTANGLE or qsum >= qsum0)
+    if mode == ESCOBAR:
+        return f < f0
     if mode == UNTANGLE:
         return f < f0 and qmin >= qmin0
     return f < f0 and qmin >= qmin0 and qsum >= qsum0
 
 
-@nb.njit(parallel=True, cache=True)
-def sweep_colour(X, hexes, scale, ptr, inc, nodes, kind, normal, step_cap, delta, mode, trial, state):
+def _sweep_colour(X, hexes, scale, ptr, inc, nodes, kind, normal, step_cap, delta, mode, goal, trial, state, dirty):
     """One Newton step with backtracking for every node of one colour (no two share a hexahedron).
 
     Free and plane nodes are updated in ``X``; wall nodes get their tangential trial
@@ -230,13 +277,18 @@ def sweep_colour(X, hexes, scale, ptr, inc, nodes, kind, normal, step_cap, delta
     """
     for j in nb.prange(len(nodes)):
         v = nodes[j]
+        state[j, 3] = 0.0
+        trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0], X[v, 1], X[v, 2]
+        if not dirty[v]:  # nothing around it moved since it last failed to improve
+            state[j, 0] = -1.0
+            continue
+        dirty[v] = False
         x0, x1, x2 = X[v, 0], X[v, 1], X[v, 2]
         f0, g0, g1, g2, h00, h01, h02, h11, h12, h22 = local_functional(X, hexes, scale, ptr, inc, v, x0, x1, x2, delta, True)
         qmin0, qsum0 = np.inf, 0.0
         if True:
             qmin0, qsum0 = local_quality(X, hexes, ptr, inc, v, x0, x1, x2)
-        state[j, 0], state[j, 1], state[j, 2], state[j, 3] = f0, qmin0, qsum0, 0.0
-        trial[j, 0], trial[j, 1], trial[j, 2] = x0, x1, x2
+        state[j, 0], state[j, 1], state[j, 2] = f0, qmin0, qsum0
         d0, d1, d2 = _newton_direction(g0, g1, g2, h00, h01, h02, h11, h12, h22, kind[v], normal[v, 0], normal[v, 1], normal[v, 2])
         length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         if length == 0.0 or not np.isfinite(length):
@@ -244,11 +296,11 @@ def sweep_colour(X, hexes, scale, ptr, inc, nodes, kind, normal, step_cap, delta
         if length > step_cap[v]:
             d0, d1, d2 = d0 * step_cap[v] / length, d1 * step_cap[v] / length, d2 * step_cap[v] / length
         t = 1.0
-        for _ in range(12):
+        for _ in range(8):
             y0, y1, y2 = x0 + t * d0, x1 + t * d1, x2 + t * d2
             f = local_functional(X, hexes, scale, ptr, inc, v, y0, y1, y2, delta, False)[0]
             if f < f0:
-                if kind[v] == WALL:  # judged again after the projection
+                if kind[v] == WALL or kind[v] == OFFSET:  # judged again after the projection
                     trial[j, 0], trial[j, 1], trial[j, 2] = y0, y1, y2
                     state[j, 3] = 1.0
                     break
@@ -256,12 +308,38 @@ def sweep_colour(X, hexes, scale, ptr, inc, nodes, kind, normal, step_cap, delta
                 if _acceptable(mode, f, qmin, qsum, f0, qmin0, qsum0):
                     X[v, 0], X[v, 1], X[v, 2] = y0, y1, y2
                     state[j, 3] = 1.0
+                    _mark(hexes, ptr, inc, v, dirty)
                     break
             t *= 0.5
+        if state[j, 3] == 0.0 and qmin0 < goal and mode != ESCOBAR:
+            # no Newton step helps: climb the worst corner instead (max-min), judged by the
+            # incident elements' minimum scaled Jacobian alone
+            d0, d1, d2 = _worst_corner_direction(X, hexes, ptr, inc, v, x0, x1, x2)
+            if kind[v] != FREE:
+                dn = d0 * normal[v, 0] + d1 * normal[v, 1] + d2 * normal[v, 2]
+                d0, d1, d2 = d0 - dn * normal[v, 0], d1 - dn * normal[v, 1], d2 - dn * normal[v, 2]
+            length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            if length == 0.0 or not np.isfinite(length):
+                continue
+            d0, d1, d2 = d0 * step_cap[v] / length, d1 * step_cap[v] / length, d2 * step_cap[v] / length
+            t = 0.25
+            for _ in range(6):
+                y0, y1, y2 = x0 + t * d0, x1 + t * d1, x2 + t * d2
+                if kind[v] == WALL or kind[v] == OFFSET:
+                    trial[j, 0], trial[j, 1], trial[j, 2] = y0, y1, y2
+                    state[j, 0] = np.inf  # the functional is not asked for
+                    state[j, 3] = 1.0
+                    break
+                qmin, qsum = local_quality(X, hexes, ptr, inc, v, y0, y1, y2)
+                if _acceptable(mode, np.inf, qmin, qsum, np.inf, qmin0, qsum0):
+                    X[v, 0], X[v, 1], X[v, 2] = y0, y1, y2
+                    state[j, 3] = 1.0
+                    _mark(hexes, ptr, inc, v, dirty)
+                    break
+                t *= 0.5
 
 
-@nb.njit(parallel=True, cache=True)
-def accept_trials(X, hexes, scale, ptr, inc, nodes, projected, delta, mode, state):
+def _accept_trials(X, hexes, scale, ptr, inc, nodes, projected, delta, mode, state, dirty):
     """Move wall nodes to their projected trial positions where that still improves them
     (the functional decreases and, for untangling, no incident element gets worse than
     the worst before; for smoothing, their minimum and sum of scaled Jacobians do not drop)."""
@@ -272,6 +350,7 @@ def accept_trials(X, hexes, scale, ptr, inc, nodes, projected, delta, mode, stat
         qmin, qsum = local_quality(X, hexes, ptr, inc, v, y0, y1, y2)
         if _acceptable(mode, f, qmin, qsum, state[j, 0], state[j, 1], state[j, 2]):
             X[v, 0], X[v, 1], X[v, 2] = y0, y1, y2
+            _mark(hexes, ptr, inc, v, dirty)
         else:
             state[j, 3] = 0.0
 
@@ -368,7 +447,7 @@ def target_scales(X, hexes, floor):
             area = np.sqrt(nx * nx + ny * ny + nz * nz)
             length = np.sqrt(M[a, 0] ** 2 + M[a, 1] ** 2 + M[a, 2] ** 2)
             height = (M[a, 0] * nx + M[a, 1] * ny + M[a, 2] * nz) / max(area, 1e-300)
-            t = height if height > 0.1 * length else length
+            t = height if height > 0.02 * length else length
             out[e, a] = 1.0 / max(t, floor)
     return out
 
@@ -384,3 +463,13 @@ def grow_nodes(hexes, ptr, inc, mask):
                 for c in range(8):
                     out[hexes[e, c]] = True
     return out
+
+
+#: parallel versions for large colours and serial ones for small colours (a parallel launch
+#: costs more than a few hundred node updates, and much more on a loaded machine)
+sweep_colour_parallel = nb.njit(parallel=True, cache=True)(_sweep_colour)
+sweep_colour_serial = nb.njit(cache=True)(_sweep_colour)
+accept_trials_parallel = nb.njit(parallel=True, cache=True)(_accept_trials)
+accept_trials_serial = nb.njit(cache=True)(_accept_trials)
+#: colours with fewer nodes than this run serially
+PARALLEL_FROM = 4096
