@@ -18,11 +18,8 @@ Wall nodes take their Newton step in the tangent plane of the wall, are projecte
 onto it with ``project``, and the projected position is judged again; cap nodes move in
 their cap plane; nodes on a wall/cap rim and other boundary nodes stay fixed.
 
-High-order meshes (order p > 1) are optimised through their lattice of linear
-sub-hexahedra: every node, high-order ones included, is a node of that lattice, so a fold
-of a curved element is a fold of one of its sub-hexahedra and its nodes move like the
-corner nodes (re-interpolating the high-order nodes from the corners would undo the wall
-projection of the high-order wall nodes).
+High-order meshes (order p > 1): the element corners are optimised and the other nodes
+follow (see :func:`optimise`).
 """
 
 from __future__ import annotations
@@ -32,12 +29,6 @@ import time
 import numpy as np
 
 from . import kernels as K
-
-
-def _sub_hexahedra(cells: np.ndarray, order: int) -> np.ndarray:
-    from ..untangle import sub_hexahedra
-
-    return np.ascontiguousarray(sub_hexahedra(cells, order)[0], dtype=np.int64)
 
 
 def _boundary_nodes(sub: np.ndarray, n: int) -> np.ndarray:
@@ -159,10 +150,85 @@ def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats
     return q
 
 
-def optimise(
+def optimise(points: np.ndarray, cells: np.ndarray, order: int = 1, *, ref_nodes: np.ndarray | None = None, **kw) -> tuple[np.ndarray, dict]:
+    """Untangle and smooth the neighbourhood of low-quality hexahedra (see :func:`optimise_linear`
+    for the parameters).
+
+    For order p > 1 only the elements' corner nodes are optimised (as the linear mesh of the
+    element corners) and every other node of an element whose corners moved follows them by
+    the trilinear interpolation of the corners' displacements (``ref_nodes``: the 1-D node
+    positions on [0, 1], Gauss–Lobatto by default); moved wall nodes are projected back
+    onto the wall. The elements keep their curvature, and the interpolation is conforming
+    (a node shared by two elements gets the same displacement from both). Optimising the
+    lattice of sub-hexahedra instead leaves valid sub-hexahedra whose Lagrange element can
+    still be inverted at a node.
+    """
+    p = int(order)
+    cells = np.asarray(cells)
+    if p == 1:
+        return optimise_linear(points, cells, **kw)
+    corners = np.ascontiguousarray(cells[:, corner_index(p)], dtype=np.int64)
+    X, info = optimise_linear(points, corners, **kw)
+    moved = np.any(X != np.asarray(points, float), axis=1)
+    X = follow_corners(points, cells, p, X, ref_nodes)
+    wall, project = kw.get("wall"), kw.get("project")
+    follow = np.any(X != np.asarray(points, float), axis=1) & ~moved
+    if wall is not None and project is not None:
+        w = np.flatnonzero(follow & np.asarray(wall, bool))
+        if len(w):
+            X[w] = project(X[w])
+    info["followed_nodes"] = int(follow.sum())
+    return X, info
+
+
+def corner_index(order: int) -> np.ndarray:
+    """Local indices ``(8,)`` of the corners (tensor corner order) of a tensor-order element of order p."""
+    p, n1 = int(order), int(order) + 1
+    return np.array([(c & 1) * p + n1 * (((c >> 1) & 1) * p + n1 * ((c >> 2) & 1) * p) for c in range(8)])
+
+
+def follow_corners(points: np.ndarray, cells: np.ndarray, order: int, corner_points: np.ndarray, ref_nodes: np.ndarray | None = None) -> np.ndarray:
+    """Move every node of the elements whose corners moved (from ``points`` to
+    ``corner_points``) by the trilinear interpolation of their corners' displacements.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Positions before.
+    cells : (m, (p+1)^3) int, tensor order
+    corner_points : (n, 3) float
+        Positions with the element corners moved (other nodes as in ``points``).
+    ref_nodes : (p+1,) float, optional
+        1-D node positions on [0, 1] (Gauss–Lobatto by default).
+
+    Returns
+    -------
+    (n, 3) float
+        The new positions: corners as in ``corner_points``, the rest following them.
+    """
+    p = int(order)
+    P = np.asarray(points, float)
+    X = np.array(corner_points, float, copy=True)
+    corners = np.asarray(cells)[:, corner_index(p)]
+    U = X - P
+    sel = np.flatnonzero(np.any(U != 0.0, axis=1)[corners].any(axis=1))
+    if not len(sel):
+        return X
+    if ref_nodes is None:
+        from ..transfinite import reference_points
+
+        ref_nodes = reference_points(p)
+    r = np.asarray(ref_nodes, float)
+    k, j, i = np.meshgrid(r, r, r, indexing="ij")  # tensor order: i fastest
+    a, b, c = i.ravel(), j.ravel(), k.ravel()
+    W = np.stack([(a if q & 1 else 1 - a) * (b if q & 2 else 1 - b) * (c if q & 4 else 1 - c) for q in range(8)], axis=1)
+    X[cells[sel]] = P[cells[sel]] + np.einsum("nc,kcd->knd", W, U[corners[sel]])
+    return X
+
+
+def optimise_linear(
     points: np.ndarray,
     cells: np.ndarray,
-    order: int = 1,
     *,
     wall: np.ndarray | None = None,
     wall_normals=None,
@@ -178,14 +244,12 @@ def optimise(
     keep_first_layer: bool = True,
     untangle_mode: int = K.ESCOBAR,
 ) -> tuple[np.ndarray, dict]:
-    """Untangle and smooth the neighbourhood of low-quality hexahedra.
+    """Untangle and smooth the neighbourhood of low-quality linear hexahedra.
 
     Parameters
     ----------
     points : (n, 3) float
-    cells : (m, (p+1)^3) int, tensor order (i fastest)
-    order : int
-        Mesh order p (the lattice of linear sub-hexahedra is optimised).
+    cells : (m, 8) int, tensor corner order (corner i + 2 j + 4 k)
     wall : (n,) bool, optional
         Nodes on the vessel wall: tangential Newton steps, then ``project``. Without
         ``project`` and ``wall_normals`` they stay fixed.
@@ -218,7 +282,7 @@ def optimise(
     points : (n, 3) float
         New node positions (a copy).
     info : dict
-        ``before``/``after`` min and mean scaled Jacobian of the (sub-)hexahedra,
+        ``before``/``after`` min and mean scaled Jacobian of the hexahedra,
         ``untangled_nodes`` and ``smoothed_nodes`` (nodes moved by each pass), ``rings``,
         ``updates`` (node updates) and ``seconds``.
     """
@@ -227,7 +291,7 @@ def optimise(
     t0 = time.perf_counter()
     X = np.array(points, dtype=np.float64, copy=True, order="C")
     n = len(X)
-    sub = _sub_hexahedra(cells, order)
+    sub = np.ascontiguousarray(cells, dtype=np.int64).reshape(-1, 8)
     q = hex8_scaled_jacobian(X, sub)
     info = {"before": {"min": float(q.min()), "mean": float(q.mean())} if len(q) else None, "untangled_nodes": 0, "smoothed_nodes": 0, "moved": 0, "rings": 0, "updates": 0}
     if not len(q) or q.min() >= max(untangle_below, smooth_below):
