@@ -122,9 +122,7 @@ def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats
     if len(todo):
         height[todo] = np.linalg.norm(X0[todo] - np.asarray(project(X0[todo]), float), axis=1)
     caps = K.step_caps(X, st.hexes, st.ptr, st.inc, st.nodes, len(X), 0.5)
-    from ..quality import hex8_scaled_jacobian
-
-    q = hex8_scaled_jacobian(X, st.hexes)
+    q = K.hexes_quality(X, st.hexes)
     # progress: the worst element, or the total shortfall below the goal
     best = (float(q.min()), float(np.minimum(q - goal, 0.0).sum()))
     stall = 0
@@ -135,7 +133,7 @@ def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats
         delta = delta_of(float(q.min()))
         if _sweep(X, st, kind, normal, caps, delta, mode, goal, project, wall_normals, stats, height, dirty) == 0:
             break
-        q = hex8_scaled_jacobian(X, st.hexes)
+        q = K.hexes_quality(X, st.hexes)
         if q.min() >= goal:
             break
         now = (float(q.min()), float(np.minimum(q - goal, 0.0).sum()))

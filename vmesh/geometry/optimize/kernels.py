@@ -95,7 +95,8 @@ def local_functional(X, hexes, scale, ptr, inc, v, x0, x1, x2, delta, hessian):
             F = e00 * e00 + e01 * e01 + e02 * e02 + e10 * e10 + e11 * e11 + e12 * e12 + e20 * e20 + e21 * e21 + e22 * e22
             r = np.sqrt(D * D + d2)
             h = 0.5 * (D + r)
-            hp = max(h, 1e-300) ** (-2.0 / 3.0)
+            hh = max(h, 1e-300)
+            hp = 1.0 / np.cbrt(hh * hh)  # h^(-2/3), cheaper than pow
             phi = hp / 3.0
             f += F * phi
             dDx = k0 * C0x + k1 * C1x + k2 * C2x
@@ -143,6 +144,15 @@ def hex_quality(X, hexes, e, v, x0, x1, x2):
         if val < best:
             best = val
     return best
+
+
+@nb.njit(cache=True)
+def hexes_quality(X, hexes):
+    """Scaled Jacobians of the hexahedra (serial: a stage has a few thousand)."""
+    out = np.empty(hexes.shape[0])
+    for e in range(hexes.shape[0]):
+        out[e] = hex_quality(X, hexes, e, -1, 0.0, 0.0, 0.0)
+    return out
 
 
 @nb.njit(cache=True)
@@ -286,7 +296,7 @@ def _sweep_colour(X, hexes, scale, ptr, inc, nodes, kind, normal, step_cap, delt
         x0, x1, x2 = X[v, 0], X[v, 1], X[v, 2]
         f0, g0, g1, g2, h00, h01, h02, h11, h12, h22 = local_functional(X, hexes, scale, ptr, inc, v, x0, x1, x2, delta, True)
         qmin0, qsum0 = np.inf, 0.0
-        if True:
+        if mode != ESCOBAR or kind[v] == WALL or kind[v] == OFFSET:
             qmin0, qsum0 = local_quality(X, hexes, ptr, inc, v, x0, x1, x2)
         state[j, 0], state[j, 1], state[j, 2] = f0, qmin0, qsum0
         d0, d1, d2 = _newton_direction(g0, g1, g2, h00, h01, h02, h11, h12, h22, kind[v], normal[v, 0], normal[v, 1], normal[v, 2])
@@ -304,7 +314,9 @@ def _sweep_colour(X, hexes, scale, ptr, inc, nodes, kind, normal, step_cap, delt
                     trial[j, 0], trial[j, 1], trial[j, 2] = y0, y1, y2
                     state[j, 3] = 1.0
                     break
-                qmin, qsum = local_quality(X, hexes, ptr, inc, v, y0, y1, y2)
+                qmin, qsum = np.inf, 0.0
+                if mode != ESCOBAR:
+                    qmin, qsum = local_quality(X, hexes, ptr, inc, v, y0, y1, y2)
                 if _acceptable(mode, f, qmin, qsum, f0, qmin0, qsum0):
                     X[v, 0], X[v, 1], X[v, 2] = y0, y1, y2
                     state[j, 3] = 1.0
