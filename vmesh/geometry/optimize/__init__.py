@@ -241,6 +241,8 @@ def optimise_linear(
     smooth_sweeps: int = 8,
     keep_first_layer: bool = True,
     untangle_mode: int = K.ESCOBAR,
+    smooth_rings: int = 0,
+    grow_below_threshold: bool = True,
 ) -> tuple[np.ndarray, dict]:
     """Untangle and smooth the neighbourhood of low-quality linear hexahedra.
 
@@ -274,6 +276,15 @@ def optimise_linear(
     keep_first_layer : bool
         Interior nodes one edge from the wall slide at their initial distance from it (the
         first boundary-layer height is kept) instead of moving freely.
+    untangle_mode : int
+        Acceptance of untangling steps: ``kernels.ESCOBAR`` (the functional decreases; it
+        passes through inverted states, many cheap sweeps) or ``kernels.UNTANGLE`` (also the
+        incident elements' minimum scaled Jacobian does not drop; stalls more often).
+    smooth_rings : int
+        Rings of elements added around the light pass's elements.
+    grow_below_threshold : bool
+        Grow the untangling region also while valid elements below ``untangle_below``
+        remain (not only inverted ones), within ``max_fraction``.
 
     Returns
     -------
@@ -335,7 +346,7 @@ def optimise_linear(
             st = _Stage(X0, sub, active, n, fixed)
             qs = _run_stage(X, st, kind, normal, _delta, untangle_mode, project, wall_normals, stats, sweeps, untangle_below, untangled, height, X0)
             info["rings"] = ring
-            if qs.min() > 0:
+            if qs.min() > 0 and not grow_below_threshold or qs.min() >= untangle_below:
                 break
             grown = K.grow_nodes(st.hexes, st.ptr, st.inc, active)
             if int((grown & ~fixed).sum()) > budget or (grown == active).all():
@@ -348,6 +359,10 @@ def optimise_linear(
     if smooth_below > 0 and low.any():
         active = np.zeros(n, bool)
         active[sub[low].ravel()] = True
+        if smooth_rings:
+            ptr, inc = K.incidence(sub, n)
+            for _ in range(smooth_rings):
+                active = K.grow_nodes(sub, ptr, inc, active)
         st = _Stage(X0, sub, active, n, fixed)
         _run_stage(X, st, kind, normal, lambda qmin: 1e-3 if qmin > 0 else _delta(qmin), K.SMOOTH, project, wall_normals, stats, smooth_sweeps, 1.0, smoothed, height, X0)
         q = hex8_scaled_jacobian(X, sub)
