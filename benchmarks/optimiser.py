@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from vmesh.geometry.optimize import optimise  # noqa: E402
+from vmesh.geometry.optimize import corner_index, optimise  # noqa: E402
 from vmesh.geometry.quality import hex8_scaled_jacobian  # noqa: E402
 
 ICA = {"elements_around": 6, "elements_ring": 4, "elements_layer": 4, "element_length": 0.25}
@@ -124,7 +124,7 @@ def chain_rows(case, ctx, repeat):
 
     m = ctx.mesh
     projector = wall_projector(ctx.surface, ctx.caps)
-    cells = m.corner_cells()
+    cells = m.cells[:, corner_index(m.order)]  # tensor corner order
     out = []
     for name in ("local", "lbfgs"):
         sm = SimpleNamespace(points=m.points.copy(), cells=m.cells, order=m.order, boundary_faces=m.boundary_faces, boundary_ids=m.boundary_ids, on_wall=m.on_wall)
