@@ -116,8 +116,11 @@ def _sweep(X, st, kind, normal, caps, delta, mode, goal, project, wall_normals, 
     return moved
 
 
-def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats, sweeps, goal, moved_mask, height, X0, patience=10):
-    """Sweeps over a stage until its worst element reaches ``goal`` or stops improving."""
+def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats, sweeps, goal, moved_mask, height, X0, patience=10, climb_below=None):
+    """Sweeps over a stage until its worst element reaches ``goal`` or stops improving; nodes
+    whose worst incident element is below ``climb_below`` (default ``goal``) try a max-min
+    step when their Newton step is refused."""
+    climb = goal if climb_below is None else climb_below
     todo = st.nodes[np.isnan(height[st.nodes])]
     if len(todo):
         height[todo] = np.linalg.norm(X0[todo] - np.asarray(project(X0[todo]), float), axis=1)
@@ -131,7 +134,7 @@ def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats
     dirty[st.nodes] = True
     for _ in range(sweeps):
         delta = delta_of(float(q.min()))
-        if _sweep(X, st, kind, normal, caps, delta, mode, goal, project, wall_normals, stats, height, dirty) == 0:
+        if _sweep(X, st, kind, normal, caps, delta, mode, climb, project, wall_normals, stats, height, dirty) == 0:
             break
         q = K.hexes_quality(X, st.hexes)
         if q.min() >= goal:
@@ -364,7 +367,7 @@ def optimise_linear(
             for _ in range(smooth_rings):
                 active = K.grow_nodes(sub, ptr, inc, active)
         st = _Stage(X0, sub, active, n, fixed)
-        _run_stage(X, st, kind, normal, lambda qmin: 1e-3 if qmin > 0 else _delta(qmin), K.SMOOTH, project, wall_normals, stats, smooth_sweeps, 1.0, smoothed, height, X0)
+        _run_stage(X, st, kind, normal, lambda qmin: 1e-3 if qmin > 0 else _delta(qmin), K.SMOOTH, project, wall_normals, stats, smooth_sweeps, 1.0, smoothed, height, X0, climb_below=smooth_below)
         q = hex8_scaled_jacobian(X, sub)
 
     info["after"] = {"min": float(q.min()), "mean": float(q.mean())}
