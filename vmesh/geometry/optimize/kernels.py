@@ -306,7 +306,7 @@ def _sweep_colour(X, hexes, scale, ptr, inc, nodes, kind, normal, step_cap, delt
         if length > step_cap[v]:
             d0, d1, d2 = d0 * step_cap[v] / length, d1 * step_cap[v] / length, d2 * step_cap[v] / length
         t = 1.0
-        for _ in range(5):  # down to 1/16 of the Newton step
+        for _ in range(8):
             y0, y1, y2 = x0 + t * d0, x1 + t * d1, x2 + t * d2
             f = local_functional(X, hexes, scale, ptr, inc, v, y0, y1, y2, delta, False)[0]
             if f < f0:
@@ -335,7 +335,7 @@ def _sweep_colour(X, hexes, scale, ptr, inc, nodes, kind, normal, step_cap, delt
                 continue
             d0, d1, d2 = d0 * step_cap[v] / length, d1 * step_cap[v] / length, d2 * step_cap[v] / length
             t = 0.25
-            for _ in range(4):
+            for _ in range(6):
                 y0, y1, y2 = x0 + t * d0, x1 + t * d1, x2 + t * d2
                 if kind[v] == WALL or kind[v] == OFFSET:
                     trial[j, 0], trial[j, 1], trial[j, 2] = y0, y1, y2
