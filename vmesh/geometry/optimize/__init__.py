@@ -86,7 +86,9 @@ def _offset(project, trial, height):
 
 
 def _sweep(X, st, kind, normal, caps, delta, mode, goal, project, wall_normals, stats, height, dirty):
-    """One Gauss–Seidel sweep over every colour of the stage; returns the number of nodes moved."""
+    """One Gauss–Seidel sweep over every colour of the stage; returns the number of nodes moved.
+    ``wall_normals`` (None: keep the current ones) gives the tangent planes of the wall and
+    first-layer nodes."""
     moved = 0
     if wall_normals is not None:
         w = st.nodes[(kind[st.nodes] == K.WALL) | (kind[st.nodes] == K.OFFSET)]
@@ -132,9 +134,12 @@ def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats
     before = X[st.nodes].copy()
     dirty = np.zeros(len(X), bool)
     dirty[st.nodes] = True
-    for _ in range(sweeps):
+    for sweep in range(sweeps):
         delta = delta_of(float(q.min()))
-        if _sweep(X, st, kind, normal, caps, delta, mode, climb, project, wall_normals, stats, height, dirty) == 0:
+        # the tangent planes only steer the steps (the projection puts nodes back on the
+        # wall): refreshed every few sweeps, the signed-distance queries cost more than a sweep
+        normals = wall_normals if sweep % 8 == 0 else None
+        if _sweep(X, st, kind, normal, caps, delta, mode, climb, project, normals, stats, height, dirty) == 0:
             break
         q = K.hexes_quality(X, st.hexes)
         if q.min() >= goal:
