@@ -30,8 +30,10 @@ from ..registry import Parameter, register_filter
         Parameter("node_distribution", "str", "gauss_lobatto", "High-order node positions inside each element.", choices=("gauss_lobatto", "equispaced")),
         Parameter("project_to", "str", "fine", "Surface the wall nodes are projected onto: the fine (input) or the coarse surface.", choices=("fine", "coarse")),
         Parameter("untangle", "bool", True, "Move the nodes around elements of low scaled Jacobian (folds at junction crotches) to make them valid: wall nodes slide on the wall, cap nodes in the cap plane."),
-        Parameter("untangle_below", "float", 0.3, "Elements whose scaled Jacobian (of their sub-hexahedra for p > 1) is below this are optimised, with two rings of neighbours.", min=0.0, max=0.9),
-        Parameter("untangle_restart_below", "float", 0.2, "When untangling leaves an element below this, untangle once more from its result (fresh targets) and keep the better; 0 = never.", min=0.0, max=0.9),
+        Parameter("untangle_below", "float", 0.3, "Elements whose scaled Jacobian is below this are optimised with their neighbourhood (p > 1: of the element corners with optimiser = local, of the sub-hexahedra with lbfgs).", min=0.0, max=0.9),
+        Parameter("untangle_restart_below", "float", 0.2, "When untangling leaves an element below this, untangle once more from its result (fresh targets) and keep the better; 0 = never (optimiser = lbfgs only).", min=0.0, max=0.9),
+        Parameter("optimiser", "str", "local", "local: compiled per-node Newton steps around bad elements, Gauss-Seidel over a node colouring (vmesh.geometry.optimize); lbfgs: the former global L-BFGS untangler.", choices=("local", "lbfgs")),
+        Parameter("smooth_below", "float", 0.5, "Light pass after untangling (optimiser = local): nodes of elements below this move only where their elements' minimum and mean scaled Jacobian do not drop; 0 = off.", min=0.0, max=0.95),
     ],
     reads=("blocks", "surface"),
     optional_reads=("coarse_surface", "caps", "skeleton", "sdf"),
@@ -40,7 +42,8 @@ from ..registry import Parameter, register_filter
 )
 def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_layer, element_length, grading, first_layer, growth,
                      first_layer_height, boundary_layer_thickness, y_plus, flow_velocity, flow_density, flow_viscosity, reference_length,
-                     order, node_distribution, project_to, untangle, untangle_below, untangle_restart_below):
+                     order, node_distribution, project_to, untangle, untangle_below, untangle_restart_below,
+                     optimiser="local", smooth_below=0.5):
     """Edge nodes are projected onto the wall and re-spaced by arc length; Coons patches fill
     block faces (wall faces projected again) and transfinite interpolation fills the blocks.
     The boundary layer is resolved by grading, never by extra element layers: the element
@@ -75,7 +78,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
     exact = getattr(sdf, "fine", sdf)
     sm = mesh_blocks(blocks, projector, ref, progress=ctx.tick, signed_distance=exact.distance, intersect_lines=getattr(exact, "intersect_lines", None))
     if untangle:
-        _untangle(ctx, sm, projector, sdf, untangle_below, untangle_restart_below)
+        _untangle(ctx, sm, projector, sdf, untangle_below, untangle_restart_below, optimiser, smooth_below, node_distribution)
     b = sm.cell_block
     mesh = HexMesh(
         points=sm.points,
@@ -102,9 +105,9 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
     ctx.report.sections["order"] = order
 
 
-def _untangle(ctx, sm, projector, sdf, below, restart_below):
-    """Optimise the nodes around low-quality elements in place (see :mod:`vmesh.geometry.untangle`)."""
-    from ..geometry.untangle import untangle
+def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", smooth_below=0.5, node_distribution="gauss_lobatto"):
+    """Optimise the nodes around low-quality elements in place (see :mod:`vmesh.geometry.optimize`
+    and, for ``optimiser = lbfgs``, :mod:`vmesh.geometry.untangle`)."""
 
     n = len(sm.points)
     cap_nodes = np.zeros(n, bool)
@@ -122,6 +125,21 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below):
     boundary = np.zeros(n, bool)
     boundary[sm.boundary_faces.ravel()] = True
     ctx.tick(0.95, "untangling")
+    if optimiser == "local":
+        from ..geometry.optimize import optimise
+        from ..geometry.transfinite import reference_points
+
+        X, info = optimise(
+            sm.points, sm.cells, p, ref_nodes=reference_points(p, node_distribution), wall=wall, wall_normals=sdf.gradient, project=projector, cap_nodes=cap_nodes, cap_normals=cap_normals,
+            boundary=boundary, untangle_below=below, smooth_below=smooth_below,
+        )
+        sm.points[:] = X
+        if info["moved"]:
+            ctx.count(untangled_nodes=info["untangled_nodes"], smoothed_nodes=info["smoothed_nodes"])
+            ctx.report.sections["untangle"] = info
+        return
+    from ..geometry.untangle import untangle
+
     X, info = untangle(
         sm.points, sm.cells, p, wall=wall, wall_normals=sdf.gradient, project=projector, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=below,
         boundary=boundary, restart_below=restart_below or None,

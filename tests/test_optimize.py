@@ -1,0 +1,141 @@
+"""The local mesh optimiser (vmesh.geometry.optimize) on deliberately folded O-grid cylinders."""
+
+import numpy as np
+import pytest
+
+from cylinder_blocks import cylinder_blocks, project_cylinder
+from vmesh.geometry.optimize import corner_index, follow_corners, optimise
+from vmesh.geometry.quality import hex8_scaled_jacobian, scaled_jacobian
+from vmesh.geometry.transfinite import Refinement, mesh_blocks, reference_points
+from vmesh.geometry.untangle import sub_hexahedra
+
+R = 2.0
+FIRST = 0.02  # first boundary-layer element thickness relative to the radius
+
+
+def wall_normals(p):
+    """Inward normals of the cylinder wall."""
+    n = -np.c_[p[:, :2], np.zeros(len(p))]
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def cylinder(order=1):
+    blocks = cylinder_blocks(radius=R)
+    sm = mesh_blocks(blocks, project_cylinder(R), Refinement(around=4, core=4, ring=3, layer=4, element_length=0.5, first_layer=FIRST, order=order))
+    n = len(sm.points)
+    boundary = np.zeros(n, bool)
+    boundary[sm.boundary_faces.ravel()] = True
+    caps = np.zeros(n, bool)
+    cap_normals = np.zeros((n, 3))
+    for bid in (1, 2):
+        ids = np.unique(sm.boundary_faces[sm.boundary_ids == bid])
+        caps[ids] = True
+        cap_normals[ids] = [0.0, 0.0, 1.0]
+    kw = dict(wall=sm.on_wall, wall_normals=wall_normals, project=project_cylinder(R), cap_nodes=caps, cap_normals=cap_normals, boundary=boundary)
+    return sm, kw
+
+
+def first_layer_nodes(sm):
+    """Interior nodes one edge away from a wall node (the top of the first boundary layer)."""
+    sub, _ = sub_hexahedra(sm.cells, sm.order)
+    wall = sm.on_wall
+    out = np.zeros(len(sm.points), bool)
+    for c in range(8):
+        for a in range(3):
+            u, w = sub[:, c], sub[:, c ^ (1 << a)]
+            out[w[wall[u] & ~wall[w]]] = True
+    return out
+
+
+def corner_nodes(sm):
+    return sm.cells[:, corner_index(sm.order)]
+
+
+def fold_interior(sm, count=6, seed=1):
+    """Push ``count`` interior element corners through their neighbours (by about one element)."""
+    rng = np.random.default_rng(seed)
+    X = sm.points.copy()
+    corner = np.zeros(len(X), bool)
+    corner[corner_nodes(sm).ravel()] = True
+    inner = np.flatnonzero(corner & (np.abs(X[:, 2] - 5) < 3) & (np.linalg.norm(X[:, :2], axis=1) < 1.5))
+    pick = rng.choice(inner, count, replace=False)
+    X[pick] += rng.normal(size=(count, 3)) * 0.6
+    if sm.order > 1:  # the high-order nodes follow the folded corners
+        X = follow_corners(sm.points, sm.cells, sm.order, X, reference_points(sm.order))
+    return X
+
+
+def check_boundary(sm, kw, X0, X):
+    wall, caps = kw["wall"], kw["cap_nodes"]
+    assert np.abs(np.linalg.norm(X[wall, :2], axis=1) - R).max() < 1e-9  # wall nodes on the wall
+    assert np.abs(X[caps, 2] - X0[caps, 2]).max() < 1e-12  # cap nodes in their plane
+    rim = kw["boundary"] & ~wall & ~caps | (wall & caps)
+    assert np.array_equal(X[rim], X0[rim])
+
+
+def test_folded_interior_is_untangled_locally():
+    sm, kw = cylinder()
+    X0 = fold_interior(sm)
+    assert (hex8_scaled_jacobian(X0, sm.cells) <= 0).sum() > 10
+    X, info = optimise(X0, sm.cells, 1, **kw)
+    q = hex8_scaled_jacobian(X, sm.cells)
+    assert q.min() > 0.3
+    check_boundary(sm, kw, X0, X)
+    moved = np.any(X != X0, axis=1)
+    assert moved.sum() == info["moved"] and moved.mean() < 0.06
+    X2, _ = optimise(X0, sm.cells, 1, **kw)
+    assert np.array_equal(X, X2)  # deterministic (parallel over each colour only)
+
+
+def test_sheared_boundary_layer_keeps_its_first_height():
+    """Wall nodes twisted along the wall fold the boundary layer; untangling slides them
+    back on the wall and the first-layer height stays within a few per cent."""
+    sm, kw = cylinder()
+    X0 = sm.points.copy()
+    top = first_layer_nodes(sm)
+    height0 = R - np.linalg.norm(X0[top, :2], axis=1)
+    wall = kw["wall"] & ~kw["cap_nodes"]
+    z = X0[:, 2]
+    twist = np.where(wall & (np.abs(z - 5) < 1.3), 0.25, 0.0)  # radians, a band of the wall
+    c, s = np.cos(twist), np.sin(twist)
+    Xt = X0.copy()
+    Xt[:, 0], Xt[:, 1] = c * X0[:, 0] - s * X0[:, 1], s * X0[:, 0] + c * X0[:, 1]
+    assert (hex8_scaled_jacobian(Xt, sm.cells) <= 0.1).any()
+    X, info = optimise(Xt, sm.cells, 1, **kw)
+    q = hex8_scaled_jacobian(X, sm.cells)
+    assert q.min() > 0.2 and info["after"]["min"] == pytest.approx(q.min())
+    check_boundary(sm, kw, Xt, X)
+    height = R - np.linalg.norm(X[top, :2], axis=1)
+    assert np.abs(height / height0 - 1).max() < 0.05
+
+
+def test_valid_mesh_never_gets_worse():
+    sm, kw = cylinder()
+    rng = np.random.default_rng(3)
+    X0 = sm.points.copy()
+    free = ~kw["boundary"] & (np.linalg.norm(X0[:, :2], axis=1) < 1.5)  # off the thin boundary layer
+    X0[free] += rng.normal(size=(free.sum(), 3)) * 0.015
+    q0 = hex8_scaled_jacobian(X0, sm.cells)
+    assert q0.min() > 0
+    X, info = optimise(X0, sm.cells, 1, untangle_below=0.0, smooth_below=0.95, **kw)
+    q = hex8_scaled_jacobian(X, sm.cells)
+    assert info["moved"] > 0
+    assert q.min() >= q0.min() and q.mean() >= q0.mean()
+    check_boundary(sm, kw, X0, X)
+
+
+def test_nothing_moves_on_a_good_mesh():
+    sm, kw = cylinder()
+    X, info = optimise(sm.points, sm.cells, 1, untangle_below=0.3, smooth_below=0.5, **kw)
+    assert info["moved"] == 0 and np.array_equal(X, sm.points)
+
+
+def test_order_2_mesh_is_untangled_and_its_high_order_nodes_follow():
+    sm, kw = cylinder(order=2)
+    X0 = fold_interior(sm, count=4, seed=5)
+    ref = reference_points(2)
+    assert scaled_jacobian(X0, sm.cells, 2, ref).min() <= 0
+    X, info = optimise(X0, sm.cells, 2, **kw)
+    assert scaled_jacobian(X, sm.cells, 2, ref).min() > 0
+    assert info["followed_nodes"] > 0
+    check_boundary(sm, kw, X0, X)

@@ -1,0 +1,384 @@
+"""Fast local optimisation of hexahedral meshes: untangling folds and a light smoothing pass.
+
+Nodes are moved one at a time by a Newton step on a regularised shape functional of their
+incident hexahedra (:mod:`.kernels`: Escobar's untangling-and-smoothing measure per corner,
+with the corner's *initial* edge lengths as targets so graded boundary layers keep their
+thickness), Gauss–Seidel over a greedy colouring of the nodes so that every node of one
+colour is updated in parallel (no two share a hexahedron). Only the neighbourhood of bad
+elements is touched:
+
+* **untangling** (elements whose scaled Jacobian is below ``untangle_below``): the nodes of
+  those elements move while the functional decreases; when inverted elements remain, the
+  region grows by one ring of elements at a time, up to ``max_fraction`` of the nodes;
+* **smoothing** (elements below ``smooth_below``): the nodes of those elements move only
+  when the minimum *and* the sum of the scaled Jacobians of their incident elements do
+  not decrease, so the mesh's minimum and mean never decrease.
+
+Wall nodes take their Newton step in the tangent plane of the wall, are projected back
+onto it with ``project``, and the projected position is judged again; cap nodes move in
+their cap plane; nodes on a wall/cap rim and other boundary nodes stay fixed.
+
+High-order meshes (order p > 1): the element corners are optimised and the other nodes
+follow (see :func:`optimise`).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from . import kernels as K
+
+
+def _boundary_nodes(sub: np.ndarray, n: int) -> np.ndarray:
+    """Nodes on faces used by only one (sub-)hexahedron."""
+    from ..untangle import _HEX_FACES
+
+    faces = np.sort(sub[:, _HEX_FACES].reshape(-1, 4), axis=1)
+    uniq, counts = np.unique(faces, axis=0, return_counts=True)
+    out = np.zeros(n, bool)
+    out[uniq[counts == 1].ravel()] = True
+    return out
+
+
+def _first_layer(sub: np.ndarray, wall: np.ndarray) -> np.ndarray:
+    """Nodes off the wall joined to a wall node by an edge of a (sub-)hexahedron."""
+    out = np.zeros(len(wall), bool)
+    for a in (1, 2, 4):
+        for c in range(8):
+            if not c & a:
+                u, w = sub[:, c], sub[:, c ^ a]
+                out[w[wall[u] & ~wall[w]]] = True
+                out[u[wall[w] & ~wall[u]]] = True
+    return out
+
+
+class _Stage:
+    """The hexahedra around a set of active nodes, with their targets, incidence and colouring."""
+
+    def __init__(self, X0, sub, active_mask, n, fixed):
+        touching = active_mask[sub].any(axis=1)
+        self.elements = np.flatnonzero(touching)
+        self.hexes = np.ascontiguousarray(sub[self.elements])
+        floor = 1e-9 * max(float(np.ptp(X0[self.hexes.ravel()], axis=0).max()), 1e-300) if len(self.hexes) else 1.0
+        self.scale = K.target_scales(X0, self.hexes, floor)
+        self.ptr, self.inc = K.incidence(self.hexes, n)
+        nodes = np.flatnonzero(active_mask & ~fixed)
+        colour = K.colour_nodes(self.hexes, self.ptr, self.inc, nodes, n)
+        order = np.argsort(colour, kind="stable")
+        bounds = np.searchsorted(colour[order], np.arange(colour.max() + 2)) if len(nodes) else np.zeros(1, np.int64)
+        self.colours = [nodes[order[bounds[c] : bounds[c + 1]]] for c in range(len(bounds) - 1)]
+        self.nodes = nodes
+
+
+def _delta(qmin: float) -> float:
+    """Regularisation of the functional: small for valid meshes, larger the worse the worst
+    inverted corner (Escobar et al. 2003)."""
+    return 1e-3 if qmin > 1e-3 else float(np.sqrt(1e-3 * (1e-3 - min(qmin, 0.0)) + 1e-6))
+
+
+def _offset(project, trial, height):
+    """Points at ``height`` from the wall, straight above the wall points closest to ``trial``."""
+    foot = np.asarray(project(trial), float)
+    up = trial - foot
+    return foot + up * (height / np.maximum(np.linalg.norm(up, axis=1), 1e-300))[:, None]
+
+
+def _sweep(X, st, kind, normal, caps, delta, mode, goal, project, wall_normals, stats, height, dirty):
+    """One Gauss–Seidel sweep over every colour of the stage; returns the number of nodes moved.
+    ``wall_normals`` (None: keep the current ones) gives the tangent planes of the wall and
+    first-layer nodes."""
+    moved = 0
+    if wall_normals is not None:
+        w = st.nodes[(kind[st.nodes] == K.WALL) | (kind[st.nodes] == K.OFFSET)]
+        if len(w):
+            nrm = np.asarray(wall_normals(X[w]), float)
+            normal[w] = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+    for nodes in st.colours:
+        trial = np.empty((len(nodes), 3))
+        state = np.empty((len(nodes), 4))
+        parallel = len(nodes) >= K.PARALLEL_FROM
+        (K.sweep_colour_parallel if parallel else K.sweep_colour_serial)(X, st.hexes, st.scale, st.ptr, st.inc, nodes, kind, normal, caps, delta, mode, goal, trial, state, dirty)
+        stats["updates"] += int((state[:, 0] != -1.0).sum())
+        kinds = kind[nodes]
+        wall_trial = ((kinds == K.WALL) | (kinds == K.OFFSET)) & (state[:, 3] > 0)
+        if wall_trial.any():
+            ids = np.flatnonzero(wall_trial)
+            proj = np.empty((len(ids), 3))
+            on = kinds[ids] == K.WALL
+            proj[on] = project(trial[ids[on]])
+            if not on.all():
+                off = ids[~on]
+                proj[~on] = _offset(project, trial[off], height[nodes[off]])
+            sub_state = np.ascontiguousarray(state[ids])
+            (K.accept_trials_parallel if len(ids) >= K.PARALLEL_FROM else K.accept_trials_serial)(X, st.hexes, st.scale, st.ptr, st.inc, nodes[ids], proj, delta, mode, sub_state, dirty)
+            state[ids, 3] = sub_state[:, 3]
+        moved += int((state[:, 3] > 0).sum())
+    return moved
+
+
+def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats, sweeps, goal, moved_mask, height, X0, patience=10, climb_below=None):
+    """Sweeps over a stage until its worst element reaches ``goal`` or stops improving; nodes
+    whose worst incident element is below ``climb_below`` (default ``goal``) try a max-min
+    step when their Newton step is refused."""
+    climb = goal if climb_below is None else climb_below
+    todo = st.nodes[np.isnan(height[st.nodes])]
+    if len(todo):
+        height[todo] = np.linalg.norm(X0[todo] - np.asarray(project(X0[todo]), float), axis=1)
+    caps = K.step_caps(X, st.hexes, st.ptr, st.inc, st.nodes, len(X), 0.5)
+    q = K.hexes_quality(X, st.hexes)
+    # progress: the worst element, or the total shortfall below the goal
+    best = (float(q.min()), float(np.minimum(q - goal, 0.0).sum()))
+    stall = 0
+    before = X[st.nodes].copy()
+    dirty = np.zeros(len(X), bool)
+    dirty[st.nodes] = True
+    for sweep in range(sweeps):
+        delta = delta_of(float(q.min()))
+        # the tangent planes only steer the steps (the projection puts nodes back on the
+        # wall): refreshed every few sweeps, the signed-distance queries cost more than a sweep
+        normals = wall_normals if sweep % 8 == 0 else None
+        if _sweep(X, st, kind, normal, caps, delta, mode, climb, project, normals, stats, height, dirty) == 0:
+            break
+        q = K.hexes_quality(X, st.hexes)
+        if q.min() >= goal:
+            break
+        now = (float(q.min()), float(np.minimum(q - goal, 0.0).sum()))
+        if now[0] > best[0] + 1e-3 or now[1] > best[1] + 1e-3 * max(abs(best[1]), 1e-3):
+            stall = 0
+        else:
+            stall += 1
+            if stall >= patience:
+                break
+        best = (max(best[0], now[0]), max(best[1], now[1]))
+    moved_mask[st.nodes[np.any(X[st.nodes] != before, axis=1)]] = True
+    return q
+
+
+def optimise(points: np.ndarray, cells: np.ndarray, order: int = 1, *, ref_nodes: np.ndarray | None = None, **kw) -> tuple[np.ndarray, dict]:
+    """Untangle and smooth the neighbourhood of low-quality hexahedra (see :func:`optimise_linear`
+    for the parameters).
+
+    For order p > 1 only the elements' corner nodes are optimised (as the linear mesh of the
+    element corners) and every other node of an element whose corners moved follows them by
+    the trilinear interpolation of the corners' displacements (``ref_nodes``: the 1-D node
+    positions on [0, 1], Gauss–Lobatto by default); moved wall nodes are projected back
+    onto the wall. The elements keep their curvature, and the interpolation is conforming
+    (a node shared by two elements gets the same displacement from both). Optimising the
+    lattice of sub-hexahedra instead leaves valid sub-hexahedra whose Lagrange element can
+    still be inverted at a node.
+    """
+    p = int(order)
+    cells = np.asarray(cells)
+    if p == 1:
+        return optimise_linear(points, cells, **kw)
+    corners = np.ascontiguousarray(cells[:, corner_index(p)], dtype=np.int64)
+    X, info = optimise_linear(points, corners, **kw)
+    moved = np.any(X != np.asarray(points, float), axis=1)
+    X = follow_corners(points, cells, p, X, ref_nodes)
+    wall, project = kw.get("wall"), kw.get("project")
+    follow = np.any(X != np.asarray(points, float), axis=1) & ~moved
+    if wall is not None and project is not None:
+        w = np.flatnonzero(follow & np.asarray(wall, bool))
+        if len(w):
+            X[w] = project(X[w])
+    info["followed_nodes"] = int(follow.sum())
+    return X, info
+
+
+def corner_index(order: int) -> np.ndarray:
+    """Local indices ``(8,)`` of the corners (tensor corner order) of a tensor-order element of order p."""
+    p, n1 = int(order), int(order) + 1
+    return np.array([(c & 1) * p + n1 * (((c >> 1) & 1) * p + n1 * ((c >> 2) & 1) * p) for c in range(8)])
+
+
+def follow_corners(points: np.ndarray, cells: np.ndarray, order: int, corner_points: np.ndarray, ref_nodes: np.ndarray | None = None) -> np.ndarray:
+    """Move every node of the elements whose corners moved (from ``points`` to
+    ``corner_points``) by the trilinear interpolation of their corners' displacements.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Positions before.
+    cells : (m, (p+1)^3) int, tensor order
+    corner_points : (n, 3) float
+        Positions with the element corners moved (other nodes as in ``points``).
+    ref_nodes : (p+1,) float, optional
+        1-D node positions on [0, 1] (Gauss–Lobatto by default).
+
+    Returns
+    -------
+    (n, 3) float
+        The new positions: corners as in ``corner_points``, the rest following them.
+    """
+    p = int(order)
+    P = np.asarray(points, float)
+    X = np.array(corner_points, float, copy=True)
+    corners = np.asarray(cells)[:, corner_index(p)]
+    U = X - P
+    sel = np.flatnonzero(np.any(U != 0.0, axis=1)[corners].any(axis=1))
+    if not len(sel):
+        return X
+    if ref_nodes is None:
+        from ..transfinite import reference_points
+
+        ref_nodes = reference_points(p)
+    r = np.asarray(ref_nodes, float)
+    k, j, i = np.meshgrid(r, r, r, indexing="ij")  # tensor order: i fastest
+    a, b, c = i.ravel(), j.ravel(), k.ravel()
+    W = np.stack([(a if q & 1 else 1 - a) * (b if q & 2 else 1 - b) * (c if q & 4 else 1 - c) for q in range(8)], axis=1)
+    X[cells[sel]] = P[cells[sel]] + np.einsum("nc,kcd->knd", W, U[corners[sel]])
+    return X
+
+
+def optimise_linear(
+    points: np.ndarray,
+    cells: np.ndarray,
+    *,
+    wall: np.ndarray | None = None,
+    wall_normals=None,
+    project=None,
+    cap_nodes: np.ndarray | None = None,
+    cap_normals: np.ndarray | None = None,
+    boundary: np.ndarray | None = None,
+    untangle_below: float = 0.2,
+    smooth_below: float = 0.5,
+    max_fraction: float = 0.01,
+    sweeps: int = 150,
+    smooth_sweeps: int = 8,
+    keep_first_layer: bool = True,
+    untangle_mode: int = K.ESCOBAR,
+    smooth_rings: int = 0,
+    grow_below_threshold: bool = True,
+) -> tuple[np.ndarray, dict]:
+    """Untangle and smooth the neighbourhood of low-quality linear hexahedra.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    cells : (m, 8) int, tensor corner order (corner i + 2 j + 4 k)
+    wall : (n,) bool, optional
+        Nodes on the vessel wall: tangential Newton steps, then ``project``. Without
+        ``project`` and ``wall_normals`` they stay fixed.
+    wall_normals : callable, optional
+        ``wall_normals(points) -> (k, 3)`` wall normals (e.g. the signed distance's gradient).
+    project : callable, optional
+        ``project(points) -> (k, 3)`` closest wall points.
+    cap_nodes : (n,) bool, optional
+        Nodes on flat caps: they move in the plane of normal ``cap_normals``.
+    cap_normals : (n, 3) float, optional
+    boundary : (n,) bool, optional
+        Nodes on the mesh boundary (found from the cells when not given); those neither on
+        the wall nor on a cap, and those on both (rims), stay fixed.
+    untangle_below : float
+        Elements (sub-hexahedra) with a scaled Jacobian below this are untangled.
+    smooth_below : float
+        Then elements below this are smoothed (min and sum of scaled Jacobians monotone);
+        0 disables the light pass.
+    max_fraction : float
+        The untangling region grows (one ring at a time, while inverted elements remain)
+        up to this fraction of the nodes.
+    sweeps, smooth_sweeps : int
+        Most Gauss–Seidel sweeps per untangling region, and of the smoothing pass.
+    keep_first_layer : bool
+        Interior nodes one edge from the wall slide at their initial distance from it (the
+        first boundary-layer height is kept) instead of moving freely.
+    untangle_mode : int
+        Acceptance of untangling steps: ``kernels.ESCOBAR`` (the functional decreases; it
+        passes through inverted states, many cheap sweeps) or ``kernels.UNTANGLE`` (also the
+        incident elements' minimum scaled Jacobian does not drop; stalls more often).
+    smooth_rings : int
+        Rings of elements added around the light pass's elements.
+    grow_below_threshold : bool
+        Grow the untangling region also while valid elements below ``untangle_below``
+        remain (not only inverted ones), within ``max_fraction``.
+
+    Returns
+    -------
+    points : (n, 3) float
+        New node positions (a copy).
+    info : dict
+        ``before``/``after`` min and mean scaled Jacobian of the hexahedra,
+        ``untangled_nodes`` and ``smoothed_nodes`` (nodes moved by each pass), ``rings``,
+        ``updates`` (node updates) and ``seconds``.
+    """
+    from ..quality import hex8_scaled_jacobian
+
+    t0 = time.perf_counter()
+    X = np.array(points, dtype=np.float64, copy=True, order="C")
+    n = len(X)
+    sub = np.ascontiguousarray(cells, dtype=np.int64).reshape(-1, 8)
+    q = hex8_scaled_jacobian(X, sub)
+    info = {"before": {"min": float(q.min()), "mean": float(q.mean())} if len(q) else None, "untangled_nodes": 0, "smoothed_nodes": 0, "moved": 0, "rings": 0, "updates": 0}
+    if not len(q) or q.min() >= max(untangle_below, smooth_below):
+        info.update(after=info["before"], seconds=time.perf_counter() - t0)
+        return X, info
+    wall = np.zeros(n, bool) if wall is None else np.asarray(wall, bool)
+    caps = np.zeros(n, bool) if cap_nodes is None else np.asarray(cap_nodes, bool)
+    if boundary is None:
+        boundary = _boundary_nodes(sub, n)
+    kind = np.full(n, K.FREE, np.int64)
+    kind[np.asarray(boundary, bool)] = K.FIXED
+    normal = np.zeros((n, 3))
+    if project is not None and wall_normals is not None:
+        kind[wall] = K.WALL
+    else:
+        kind[wall] = K.FIXED
+    plane = caps & ~wall
+    if cap_normals is not None:
+        kind[plane] = K.PLANE
+        normal[plane] = cap_normals[plane]
+    kind[wall & caps] = K.FIXED
+    height = np.zeros(n)
+    if keep_first_layer and project is not None and wall_normals is not None and wall.any():
+        # the first boundary layer keeps its height: interior nodes one edge from the wall
+        # slide at their distance from it
+        top = _first_layer(sub, wall) & (kind == K.FREE)
+        kind[top] = K.OFFSET
+        height[top] = np.nan  # measured on the initial mesh when a stage first reaches them
+    fixed = kind == K.FIXED
+    X0 = X.copy()
+    stats = {"updates": 0}
+    untangled = np.zeros(n, bool)
+    smoothed = np.zeros(n, bool)
+
+    # untangling: the nodes of bad elements, growing by one ring while inverted elements remain
+    bad = q < untangle_below
+    if bad.any():
+        active = np.zeros(n, bool)
+        active[sub[bad].ravel()] = True
+        # small meshes: at least twice the first region (1 % of a few thousand nodes is less than one fold's neighbourhood)
+        budget = max(int(max_fraction * n), 2 * int((active & ~fixed).sum()))
+        for ring in range(64):
+            st = _Stage(X0, sub, active, n, fixed)
+            qs = _run_stage(X, st, kind, normal, _delta, untangle_mode, project, wall_normals, stats, sweeps, untangle_below, untangled, height, X0)
+            info["rings"] = ring
+            if qs.min() > 0 and not grow_below_threshold or qs.min() >= untangle_below:
+                break
+            grown = K.grow_nodes(st.hexes, st.ptr, st.inc, active)
+            if int((grown & ~fixed).sum()) > budget or (grown == active).all():
+                break
+            active = grown
+        q = hex8_scaled_jacobian(X, sub)
+
+    # light smoothing: the nodes of the elements still below smooth_below
+    low = q < smooth_below
+    if smooth_below > 0 and low.any():
+        active = np.zeros(n, bool)
+        active[sub[low].ravel()] = True
+        if smooth_rings:
+            ptr, inc = K.incidence(sub, n)
+            for _ in range(smooth_rings):
+                active = K.grow_nodes(sub, ptr, inc, active)
+        st = _Stage(X0, sub, active, n, fixed)
+        _run_stage(X, st, kind, normal, lambda qmin: 1e-3 if qmin > 0 else _delta(qmin), K.SMOOTH, project, wall_normals, stats, smooth_sweeps, 1.0, smoothed, height, X0, climb_below=smooth_below)
+        q = hex8_scaled_jacobian(X, sub)
+
+    info["after"] = {"min": float(q.min()), "mean": float(q.mean())}
+    info["untangled_nodes"] = int(untangled.sum())
+    info["smoothed_nodes"] = int((smoothed & ~untangled).sum())
+    info["moved"] = int((untangled | smoothed).sum())
+    info["updates"] = stats["updates"]
+    info["seconds"] = time.perf_counter() - t0
+    return X, info

@@ -1,0 +1,487 @@
+"""Compiled kernels of the local hexahedral mesh optimiser (:mod:`vmesh.geometry.optimize`).
+
+The quality functional of a node is the sum, over the corners of its incident (linear,
+tensor-order) hexahedra that it belongs to, of Escobar's regularised shape measure
+
+    f = |E|^2 / (3 h(det E)^(2/3)),   h(D) = (D + sqrt(D^2 + 4 delta^2)) / 2,
+
+with ``E`` the corner's three edges (along +i, +j, +k), each divided by its *target*
+length (its length in the initial mesh): an ideal corner is orthogonal with its initial
+edge lengths, so graded boundary-layer elements stay thin. ``h`` keeps ``f`` finite and
+smooth for inverted corners (``det E <= 0``), so the same Newton step untangles.
+
+Moving one node ``x`` changes a corner only through edges that are affine in ``x`` with a
+scalar coefficient ``k_a`` (``de_a/dx = k_a I``), and ``det E`` is then affine in ``x``
+(a tetrahedron's volume is linear in each vertex). So with ``F = |E|^2`` and
+``phi(D) = h(D)^(-2/3) / 3``:
+
+    grad f = phi grad F + F phi' grad D
+    Hess f = phi 2 sum(k_a^2) I + phi' (grad F grad D^T + grad D grad F^T) + F phi'' grad D grad D^T
+
+which is exact and costs a few dozen flops per corner: no finite differences.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+#: node kinds: free in 3-D, sliding on the wall (tangent plane, then projection), sliding in a
+#: cap plane, fixed, sliding at a fixed distance from the wall (first boundary layer: tangent
+#: plane, then put back at that distance)
+FREE, WALL, PLANE, FIXED, OFFSET = 0, 1, 2, 3, 4
+#: acceptance rules: the functional decreases (untangling); the functional decreases and the
+#: incident elements' minimum and sum of scaled Jacobians do not (smoothing a valid mesh)
+UNTANGLE, SMOOTH, ESCOBAR = 0, 1, 2
+
+
+@nb.njit(cache=True, inline="always")
+def _pos(X, v, node, x0, x1, x2, d):
+    """Coordinate ``d`` of ``node``, with ``v`` at the trial position (x0, x1, x2)."""
+    if node == v:
+        return x0 if d == 0 else (x1 if d == 1 else x2)
+    return X[node, d]
+
+
+@nb.njit(cache=True, inline="always")
+def _edge(X, hexes, scale, se, e, c, a, v, l, x0, x1, x2, cx, cy, cz):
+    """Scaled edge of corner ``c`` of hexahedron ``e`` along axis ``a`` (towards +a) and its
+    coefficient ``k`` in the moving node (local corner ``l``): ``d edge / dx = k I``; the
+    edge is divided by the target length ``1 / scale[se, a]``."""
+    nbr = c ^ (1 << a)
+    w = hexes[e, nbr]
+    s = (1.0 if ((c >> a) & 1) == 0 else -1.0) * scale[se, a]
+    ex = s * (_pos(X, v, w, x0, x1, x2, 0) - cx)
+    ey = s * (_pos(X, v, w, x0, x1, x2, 1) - cy)
+    ez = s * (_pos(X, v, w, x0, x1, x2, 2) - cz)
+    k = -s if c == l else (s if nbr == l else 0.0)
+    return ex, ey, ez, k
+
+
+@nb.njit(cache=True)
+def local_functional(X, hexes, scale, ptr, inc, v, x0, x1, x2, delta, hessian):
+    """Functional of node ``v`` at (x0, x1, x2): value, gradient and (optionally) Hessian.
+
+    Returns a tuple ``(f, g0, g1, g2, H00, H01, H02, H11, H12, H22)``.
+    """
+    f = 0.0
+    g0 = g1 = g2 = 0.0
+    h00 = h01 = h02 = h11 = h12 = h22 = 0.0
+    d2 = 4.0 * delta * delta
+    for t in range(ptr[v], ptr[v + 1]):
+        e = inc[t] >> 3
+        l = inc[t] & 7
+        for q in range(4):
+            c = l if q == 0 else l ^ (1 << (q - 1))
+            n0 = hexes[e, c]
+            cx = _pos(X, v, n0, x0, x1, x2, 0)
+            cy = _pos(X, v, n0, x0, x1, x2, 1)
+            cz = _pos(X, v, n0, x0, x1, x2, 2)
+            # the three scaled edges and their coefficients in x (scalars: no allocation)
+            e00, e01, e02, k0 = _edge(X, hexes, scale, e, e, c, 0, v, l, x0, x1, x2, cx, cy, cz)
+            e10, e11, e12, k1 = _edge(X, hexes, scale, e, e, c, 1, v, l, x0, x1, x2, cx, cy, cz)
+            e20, e21, e22, k2 = _edge(X, hexes, scale, e, e, c, 2, v, l, x0, x1, x2, cx, cy, cz)
+            # cofactors: grad of det with respect to each edge
+            C0x = e11 * e22 - e12 * e21
+            C0y = e12 * e20 - e10 * e22
+            C0z = e10 * e21 - e11 * e20
+            C1x = e21 * e02 - e22 * e01
+            C1y = e22 * e00 - e20 * e02
+            C1z = e20 * e01 - e21 * e00
+            C2x = e01 * e12 - e02 * e11
+            C2y = e02 * e10 - e00 * e12
+            C2z = e00 * e11 - e01 * e10
+            D = e00 * C0x + e01 * C0y + e02 * C0z
+            F = e00 * e00 + e01 * e01 + e02 * e02 + e10 * e10 + e11 * e11 + e12 * e12 + e20 * e20 + e21 * e21 + e22 * e22
+            r = np.sqrt(D * D + d2)
+            h = 0.5 * (D + r)
+            hh = max(h, 1e-300)
+            hp = 1.0 / np.cbrt(hh * hh)  # h^(-2/3), cheaper than pow
+            phi = hp / 3.0
+            f += F * phi
+            dDx = k0 * C0x + k1 * C1x + k2 * C2x
+            dDy = k0 * C0y + k1 * C1y + k2 * C2y
+            dDz = k0 * C0z + k1 * C1z + k2 * C2z
+            dFx = 2.0 * (k0 * e00 + k1 * e10 + k2 * e20)
+            dFy = 2.0 * (k0 * e01 + k1 * e11 + k2 * e21)
+            dFz = 2.0 * (k0 * e02 + k1 * e12 + k2 * e22)
+            dphi = -(2.0 / 9.0) * hp / r
+            g0 += phi * dFx + F * dphi * dDx
+            g1 += phi * dFy + F * dphi * dDy
+            g2 += phi * dFz + F * dphi * dDz
+            if hessian:
+                ddphi = (2.0 / 9.0) * hp * ((2.0 / 3.0) / (r * r) + D / (r * r * r))
+                diag = phi * 2.0 * (k0 * k0 + k1 * k1 + k2 * k2)
+                w = F * ddphi
+                h00 += diag + dphi * 2.0 * dFx * dDx + w * dDx * dDx
+                h11 += diag + dphi * 2.0 * dFy * dDy + w * dDy * dDy
+                h22 += diag + dphi * 2.0 * dFz * dDz + w * dDz * dDz
+                h01 += dphi * (dFx * dDy + dDx * dFy) + w * dDx * dDy
+                h02 += dphi * (dFx * dDz + dDx * dFz) + w * dDx * dDz
+                h12 += dphi * (dFy * dDz + dDy * dFz) + w * dDy * dDz
+    return f, g0, g1, g2, h00, h01, h02, h11, h12, h22
+
+
+@nb.njit(cache=True)
+def hex_quality(X, hexes, e, v, x0, x1, x2):
+    """Scaled Jacobian (minimum over the 8 corners) of hexahedron ``e`` with node ``v`` at (x0, x1, x2)."""
+    best = np.inf
+    for c in range(8):
+        n0 = hexes[e, c]
+        cx = _pos(X, v, n0, x0, x1, x2, 0)
+        cy = _pos(X, v, n0, x0, x1, x2, 1)
+        cz = _pos(X, v, n0, x0, x1, x2, 2)
+        wa, wb, wc = hexes[e, c ^ 1], hexes[e, c ^ 2], hexes[e, c ^ 4]
+        sa = 1.0 if (c & 1) == 0 else -1.0
+        sb = 1.0 if (c & 2) == 0 else -1.0
+        sc = 1.0 if (c & 4) == 0 else -1.0
+        ax, ay, az = sa * (_pos(X, v, wa, x0, x1, x2, 0) - cx), sa * (_pos(X, v, wa, x0, x1, x2, 1) - cy), sa * (_pos(X, v, wa, x0, x1, x2, 2) - cz)
+        bx, by, bz = sb * (_pos(X, v, wb, x0, x1, x2, 0) - cx), sb * (_pos(X, v, wb, x0, x1, x2, 1) - cy), sb * (_pos(X, v, wb, x0, x1, x2, 2) - cz)
+        qx, qy, qz = sc * (_pos(X, v, wc, x0, x1, x2, 0) - cx), sc * (_pos(X, v, wc, x0, x1, x2, 1) - cy), sc * (_pos(X, v, wc, x0, x1, x2, 2) - cz)
+        det = ax * (by * qz - bz * qy) + ay * (bz * qx - bx * qz) + az * (bx * qy - by * qx)
+        ln = np.sqrt((ax * ax + ay * ay + az * az) * (bx * bx + by * by + bz * bz) * (qx * qx + qy * qy + qz * qz))
+        val = det / max(ln, 1e-300)
+        if val < best:
+            best = val
+    return best
+
+
+@nb.njit(cache=True)
+def hexes_quality(X, hexes):
+    """Scaled Jacobians of the hexahedra (serial: a stage has a few thousand)."""
+    out = np.empty(hexes.shape[0])
+    for e in range(hexes.shape[0]):
+        out[e] = hex_quality(X, hexes, e, -1, 0.0, 0.0, 0.0)
+    return out
+
+
+@nb.njit(cache=True)
+def local_quality(X, hexes, ptr, inc, v, x0, x1, x2):
+    """Minimum and sum of the scaled Jacobians of the hexahedra around ``v`` (``v`` at (x0, x1, x2))."""
+    qmin = np.inf
+    qsum = 0.0
+    for t in range(ptr[v], ptr[v + 1]):
+        q = hex_quality(X, hexes, inc[t] >> 3, v, x0, x1, x2)
+        qsum += q
+        if q < qmin:
+            qmin = q
+    return qmin, qsum
+
+
+@nb.njit(cache=True)
+def _newton_direction(g0, g1, g2, h00, h01, h02, h11, h12, h22, kind, n0, n1, n2):
+    """Newton step ``-H^-1 g`` restricted to the node's allowed moves (all of space, or the
+    plane of normal n). A non positive-definite Hessian is shifted until it is."""
+    if kind == FREE:
+        shift = 0.0
+        for _ in range(40):
+            a00, a11, a22 = h00 + shift, h11 + shift, h22 + shift
+            # Cholesky of [[a00, h01, h02], [h01, a11, h12], [h02, h12, a22]]
+            if a00 > 0.0:
+                l00 = np.sqrt(a00)
+                l10, l20 = h01 / l00, h02 / l00
+                s11 = a11 - l10 * l10
+                if s11 > 0.0:
+                    l11 = np.sqrt(s11)
+                    l21 = (h12 - l20 * l10) / l11
+                    s22 = a22 - l20 * l20 - l21 * l21
+                    if s22 > 0.0:
+                        l22 = np.sqrt(s22)
+                        y0 = -g0 / l00
+                        y1 = (-g1 - l10 * y0) / l11
+                        y2 = (-g2 - l20 * y0 - l21 * y1) / l22
+                        d2 = y2 / l22
+                        d1 = (y1 - l21 * d2) / l11
+                        d0 = (y0 - l10 * d1 - l20 * d2) / l00
+                        return d0, d1, d2
+            scale = abs(h00) + abs(h11) + abs(h22) + 1e-300
+            shift = max(2.0 * shift, 1e-6 * scale)
+        return 0.0, 0.0, 0.0
+    # tangent basis (t, u) of the plane
+    if abs(n0) < 0.9:
+        tx, ty, tz = 0.0, n2, -n1
+    else:
+        tx, ty, tz = -n2, 0.0, n0
+    tn = np.sqrt(tx * tx + ty * ty + tz * tz)
+    tx, ty, tz = tx / tn, ty / tn, tz / tn
+    ux, uy, uz = n1 * tz - n2 * ty, n2 * tx - n0 * tz, n0 * ty - n1 * tx
+    gt = g0 * tx + g1 * ty + g2 * tz
+    gu = g0 * ux + g1 * uy + g2 * uz
+    Ht = (h00 * tx + h01 * ty + h02 * tz, h01 * tx + h11 * ty + h12 * tz, h02 * tx + h12 * ty + h22 * tz)
+    Hu = (h00 * ux + h01 * uy + h02 * uz, h01 * ux + h11 * uy + h12 * uz, h02 * ux + h12 * uy + h22 * uz)
+    att = tx * Ht[0] + ty * Ht[1] + tz * Ht[2]
+    atu = ux * Ht[0] + uy * Ht[1] + uz * Ht[2]
+    auu = ux * Hu[0] + uy * Hu[1] + uz * Hu[2]
+    shift = 0.0
+    for _ in range(40):
+        a, b = att + shift, auu + shift
+        det = a * b - atu * atu
+        if a > 0.0 and det > 0.0:
+            dt = (-gt * b + gu * atu) / det
+            du = (-gu * a + gt * atu) / det
+            return dt * tx + du * ux, dt * ty + du * uy, dt * tz + du * uz
+        shift = max(2.0 * shift, 1e-6 * (abs(att) + abs(auu) + 1e-300))
+    return 0.0, 0.0, 0.0
+
+
+@nb.njit(cache=True)
+def _mark(hexes, ptr, inc, v, dirty):
+    """Node ``v`` moved: it and every node sharing a hexahedron with it are worth another try."""
+    for t in range(ptr[v], ptr[v + 1]):
+        e = inc[t] >> 3
+        for c in range(8):
+            dirty[hexes[e, c]] = True
+
+
+@nb.njit(cache=True)
+def _worst_corner_direction(X, hexes, ptr, inc, v, x0, x1, x2):
+    """Gradient, with respect to node ``v``, of the volume of the worst corner around it (the
+    corner of smallest scaled Jacobian that ``v`` belongs to): the max-min ascent direction."""
+    unit = np.ones((1, 3))
+    best = np.inf
+    bx = by = bz = 0.0
+    for t in range(ptr[v], ptr[v + 1]):
+        e = inc[t] >> 3
+        l = inc[t] & 7
+        for q in range(4):
+            c = l if q == 0 else l ^ (1 << (q - 1))
+            n0 = hexes[e, c]
+            cx = _pos(X, v, n0, x0, x1, x2, 0)
+            cy = _pos(X, v, n0, x0, x1, x2, 1)
+            cz = _pos(X, v, n0, x0, x1, x2, 2)
+            e00, e01, e02, k0 = _edge(X, hexes, unit, 0, e, c, 0, v, l, x0, x1, x2, cx, cy, cz)
+            e10, e11, e12, k1 = _edge(X, hexes, unit, 0, e, c, 1, v, l, x0, x1, x2, cx, cy, cz)
+            e20, e21, e22, k2 = _edge(X, hexes, unit, 0, e, c, 2, v, l, x0, x1, x2, cx, cy, cz)
+            C0x, C0y, C0z = e11 * e22 - e12 * e21, e12 * e20 - e10 * e22, e10 * e21 - e11 * e20
+            C1x, C1y, C1z = e21 * e02 - e22 * e01, e22 * e00 - e20 * e02, e20 * e01 - e21 * e00
+            C2x, C2y, C2z = e01 * e12 - e02 * e11, e02 * e10 - e00 * e12, e00 * e11 - e01 * e10
+            D = e00 * C0x + e01 * C0y + e02 * C0z
+            ln = np.sqrt((e00 * e00 + e01 * e01 + e02 * e02) * (e10 * e10 + e11 * e11 + e12 * e12) * (e20 * e20 + e21 * e21 + e22 * e22))
+            sj = D / max(ln, 1e-300)
+            if sj < best:
+                best = sj
+                bx = (k0 * C0x + k1 * C1x + k2 * C2x) / max(ln, 1e-300)
+                by = (k0 * C0y + k1 * C1y + k2 * C2y) / max(ln, 1e-300)
+                bz = (k0 * C0z + k1 * C1z + k2 * C2z) / max(ln, 1e-300)
+    return bx, by, bz
+
+
+@nb.njit(cache=True)
+def _acceptable(mode, f, qmin, qsum, f0, qmin0, qsum0):
+    if f0 == np.inf:  # a max-min trial: the worst element must get better
+        return qmin > qmin0 and (mode == UNTANGLE or qsum >= qsum0)
+    if mode == ESCOBAR:
+        return f < f0
+    if mode == UNTANGLE:
+        return f < f0 and qmin >= qmin0
+    return f < f0 and qmin >= qmin0 and qsum >= qsum0
+
+
+def _sweep_colour(X, hexes, scale, ptr, inc, nodes, kind, normal, step_cap, delta, mode, goal, trial, state, dirty):
+    """One Newton step with backtracking for every node of one colour (no two share a hexahedron).
+
+    Free and plane nodes are updated in ``X``; wall nodes get their tangential trial
+    position in ``trial`` (to be projected onto the wall and checked by :func:`accept_trials`),
+    with their start values ``(f, qmin, qsum)`` in ``state``. Returns nothing; ``state[:, 3]``
+    is 1 where a node moved (or has a trial), else 0.
+    """
+    for j in nb.prange(len(nodes)):
+        v = nodes[j]
+        state[j, 3] = 0.0
+        trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0], X[v, 1], X[v, 2]
+        if not dirty[v]:  # nothing around it moved since it last failed to improve
+            state[j, 0] = -1.0
+            continue
+        dirty[v] = False
+        x0, x1, x2 = X[v, 0], X[v, 1], X[v, 2]
+        f0, g0, g1, g2, h00, h01, h02, h11, h12, h22 = local_functional(X, hexes, scale, ptr, inc, v, x0, x1, x2, delta, True)
+        qmin0, qsum0 = np.inf, 0.0
+        if mode != ESCOBAR or kind[v] == WALL or kind[v] == OFFSET:
+            qmin0, qsum0 = local_quality(X, hexes, ptr, inc, v, x0, x1, x2)
+        state[j, 0], state[j, 1], state[j, 2] = f0, qmin0, qsum0
+        d0, d1, d2 = _newton_direction(g0, g1, g2, h00, h01, h02, h11, h12, h22, kind[v], normal[v, 0], normal[v, 1], normal[v, 2])
+        length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        if length == 0.0 or not np.isfinite(length):
+            continue
+        if length > step_cap[v]:
+            d0, d1, d2 = d0 * step_cap[v] / length, d1 * step_cap[v] / length, d2 * step_cap[v] / length
+        t = 1.0
+        for _ in range(8):
+            y0, y1, y2 = x0 + t * d0, x1 + t * d1, x2 + t * d2
+            f = local_functional(X, hexes, scale, ptr, inc, v, y0, y1, y2, delta, False)[0]
+            if f < f0:
+                if kind[v] == WALL or kind[v] == OFFSET:  # judged again after the projection
+                    trial[j, 0], trial[j, 1], trial[j, 2] = y0, y1, y2
+                    state[j, 3] = 1.0
+                    break
+                qmin, qsum = np.inf, 0.0
+                if mode != ESCOBAR:
+                    qmin, qsum = local_quality(X, hexes, ptr, inc, v, y0, y1, y2)
+                if _acceptable(mode, f, qmin, qsum, f0, qmin0, qsum0):
+                    X[v, 0], X[v, 1], X[v, 2] = y0, y1, y2
+                    state[j, 3] = 1.0
+                    _mark(hexes, ptr, inc, v, dirty)
+                    break
+            t *= 0.5
+        if state[j, 3] == 0.0 and qmin0 < goal and mode != ESCOBAR:
+            # no Newton step helps: climb the worst corner instead (max-min), judged by the
+            # incident elements' minimum scaled Jacobian alone
+            d0, d1, d2 = _worst_corner_direction(X, hexes, ptr, inc, v, x0, x1, x2)
+            if kind[v] != FREE:
+                dn = d0 * normal[v, 0] + d1 * normal[v, 1] + d2 * normal[v, 2]
+                d0, d1, d2 = d0 - dn * normal[v, 0], d1 - dn * normal[v, 1], d2 - dn * normal[v, 2]
+            length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            if length == 0.0 or not np.isfinite(length):
+                continue
+            d0, d1, d2 = d0 * step_cap[v] / length, d1 * step_cap[v] / length, d2 * step_cap[v] / length
+            t = 0.25
+            for _ in range(6):
+                y0, y1, y2 = x0 + t * d0, x1 + t * d1, x2 + t * d2
+                if kind[v] == WALL or kind[v] == OFFSET:
+                    trial[j, 0], trial[j, 1], trial[j, 2] = y0, y1, y2
+                    state[j, 0] = np.inf  # the functional is not asked for
+                    state[j, 3] = 1.0
+                    break
+                qmin, qsum = local_quality(X, hexes, ptr, inc, v, y0, y1, y2)
+                if _acceptable(mode, np.inf, qmin, qsum, np.inf, qmin0, qsum0):
+                    X[v, 0], X[v, 1], X[v, 2] = y0, y1, y2
+                    state[j, 3] = 1.0
+                    _mark(hexes, ptr, inc, v, dirty)
+                    break
+                t *= 0.5
+
+
+def _accept_trials(X, hexes, scale, ptr, inc, nodes, projected, delta, mode, state, dirty):
+    """Move wall nodes to their projected trial positions where that still improves them
+    (the functional decreases and, for untangling, no incident element gets worse than
+    the worst before; for smoothing, their minimum and sum of scaled Jacobians do not drop)."""
+    for j in nb.prange(len(nodes)):
+        v = nodes[j]
+        y0, y1, y2 = projected[j, 0], projected[j, 1], projected[j, 2]
+        f = local_functional(X, hexes, scale, ptr, inc, v, y0, y1, y2, delta, False)[0]
+        qmin, qsum = local_quality(X, hexes, ptr, inc, v, y0, y1, y2)
+        if _acceptable(mode, f, qmin, qsum, state[j, 0], state[j, 1], state[j, 2]):
+            X[v, 0], X[v, 1], X[v, 2] = y0, y1, y2
+            _mark(hexes, ptr, inc, v, dirty)
+        else:
+            state[j, 3] = 0.0
+
+
+@nb.njit(cache=True)
+def incidence(hexes, n):
+    """Node-to-hexahedron incidence as CSR: ``ptr (n+1,)`` and ``inc`` = 8 * element + local corner."""
+    count = np.zeros(n + 1, np.int64)
+    m = hexes.shape[0]
+    for e in range(m):
+        for c in range(8):
+            count[hexes[e, c] + 1] += 1
+    ptr = np.cumsum(count)
+    fill = ptr[:-1].copy()
+    inc = np.empty(8 * m, np.int64)
+    for e in range(m):
+        for c in range(8):
+            v = hexes[e, c]
+            inc[fill[v]] = 8 * e + c
+            fill[v] += 1
+    return ptr, inc
+
+
+@nb.njit(cache=True)
+def colour_nodes(hexes, ptr, inc, nodes, n):
+    """Greedy colouring of ``nodes`` so that no two of one colour share a hexahedron
+    (deterministic: nodes in the given order, smallest free colour)."""
+    colour = np.full(n, -1, np.int64)
+    active = np.zeros(n, np.bool_)
+    for v in nodes:
+        active[v] = True
+    used = np.full(256, -1, np.int64)  # stamp per colour: used by a neighbour of the node `stamp`
+    out = np.empty(len(nodes), np.int64)
+    for j in range(len(nodes)):
+        v = nodes[j]
+        for t in range(ptr[v], ptr[v + 1]):
+            e = inc[t] >> 3
+            for c in range(8):
+                w = hexes[e, c]
+                if active[w] and colour[w] >= 0:
+                    used[colour[w]] = v
+        col = 0
+        while col < 255 and used[col] == v:
+            col += 1
+        colour[v] = col
+        out[j] = col
+    return out
+
+
+@nb.njit(cache=True)
+def step_caps(X, hexes, ptr, inc, nodes, n, fraction):
+    """Largest step per node: ``fraction`` of its longest incident edge."""
+    cap = np.zeros(n)
+    for v in nodes:
+        longest = 0.0
+        for t in range(ptr[v], ptr[v + 1]):
+            e = inc[t] >> 3
+            l = inc[t] & 7
+            for a in range(3):
+                w = hexes[e, l ^ (1 << a)]
+                d = (X[w, 0] - X[v, 0]) ** 2 + (X[w, 1] - X[v, 1]) ** 2 + (X[w, 2] - X[v, 2]) ** 2
+                longest = max(longest, d)
+        cap[v] = fraction * np.sqrt(longest)
+    return cap
+
+
+@nb.njit(parallel=True, cache=True)
+def target_scales(X, hexes, floor):
+    """``1 / target length`` per hexahedron and axis ``(m, 3)``: the element's thickness
+    across each axis.
+
+    With ``m_a`` the mean of the element's four edges along axis ``a``, the thickness is
+    ``|m_a . (m_b x m_c)| / |m_b x m_c|``, the height between its two faces across ``a``.
+    Unlike edge lengths it ignores shear: a boundary-layer element whose wall nodes were
+    shifted along the wall still asks for its first-layer height, not its slanted edge.
+    Where the element's mean frame is degenerate or inverted (a fold), the mean edge
+    length is used instead.
+    """
+    m = hexes.shape[0]
+    out = np.empty((m, 3))
+    for e in nb.prange(m):
+        M = np.zeros((3, 3))
+        for a in range(3):
+            for c in range(8):
+                if (c >> a) & 1 == 0:
+                    u, w = hexes[e, c], hexes[e, c ^ (1 << a)]
+                    for d in range(3):
+                        M[a, d] += 0.25 * (X[w, d] - X[u, d])
+        for a in range(3):
+            b, c2 = (a + 1) % 3, (a + 2) % 3
+            nx = M[b, 1] * M[c2, 2] - M[b, 2] * M[c2, 1]
+            ny = M[b, 2] * M[c2, 0] - M[b, 0] * M[c2, 2]
+            nz = M[b, 0] * M[c2, 1] - M[b, 1] * M[c2, 0]
+            area = np.sqrt(nx * nx + ny * ny + nz * nz)
+            length = np.sqrt(M[a, 0] ** 2 + M[a, 1] ** 2 + M[a, 2] ** 2)
+            height = (M[a, 0] * nx + M[a, 1] * ny + M[a, 2] * nz) / max(area, 1e-300)
+            t = height if height > 0.02 * length else length
+            out[e, a] = 1.0 / max(t, floor)
+    return out
+
+
+@nb.njit(cache=True)
+def grow_nodes(hexes, ptr, inc, mask):
+    """Nodes of every hexahedron that has a node in ``mask`` (one ring more)."""
+    out = mask.copy()
+    for v in range(len(mask)):
+        if mask[v]:
+            for t in range(ptr[v], ptr[v + 1]):
+                e = inc[t] >> 3
+                for c in range(8):
+                    out[hexes[e, c]] = True
+    return out
+
+
+#: parallel versions for large colours and serial ones for small colours (a parallel launch
+#: costs more than a few hundred node updates, and much more on a loaded machine)
+sweep_colour_parallel = nb.njit(parallel=True, cache=True)(_sweep_colour)
+sweep_colour_serial = nb.njit(cache=True)(_sweep_colour)
+accept_trials_parallel = nb.njit(parallel=True, cache=True)(_accept_trials)
+accept_trials_serial = nb.njit(cache=True)(_accept_trials)
+#: colours with fewer nodes than this run serially
+PARALLEL_FROM = 4096
