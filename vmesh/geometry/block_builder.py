@@ -54,8 +54,6 @@ from ..errors import MeshingError
 from ..skeleton import Skeleton
 from . import cross_sections as cs
 
-import os
-_DEBUG = bool(os.environ.get("JDEBUG"))
 JUNCTION, OPEN, CLOSED, CYCLE = "junction", "open", "closed", "cycle"
 
 
@@ -82,7 +80,7 @@ class BlockOptions:
     max_fix_rounds: int = 16
     wall_quality: float = 0.05  # least scaled Jacobian of boundary-layer blocks with projected wall faces
     good_wall_quality: float = 0.3  # projected quality at which a junction end's margin stops growing
-    wall_margins: tuple = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0)  # extra margins tried at folding junction ends (× radius)
+    wall_margins: tuple = (0.0, 0.5, 1.0, 2.0)  # extra margins tried at folding junction ends (× radius)
 
 
 @dataclass
@@ -1338,28 +1336,58 @@ class _Builder:
 
     # -- 8. validity -----------------------------------------------------------------------
     def relieve_wall_folds(self, blocks: BlockStructure) -> BlockStructure:
-        """Move the first cross-section of a branch away from its junction where
-        boundary-layer blocks between them would fold once their wall faces are projected
-        onto the wall.
+        """Re-place the first cross-sections and half-planes at junctions whose boundary
+        layer would fold in the transfinite fill.
 
         At a junction crotch the half cross-section meets the wall obliquely: a boundary-layer
         block from it to a branch section that stands close is short on the crotch side and
-        long on the other, and projecting its wall face folds it. Each such junction end is
-        tried with more margin (``wall_margins``, × branch radius); the ends are independent
-        (an end's margin moves only its branch's sections), so one assembly per margin
-        scores them all, and each end keeps the least margin reaching ``good_wall_quality``
-        or else the best. Every block of a changed branch must stay valid."""
+        long on the other, and projecting its wall face folds it. Junctions with such blocks
+        (:func:`projected_wall_quality` at most ``wall_quality``) get, per branch end, the
+        extra margin of ``wall_margins`` whose blocks fill best, and where they still fold,
+        the half-plane rotations whose blocks fill best, then margins again. Blocks are
+        judged by filling them (:func:`fill_quality`, at the default and a finer
+        resolution, without untangling); the new placement is kept only when the
+        junction's blocks fill better than before and every block stays valid."""
         opt = self.opt
         quality = projected_wall_quality(blocks, self.project)
         ends = self._junction_ends(np.flatnonzero(quality <= opt.wall_quality))
-        if not ends or os.environ.get("JSCORE") == "off":
+        if not ends:
             return blocks
         nodes = sorted({int(self.branches[bi].nodes[-side]) for bi, side in ends})
         near = self._junction_blocks(nodes)
         before = fill_score(self._fill_quality(blocks, near))
         saved = ([br.margin.copy() for br in self.branches],
                  {c: (j.pick.copy(), j.psi.copy()) for c, j in self.junctions.items()})
-        self._rotate_for_wall(ends)
+        trial = self._margins_for_wall(ends)
+        after = self._checked_score(trial, near)
+        if after < 0:
+            # still folded: turn the half-planes too, then place the first sections again
+            self._rotate_for_wall(ends)
+            trial = self._margins_for_wall(ends)
+            after = self._checked_score(trial, near)
+        if after <= before:
+            # the junction's blocks fill no better: back to where they were
+            for br, m in zip(self.branches, saved[0]):
+                br.margin = m
+            for c, (pick, psi) in saved[1].items():
+                self.junctions[c].pick, self.junctions[c].psi = pick, psi
+            self._apply_clearance()
+            return self.assemble()
+        self.fixes.append(f"re-placed the half cross-sections and first cross-sections at junction node(s) {nodes} "
+                          f"where the boundary layer would fold (fill score {before:.3g} -> {after:.3g})")
+        return trial
+
+    def _checked_score(self, blocks: BlockStructure, near: np.ndarray) -> float:
+        """:func:`fill_score` of the blocks ``near``; -inf when any block is invalid."""
+        if blocks.corner_jacobians().min() <= 0:
+            return -np.inf
+        return fill_score(self._fill_quality(blocks, near))
+
+    def _margins_for_wall(self, ends: list) -> BlockStructure:
+        """Give each junction end of ``ends`` the extra margin of ``wall_margins`` whose
+        first-segment blocks fill best (the least reaching ``good_wall_quality``); the ends
+        are independent, so one assembly per margin scores them all. Returns the assembly."""
+        opt = self.opt
         base = {e: float(self.branches[e[0]].margin[e[1]]) for e in ends}
         steps = np.asarray(opt.wall_margins, float)
         score = np.full((len(ends), len(steps)), -np.inf)
@@ -1369,33 +1397,18 @@ class _Builder:
             self._apply_clearance()
             trial = self.assemble()
             J = trial.corner_jacobians().min(axis=1)
-            near = np.unique(np.concatenate([self._end_blocks(bi, side) for bi, side in ends]))
+            mine = [self._end_blocks(bi, side) for bi, side in ends]
+            sel = np.unique(np.concatenate(mine))
             q = np.ones(trial.n_blocks)
-            q[near] = self._fill_quality(trial, near)
+            q[sel] = self._fill_quality(trial, sel)
             for e, (bi, side) in enumerate(ends):
                 if J[self.block_where[:, 0] == bi].min() > 0:
-                    score[e, n] = fill_score(q[self._end_blocks(bi, side)])
+                    score[e, n] = fill_score(q[mine[e]])
         pick = np.argmax(np.minimum(score, opt.good_wall_quality), axis=1)
-        if _DEBUG:
-            print("JDEBUG margins", ends, np.round(score, 3), pick)
         for e, (bi, side) in enumerate(ends):
             self.branches[bi].margin[side] = base[(bi, side)] + (steps[pick[e]] if np.isfinite(score[e, pick[e]]) else 0.0)
         self._apply_clearance()
-        trial = self.assemble()
-        after = fill_score(self._fill_quality(trial, near)) if trial.corner_jacobians().min() > 0 else -np.inf
-        if _DEBUG:
-            print("JDEBUG accept", before, after)
-        if after <= before:
-            # the junction's blocks fill no better: back to where they were
-            for br, m in zip(self.branches, saved[0]):
-                br.margin = m
-            for c, (pick_, psi) in saved[1].items():
-                self.junctions[c].pick, self.junctions[c].psi = pick_, psi
-            self._apply_clearance()
-            return self.assemble()
-        self.fixes.append(f"re-placed the half cross-sections and first cross-sections at junction node(s) {nodes} "
-                          f"where the boundary layer would fold (least filled scaled Jacobian {before:.2f} -> {after:.2f})")
-        return trial
+        return self.assemble()
 
     def _junction_blocks(self, nodes) -> np.ndarray:
         """Blocks of the first segment of every branch end at the junctions ``nodes``."""
@@ -1439,8 +1452,6 @@ class _Builder:
                 branches = np.unique(self.block_where[mine, 0])
                 if J[np.isin(self.block_where[:, 0], branches)].min() > 0:
                     score[e, n] = fill_score(q[mine])
-        if _DEBUG:
-            print("JDEBUG rot", seps, np.round(score, 3), current)
         for e, (c, sp) in enumerate(seps):
             j = self.junctions[c]
             capped = np.minimum(score[e], opt.good_wall_quality)
@@ -1452,8 +1463,6 @@ class _Builder:
 
     def _fill_quality(self, blocks: BlockStructure, subset: np.ndarray) -> np.ndarray:
         """:func:`fill_quality` of ``subset`` on this builder's wall."""
-        if os.environ.get("JSCORE") == "projected":
-            return projected_wall_quality(blocks, self.project)[subset]
         return fill_quality(blocks, subset, self.project, self.sdf, self.intersect_lines)
 
     def _junction_ends(self, blocks_: np.ndarray) -> list:
@@ -1705,7 +1714,8 @@ def fill_quality(blocks: BlockStructure, subset: np.ndarray, project, distance, 
     Returns
     -------
     (k,) float: the least scaled Jacobian of each block's elements, or, where some are
-    inverted, the sum of those elements' (negative) scaled Jacobians.
+    inverted, the sum over the resolutions of the mean of ``min(0, scaled Jacobian)`` over
+    its elements.
     """
     from .quality import hex8_scaled_jacobian
     from .transfinite import Refinement, mesh_blocks
@@ -1728,9 +1738,11 @@ def fill_quality(blocks: BlockStructure, subset: np.ndarray, project, distance, 
         sm = mesh_blocks(sub, project, ref, signed_distance=distance, intersect_lines=intersect_lines)
         sj = hex8_scaled_jacobian(sm.points, sm.cells)
         np.minimum.at(out, sm.cell_block, sj)
-        np.add.at(folded, sm.cell_block, np.minimum(sj, 0.0))
-    # a folded block scores the sum of its inverted elements' scaled Jacobians: fewer and
-    # shallower folds score higher, and any fold lower than every valid block
+        # per element of the block at this resolution: each resolution weighs the same
+        np.add.at(folded, sm.cell_block, np.minimum(sj, 0.0) / np.prod(sm.block_counts, axis=1)[sm.cell_block])
+    # a folded block scores the mean over its elements of their negative scaled Jacobians
+    # (summed over the resolutions): fewer and shallower folds score higher, any fold lower
+    # than every valid block
     return np.where(folded < 0, folded, out)
 
 
