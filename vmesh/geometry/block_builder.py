@@ -1347,7 +1347,8 @@ class _Builder:
         the half-plane rotations whose blocks fill best, then margins again. Blocks are
         judged by filling them (:func:`fill_quality`, at the default and a finer
         resolution, without untangling); the new placement is kept only when the
-        junction's blocks fill better than before and every block stays valid."""
+        junction's blocks fill better at one resolution and no worse at any, and every
+        block stays valid."""
         opt = self.opt
         quality = projected_wall_quality(blocks, self.project)
         ends = self._junction_ends(np.flatnonzero(quality <= opt.wall_quality))
@@ -1355,18 +1356,18 @@ class _Builder:
             return blocks
         nodes = sorted({int(self.branches[bi].nodes[-side]) for bi, side in ends})
         near = self._junction_blocks(nodes)
-        before = fill_score(self._fill_quality(blocks, near))
+        before = self._checked_score(blocks, near)
         saved = ([br.margin.copy() for br in self.branches],
                  {c: (j.pick.copy(), j.psi.copy()) for c, j in self.junctions.items()})
         trial = self._margins_for_wall(ends)
         after = self._checked_score(trial, near)
-        if after < 0:
+        if np.any(after < 0):
             # still folded: turn the half-planes too, then place the first sections again
             self._rotate_for_wall(ends)
             trial = self._margins_for_wall(ends)
             after = self._checked_score(trial, near)
-        if after <= before:
-            # the junction's blocks fill no better: back to where they were
+        if not (np.all(after >= before - 1e-9) and np.any(after > before + 1e-9)):
+            # the junction's blocks fill no better at some resolution: back to where they were
             for br, m in zip(self.branches, saved[0]):
                 br.margin = m
             for c, (pick, psi) in saved[1].items():
@@ -1374,14 +1375,16 @@ class _Builder:
             self._apply_clearance()
             return self.assemble()
         self.fixes.append(f"re-placed the half cross-sections and first cross-sections at junction node(s) {nodes} "
-                          f"where the boundary layer would fold (fill score {before:.3g} -> {after:.3g})")
+                          f"where the boundary layer would fold (fill scores {np.round(before, 3).tolist()} -> {np.round(after, 3).tolist()})")
         return trial
 
-    def _checked_score(self, blocks: BlockStructure, near: np.ndarray) -> float:
-        """:func:`fill_score` of the blocks ``near``; -inf when any block is invalid."""
+    def _checked_score(self, blocks: BlockStructure, near: np.ndarray) -> np.ndarray:
+        """:func:`fill_score` of the blocks ``near`` per fill resolution; -inf when any block
+        is invalid."""
         if blocks.corner_jacobians().min() <= 0:
-            return -np.inf
-        return fill_score(self._fill_quality(blocks, near))
+            return np.full(len(FILL_CHECKS), -np.inf)
+        q = fill_quality(blocks, near, self.project, self.sdf, self.intersect_lines, per_resolution=True)
+        return np.array([fill_score(row) for row in q])
 
     def _margins_for_wall(self, ends: list) -> BlockStructure:
         """Give each junction end of ``ends`` the extra margin of ``wall_margins`` whose
@@ -1693,7 +1696,8 @@ def projected_wall_quality(blocks: BlockStructure, project, samples: int = 4) ->
 FILL_CHECKS = ((2, 2, 3, 0.5, 1), (4, 3, 4, 0.25, 2))
 
 
-def fill_quality(blocks: BlockStructure, subset: np.ndarray, project, distance, intersect_lines=None, refinement=None) -> np.ndarray:
+def fill_quality(blocks: BlockStructure, subset: np.ndarray, project, distance, intersect_lines=None, refinement=None,
+                 per_resolution: bool = False) -> np.ndarray:
     """Least scaled Jacobian of each block of ``subset`` once filled with hexahedra.
 
     The blocks are filled as :func:`~vmesh.geometry.transfinite.mesh_blocks` fills them
@@ -1710,40 +1714,46 @@ def fill_quality(blocks: BlockStructure, subset: np.ndarray, project, distance, 
     project, distance, intersect_lines : callable
         As for :func:`~vmesh.geometry.transfinite.mesh_blocks`.
     refinement : sequence of (around, ring, layer, element_length, first-layer divisor), optional
+    per_resolution : bool
+        Return one row per resolution instead of combining them.
 
     Returns
     -------
-    (k,) float: the least scaled Jacobian of each block's elements, or, where some are
-    inverted, the sum over the resolutions of the mean of ``min(0, scaled Jacobian)`` over
-    its elements.
+    (k,) float (``(len(refinement), k)`` with ``per_resolution``): the least scaled Jacobian
+    of each block's elements, or, where some are inverted, minus the share of its elements
+    inverted less the mean of ``min(0, scaled Jacobian)`` (summed over the resolutions).
     """
     from .quality import hex8_scaled_jacobian
     from .transfinite import Refinement, mesh_blocks
 
     subset = np.asarray(subset, np.int64)
-    out = np.ones(len(subset))
-    if len(subset) == 0:
-        return out
     refs = refinement or FILL_CHECKS
+    if len(subset) == 0:
+        return np.ones((len(refs), 0)) if per_resolution else np.ones(0)
+    # only the subset's vertices: the mesher projects every wall vertex it is given
+    used, hexes = np.unique(blocks.hexes[subset], return_inverse=True)
     sub = BlockStructure(
-        vertices=blocks.vertices, hexes=blocks.hexes[subset], vertex_on_surface=blocks.vertex_on_surface,
+        vertices=blocks.vertices[used], hexes=hexes.reshape(-1, 8), vertex_on_surface=blocks.vertex_on_surface[used],
         face_boundary=blocks.face_boundary[subset], axis_kind=blocks.axis_kind[subset],
         block_radius=blocks.block_radius[subset], block_node=blocks.block_node[subset],
         block_segment=blocks.block_segment[subset], block_layer=blocks.block_layer[subset],
         boundary_names=dict(blocks.boundary_names),
     )
-    folded = np.zeros(len(subset))
-    for counts in refs:
+    out = np.ones((len(refs), len(subset)))
+    folded = np.zeros((len(refs), len(subset)))
+    for r, counts in enumerate(refs):
         ref = Refinement(around=counts[0], core=counts[0], ring=counts[1], layer=counts[2], element_length=counts[3], first_layer=0.02 / counts[4])
         sm = mesh_blocks(sub, project, ref, signed_distance=distance, intersect_lines=intersect_lines)
         sj = hex8_scaled_jacobian(sm.points, sm.cells)
-        np.minimum.at(out, sm.cell_block, sj)
+        np.minimum.at(out[r], sm.cell_block, sj)
         # per element of the block at this resolution: each resolution weighs the same
-        np.add.at(folded, sm.cell_block, np.minimum(sj, 0.0) / np.prod(sm.block_counts, axis=1)[sm.cell_block])
-    # a folded block scores the mean over its elements of their negative scaled Jacobians
-    # (summed over the resolutions): fewer and shallower folds score higher, any fold lower
-    # than every valid block
-    return np.where(folded < 0, folded, out)
+        # each inverted element counts one, less its scaled Jacobian: fewer folds first, then shallower
+        np.add.at(folded[r], sm.cell_block, (np.minimum(sj, 0.0) - (sj <= 0)) / np.prod(sm.block_counts, axis=1)[sm.cell_block])
+    # a folded block scores minus the share of its elements inverted (less their scaled
+    # Jacobians): fewer and shallower folds score higher, any fold lower than every valid block
+    if per_resolution:
+        return np.where(folded < 0, folded, out)
+    return np.where(folded.sum(axis=0) < 0, folded.sum(axis=0), out.min(axis=0))
 
 
 def fill_score(quality: np.ndarray) -> float:
