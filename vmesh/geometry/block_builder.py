@@ -79,6 +79,8 @@ class BlockOptions:
     dome_max_retreat: float = 1.5  # × endpoint radius
     max_fix_rounds: int = 16
     wall_quality: float = 0.05  # least scaled Jacobian of boundary-layer blocks with projected wall faces
+    good_wall_quality: float = 0.3  # projected quality at which a junction end's margin stops growing
+    wall_margins: tuple = (0.0, 0.5, 1.0, 2.0)  # extra margins tried at folding junction ends (× radius)
 
 
 @dataclass
@@ -447,6 +449,8 @@ class _Builder:
                 self.fail(blocks, bad)
         if self.project is not None:
             blocks = self.thicken_layers(blocks)
+            blocks = self.relieve_wall_folds(blocks)
+            self.report_wall_folds(blocks)
         blocks.info.update(self.info)
         blocks.info["fixes"] = list(self.fixes)
         self.tick(1.0, "done")
@@ -1323,6 +1327,158 @@ class _Builder:
         return first_ids[perm]
 
     # -- 8. validity -----------------------------------------------------------------------
+    def relieve_wall_folds(self, blocks: BlockStructure) -> BlockStructure:
+        """Re-place the first cross-sections and half-planes at junctions whose boundary
+        layer would fold in the transfinite fill.
+
+        At a junction crotch the half cross-section meets the wall obliquely: a boundary-layer
+        block from it to a branch section that stands close is short on the crotch side and
+        long on the other, and projecting its wall face folds it. Junctions with such blocks
+        (:func:`projected_wall_quality` at most ``wall_quality``) get, per branch end, the
+        extra margin of ``wall_margins`` whose blocks fill best, and where they still fold,
+        the half-plane rotations whose blocks fill best, then margins again. Blocks are
+        judged by filling them (:func:`fill_quality`, at the default and a finer
+        resolution, without untangling); the new placement is kept only when the
+        junction's blocks fill better at one resolution and no worse at any, and every
+        block stays valid."""
+        opt = self.opt
+        quality = projected_wall_quality(blocks, self.project)
+        ends = self._junction_ends(np.flatnonzero(quality <= opt.wall_quality))
+        if not ends:
+            return blocks
+        nodes = sorted({int(self.branches[bi].nodes[-side]) for bi, side in ends})
+        near = self._junction_blocks(nodes)
+        before = self._checked_score(blocks, near)
+        saved = ([br.margin.copy() for br in self.branches],
+                 {c: (j.pick.copy(), j.psi.copy()) for c, j in self.junctions.items()})
+        trial = self._margins_for_wall(ends)
+        after = self._checked_score(trial, near)
+        if np.any(after < 0):
+            # still folded: turn the half-planes too, then place the first sections again
+            self._rotate_for_wall(ends)
+            trial = self._margins_for_wall(ends)
+            after = self._checked_score(trial, near)
+        if not (np.all(after >= before - 1e-9) and np.any(after > before + 1e-9)):
+            # the junction's blocks fill no better at some resolution: back to where they were
+            for br, m in zip(self.branches, saved[0]):
+                br.margin = m
+            for c, (pick, psi) in saved[1].items():
+                self.junctions[c].pick, self.junctions[c].psi = pick, psi
+            self._apply_clearance()
+            return self.assemble()
+        self.fixes.append(f"re-placed the half cross-sections and first cross-sections at junction node(s) {nodes} "
+                          f"where the boundary layer would fold (fill scores {np.round(before, 3).tolist()} -> {np.round(after, 3).tolist()})")
+        return trial
+
+    def _checked_score(self, blocks: BlockStructure, near: np.ndarray) -> np.ndarray:
+        """:func:`fill_score` of the blocks ``near`` per fill resolution; -inf when any block
+        is invalid."""
+        if blocks.corner_jacobians().min() <= 0:
+            return np.full(len(FILL_CHECKS), -np.inf)
+        q = fill_quality(blocks, near, self.project, self.sdf, self.intersect_lines, per_resolution=True)
+        return np.array([fill_score(row) for row in q])
+
+    def _margins_for_wall(self, ends: list) -> BlockStructure:
+        """Give each junction end of ``ends`` the extra margin of ``wall_margins`` whose
+        first-segment blocks fill best (the least reaching ``good_wall_quality``); the ends
+        are independent, so one assembly per margin scores them all. Returns the assembly."""
+        opt = self.opt
+        base = {e: float(self.branches[e[0]].margin[e[1]]) for e in ends}
+        steps = np.asarray(opt.wall_margins, float)
+        score = np.full((len(ends), len(steps)), -np.inf)
+        for n, add in enumerate(steps):
+            for bi, side in ends:
+                self.branches[bi].margin[side] = base[(bi, side)] + add
+            self._apply_clearance()
+            trial = self.assemble()
+            J = trial.corner_jacobians().min(axis=1)
+            mine = [self._end_blocks(bi, side) for bi, side in ends]
+            sel = np.unique(np.concatenate(mine))
+            q = np.ones(trial.n_blocks)
+            q[sel] = self._fill_quality(trial, sel)
+            for e, (bi, side) in enumerate(ends):
+                if J[self.block_where[:, 0] == bi].min() > 0:
+                    score[e, n] = fill_score(q[mine[e]])
+        pick = np.argmax(np.minimum(score, opt.good_wall_quality), axis=1)
+        for e, (bi, side) in enumerate(ends):
+            self.branches[bi].margin[side] = base[(bi, side)] + (steps[pick[e]] if np.isfinite(score[e, pick[e]]) else 0.0)
+        self._apply_clearance()
+        return self.assemble()
+
+    def _junction_blocks(self, nodes) -> np.ndarray:
+        """Blocks of the first segment of every branch end at the junctions ``nodes``."""
+        return np.unique(np.concatenate([self._end_blocks(bi, side) for c in nodes for bi, side in self.junctions[c].ends]))
+
+    def _rotate_for_wall(self, ends: list) -> None:
+        """Re-rotate the half-planes next to the junction ends ``ends`` (``(branch, side)``)
+        to the candidate whose boundary-layer blocks fold least on the wall.
+
+        A half-plane's blocks are those with a vertex of its half-section off the spine;
+        all touched half-planes try their candidates in step (one assembly per candidate),
+        each keeps its own best (ties: the current one), and the blocks must stay valid."""
+        opt = self.opt
+        seps = set()
+        for bi, side in ends:
+            c = int(self.branches[bi].nodes[0 if side == 0 else -1])
+            j = self.junctions[c]
+            h = next(h for h, e in enumerate(j.ends) if e == (bi, side))
+            seps |= {(c, (h - 1) % len(j.neighbors)), (c, h)}
+        seps = sorted(seps)
+        ncand = max(len(self.junctions[c].cand_psi[sp]) for c, sp in seps)
+        current = {(c, sp): int(self.junctions[c].pick[sp]) for c, sp in seps}
+        score = np.full((len(seps), ncand), -np.inf)
+        for n in range(ncand):
+            for c, sp in seps:
+                j = self.junctions[c]
+                k = n if np.isfinite(j.cand_cost[sp, n]) else current[(c, sp)]
+                j.pick[sp], j.psi[sp] = k, j.cand_psi[sp, k]
+            self._apply_clearance()
+            trial = self.assemble()
+            J = trial.corner_jacobians().min(axis=1)
+            near = np.unique(np.concatenate([self._end_blocks(bi, side) for c in {c for c, _ in seps} for bi, side in self.junctions[c].ends]))
+            q = np.ones(trial.n_blocks)
+            q[near] = self._fill_quality(trial, near)
+            for e, (c, sp) in enumerate(seps):
+                j = self.junctions[c]
+                if not np.isfinite(j.cand_cost[sp, n]):
+                    continue
+                own = j.half_ids[sp][j.spine_ids < 0]
+                mine = np.flatnonzero(np.isin(trial.hexes, own[own >= 0]).any(axis=1))
+                branches = np.unique(self.block_where[mine, 0])
+                if J[np.isin(self.block_where[:, 0], branches)].min() > 0:
+                    score[e, n] = fill_score(q[mine])
+        for e, (c, sp) in enumerate(seps):
+            j = self.junctions[c]
+            capped = np.minimum(score[e], opt.good_wall_quality)
+            k = current[(c, sp)]
+            if np.isfinite(capped.max()) and capped.max() > capped[k] + 1e-3:
+                k = int(np.argmax(capped))
+            j.pick[sp], j.psi[sp] = k, j.cand_psi[sp, k]
+        self._apply_clearance()
+
+    def _fill_quality(self, blocks: BlockStructure, subset: np.ndarray) -> np.ndarray:
+        """:func:`fill_quality` of ``subset`` on this builder's wall."""
+        return fill_quality(blocks, subset, self.project, self.sdf, self.intersect_lines)
+
+    def _junction_ends(self, blocks_: np.ndarray) -> list:
+        """The (branch, side) junction ends whose first segment holds any of ``blocks_``."""
+        out = set()
+        for bi, k in np.unique(self.block_where[blocks_], axis=0).tolist():
+            br = self.branches[bi]
+            K = len(br.nodes)
+            if K <= 2:
+                continue
+            for side, at in ((0, k == 0), (1, k == K - 2)):
+                if at and br.kinds[side] == JUNCTION:
+                    out.add((bi, side))
+        return sorted(out)
+
+    def _end_blocks(self, bi: int, side: int) -> np.ndarray:
+        """Blocks of the segment next to a branch's end ``side``."""
+        K = len(self.branches[bi].nodes)
+        k = 0 if side == 0 else K - 2
+        return np.flatnonzero((self.block_where[:, 0] == bi) & (self.block_where[:, 1] == k))
+
     def thicken_layers(self, blocks: BlockStructure) -> BlockStructure:
         """Thicken the boundary layer at sections whose boundary-layer blocks would fold when
         their wall faces are projected onto the wall (:func:`projected_wall_quality`), as
@@ -1350,12 +1506,18 @@ class _Builder:
         if thickened:
             self.fixes.append(f"thickened the boundary layer at {len(thickened)} cross-section(s) where projecting the wall would fold it")
             blocks.info.update(self.info)
+        return blocks
+
+    def report_wall_folds(self, blocks: BlockStructure) -> None:
+        """Record (and warn about) boundary-layer blocks that may still fold on the wall."""
+        quality = projected_wall_quality(blocks, self.project)
         self.info["min_projected_wall_quality"] = round(float(quality.min()), 4)
         self.info["blocks_folding_on_wall"] = int(np.sum(quality <= 0))
+        blocks.info.update(self.info)
+        blocks.info["fixes"] = list(self.fixes)
         if self.info["blocks_folding_on_wall"]:
             nodes = sorted(set(blocks.block_node[quality <= 0].tolist()))
             self.warn(f"{self.info['blocks_folding_on_wall']} boundary-layer block(s) next to skeleton node(s) {nodes[:8]} may fold when their faces are projected onto the wall")
-        return blocks
 
     def fix(self, bad: np.ndarray, J: np.ndarray) -> bool:
         """Change the state so that the blocks ``bad`` may become valid; False when out of ideas.
@@ -1519,6 +1681,79 @@ def projected_wall_quality(blocks: BlockStructure, project, samples: int = 4) ->
     sj = sj.min(axis=1)
     np.minimum.at(out, b, sj)
     return out
+
+
+#: Element counts of the fill checks (around, ring, layer, element length × radius, refinement
+#: dividing the first layer): the default chain's, and a finer one as at vascularmd's resolution.
+FILL_CHECKS = ((2, 2, 3, 0.5, 1), (4, 3, 4, 0.25, 2))
+
+
+def fill_quality(blocks: BlockStructure, subset: np.ndarray, project, distance, intersect_lines=None, refinement=None,
+                 per_resolution: bool = False) -> np.ndarray:
+    """Least scaled Jacobian of each block of ``subset`` once filled with hexahedra.
+
+    The blocks are filled as :func:`~vmesh.geometry.transfinite.mesh_blocks` fills them
+    (edges and faces on the wall projected, transfinite interiors), without any untangling,
+    at each resolution of ``refinement`` (default :data:`FILL_CHECKS`: the default chain's
+    and a finer one); the least over them counts. This, not the blocks' corners, decides
+    whether a junction's blocks map validly.
+
+    Parameters
+    ----------
+    blocks : BlockStructure
+    subset : (k,) int
+        Blocks to fill (shared edges and faces are filled as in the whole structure).
+    project, distance, intersect_lines : callable
+        As for :func:`~vmesh.geometry.transfinite.mesh_blocks`.
+    refinement : sequence of (around, ring, layer, element_length, first-layer divisor), optional
+    per_resolution : bool
+        Return one row per resolution instead of combining them.
+
+    Returns
+    -------
+    (k,) float (``(len(refinement), k)`` with ``per_resolution``): the least scaled Jacobian
+    of each block's elements, or, where some are inverted, minus the share of its elements
+    inverted less the mean of ``min(0, scaled Jacobian)`` (summed over the resolutions).
+    """
+    from .quality import hex8_scaled_jacobian
+    from .transfinite import Refinement, mesh_blocks
+
+    subset = np.asarray(subset, np.int64)
+    refs = refinement or FILL_CHECKS
+    if len(subset) == 0:
+        return np.ones((len(refs), 0)) if per_resolution else np.ones(0)
+    # only the subset's vertices: the mesher projects every wall vertex it is given
+    used, hexes = np.unique(blocks.hexes[subset], return_inverse=True)
+    sub = BlockStructure(
+        vertices=blocks.vertices[used], hexes=hexes.reshape(-1, 8), vertex_on_surface=blocks.vertex_on_surface[used],
+        face_boundary=blocks.face_boundary[subset], axis_kind=blocks.axis_kind[subset],
+        block_radius=blocks.block_radius[subset], block_node=blocks.block_node[subset],
+        block_segment=blocks.block_segment[subset], block_layer=blocks.block_layer[subset],
+        boundary_names=dict(blocks.boundary_names),
+    )
+    out = np.ones((len(refs), len(subset)))
+    folded = np.zeros((len(refs), len(subset)))
+    for r, counts in enumerate(refs):
+        ref = Refinement(around=counts[0], core=counts[0], ring=counts[1], layer=counts[2], element_length=counts[3], first_layer=0.02 / counts[4])
+        sm = mesh_blocks(sub, project, ref, signed_distance=distance, intersect_lines=intersect_lines)
+        sj = hex8_scaled_jacobian(sm.points, sm.cells)
+        np.minimum.at(out[r], sm.cell_block, sj)
+        # per element of the block at this resolution: each resolution weighs the same
+        # each inverted element counts one, less its scaled Jacobian: fewer folds first, then shallower
+        np.add.at(folded[r], sm.cell_block, (np.minimum(sj, 0.0) - (sj <= 0)) / np.prod(sm.block_counts, axis=1)[sm.cell_block])
+    # a folded block scores minus the share of its elements inverted (less their scaled
+    # Jacobians): fewer and shallower folds score higher, any fold lower than every valid block
+    if per_resolution:
+        return np.where(folded < 0, folded, out)
+    return np.where(folded.sum(axis=0) < 0, folded.sum(axis=0), out.min(axis=0))
+
+
+def fill_score(quality: np.ndarray) -> float:
+    """One number for a set of blocks' :func:`fill_quality`: the least value when all are
+    valid, else the sum over the folded blocks (always below any valid set's)."""
+    quality = np.asarray(quality, float)
+    neg = quality[quality < 0]
+    return float(neg.sum()) if len(neg) else float(quality.min(initial=1.0))
 
 
 def write_bad_blocks(blocks: BlockStructure, bad: np.ndarray, path) -> Path:

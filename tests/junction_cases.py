@@ -1,0 +1,141 @@
+"""Generated junctions for the junction tests: straight tubes (capsules) joined by a
+smooth union, with their skeleton, signed distance and wall projection.
+
+The union is blended (a polynomial smooth maximum, width ``blend`` × the thinner radius)
+as segmented vessels are: the crotch is a smooth saddle, not a crease. The field is not an
+exact distance off the wall, but its zero set is the wall and its gradient there is
+nearly unit, which is all the block builder (ray casts) and the mesher (projection along
+the gradient) need.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vmesh.skeleton import Skeleton
+
+
+def direction(azimuth_deg: float, elevation_deg: float = 0.0) -> np.ndarray:
+    """Unit vector at ``azimuth`` in the xy-plane from +x, tilted ``elevation`` out of it."""
+    a, e = np.radians(azimuth_deg), np.radians(elevation_deg)
+    return np.array([np.cos(a) * np.cos(e), np.sin(a) * np.cos(e), np.sin(e)])
+
+
+@dataclass
+class JunctionCase:
+    """A generated vessel: capsules ``a[i] -> b[i]`` of radius ``r[i]`` and its skeleton."""
+
+    name: str
+    a: np.ndarray
+    b: np.ndarray
+    r: np.ndarray
+    skeleton: Skeleton
+    blend: float = 0.35
+
+    def distance(self, p: np.ndarray) -> np.ndarray:
+        """Smooth-union field, positive inside."""
+        p = np.asarray(p, float).reshape(-1, 3)
+        ab = self.b - self.a
+        t = np.clip(np.einsum("pkj,kj->pk", p[:, None, :] - self.a[None], ab) / np.sum(ab * ab, axis=1), 0.0, 1.0)
+        f = self.r[None] - np.linalg.norm(p[:, None, :] - (self.a[None] + t[:, :, None] * ab[None]), axis=2)
+        order = np.argsort(-self.r)  # thick vessels first: the blend scales with the thinner one
+        out = f[:, order[0]]
+        for k in order[1:]:
+            w = self.blend * self.r[k]
+            h = np.clip(0.5 + 0.5 * (out - f[:, k]) / w, 0.0, 1.0)
+            out = f[:, k] + (out - f[:, k]) * h + w * h * (1.0 - h)
+        return out
+
+    def gradient(self, p: np.ndarray, eps: float = 1e-5) -> np.ndarray:
+        p = np.asarray(p, float).reshape(-1, 3)
+        g = np.empty_like(p)
+        for k in range(3):
+            d = np.zeros(3)
+            d[k] = eps
+            g[:, k] = (self.distance(p + d) - self.distance(p - d)) / (2 * eps)
+        return g
+
+    def project(self, p: np.ndarray, iterations: int = 8) -> np.ndarray:
+        """Points moved onto the wall along the field's gradient (Newton steps)."""
+        x = np.asarray(p, float).reshape(-1, 3).copy()
+        for _ in range(iterations):
+            g = self.gradient(x)
+            x -= (self.distance(x) / np.maximum(np.sum(g * g, axis=1), 1e-12))[:, None] * g
+        return x
+
+
+def _chain(start: np.ndarray, d: np.ndarray, length: float, spacing: float, first_id: int, join: int):
+    """Skeleton nodes every ``spacing`` from ``start`` along ``d`` (excluding ``start``)."""
+    n = max(2, int(round(length / spacing)))
+    pts = start + np.outer(np.arange(1, n + 1) * (length / n), d)
+    ids = first_id + np.arange(n)
+    edges = np.c_[np.r_[join, ids[:-1]], ids]
+    return pts, edges
+
+
+def furcation(name: str, daughters, parent_radius: float = 1.0, parent_length: float = 8.0,
+              length: float = 8.0, blend: float = 0.35) -> JunctionCase:
+    """A parent along +x ending at the origin and daughters ``(direction, radius)`` from it.
+
+    Branch lengths are in parent radii, at least 6 radii of the branch; the capsules run
+    two radii past the skeleton's ends (open ends inside the tube)."""
+    pts, edges, radii = [np.zeros(3)], [], [parent_radius]
+    a, b, r = [], [], []
+    branches = [(-np.array([1.0, 0, 0]), parent_radius, parent_length)]
+    branches += [(np.asarray(d, float) / np.linalg.norm(d), rd, max(length, 6 * rd)) for d, rd in daughters]
+    for d, rd, L in branches:
+        p, e = _chain(np.zeros(3), d, L, 0.8 * rd, len(pts), 0)
+        pts.extend(p)
+        edges.extend(e)
+        radii.extend([rd] * len(p))
+        a.append(np.zeros(3))
+        b.append((L + 2 * rd) * d)
+        r.append(rd)
+    sk = Skeleton(np.asarray(pts), np.asarray(radii, float), np.asarray(edges))
+    return JunctionCase(name, np.asarray(a), np.asarray(b), np.asarray(r), sk, blend)
+
+
+def close_junctions(gap: float, angle: float = 40.0) -> JunctionCase:
+    """A trunk along +x with a side branch at the origin and a bifurcation ``gap`` radii on."""
+    r0 = 1.0
+    J2 = np.array([gap, 0, 0])
+    pts = [np.zeros(3), J2]
+    edges = [(0, 1)]
+    radii = [r0, 0.9 * r0]
+    a, b, r = [], [], []
+
+    def add(start, join, d, rd, L):
+        p, e = _chain(start, d, L, 0.8 * rd, len(pts), join)
+        pts.extend(p)
+        edges.extend(e)
+        radii.extend([rd] * len(p))
+        a.append(start)
+        b.append(start + (L + 2 * rd) * d)
+        r.append(rd)
+
+    add(np.zeros(3), 0, np.array([-1.0, 0, 0]), r0, 8.0)
+    add(np.zeros(3), 0, direction(90, 30), 0.6 * r0, 6.0)
+    add(J2, 1, direction(angle / 2, -20), 0.75 * r0, 8.0)
+    add(J2, 1, direction(-angle / 2, -20), 0.7 * r0, 8.0)
+    a.append(np.zeros(3))
+    b.append(J2)
+    r.append(0.9 * r0)
+    sk = Skeleton(np.asarray(pts), np.asarray(radii, float), np.asarray(edges))
+    return JunctionCase(f"close_junctions_{gap:g}", np.asarray(a), np.asarray(b), np.asarray(r), sk)
+
+
+def bifurcation(angle: float, ratio: float, out_of_plane: float = 0.0, asymmetry: float = 0.5) -> JunctionCase:
+    """Daughters ``angle`` degrees apart (split ``asymmetry`` : 1 - ``asymmetry`` about +x),
+    radii 0.8 and 0.8 / ``ratio`` of the parent's, the second tilted ``out_of_plane``."""
+    d1 = direction(asymmetry * angle)
+    d2 = direction(-(1 - asymmetry) * angle, out_of_plane)
+    return furcation(f"bif_{angle:g}_{ratio:g}_{out_of_plane:g}", [(d1, 0.8), (d2, 0.8 / ratio)])
+
+
+def trifurcation(spread: float, ratio: float = 1.0) -> JunctionCase:
+    """Three daughters ``spread`` degrees off +x, 120 degrees apart around it."""
+    s = np.radians(spread)
+    ds = [np.array([np.cos(s), np.sin(s) * np.cos(t), np.sin(s) * np.sin(t)]) for t in np.radians([90, 210, 330])]
+    return furcation(f"trif_{spread:g}_{ratio:g}", [(ds[0], 0.7), (ds[1], 0.7), (ds[2], 0.7 / ratio)])
