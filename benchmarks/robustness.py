@@ -189,12 +189,14 @@ def run_one(task: dict) -> dict:
         row["coverage"] = coverage_of(ctx.report.to_dict())
     row["misses"] = judge(row)
     row["success"] = not row["misses"]
+    save = lambda: (folder / "result.json").write_text(json.dumps(C.clean_rows([row])[0], indent=1, default=C._json_default))
+    save()  # before the pictures: a render that runs out of time must not lose the row
     if not row["success"]:
         try:
             row["pictures"] = render_reached(ctx, folder / "reached")
         except Exception as exc:
             row["pictures_error"] = f"{type(exc).__name__}: {exc}"[:200]
-    (folder / "result.json").write_text(json.dumps(C.clean_rows([row])[0], indent=1, default=C._json_default))
+        save()
     return row
 
 
@@ -214,6 +216,8 @@ def run_task(task: dict) -> dict:
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+            if result.is_file():  # the run ended; its pictures did not
+                return {**_base(task), **json.loads(result.read_text()), "pictures_error": "rendering ran out of time"}
             stage = _last_step(folder / "log.txt")
             return {**_base(task), "status": "failed", "error": f"timeout after {task['timeout']} s" + (f" in {stage}" if stage else ""),
                     "wall_s": round(time.perf_counter() - t0, 1), "success": False, "misses": ["timeout"]}
@@ -229,9 +233,16 @@ def _base(task: dict) -> dict:
 
 
 def _last_step(log: Path) -> str:
-    """Where a timed-out child was: the innermost vmesh function of its stack dump."""
-    frames = re.findall(r'vmesh/([\w/]+)\.py", line \d+ in (\w+)', log.read_text(errors="replace")) if log.is_file() else []
-    return f"{frames[0][0].replace('/', '.')}.{frames[0][1]}" if frames else ""
+    """Where a timed-out child was, from its stack dump: ``filter (innermost vmesh function)``
+    of the thread that runs the chain."""
+    text = log.read_text(errors="replace") if log.is_file() else ""
+    block = next((b for b in text.split("\n\n") if "vmesh/chain.py" in b), "")
+    frames = re.findall(r'vmesh/([\w/]+)\.py", line \d+ in (\w+)', block)
+    filt = [f for m, f in frames if m.startswith("filters/")]
+    if not frames:
+        return ""
+    inner = f"{frames[0][0].replace('/', '.')}.{frames[0][1]}"
+    return f"{filt[-1]} ({inner})" if filt else inner
 
 
 # ---------------------------------------------------------------------------
@@ -249,7 +260,7 @@ def stage_and_cause(row: dict) -> tuple[str, str]:
     m = _STEP.search(err)
     stage = m.group(1) if m else (row.get("failed_step") or ("quality" if row["status"] == "ok" else "input"))
     if err.startswith("timeout"):
-        stage = err.split(" in ")[-1] if " in " in err else "timeout"
+        stage = err.split(" in ")[-1].split(" (")[0] if " in " in err else "timeout"
     text = _STEP.sub("", err)
     text = re.sub(r"^\w+Error: ", "", text.strip(" :"))
     text = re.sub(r"\S*/\S+", "PATH", text)

@@ -143,7 +143,8 @@ def _grow_component(rng, morph, wanted, origin, radius):
         T.add_loop(tree, rng)
     for f in ("stenosis", "fusiform", "radius_jump"):
         if f in wanted:
-            T.modulate_radius(tree, rng, f)
+            # a stenosis narrows one of the largest vessels (its throat stays above 0.6 x min_radius)
+            T.modulate_radius(tree, rng, f, 3.0 * morph["min_radius"] if f == "stenosis" else 0.0)
     for f in ("aneurysm_apex", "aneurysm_side"):
         if f in wanted:
             T.add_aneurysm(tree, rng, f.split("_")[1])
@@ -241,15 +242,18 @@ def generate_vessel(seed=0, preset: str = "clean", rates: dict | None = None, en
         F += S.noise_field(F.shape, h, 0.8 * float(R.mean()), rng.uniform(0.06, 0.12) * float(R.min()), rng)
         feats["noise"] = 1
     staircase = "staircase" in wanted
-    V, Tri = S.contour(F, grid, staircase)
+    V, Tri = S.contour(F, grid, staircase, smooth_iters=0)
     del F
     feats["staircase"] = int(staircase)
+    if end_style == "open":  # the contour's flat end discs are exact: remove them before smoothing
+        V, Tri = S.remove_faces(V, Tri, S.cap_faces(V, Tri, caps, 1e-3))
+    if not staircase:
+        V = S.smooth(V, Tri)
     target = int(np.clip(len(Tri) // 4, *target_faces))
     V, Tri = S.decimate(V, Tri, min(target, len(Tri)))
     if end_style in ("open", "flat"):
         V = S.snap_to_caps(V, caps, 0.05)
     if end_style == "open":
-        V, Tri = S.remove_faces(V, Tri, S.cap_faces(V, Tri, caps, 0.02))
         if "ragged_ends" in wanted:
             V, Tri = S.ragged_cut(V, Tri, caps, rng)
             feats["ragged_ends"] = len(caps)

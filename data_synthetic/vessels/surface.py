@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..generate import _decimate, _Grid, _smin, _taubin, _tube_field, signed_volume
+from ..generate import _Grid, _smin, _taubin, _tube_field, signed_volume
 from .tree import Tree, unit
 
 _BIG = np.float32(1e6)
@@ -78,15 +78,17 @@ def implicit_field(tree: Tree, end_style: str, h: float):
 
 def grid_spacing(tree: Tree, grid_per_radius: float, max_voxels: float) -> float:
     """Grid spacing: smallest tube radius / ``grid_per_radius``, coarser if the bounding box
-    would hold more than ``max_voxels`` samples."""
+    would hold more than ``max_voxels`` samples, but never beyond radius / 1.8 (a thinner
+    grid would lose the thinnest vessels)."""
     P, R, _ = tree.points()
     h = float(R.min()) / grid_per_radius
     ext = np.ptp(P, axis=0) + 2 * R.max() + 8 * h
-    return max(h, float(np.prod(ext) / max_voxels) ** (1 / 3))
+    return max(h, min(float(np.prod(ext) / max_voxels) ** (1 / 3), float(R.min()) / 1.8))
 
 
 def contour(F, grid, staircase: bool, smooth_iters: int = 10):
-    """Marching cubes (binary field for a staircase surface), outward orientation, smoothing."""
+    """Marching cubes (binary field for a staircase surface), outward orientation and
+    ``smooth_iters`` Taubin steps (none for a staircase)."""
     from skimage.measure import marching_cubes
 
     vol = np.where(F < 0, np.float32(-1), np.float32(1)) if staircase else F
@@ -191,8 +193,22 @@ def noise_field(shape, h, scale, amplitude, rng):
     return (amplitude / max(float(g.std()), 1e-12)) * g
 
 
+def smooth(V, T, iters: int = 10):
+    """Taubin smoothing (no shrinking): removes the marching-cubes facets."""
+    return _taubin(V, T, iters=iters)
+
+
 def decimate(V, T, target):
-    """Quadric decimation to ``target`` faces (topology and boundaries kept)."""
+    """Quadric decimation to ``target`` faces (topology and open boundaries kept)."""
+    import pymeshlab
+
     if len(T) <= target:
         return V, T
-    return _decimate(V, T, target)
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=V, face_matrix=T.astype(np.int32)))
+    ms.meshing_decimation_quadric_edge_collapse(targetfacenum=int(target), qualitythr=0.5, preservenormal=True,
+                                                preserveboundary=True, boundaryweight=2.0, preservetopology=True,
+                                                optimalplacement=True, planarquadric=True, autoclean=True)
+    ms.meshing_remove_unreferenced_vertices()
+    m = ms.current_mesh()
+    return np.asarray(m.vertex_matrix(), dtype=float), np.asarray(m.face_matrix(), dtype=np.int64)

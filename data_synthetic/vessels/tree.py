@@ -273,10 +273,10 @@ def grow(p: dict, rng, origin=np.zeros(3), direction=(0, 0, 1.0), root_radius=No
 # ---------------------------------------------------------------------------
 # features placed on a grown tree
 # ---------------------------------------------------------------------------
-def _pick_point(tree, rng, kinds=("vessel",), min_len=6.0, leaf=False):
+def _pick_point(tree, rng, kinds=("vessel",), min_len=6.0, leaf=False, min_radius=0.0):
     """(branch, point index) in the middle of a long enough branch, or None."""
     cand = [k for k, b in enumerate(tree.branches) if b.kind in kinds and b.s[-1] >= min_len * b.rad.mean()
-            and (not leaf or not tree.children(k))]
+            and (not leaf or not tree.children(k)) and b.rad.min() >= min_radius]
     if not cand:
         return None
     b = int(rng.choice(cand))
@@ -288,7 +288,8 @@ def add_side_branch(tree, rng, kind, p) -> bool:
     """A side branch leaving a vessel's wall: ``side`` (radius ratio about 1:5) or ``stub``
     (radius 0.3-0.6 of the parent's, cut 1-2 of its radii beyond the parent's wall)."""
     for _ in range(10):
-        got = _pick_point(tree, rng)
+        # a 1:5 branch leaves one of the largest vessels (it stays above 0.7 x min_radius)
+        got = _pick_point(tree, rng, min_radius=3.0 * p["min_radius"] if kind == "side" else 0.0)
         if got is None:
             return False
         b, i = got
@@ -412,32 +413,35 @@ def add_aneurysm(tree, rng, where) -> bool:
     return False
 
 
-def modulate_radius(tree, rng, feature) -> bool:
+def modulate_radius(tree, rng, feature, min_radius=0.0) -> bool:
     """Stenosis (50-80 % narrowing), fusiform dilatation (+50-100 %) or a sudden radius jump
-    along one vessel."""
-    got = _pick_point(tree, rng, leaf=feature == "radius_jump", min_len=8.0)
-    if got is None:
-        return False
-    b, i = got
-    br = tree.branches[b]
-    s = br.s - br.s[i]
-    r = br.rad[i]
-    if feature == "radius_jump":
-        f = rng.uniform(0.55, 0.7)
-        ramp = np.clip(s / (0.3 * r) + 0.5, 0, 1)
-        factor = 1 + (f - 1) * ramp
-    else:
-        w = rng.uniform(2, 4) * r if feature == "stenosis" else rng.uniform(3, 5) * r
-        bump = np.where(np.abs(s) < w, 0.5 * (1 + np.cos(np.pi * s / w)), 0.0)
-        amp = -rng.uniform(0.5, 0.8) if feature == "stenosis" else rng.uniform(0.5, 1.0)
-        factor = 1 + amp * bump
-    new = br.rad * factor
-    if feature == "fusiform" and not tree.clear_of(br.pts, new, [(br.pts[0], 3 * br.rad[0]), (br.pts[-1], 3 * br.rad[-1])], skip={b}):
-        return False
-    br.rad = new
-    br.tags.setdefault(i, []).append(feature)
-    tree.features[feature] += 1
-    return True
+    along one vessel of radius >= ``min_radius``."""
+    for _ in range(10):
+        got = _pick_point(tree, rng, leaf=feature == "radius_jump", min_len=5.0, min_radius=min_radius)
+        if got is None:
+            return False
+        b, i = got
+        br = tree.branches[b]
+        s = br.s - br.s[i]
+        r = br.rad[i]
+        if feature == "radius_jump":
+            ramp = np.clip(s / (0.3 * r) + 0.5, 0, 1)
+            factor = 1 + (rng.uniform(0.55, 0.7) - 1) * ramp
+        else:
+            w = rng.uniform(2, 4) * r if feature == "stenosis" else rng.uniform(3, 5) * r
+            bump = np.where(np.abs(s) < w, 0.5 * (1 + np.cos(np.pi * s / w)), 0.0)
+            amp = -rng.uniform(0.5, 0.8) if feature == "stenosis" else rng.uniform(0.5, 1.0)
+            factor = 1 + amp * bump
+        new = br.rad * factor
+        if feature == "fusiform":
+            ends = [(br.pts[0], 3 * br.rad[0]), (br.pts[-1], 3 * br.rad[-1])]
+            if not tree.clear_of(br.pts, new, ends, skip={b, *tree.children(b)}):
+                continue
+        br.rad = new
+        br.tags.setdefault(i, []).append(feature)
+        tree.features[feature] += 1
+        return True
+    return False
 
 
 # ---------------------------------------------------------------------------
