@@ -372,7 +372,8 @@ def write_swc(path, vessel: Vessel, radii: bool = True) -> Path:
 
 def write_vmtk_centerline(path, vessel: Vessel, radii: bool = True) -> Path:
     """VMTK-style centerlines: one polyline from the inlet of each piece to every other end
-    node, and one through each loop segment (inlet -> one end of it -> its other end)."""
+    node, and one around each loop (inlet -> one side of the ring -> the other side, back to
+    the junction where that side starts)."""
     import pyvista as pv
 
     parent, order, extra = _spanning_parents(len(vessel.xyz), vessel.edges, _roots(vessel))
@@ -384,8 +385,14 @@ def write_vmtk_centerline(path, vessel: Vessel, radii: bool = True) -> Path:
             path.append(int(parent[path[-1]]))
         return path[::-1]
 
+    def down_to_junction(u):  # u and its ancestors up to the first junction (a loop's far side)
+        path = [u]
+        while deg[path[-1]] == 2 and parent[path[-1]] >= 0:
+            path.append(int(parent[path[-1]]))
+        return path
+
     paths = [to_root(u) for u in order if deg[u] == 1 and parent[u] >= 0]
-    paths += [to_root(a) + [b] for a, b in extra]
+    paths += [to_root(a) + down_to_junction(b) for a, b in extra]
     pts = np.concatenate([vessel.xyz[p] for p in paths])
     rad = np.concatenate([vessel.radius[p] for p in paths])
     sizes = [len(p) for p in paths]

@@ -48,6 +48,7 @@ def boundary_loops(F) -> int:
     return int(connected_components(A, directed=False)[0])
 
 
+@pytest.mark.slow
 def test_same_seed_same_vessel_and_units_scale_only():
     a, b = small(11, "rough"), small(11, "rough")
     assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces)
@@ -61,7 +62,8 @@ def test_same_seed_same_vessel_and_units_scale_only():
     np.testing.assert_allclose(cm.vertices, 0.1 * mm.vertices)
 
 
-@pytest.mark.parametrize("seed,end_style", [(1, "flat"), (2, "round"), (3, "flat"), (4, "round")])
+@pytest.mark.parametrize("seed,end_style", [(1, "flat"), (2, "round"), pytest.param(3, "flat", marks=pytest.mark.slow),
+                                             pytest.param(4, "round", marks=pytest.mark.slow)])
 def test_closed_vessel_is_watertight_outward_and_holds_its_skeleton(seed, end_style):
     v = small(seed, end_style=end_style)
     V, F = v.vertices, v.faces
@@ -192,6 +194,7 @@ def test_files_round_trip_through_vmesh_readers(tmp_path):
     assert np.isnan(read_skeleton(d / m["files"]["centerline_vtp_noradius"]).radii).all()
 
 
+@pytest.mark.slow
 def test_corpus_index_is_independent_of_size_and_cached(tmp_path):
     a = G.generate_one(tmp_path / "a", 2, seed=5, preset="mixed", **SMALL)
     b = G.generate_one(tmp_path / "b", 2, seed=5, preset="mixed", **SMALL)
