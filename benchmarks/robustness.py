@@ -327,6 +327,24 @@ def summarise(rows: list[dict]) -> tuple[str, dict]:
 
 
 # ---------------------------------------------------------------------------
+def merge(paths: list[Path], name: str) -> int:
+    """Tabulate the rows of earlier result files as one benchmark (``--merge``)."""
+    rows, runs = [], []
+    for p in paths:
+        d = json.loads(p.read_text())
+        rows += d["rows"]
+        runs.append(f"`{p.name}` ({d.get('when', '?')}, source `{d.get('vmesh_source_sha1', '?')}`)")
+    rows.sort(key=lambda r: (r["group"] != "real", r["case"], r["variant"]))
+    md, stats = summarise(rows)
+    print(md)
+    header = (f"# robustness\n\nMerged from {', '.join(runs)} by `python benchmarks/robustness.py --merge ...` (shared "
+              f"machine: times are noisy). Success: 0 invalid elements, min SJ ≥ {SJ_MIN}, mean ≥ {SJ_MEAN}, coverage passed "
+              "where reported.\n")
+    js, mdp = C.write_results(name, rows, md, header, extra={"stats": stats, "merged_from": [str(p) for p in paths]})
+    print(f"\nwritten {js.relative_to(C.ROOT)}, {mdp.name}")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--n", type=int, default=200, help="generated vessels (default 200)")
@@ -340,11 +358,15 @@ def main(argv=None) -> int:
     ap.add_argument("--refinement", type=int, help="mesh_transfinite.refinement (the coverage criterion is judged at 2)")
     ap.add_argument("--work", type=Path, default=C.ROOT / "out" / "robustness", help="per-case folders")
     ap.add_argument("--name", default="robustness")
+    ap.add_argument("--merge", nargs="+", type=Path, metavar="JSON",
+                    help="no runs: tabulate the rows of earlier result files together (e.g. a real and a generated run)")
     ap.add_argument("--one", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.one:
         run_one(json.loads(args.one))
         return 0
+    if args.merge:
+        return merge(args.merge, args.name)
     from distributed import Client
 
     from vmesh.batch import _local_cluster

@@ -230,7 +230,7 @@ def grow(p: dict, rng, origin=np.zeros(3), direction=(0, 0, 1.0), root_radius=No
         will_split = gen < p["generations"] and r_end * 0.75 >= p["min_radius"]
         feature = pending[0] if will_split and pending else None
         placed = False
-        for attempt in range(8):
+        for _ in range(8):
             L = forced_len if forced_len is not None else max(rng.uniform(*p["length_ratio"]) * r,
                                                                max((kr + 3 * r for _, kr in keep_out), default=0.0))
             pts, rad = axis(start, d, L, r, r_end, p["tortuosity"] * (forced_len is None), rng)
