@@ -4,7 +4,8 @@ Cases
 -----
 * ``generated``: ``--n`` vessels of :mod:`data_synthetic.vessel_generator` (``--seed``,
   ``--preset clean|rough|mixed``), each run with its true skeleton (``given``: the VMTK-style
-  centerline for even vessel numbers, the SWC for odd ones) and with an extracted one.
+  centerline for even vessel numbers, the SWC for odd ones, or skeleton.json when the vessel
+  has a loop) and with an extracted one.
 * ``real``: every surface of :data:`vmesh.realdata.REAL_CORPUS`, with its centerline where the
   data set has one (``given``) and with an extracted skeleton (``extracted``).
 
@@ -87,7 +88,8 @@ def generated_tasks(work: Path, n: int, seed: int, preset: str, client) -> list[
         d = Path(m["folder"])
         base = {"group": "generated", "case": d.name, "surface": str(d / m["files"]["surface"]),
                 "features": sorted(k for k, v in m["features"].items() if v)}
-        skel = m["files"]["centerline_vtp"] if i % 2 == 0 else m["files"]["swc"]
+        # an SWC cannot hold a loop's closing segment: loops get the JSON skeleton instead
+        skel = m["files"]["centerline_vtp"] if i % 2 == 0 else m["files"]["skeleton_json" if m["features"].get("loop") else "swc"]
         out += [{**base, "variant": "given", "skeleton": str(d / skel)}, {**base, "variant": "extracted", "skeleton": None}]
     return out
 

@@ -190,7 +190,7 @@ def build_tree(rng, morph: dict, wanted: set) -> T.Tree:
 
 def generate_vessel(seed=0, preset: str = "clean", rates: dict | None = None, end_style: str | None = None,
                     units: str | None = None, surface_format: str | None = None, grid_per_radius: float = 2.6,
-                    max_voxels: float = 12e6, target_faces: tuple = (10_000, 100_000), morphology: dict | None = None,
+                    max_voxels: float = 6e6, target_faces: tuple = (10_000, 100_000), morphology: dict | None = None,
                     name: str = "vessel") -> Vessel:
     """Generate one vessel.
 
