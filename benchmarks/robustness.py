@@ -87,7 +87,8 @@ def generated_tasks(work: Path, n: int, seed: int, preset: str, client) -> list[
             continue
         d = Path(m["folder"])
         base = {"group": "generated", "case": d.name, "surface": str(d / m["files"]["surface"]),
-                "features": sorted(k for k, v in m["features"].items() if v)}
+                "features": sorted(k for k, v in m["features"].items() if v)
+                + [f"preset_{m['preset']}", f"ends_{m['end_style']}", f"units_{m['units']}"]}
         # an SWC cannot hold a loop's closing segment: loops get the JSON skeleton instead
         skel = m["files"]["centerline_vtp"] if i % 2 == 0 else m["files"]["skeleton_json" if m["features"].get("loop") else "swc"]
         out += [{**base, "variant": "given", "skeleton": str(d / skel)}, {**base, "variant": "extracted", "skeleton": None}]
@@ -264,7 +265,7 @@ def stage_and_cause(row: dict) -> tuple[str, str]:
     if err.startswith("timeout"):
         stage = err.split(" in ")[-1].split(" (")[0] if " in " in err else "timeout"
     text = _STEP.sub("", err)
-    text = re.sub(r"^\w+Error: ", "", text.strip(" :"))
+    text = re.sub(r"^\w+Error: ", "", text.strip(" :")).strip(" :")
     text = re.sub(r"\S*/\S+", "PATH", text)
     text = re.sub(r"-?\d+(\.\d+)?(e-?\d+)?", "N", text)
     text = re.sub(r"\(N[^)]*\)", "", text)
@@ -296,7 +297,8 @@ def summarise(rows: list[dict]) -> tuple[str, dict]:
     feats = defaultdict(lambda: [0, 0])
     for r in rows:
         if r["group"] == "generated":
-            for f in r.get("features", []):
+            own = [f for f in r.get("features", []) if not f.startswith(("preset_", "ends_", "units_"))]
+            for f in r.get("features", []) + ([] if own else ["(no feature)"]):
                 feats[f][0] += 1
                 feats[f][1] += bool(r.get("success"))
     if feats:
