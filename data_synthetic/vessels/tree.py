@@ -222,7 +222,7 @@ def grow(p: dict, rng, origin=np.zeros(3), direction=(0, 0, 1.0), root_radius=No
     r_root = root_radius or p["root_radius"]
     plane0 = perpendicular(unit(direction), rng)
     queue = [(np.asarray(origin, float), unit(direction), r_root, 0, -1, 0, plane0, None, [])]
-    short = []  # junctions whose first daughter is short (close_junctions)
+    placed_at = []  # (junction branch, feature, daughters) of the junction features
     while queue:
         start, d, r, gen, parent, at, plane, forced_len, keep_out = queue.pop(0)
         r_end = r * rng.uniform(*p["taper"])
@@ -254,19 +254,22 @@ def grow(p: dict, rng, origin=np.zeros(3), direction=(0, 0, 1.0), root_radius=No
         cosmin = max(float(dirs[i] @ dirs[j]) for i in range(len(dirs)) for j in range(i + 1, len(dirs)))
         sin_min = np.sqrt(max(1 - cosmin ** 2, 0.0)) if cosmin > 0 else 1.0
         ko = [(pts[-1], min(12 * r_end, 1.3 * (r_end + radii.max()) / max(sin_min, 0.1)))]
-        close = feature == "close_junctions"
+        close = feature == "close_junctions"  # its first daughter is short and branches again
         for k, (rc, dc) in enumerate(zip(radii, dirs)):
             flen = rng.uniform(0.8, 1.8) * r_end if close and k == 0 else None
             queue.append((pts[-1], dc, rc, gen + 1 if flen is None else gen, b, len(pts) - 1, plane, flen, ko))
-        if close:
-            short.append(b)
-        elif feature is not None:
-            tree.features[feature] += 1
-    # two junctions closer than 2 radii only where the short daughter did branch again
-    for b in short:
-        first = [k for k in tree.end_children(b) if tree.branches[k].s[-1] < 2 * tree.branches[b].rad[-1]]
-        if any(len(tree.end_children(k)) >= 2 for k in first):
-            tree.features["close_junctions"] += 1
+        if feature is not None:
+            placed_at.append((b, feature, len(dirs)))
+    # a junction feature counts only where its daughters found room (a blocked daughter is
+    # dropped); two junctions closer than 2 radii only where the short daughter branched again
+    for b, feature, n in placed_at:
+        kids = tree.end_children(b)
+        if feature == "close_junctions":
+            first = [k for k in kids if tree.branches[k].s[-1] < 2 * tree.branches[b].rad[-1]]
+            ok = any(len(tree.end_children(k)) >= 2 for k in first)
+        else:
+            ok = len(kids) == n
+        tree.features[feature] += int(ok)
     return tree
 
 
