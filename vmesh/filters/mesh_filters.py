@@ -133,11 +133,17 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", 
             sm.points, sm.cells, p, ref_nodes=reference_points(p, node_distribution), wall=wall, wall_normals=sdf.gradient, project=projector, cap_nodes=cap_nodes, cap_normals=cap_normals,
             boundary=boundary, untangle_below=below, smooth_below=smooth_below,
         )
-        sm.points[:] = X
-        if info["moved"]:
-            ctx.count(untangled_nodes=info["untangled_nodes"], smoothed_nodes=info["smoothed_nodes"])
-            ctx.report.sections["untangle"] = info
-        return
+        from ..geometry.quality import scaled_jacobian
+
+        # the local optimiser works on the element corners; for p > 1 the followed nodes can
+        # still fold an element: then the global untangler starts from the unoptimised mesh
+        if p == 1 or scaled_jacobian(X, sm.cells, p, reference_points(p, node_distribution)).min() > 0:
+            sm.points[:] = X
+            if info["moved"]:
+                ctx.count(untangled_nodes=info["untangled_nodes"], smoothed_nodes=info["smoothed_nodes"])
+                ctx.report.sections["untangle"] = info
+            return
+        ctx.warn(f"the local optimiser left a folded order-{p} element; untangling with lbfgs instead")
     from ..geometry.untangle import untangle
 
     X, info = untangle(
