@@ -31,7 +31,7 @@ from ..registry import Parameter, register_filter
         Parameter("project_to", "str", "fine", "Surface the wall nodes are projected onto: the fine (input) or the coarse surface.", choices=("fine", "coarse")),
         Parameter("untangle", "bool", True, "Move the nodes around elements of low scaled Jacobian (folds at junction crotches) to make them valid: wall nodes slide on the wall, cap nodes in the cap plane."),
         Parameter("untangle_below", "float", 0.3, "Elements whose scaled Jacobian is below this are optimised with their neighbourhood (p > 1: of the element corners with optimiser = local, of the sub-hexahedra with lbfgs).", min=0.0, max=0.9),
-        Parameter("untangle_restart_below", "float", 0.2, "When untangling leaves an element below this, untangle once more from its result (fresh targets) and keep the better; 0 = never (optimiser = lbfgs only).", min=0.0, max=0.9),
+        Parameter("untangle_restart_below", "float", 0.2, "When untangling leaves an element below this, untangle once more from its result (fresh targets) and keep the better; with optimiser = local: the L-BFGS untangler also runs when the local result's minimum is not above this; 0 = never.", min=0.0, max=0.9),
         Parameter("optimiser", "str", "local", "local: compiled per-node Newton steps around bad elements, Gauss-Seidel over a node colouring (vmesh.geometry.optimize); lbfgs: the former global L-BFGS untangler.", choices=("local", "lbfgs")),
         Parameter("smooth_below", "float", 0.5, "Light pass after untangling (optimiser = local): nodes of elements below this move only where their elements' minimum and mean scaled Jacobian do not drop; 0 = off.", min=0.0, max=0.95),
     ],
@@ -135,21 +135,33 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", 
         )
         from ..geometry.quality import scaled_jacobian
 
-        # the local optimiser works on the element corners; for p > 1 the followed nodes can
-        # still fold an element: then the global untangler starts from the unoptimised mesh
-        if p == 1 or scaled_jacobian(X, sm.cells, p, reference_points(p, node_distribution)).min() > 0:
+        # the local optimiser is fast but moves few nodes; where it leaves a fold or an element
+        # below restart_below (a junction fold that needs a wider region, or an order-p element
+        # folded by the nodes that follow the corners), the global untangler runs too
+        q = scaled_jacobian(X, sm.cells, p, reference_points(p, node_distribution))
+        if q.min() > max(restart_below or 0.0, 0.0):
             sm.points[:] = X
             if info["moved"]:
                 ctx.count(untangled_nodes=info["untangled_nodes"], smoothed_nodes=info["smoothed_nodes"])
                 ctx.report.sections["untangle"] = info
             return
-        ctx.warn(f"the local optimiser left a folded order-{p} element; untangling with lbfgs instead")
+        local_points, local_min = X, float(q.min())
+    else:
+        local_points, local_min = None, -np.inf
     from ..geometry.untangle import untangle
 
+    # from the unoptimised mesh (its own targets), then the better of the two results is kept
     X, info = untangle(
         sm.points, sm.cells, p, wall=wall, wall_normals=sdf.gradient, project=projector, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=below,
         boundary=boundary, restart_below=restart_below or None,
     )
+    if local_points is not None:
+        from ..geometry.quality import scaled_jacobian
+        from ..geometry.transfinite import reference_points
+
+        if scaled_jacobian(X, sm.cells, p, reference_points(p, node_distribution)).min() < local_min:
+            X = local_points
+        info["after_local_min"] = local_min
     sm.points[:] = X
     if info["rounds"]:
         ctx.count(untangled_nodes=info["moved"])
