@@ -40,13 +40,10 @@ import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib
 
 import numpy as np
 
+from ._toml import tomllib
 from .errors import InputError, VmeshError
 
 #: Columns of the summary every row has, in order (override columns follow).

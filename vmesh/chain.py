@@ -11,12 +11,9 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib
 
 from . import __version__
+from ._toml import tomllib
 from .context import Context, StepReport
 from .errors import ChainError, InputError, ParameterError, Stopped, VmeshError
 from .io.atomic import replace_dir

@@ -13,14 +13,10 @@ import os
 import signal
 import sys
 import threading
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib
 import warnings
-from pathlib import Path
 
 from . import __version__
+from ._toml import tomllib
 from .errors import Stopped, VmeshError
 
 EXIT_USAGE = 2

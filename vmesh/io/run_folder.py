@@ -10,13 +10,10 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib
 
 import numpy as np
 
+from .._toml import tomllib
 from ..errors import InputError
 from ..mesh import VTK_HEXAHEDRON, VTK_LAGRANGE_HEXAHEDRON, tensor_to_vtk
 from .mesh import names_from_field_data
