@@ -323,7 +323,9 @@ class FilterChain:
                             f"(decimate_surface.target_faces) or mesh a smaller part"
                         ) from None
                     except Exception as exc:
-                        raise ChainError(internal_error_text(i + 1, step.filter)) from exc
+                        # with an output folder the traceback is kept in OUT.failed/failure.log
+                        log = failed_dir(out_dir) / "failure.log" if stage is not None else None
+                        raise ChainError(internal_error_text(i + 1, step.filter, log)) from exc
                 current = None
                 ctx._step.seconds = mon.seconds
                 ctx._step.peak_memory_mb = mon.peak_mb
@@ -403,8 +405,6 @@ def _keep_failed_run(exc: BaseException, ctx, stage: Path, out_dir: Path, chain:
     else:  # raised outside a filter (writing the results): a bug, the traceback goes to the log
         message = f"the run stopped on an internal error after its last step (a bug in vmesh, please report it with {failed / 'failure.log'})"
     message = message.replace(str(stage), str(failed))
-    if isinstance(exc, ChainError) and "vmesh --debug shows the traceback" in message:
-        message = message.replace("; vmesh --debug shows the traceback", f" with {failed / 'failure.log'}")
     try:
         (stage / "chain.toml").write_text(chain.to_toml("# vmesh filter chain of a failed run (every parameter resolved)"))
     except OSError:
