@@ -125,29 +125,27 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", 
     boundary = np.zeros(n, bool)
     boundary[sm.boundary_faces.ravel()] = True
     ctx.tick(0.95, "untangling")
+    from ..geometry.quality import scaled_jacobian
+    from ..geometry.transfinite import reference_points
+
+    ref_nodes = reference_points(p, node_distribution)
+    local = None
     if optimiser == "local":
         from ..geometry.optimize import optimise
-        from ..geometry.transfinite import reference_points
 
         X, info = optimise(
-            sm.points, sm.cells, p, ref_nodes=reference_points(p, node_distribution), wall=wall, wall_normals=sdf.gradient, project=projector, cap_nodes=cap_nodes, cap_normals=cap_normals,
+            sm.points, sm.cells, p, ref_nodes=ref_nodes, wall=wall, wall_normals=sdf.gradient, project=projector, cap_nodes=cap_nodes, cap_normals=cap_normals,
             boundary=boundary, untangle_below=below, smooth_below=smooth_below,
         )
-        from ..geometry.quality import scaled_jacobian
-
         # the local optimiser is fast but moves few nodes; where it leaves a fold or an element
         # below restart_below (a junction fold that needs a wider region, or an order-p element
-        # folded by the nodes that follow the corners), the global untangler runs too
-        q = scaled_jacobian(X, sm.cells, p, reference_points(p, node_distribution))
-        if q.min() > max(restart_below or 0.0, 0.0):
-            sm.points[:] = X
-            if info["moved"]:
-                ctx.count(untangled_nodes=info["untangled_nodes"], smoothed_nodes=info["smoothed_nodes"])
-                ctx.report.sections["untangle"] = info
+        # folded by the nodes that follow the corners), the global untangler runs too. For
+        # p = 1 the optimiser's own "after" is the mesh's scaled Jacobian.
+        local_min = info["after"]["min"] if p == 1 else float(scaled_jacobian(X, sm.cells, p, ref_nodes).min())
+        if local_min > max(restart_below or 0.0, 0.0):
+            _keep_untangled(ctx, sm, X, info, info["moved"], untangled_nodes=info["untangled_nodes"], smoothed_nodes=info["smoothed_nodes"])
             return
-        local_points, local_min = X, float(q.min())
-    else:
-        local_points, local_min = None, -np.inf
+        local = (X, info, local_min)
     from ..geometry.untangle import untangle
 
     # from the unoptimised mesh (its own targets), then the better of the two results is kept
@@ -155,16 +153,20 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", 
         sm.points, sm.cells, p, wall=wall, wall_normals=sdf.gradient, project=projector, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=below,
         boundary=boundary, restart_below=restart_below or None,
     )
-    if local_points is not None:
-        from ..geometry.quality import scaled_jacobian
-        from ..geometry.transfinite import reference_points
+    if local is not None and scaled_jacobian(X, sm.cells, p, ref_nodes).min() < local[2]:
+        X, info = local[0], {**local[1], "lbfgs_tried": True}
+        _keep_untangled(ctx, sm, X, info, info["moved"], untangled_nodes=info["untangled_nodes"], smoothed_nodes=info["smoothed_nodes"])
+        return
+    if local is not None:
+        info["after_local_min"] = local[2]
+    _keep_untangled(ctx, sm, X, info, info["rounds"], untangled_nodes=info["moved"])
 
-        if scaled_jacobian(X, sm.cells, p, reference_points(p, node_distribution)).min() < local_min:
-            X = local_points
-        info["after_local_min"] = local_min
+
+def _keep_untangled(ctx, sm, X, info, changed, **counts):
+    """Take the optimised node positions; report what moved when anything did."""
     sm.points[:] = X
-    if info["rounds"]:
-        ctx.count(untangled_nodes=info["moved"])
+    if changed:
+        ctx.count(**counts)
         ctx.report.sections["untangle"] = info
 
 
