@@ -46,28 +46,13 @@ ICA = {"elements_around": 6, "elements_ring": 4, "elements_layer": 4, "element_l
 
 def cylinder_case(scale: int, seed: int = 1):
     """Folded O-grid cylinder: (points, cells, keyword arguments of optimise)."""
-    from cylinder_blocks import cylinder_blocks, project_cylinder
+    from cylinder_blocks import cylinder_blocks, optimiser_constraints, project_cylinder
     from vmesh.geometry.transfinite import Refinement, mesh_blocks
 
     R = 2.0
     blocks = cylinder_blocks(radius=R, sections=5)
     sm = mesh_blocks(blocks, project_cylinder(R), Refinement(around=4 * scale, core=4 * scale, ring=3 * scale, layer=4 * scale, element_length=0.5 / scale, first_layer=0.02 / scale))
-    n = len(sm.points)
-    boundary = np.zeros(n, bool)
-    boundary[sm.boundary_faces.ravel()] = True
-    caps = np.zeros(n, bool)
-    cap_normals = np.zeros((n, 3))
-    for bid in (1, 2):
-        ids = np.unique(sm.boundary_faces[sm.boundary_ids == bid])
-        caps[ids] = True
-        cap_normals[ids] = [0.0, 0.0, 1.0]
-
-    def normals(p):
-        v = -np.c_[p[:, :2], np.zeros(len(p))]
-        return v / np.linalg.norm(v, axis=1, keepdims=True)
-
-    kw = dict(wall=sm.on_wall, wall_normals=normals, project=project_cylinder(R), cap_nodes=caps, cap_normals=cap_normals, boundary=boundary)
-    return sm, kw
+    return sm, optimiser_constraints(sm, R)
 
 
 def fold(sm, count, seed=1):

@@ -70,3 +70,25 @@ def project_cylinder(radius):
         p[:, :2] *= radius / np.maximum(r, 1e-300)
         return p
     return project
+
+
+def cylinder_wall_normals(p):
+    """Inward normals of a cylinder wall about the z axis."""
+    n = -np.c_[p[:, :2], np.zeros(len(p))]
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def optimiser_constraints(sm, radius):
+    """Keyword arguments of :func:`vmesh.geometry.optimize.optimise` for a transfinite mesh of
+    :func:`cylinder_blocks`: wall nodes on the cylinder, cap nodes in their z-planes, every
+    boundary node marked."""
+    n = len(sm.points)
+    boundary = np.zeros(n, bool)
+    boundary[sm.boundary_faces.ravel()] = True
+    caps = np.zeros(n, bool)
+    cap_normals = np.zeros((n, 3))
+    for bid in (1, 2):
+        ids = np.unique(sm.boundary_faces[sm.boundary_ids == bid])
+        caps[ids] = True
+        cap_normals[ids] = [0.0, 0.0, 1.0]
+    return dict(wall=sm.on_wall, wall_normals=cylinder_wall_normals, project=project_cylinder(radius), cap_nodes=caps, cap_normals=cap_normals, boundary=boundary)

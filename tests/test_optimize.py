@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from cylinder_blocks import cylinder_blocks, project_cylinder
+from cylinder_blocks import cylinder_blocks, optimiser_constraints, project_cylinder
 from vmesh.geometry.optimize import corner_index, follow_corners, optimise
 from vmesh.geometry.quality import hex8_scaled_jacobian, scaled_jacobian
 from vmesh.geometry.transfinite import Refinement, mesh_blocks, reference_points
@@ -13,26 +13,10 @@ R = 2.0
 FIRST = 0.02  # first boundary-layer element thickness relative to the radius
 
 
-def wall_normals(p):
-    """Inward normals of the cylinder wall."""
-    n = -np.c_[p[:, :2], np.zeros(len(p))]
-    return n / np.linalg.norm(n, axis=1, keepdims=True)
-
-
 def cylinder(order=1):
     blocks = cylinder_blocks(radius=R)
     sm = mesh_blocks(blocks, project_cylinder(R), Refinement(around=4, core=4, ring=3, layer=4, element_length=0.5, first_layer=FIRST, order=order))
-    n = len(sm.points)
-    boundary = np.zeros(n, bool)
-    boundary[sm.boundary_faces.ravel()] = True
-    caps = np.zeros(n, bool)
-    cap_normals = np.zeros((n, 3))
-    for bid in (1, 2):
-        ids = np.unique(sm.boundary_faces[sm.boundary_ids == bid])
-        caps[ids] = True
-        cap_normals[ids] = [0.0, 0.0, 1.0]
-    kw = dict(wall=sm.on_wall, wall_normals=wall_normals, project=project_cylinder(R), cap_nodes=caps, cap_normals=cap_normals, boundary=boundary)
-    return sm, kw
+    return sm, optimiser_constraints(sm, R)
 
 
 def first_layer_nodes(sm):
