@@ -58,6 +58,30 @@ def _edge(X, hexes, scale, se, e, c, a, v, l, x0, x1, x2, cx, cy, cz):
     return ex, ey, ez, k
 
 
+@nb.njit(cache=True, inline="always")
+def _corner_edges(X, hexes, scale, se, e, c, v, l, x0, x1, x2):
+    """The three scaled edges of corner ``c`` of hexahedron ``e`` (see :func:`_edge`), row by
+    row, then their coefficients ``k0, k1, k2`` in the moving node."""
+    n0 = hexes[e, c]
+    cx = _pos(X, v, n0, x0, x1, x2, 0)
+    cy = _pos(X, v, n0, x0, x1, x2, 1)
+    cz = _pos(X, v, n0, x0, x1, x2, 2)
+    e00, e01, e02, k0 = _edge(X, hexes, scale, se, e, c, 0, v, l, x0, x1, x2, cx, cy, cz)
+    e10, e11, e12, k1 = _edge(X, hexes, scale, se, e, c, 1, v, l, x0, x1, x2, cx, cy, cz)
+    e20, e21, e22, k2 = _edge(X, hexes, scale, se, e, c, 2, v, l, x0, x1, x2, cx, cy, cz)
+    return e00, e01, e02, e10, e11, e12, e20, e21, e22, k0, k1, k2
+
+
+@nb.njit(cache=True, inline="always")
+def _cofactors(e00, e01, e02, e10, e11, e12, e20, e21, e22):
+    """Cofactors of the edge matrix: the gradient of its determinant with respect to each edge."""
+    return (
+        e11 * e22 - e12 * e21, e12 * e20 - e10 * e22, e10 * e21 - e11 * e20,
+        e21 * e02 - e22 * e01, e22 * e00 - e20 * e02, e20 * e01 - e21 * e00,
+        e01 * e12 - e02 * e11, e02 * e10 - e00 * e12, e00 * e11 - e01 * e10,
+    )
+
+
 @nb.njit(cache=True)
 def local_functional(X, hexes, scale, ptr, inc, v, x0, x1, x2, delta, hessian):
     """Functional of node ``v`` at (x0, x1, x2): value, gradient and (optionally) Hessian.
@@ -73,24 +97,9 @@ def local_functional(X, hexes, scale, ptr, inc, v, x0, x1, x2, delta, hessian):
         l = inc[t] & 7
         for q in range(4):
             c = l if q == 0 else l ^ (1 << (q - 1))
-            n0 = hexes[e, c]
-            cx = _pos(X, v, n0, x0, x1, x2, 0)
-            cy = _pos(X, v, n0, x0, x1, x2, 1)
-            cz = _pos(X, v, n0, x0, x1, x2, 2)
             # the three scaled edges and their coefficients in x (scalars: no allocation)
-            e00, e01, e02, k0 = _edge(X, hexes, scale, e, e, c, 0, v, l, x0, x1, x2, cx, cy, cz)
-            e10, e11, e12, k1 = _edge(X, hexes, scale, e, e, c, 1, v, l, x0, x1, x2, cx, cy, cz)
-            e20, e21, e22, k2 = _edge(X, hexes, scale, e, e, c, 2, v, l, x0, x1, x2, cx, cy, cz)
-            # cofactors: grad of det with respect to each edge
-            C0x = e11 * e22 - e12 * e21
-            C0y = e12 * e20 - e10 * e22
-            C0z = e10 * e21 - e11 * e20
-            C1x = e21 * e02 - e22 * e01
-            C1y = e22 * e00 - e20 * e02
-            C1z = e20 * e01 - e21 * e00
-            C2x = e01 * e12 - e02 * e11
-            C2y = e02 * e10 - e00 * e12
-            C2z = e00 * e11 - e01 * e10
+            e00, e01, e02, e10, e11, e12, e20, e21, e22, k0, k1, k2 = _corner_edges(X, hexes, scale, e, e, c, v, l, x0, x1, x2)
+            C0x, C0y, C0z, C1x, C1y, C1z, C2x, C2y, C2z = _cofactors(e00, e01, e02, e10, e11, e12, e20, e21, e22)
             D = e00 * C0x + e01 * C0y + e02 * C0z
             F = e00 * e00 + e01 * e01 + e02 * e02 + e10 * e10 + e11 * e11 + e12 * e12 + e20 * e20 + e21 * e21 + e22 * e22
             r = np.sqrt(D * D + d2)
@@ -245,16 +254,8 @@ def _worst_corner_direction(X, hexes, ptr, inc, v, x0, x1, x2):
         l = inc[t] & 7
         for q in range(4):
             c = l if q == 0 else l ^ (1 << (q - 1))
-            n0 = hexes[e, c]
-            cx = _pos(X, v, n0, x0, x1, x2, 0)
-            cy = _pos(X, v, n0, x0, x1, x2, 1)
-            cz = _pos(X, v, n0, x0, x1, x2, 2)
-            e00, e01, e02, k0 = _edge(X, hexes, unit, 0, e, c, 0, v, l, x0, x1, x2, cx, cy, cz)
-            e10, e11, e12, k1 = _edge(X, hexes, unit, 0, e, c, 1, v, l, x0, x1, x2, cx, cy, cz)
-            e20, e21, e22, k2 = _edge(X, hexes, unit, 0, e, c, 2, v, l, x0, x1, x2, cx, cy, cz)
-            C0x, C0y, C0z = e11 * e22 - e12 * e21, e12 * e20 - e10 * e22, e10 * e21 - e11 * e20
-            C1x, C1y, C1z = e21 * e02 - e22 * e01, e22 * e00 - e20 * e02, e20 * e01 - e21 * e00
-            C2x, C2y, C2z = e01 * e12 - e02 * e11, e02 * e10 - e00 * e12, e00 * e11 - e01 * e10
+            e00, e01, e02, e10, e11, e12, e20, e21, e22, k0, k1, k2 = _corner_edges(X, hexes, unit, 0, e, c, v, l, x0, x1, x2)
+            C0x, C0y, C0z, C1x, C1y, C1z, C2x, C2y, C2z = _cofactors(e00, e01, e02, e10, e11, e12, e20, e21, e22)
             D = e00 * C0x + e01 * C0y + e02 * C0z
             ln = np.sqrt((e00 * e00 + e01 * e01 + e02 * e02) * (e10 * e10 + e11 * e11 + e12 * e12) * (e20 * e20 + e21 * e21 + e22 * e22))
             sj = D / max(ln, 1e-300)
