@@ -18,22 +18,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..skeleton import Skeleton
-from .skeleton_ops import ascend_distance, edge_lengths
+from .skeleton_ops import ascend_distance, node_scale
 
 #: Scale factors between the usual length units (m, cm, mm, um): what a centerline in
 #: other units than its surface is off by.
 UNIT_FACTORS = (10.0, 100.0, 1000.0, 0.1, 0.01, 0.001)
-
-
-def node_scale(skeleton: Skeleton) -> np.ndarray:
-    """Per-node length scale: the radius where it is known, else the median known radius,
-    else the median segment length."""
-    r = skeleton.radii
-    good = np.isfinite(r) & (r > 0)
-    if good.any():
-        return np.where(good, r, float(np.median(r[good])))
-    lengths = edge_lengths(skeleton.points, skeleton.edges)
-    return np.full(skeleton.n_nodes, float(np.median(lengths)) if len(lengths) and np.median(lengths) > 0 else 1.0)
 
 
 @dataclass

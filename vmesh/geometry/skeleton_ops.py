@@ -626,15 +626,16 @@ def pull_inside(
 # ---------------------------------------------------------------------------
 
 
-def _node_scale(skeleton: Skeleton) -> np.ndarray:
-    """Radii with missing values replaced by the median radius (or the median edge length)."""
+def node_scale(skeleton: Skeleton) -> np.ndarray:
+    """Per-node length scale: the radius where it is known, else the median known radius,
+    else the median segment length (1 where there is none)."""
     r = skeleton.radii
     good = np.isfinite(r) & (r > 0)
     if good.any():
         fill = float(np.median(r[good]))
     else:
         lengths = edge_lengths(skeleton.points, skeleton.edges)
-        fill = float(np.median(lengths)) if len(lengths) else 1.0
+        fill = float(np.median(lengths)) if len(lengths) and np.median(lengths) > 0 else 1.0
     return np.where(good, r, fill)
 
 
@@ -654,7 +655,7 @@ def merge_close_junctions(skeleton: Skeleton, tolerance: float = 0.5) -> tuple[S
     if tolerance <= 0 or skeleton.n_edges == 0:
         return skeleton.copy(), 0
     deg = skeleton.degrees
-    scale = _node_scale(skeleton)
+    scale = node_scale(skeleton)
     paths = branch_paths(skeleton.n_nodes, skeleton.edges)
     merge_sets = []
     for p in paths:
@@ -751,7 +752,7 @@ def separate_parallel_branches(
     limit, target = np.radians(min_angle), np.radians(max(part_angle, min_angle))
     skel, moved, done = skeleton, 0, set()
     while True:
-        scale = _node_scale(skel)
+        scale = node_scale(skel)
         paths = branch_paths(skel.n_nodes, skel.edges)
         job = None
         for c in np.flatnonzero(skel.degrees >= 3).tolist():
@@ -797,7 +798,7 @@ def separate_parallel_branches(
         li = int(np.searchsorted(ai, star + eps, side="right"))
         lj = int(np.searchsorted(aj, star + eps, side="right"))
         n = skel.n_nodes
-        scale = _node_scale(skel)
+        scale = node_scale(skel)
         pts = np.r_[skel.points, at[None]]
         rad = np.r_[skel.radii, r_at]
         inner = pi[1:ki]
@@ -867,7 +868,7 @@ def reconnect_components(skeleton: Skeleton, tolerance: float = 1.0) -> tuple[Sk
         if label.max(initial=0) == 0:
             break
         deg = skel.degrees
-        scale = _node_scale(skel)
+        scale = node_scale(skel)
         a_seg, b_seg = skel.edges.T
         start, vec = skel.points[a_seg], skel.points[b_seg] - skel.points[a_seg]
         best = None  # (gap, endpoint, segment or -1, foot parameter, node or -1)
@@ -920,7 +921,7 @@ def remove_spurs(
     removed = 0
     while True:
         deg = skel.degrees
-        scale = _node_scale(skel)
+        scale = node_scale(skel)
         candidates = []
         for p in branch_paths(skel.n_nodes, skel.edges):
             a, b = p[0], p[-1]
@@ -1090,7 +1091,7 @@ def extend_to_caps(
     edges, etags = [tuple(e) for e in skeleton.edges.tolist()], list(skeleton.edge_tags)
     adj = skeleton.adjacency()
     deg = skeleton.degrees
-    scale = _node_scale(skeleton)
+    scale = node_scale(skeleton)
     lengths = edge_lengths(skeleton.points, skeleton.edges)
     spacing = float(np.median(lengths)) if len(lengths) else 1.0
     end_tags = set(END_TAGS) | set(names or ())
@@ -1233,14 +1234,14 @@ def graft_branches(
     w = edge_lengths(source.points, source.edges)
     a, b = source.edges.T
     src_adj = sp.coo_matrix((np.r_[w, w], (np.r_[a, b], np.r_[b, a])), shape=(source.n_nodes,) * 2).tocsr()
-    src_r = _node_scale(source)
+    src_r = node_scale(source)
     for c in range(len(centers)):
         gap_to_cap = np.linalg.norm(source.points[src_ends] - centers[c], axis=1)
         if gap_to_cap.min() > reach * cap_r[c]:
             grafts.append({"cap": names[c], "nodes": 0, "reason": "the source skeleton has no end at the cap"})
             continue
         start = int(src_ends[np.argmin(gap_to_cap)])
-        scale = _node_scale(skel)
+        scale = node_scale(skel)
         dist, near = _graph_distance(source.points, skel.points, skel.edges, cKDTree(skel.points))
         close = dist <= join * np.maximum(src_r, scale[near])
         along, pred = dijkstra(src_adj, indices=start, return_predecessors=True)
