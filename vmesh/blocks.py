@@ -127,17 +127,24 @@ class BlockStructure:
         e = np.sort(np.stack([q, np.roll(q, -1, axis=1)], -1).reshape(-1, 2), axis=1)
         return np.unique(e, axis=0)
 
+    def cell_arrays(self) -> dict[str, np.ndarray]:
+        """Per-block arrays of the block files: ids, segment, node, layer, least corner Jacobian."""
+        return {
+            "block_id": np.arange(self.n_blocks),
+            "segment_id": self.block_segment,
+            "node_id": self.block_node,
+            "layer": self.block_layer,
+            "min_corner_jacobian": self.corner_jacobians().min(axis=1),
+        }
+
     def to_pyvista(self):
         """An UnstructuredGrid of the blocks with per-block data (for ParaView/VTU)."""
         import pyvista as pv
 
         cells = np.hstack([np.full((self.n_blocks, 1), 8), self.hexes]).ravel()
         grid = pv.UnstructuredGrid(cells, np.full(self.n_blocks, pv.CellType.HEXAHEDRON, np.uint8), self.vertices)
-        grid.cell_data["block_id"] = np.arange(self.n_blocks)
-        grid.cell_data["segment_id"] = self.block_segment
-        grid.cell_data["node_id"] = self.block_node
-        grid.cell_data["layer"] = self.block_layer
-        grid.cell_data["min_corner_jacobian"] = self.corner_jacobians().min(axis=1)
+        for name, values in self.cell_arrays().items():
+            grid.cell_data[name] = values
         grid.point_data["on_surface"] = self.vertex_on_surface.astype(np.uint8)
         return grid
 

@@ -208,11 +208,7 @@ def write_blocks(ctx, filename, edges_filename):
         return
     boundary = blocks.face_boundary
     cell_data = {
-        "block_id": np.arange(blocks.n_blocks),
-        "segment_id": blocks.block_segment,
-        "node_id": blocks.block_node,
-        "layer": blocks.block_layer,
-        "min_corner_jacobian": blocks.corner_jacobians().min(axis=1),
+        **blocks.cell_arrays(),
         "wall_faces": (boundary == 0).sum(axis=1).astype(np.uint8),
         "open_end": np.where(boundary > 0, boundary, 0).max(axis=1).astype(np.int32),
     }
