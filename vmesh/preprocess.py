@@ -69,6 +69,20 @@ def manifold_face_pairs(faces: np.ndarray):
     return halves // 3, same, halves
 
 
+def _row_labels(rows: np.ndarray) -> np.ndarray:
+    """A label per row ``(n, k)``, equal for equal rows (lexsort: np.unique(axis=0) sorts
+    structured rows an order of magnitude slower)."""
+    if len(rows) == 0:
+        return np.zeros(0, np.int64)
+    order = np.lexsort(rows.T[::-1])
+    r = rows[order]
+    new = np.ones(len(r), bool)
+    new[1:] = np.any(r[1:] != r[:-1], axis=1)
+    label = np.empty(len(r), np.int64)
+    label[order] = np.cumsum(new) - 1
+    return label
+
+
 def remove_unreferenced_vertices(vertices: np.ndarray, faces: np.ndarray):
     """Drop vertices no face uses; returns ``(vertices, faces, kept_vertex_indices)``."""
     used = np.unique(faces)
@@ -149,8 +163,7 @@ def merge_close_vertices(vertices: np.ndarray, faces: np.ndarray, tolerance: flo
         graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
         _, label = connected_components(graph, directed=False)
     else:
-        _, label = np.unique(vertices, axis=0, return_inverse=True)
-        label = label.ravel()
+        label = _row_labels(np.asarray(vertices))
     # representative: the lowest original index of each cluster
     first = np.full(label.max() + 1, n, np.int64)
     np.minimum.at(first, label, np.arange(n))
@@ -257,9 +270,9 @@ def repair(
     degenerate = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
     report.degenerate_faces = int(degenerate.sum())
     keep_faces(~degenerate)
-    _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+    label = _row_labels(np.sort(f, axis=1))
     unique = np.zeros(len(f), bool)
-    unique[first] = True
+    unique[np.unique(label, return_index=True)[1]] = True  # the first face of each vertex triple
     report.duplicate_faces = int((~unique).sum())
     keep_faces(unique)
     if len(f) == 0:
@@ -325,8 +338,7 @@ def nonmanifold_fins(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     time with the faces already dropped left out, until none has more than two faces.
     """
     he = topology.directed_edges(faces)
-    key = np.sort(he, axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    _, inv, counts = np.unique(topology.pair_keys(np.sort(he, axis=1))[0], return_inverse=True, return_counts=True)
     inv = inv.ravel()
     crowded = np.flatnonzero(counts[inv] > 2)  # half-edges of non-manifold edges
     if len(crowded) == 0:

@@ -13,19 +13,39 @@ def directed_edges(faces: np.ndarray) -> np.ndarray:
     return np.stack([faces, np.roll(faces, -1, axis=1)], axis=-1).reshape(-1, 2)
 
 
+def pair_keys(pairs: np.ndarray, n: int | None = None) -> tuple[np.ndarray, int]:
+    """One int64 key ``a * n + b`` per row of non-negative integer pairs ``(k, 2)``, and ``n``.
+
+    Keys sort like the rows (lexicographically): ``np.unique`` of the keys gives the rows of
+    ``np.unique(pairs, axis=0)`` in the same order, about 10x faster (the axis version sorts
+    structured rows)."""
+    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
+    if n is None:
+        n = int(pairs.max()) + 1 if pairs.size else 1
+    return pairs[:, 0] * n + pairs[:, 1], n
+
+
 def edge_face_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Undirected edges (sorted vertex pairs) and how many faces use each."""
-    e = np.sort(directed_edges(faces), axis=1)
-    edges, counts = np.unique(e, axis=0, return_counts=True)
-    return edges, counts
+    key, n = pair_keys(np.sort(directed_edges(faces), axis=1))
+    ukey, counts = np.unique(key, return_counts=True)
+    return np.stack([ukey // n, ukey % n], axis=1), counts
 
 
 def boundary_edges(faces: np.ndarray) -> np.ndarray:
     """Directed boundary half-edges (used by exactly one face), oriented as in that face."""
     he = directed_edges(faces)
-    e = np.sort(he, axis=1)
-    _, inv, counts = np.unique(e, axis=0, return_inverse=True, return_counts=True)
-    return he[counts[inv.ravel()] == 1]
+    key, _ = pair_keys(np.sort(he, axis=1))
+    order = np.argsort(key, kind="stable")
+    k = key[order]
+    # a half-edge is alone when its key differs from both sorted neighbours
+    alone = np.ones(len(k), bool)
+    same = k[1:] == k[:-1]
+    alone[1:] &= ~same
+    alone[:-1] &= ~same
+    single = np.zeros(len(k), bool)
+    single[order] = alone
+    return he[single]
 
 
 def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
@@ -67,8 +87,8 @@ def non_manifold_edges(faces: np.ndarray) -> np.ndarray:
 
 def is_consistently_oriented(faces: np.ndarray) -> bool:
     """True when no half-edge occurs twice (neighbouring faces agree on orientation)."""
-    he = directed_edges(faces)
-    return len(np.unique(he, axis=0)) == len(he)
+    key = np.sort(pair_keys(directed_edges(faces))[0])
+    return not bool(np.any(key[1:] == key[:-1]))
 
 
 def face_components(faces: np.ndarray, n_vertices: int | None = None) -> tuple[int, np.ndarray]:
