@@ -73,8 +73,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         dome_max_retreat=dome_max_retreat,
         max_fix_rounds=max_fix_rounds,
     )
-    sdf = ctx.sdf
-    distance = sdf.distance if hasattr(sdf, "distance") else sdf
+    sdf = ctx.sdf  # a vmesh.geometry.sdf.SurfaceQuery
     bad_path = ctx.output_path("invalid_blocks.vtu")
     if bad_path is None:
         bad_path = Path(tempfile.gettempdir()) / f"vmesh_invalid_blocks_{os.getpid()}.vtu"
@@ -83,12 +82,12 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         if ctx.surface is not None:
             from ..geometry.projection import wall_projector
 
-            project = wall_projector(ctx.surface, ctx.caps)
-        elif hasattr(sdf, "closest_points"):
+            project = wall_projector(ctx.surface, ctx.caps)  # shared with mesh_transfinite and the checks
+        else:
             project = sdf.closest_points
     blocks = build_blocks(
-        ctx.skeleton, distance, ctx.caps, options, bad_blocks_path=bad_path, warn=ctx.warn, progress=ctx.tick, project=project,
-        intersect_lines=getattr(sdf, "intersect_lines", None),
+        ctx.skeleton, sdf.distance, ctx.caps, options, bad_blocks_path=bad_path, warn=ctx.warn, progress=ctx.tick, project=project,
+        intersect_lines=sdf.intersect_lines,
     )
     skeleton = blocks.info.pop("skeleton", None)
     if skeleton is not None and skeleton is not ctx.skeleton:

@@ -103,15 +103,12 @@ def extract_skeleton(
     if ctx.surface is not None:
         surface = (ctx.surface.vertices, ctx.surface.faces)
         bounds = ctx.surface.bounds
-    elif getattr(sdf, "bounds", None) is not None:
+    elif sdf is not None:
         bounds = sdf.bounds
     else:
         raise InputError("extract_skeleton needs the surface layer (or an SDF that knows its bounds)")
     if surface is None and voxel_size is None and min_radius is None:
-        vertices, faces = getattr(sdf, "vertices", None), getattr(sdf, "faces", None)
-        if vertices is None or faces is None:
-            raise InputError("extract_skeleton without a surface needs voxel_size or min_radius")
-        surface = (vertices, faces)
+        surface = (sdf.vertices, sdf.faces)
     settings = se.ExtractionSettings(
         spacing=voxel_size,
         voxels_per_radius=voxels_per_radius,
@@ -147,8 +144,7 @@ def extract_skeleton(
         )
     from ..geometry.skeleton_fit import ensure_inside
 
-    grad = getattr(sdf, "gradient", None)
-    skeleton, moved, stuck = ensure_inside(skeleton, sdf.distance, grad if callable(grad) else None)
+    skeleton, moved, stuck = ensure_inside(skeleton, sdf.distance, sdf.gradient)
     if len(stuck):
         k = int(stuck[0])
         raise InputError(

@@ -68,15 +68,15 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         **layer,
     )
     blocks = ctx.blocks
-    sdf = ctx.sdf if ctx.sdf is not None and getattr(ctx.sdf, "n_faces", -1) == surface.n_faces else None
+    sdf = ctx.sdf if ctx.sdf is not None and ctx.sdf.n_faces == surface.n_faces else None
     if sdf is None:
         from ..geometry.sdf import SignedDistance
 
         sdf = SignedDistance.from_surface(surface)
     # the mesher queries near the wall only, where the exact fine query is cheaper than a
     # coarse query plus its refinement
-    exact = getattr(sdf, "fine", sdf)
-    sm = mesh_blocks(blocks, projector, ref, progress=ctx.tick, signed_distance=exact.distance, intersect_lines=getattr(exact, "intersect_lines", None))
+    exact = sdf.fine
+    sm = mesh_blocks(blocks, projector, ref, progress=ctx.tick, signed_distance=exact.distance, intersect_lines=exact.intersect_lines)
     if untangle:
         _untangle(ctx, sm, projector, sdf, untangle_below, untangle_restart_below, optimiser, smooth_below, node_distribution)
     b = sm.cell_block
@@ -222,7 +222,7 @@ def label_elements(ctx, untagged):
 def compute_quality(ctx, histogram, fail_on_invalid, bins):
     """For p > 1 an element's scaled Jacobian is the minimum over its nodes. The boundary
     distance is measured at the wall faces' nodes and centres, relative to the local radius."""
-    from ..geometry.projection import SurfaceProjector
+    from ..geometry.projection import wall_projector
     from ..geometry.quality import quality_summary, scaled_jacobian
     from ..geometry.transfinite import reference_points
 
@@ -230,7 +230,7 @@ def compute_quality(ctx, histogram, fail_on_invalid, bins):
     sj = scaled_jacobian(mesh.points, mesh.cells, mesh.order, reference_points(mesh.order, mesh.node_distribution))
     mesh.cell_data["scaled_jacobian"] = sj
     summary = quality_summary(sj)
-    dist = boundary_distance(mesh, ctx.surface, ctx.blocks, SurfaceProjector(ctx.surface.vertices, ctx.surface.faces))
+    dist = boundary_distance(mesh, ctx.surface, ctx.blocks, wall_projector(ctx.surface))  # the whole surface's cached tree
     ctx.quality = {"scaled_jacobian": sj, "summary": summary, "boundary_distance": dist}
     ctx.report.sections["quality"] = {"scaled_jacobian": summary}
     ctx.report.sections["boundary_distance"] = dist
@@ -287,6 +287,7 @@ def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing)
     out (the mesh ends there); the local radius is the skeleton's. The result is the
     report's ``coverage`` section (see :mod:`vmesh.geometry.coverage`)."""
     from ..geometry.coverage import measure_coverage
+    from ..geometry.projection import wall_projector
 
     mesh, skeleton, caps = ctx.mesh, ctx.skeleton, ctx.caps or []
     summary, missing = measure_coverage(
@@ -294,6 +295,7 @@ def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing)
         mesh.points, mesh.boundary_faces, mesh.boundary_ids, mesh.order,
         skeleton.points, skeleton.edges, skeleton.radii,
         distance=distance, patch_area=patch_area, depth=depth, end_depth=end_depth, branches=skeleton.branches(),
+        wall_tree=wall_projector(ctx.surface, caps).tree,
     )
     ctx.report.sections["coverage"] = summary
     ctx.count(uncovered=summary["uncovered_share"], volume_ratio=summary["volume_ratio"], missing=summary["missing_parts"])

@@ -416,10 +416,11 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
             ctx.tick(k / len(tries), f"{n_faces} faces: max error {100 * err:.2f} % of the local radius")
         if tries[-1][1] > max_error:
             ctx.warn(f"coarse surface still {100 * tries[-1][1]:.2f} % of the radius off after {len(tries)} tries (tolerance {100 * max_error:.2f} %)")
-    from ..geometry.bvh import TriangleBVH
+    from ..geometry.projection import surface_tree
 
     coarse = SurfaceMesh(v, f, name=f"{s.name} (decimated)" if s.name else "decimated")
-    deviation = float(np.sqrt(TriangleBVH(v, f).closest(s.vertices)[0].max())) if len(f) else 0.0
+    # the coarse surface's tree is cached: build_sdf's signed distance reuses it
+    deviation = float(np.sqrt(surface_tree(coarse).closest(s.vertices)[0].max())) if len(f) else 0.0
     if output == "surface":
         ctx.surface = coarse.copy(name=s.name)
         if ctx.caps:

@@ -74,16 +74,14 @@ def _count_summary(ctx, skel):
 
 def _sdf_functions(sdf):
     """(distance, gradient) callables of the SDF layer; gradient may be None."""
-    grad = getattr(sdf, "gradient", None)
-    return sdf.distance, grad if callable(grad) else None
+    return sdf.distance, sdf.gradient
 
 
 def _surface_bounds(ctx):
     if ctx.surface is not None:
         return ctx.surface.bounds
-    bounds = getattr(ctx.sdf, "bounds", None)
-    if bounds is not None:
-        return bounds
+    if ctx.sdf is not None:
+        return ctx.sdf.bounds
     return ctx.skeleton.points.min(axis=0), ctx.skeleton.points.max(axis=0)
 
 
@@ -427,7 +425,7 @@ def _graft_missing_branches(ctx, skel, caps, cap_distance, join):
 
     if ctx.surface is not None:
         surface, bounds = (ctx.surface.vertices, ctx.surface.faces), ctx.surface.bounds
-    elif getattr(ctx.sdf, "bounds", None) is not None and getattr(ctx.sdf, "faces", None) is not None:
+    elif ctx.sdf is not None:
         surface, bounds = (ctx.sdf.vertices, ctx.sdf.faces), ctx.sdf.bounds
     else:
         ctx.warn("no surface layer: caps without a skeleton end get no grafted branch")

@@ -183,6 +183,7 @@ def measure_coverage(
     depth: float = 0.3,
     end_depth: float = 1.5,
     branches=None,
+    wall_tree=None,
 ) -> tuple[dict, list]:
     """Measure how much of the input wall the mesh boundary misses.
 
@@ -210,6 +211,8 @@ def measure_coverage(
         end past the last section, where no flat cap was found: a hemisphere is 1 r deep).
     branches : list of node arrays, optional
         Skeleton branches (node paths), to name the branch of a missing part.
+    wall_tree : TriangleBVH, optional
+        A tree of the wall triangles (the surface without its caps), shared with the chain.
 
     Returns
     -------
@@ -234,7 +237,7 @@ def measure_coverage(
     total = float(area.sum())
     uncovered_area = float((area[:, None] * far).sum() / 4.0)
     beyond_area = float((area[:, None] * (far & beyond)).sum() / 4.0)
-    d_n = _wall_node_distances(X, boundary_faces, boundary_ids, V, WF, skeleton_points, skeleton_edges, skeleton_radii)
+    d_n = _wall_node_distances(X, boundary_faces, boundary_ids, TriangleBVH(V, WF) if wall_tree is None else wall_tree, skeleton_points, skeleton_edges, skeleton_radii)
     surface_volume, mesh_volume = enclosed_volume(V, F), enclosed_volume(X, tri)
     missing, n_patches, n_missing = _missing_parts(
         V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names,
@@ -260,15 +263,13 @@ def measure_coverage(
     return summary, missing
 
 
-def _wall_node_distances(X, boundary_faces, boundary_ids, V, WF, skeleton_points, skeleton_edges, skeleton_radii):
-    """Distance of every mesh wall node to the input wall, relative to the local radius."""
-    from .bvh import TriangleBVH
-
+def _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, skeleton_points, skeleton_edges, skeleton_radii):
+    """Distance of every mesh wall node to the input wall (``wall_tree``), relative to the local radius."""
     wall_nodes = np.unique(np.asarray(boundary_faces)[np.asarray(boundary_ids) == 0])
     if len(wall_nodes) == 0:
         return np.zeros(1)
     r_n = skeleton_radius(X[wall_nodes], skeleton_points, skeleton_edges, skeleton_radii)[0]
-    return np.sqrt(TriangleBVH(V, WF).closest(X[wall_nodes])[0]) / r_n
+    return np.sqrt(wall_tree.closest(X[wall_nodes])[0]) / r_n
 
 
 def _wall_and_caps(F, n_vertices, cap_faces):

@@ -37,7 +37,7 @@ import numpy as np
 
 from . import bvh as _bvh
 from .bvh import _nb, _point_triangle, _sign_one
-from .sdf import SurfaceQueries
+from .sdf import SignedDistance, SurfaceQueries
 
 # offsets in a cell, in quarter cells: the 27 lattice points (0, 1/2, 1) and 8 checks (1/4, 3/4)
 _OFF27 = np.stack(np.meshgrid([0, 2, 4], [0, 2, 4], [0, 2, 4], indexing="ij"), axis=-1).reshape(-1, 3)
@@ -102,7 +102,7 @@ class OctreeSignedDistance(SurfaceQueries):
         import time
 
         t0 = time.perf_counter()
-        if not hasattr(sdf, "_tree"):
+        if not isinstance(sdf, SignedDistance):
             raise TypeError(f"OctreeSignedDistance wraps a SignedDistance, got {type(sdf).__name__}")
         if not 0 < max_error < 1:
             raise ValueError(f"max_error must lie in (0, 1), got {max_error}")
@@ -130,15 +130,81 @@ class OctreeSignedDistance(SurfaceQueries):
         self._build()
         self.build_s = time.perf_counter() - t0
 
-    # the exact SDF's surface and attributes
-    def __getattr__(self, name):
-        if name in ("vertices", "faces", "bounds", "diagonal", "sign_method", "name", "flipped", "closed", "face_normals", "vertex_normals", "n_suspect_faces", "degenerate_faces"):
-            return getattr(self.exact, name)
-        raise AttributeError(name)
+    # the exact SDF's surface and attributes (the SurfaceQuery interface and the report's)
+    @property
+    def vertices(self):
+        """Vertices of the surface (of the exact distance)."""
+        return self.exact.vertices
+
+    @property
+    def faces(self):
+        """Triangles of the (outward-oriented) surface (of the exact distance)."""
+        return self.exact.faces
+
+    @property
+    def bounds(self):
+        """Bounding box ``(lo, hi)`` (of the exact distance)."""
+        return self.exact.bounds
+
+    @property
+    def diagonal(self):
+        """Bounding-box diagonal (of the exact distance)."""
+        return self.exact.diagonal
+
+    @property
+    def sign_method(self):
+        """The sign method in use (of the exact distance)."""
+        return self.exact.sign_method
+
+    @property
+    def name(self):
+        """Where the surface came from (of the exact distance)."""
+        return self.exact.name
+
+    @property
+    def flipped(self):
+        """True when the input faces were flipped outward (of the exact distance)."""
+        return self.exact.flipped
+
+    @property
+    def closed(self):
+        """True when the surface has no boundary edge (of the exact distance)."""
+        return self.exact.closed
+
+    @property
+    def face_normals(self):
+        """Unit face normals (of the exact distance)."""
+        return self.exact.face_normals
+
+    @property
+    def vertex_normals(self):
+        """Angle-weighted vertex pseudonormals (of the exact distance)."""
+        return self.exact.vertex_normals
+
+    @property
+    def n_suspect_faces(self):
+        """Faces whose pseudonormal sign is not trusted (of the exact distance)."""
+        return self.exact.n_suspect_faces
+
+    @property
+    def degenerate_faces(self):
+        """Boolean mask of zero-area faces (of the exact distance)."""
+        return self.exact.degenerate_faces
 
     @property
     def n_faces(self) -> int:
         return self.exact.n_faces
+
+    @property
+    def fine(self) -> "OctreeSignedDistance":
+        """This distance: it answers on its own surface without a coarse search in front
+        (:class:`~vmesh.geometry.sdf.SurfaceQuery`); ``exact`` is its BVH fallback."""
+        return self
+
+    @property
+    def coarse(self) -> "OctreeSignedDistance":
+        """This distance (:class:`~vmesh.geometry.sdf.SurfaceQuery`)."""
+        return self
 
     def __repr__(self) -> str:
         return f"OctreeSignedDistance({self.n_faces} triangles, {self.n_leaves} leaves, {self.candidates_mean:.1f} candidates per leaf, max_error {self.max_error:g} R)"

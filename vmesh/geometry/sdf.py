@@ -40,6 +40,8 @@ Backend, chosen by measurement (``benchmarks/sdf_coarse_vs_fine.py --backends``,
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import numpy as np
 
 from ..errors import InputError
@@ -141,6 +143,46 @@ def folded_faces(faces: np.ndarray, face_unit_normals: np.ndarray, edge_of_half:
     return out
 
 
+class SurfaceQuery(Protocol):
+    """What the filters ask of a signed distance (the ``sdf`` layer): the interface that
+    :class:`SignedDistance`, :class:`TwoStepSignedDistance` and
+    :class:`~vmesh.geometry.octree_sdf.OctreeSignedDistance` implement.
+
+    ``fine`` is the query of the finest surface the object holds without a coarse search
+    in front (the fine :class:`SignedDistance` of a two-step distance; the object itself
+    otherwise); ``coarse`` is the one searched first (the object itself when there is no
+    such step). Distances are positive inside the vessel.
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    bounds: tuple
+    diagonal: float
+    sign_method: str
+
+    @property
+    def n_faces(self) -> int: ...
+
+    @property
+    def fine(self) -> "SurfaceQuery": ...
+
+    @property
+    def coarse(self) -> "SurfaceQuery": ...
+
+    def project(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+    def distance(self, points) -> np.ndarray: ...
+
+    def closest_points(self, points) -> np.ndarray: ...
+
+    def gradient(self, points) -> np.ndarray: ...
+
+    def intersect_lines(self, points, directions, reach, side=None) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def winding_number(self, points) -> np.ndarray: ...
+
+
 class SurfaceQueries:
     """Batch queries shared by the signed distances (:class:`SignedDistance`,
     :class:`TwoStepSignedDistance`, :class:`~vmesh.geometry.octree_sdf.OctreeSignedDistance`):
@@ -231,6 +273,9 @@ class SignedDistance(SurfaceQueries):
         needs a closed, manifold, consistently oriented surface; ``"winding_number"``
         (generalised winding number > 0.5 means inside) also tolerates small holes and
         defects. ``"auto"`` picks pseudonormals when the surface allows them.
+    tree : TriangleBVH, optional
+        A tree already built over these very ``vertices`` and ``faces`` arrays (used when
+        the faces need no flipping; otherwise a tree is built).
 
     Attributes
     ----------
@@ -250,7 +295,7 @@ class SignedDistance(SurfaceQueries):
     >>> closest, d, face = sdf.project(points)                       # doctest: +SKIP
     """
 
-    def __init__(self, vertices, faces, name: str = "", sign: str = "auto"):
+    def __init__(self, vertices, faces, name: str = "", sign: str = "auto", tree=None):
         if sign not in SIGN_METHODS:
             raise ValueError(f"sign must be one of {SIGN_METHODS}, got {sign!r}")
         v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
@@ -280,7 +325,9 @@ class SignedDistance(SurfaceQueries):
         self.vertices, self.faces = v, f
         self.bounds = (v.min(axis=0), v.max(axis=0))
         self.diagonal = float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
-        self._tree = _bvh.TriangleBVH(v, f)
+        # a shared tree is only valid for the same triangles in the same corner order
+        shared = tree is not None and not self.flipped and tree.vertices is v and tree.faces is f
+        self._tree = tree if shared else _bvh.TriangleBVH(v, f)
         raw = topology.face_normals(v, f, normalize=False)
         area2 = np.linalg.norm(raw, axis=1)
         self.degenerate_faces = area2 <= 1e-14 * self.diagonal**2
@@ -297,12 +344,26 @@ class SignedDistance(SurfaceQueries):
 
     @classmethod
     def from_surface(cls, surface, sign: str = "auto") -> "SignedDistance":
-        """Build from a :class:`~vmesh.surface.SurfaceMesh`."""
-        return cls(surface.vertices, surface.faces, name=surface.name, sign=sign)
+        """Build from a :class:`~vmesh.surface.SurfaceMesh`, sharing its cached tree
+        (:func:`vmesh.geometry.projection.surface_tree`)."""
+        from .projection import surface_tree
+
+        outward = len(surface.faces) and topology.signed_volume(surface.vertices, surface.faces) >= 0
+        return cls(surface.vertices, surface.faces, name=surface.name, sign=sign, tree=surface_tree(surface) if outward else None)
 
     @property
     def n_faces(self) -> int:
         return len(self.faces)
+
+    @property
+    def fine(self) -> "SignedDistance":
+        """This distance (no coarse search in front of it: :class:`SurfaceQuery`)."""
+        return self
+
+    @property
+    def coarse(self) -> "SignedDistance":
+        """This distance (:class:`SurfaceQuery`)."""
+        return self
 
     def __repr__(self) -> str:
         return f"SignedDistance({self.name or 'surface'}: {self.n_faces} triangles, sign={self.sign_method})"
