@@ -145,3 +145,55 @@ def test_real_volume_mesh_lima(real_path):
     info = r.info()
     assert info.closed and info.manifold and info.n_components == 1
     assert "volume mesh" in notes[0]
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_ply_numpy_reader_matches_vtk(tmp_path, binary):
+    """PLY triangles are read with numpy, numbered as VTK's reader did (meshes unchanged);
+    a PLY with face colours still goes to VTK."""
+    import meshio
+
+    from vmesh.io import surface as io_surface
+    from vmesh.io.ply import UnsupportedPLY, read_ply_triangles
+
+    c = cylinder()
+    v, f = c.vertices, c.faces
+    rng = np.random.default_rng(1)
+    v = np.vstack([v, rng.normal(size=(3, 3))])  # unused vertices are dropped
+    f = f[rng.permutation(len(f))]  # faces use the vertices out of order
+    path = tmp_path / "c.ply"
+    meshio.write(path, meshio.Mesh(v, [("triangle", f.astype(np.int32))]), binary=binary)
+    got = read_ply_triangles(path)
+    want = io_surface._read_pyvista(path, [])
+    assert np.allclose(got[0], want[0], rtol=0, atol=1e-6 if not binary else 0) and np.array_equal(got[1], want[1])
+    assert vmesh.read_surface(path).n_faces == len(f)
+    colored = tmp_path / "colored.ply"
+    header = f"ply\nformat ascii 1.0\nelement vertex {len(v)}\nproperty float x\nproperty float y\nproperty float z\n"
+    header += f"element face {len(f)}\nproperty list uchar int vertex_indices\nproperty uchar red\nend_header\n"
+    rows = [" ".join(map(str, p)) for p in v] + [f"3 {a} {b} {c} 7" for a, b, c in f]
+    colored.write_text(header + "\n".join(rows) + "\n")
+    with pytest.raises(UnsupportedPLY):
+        read_ply_triangles(colored)
+    assert vmesh.read_surface(colored).n_faces == len(f)
+
+
+def test_quality_colors_match_matplotlib():
+    """The RdYlGn table rebuilt without matplotlib gives matplotlib's colours exactly."""
+    from matplotlib import colormaps
+
+    from vmesh.io.meshlab import quality_colors
+
+    t = np.r_[np.linspace(-0.2, 1.2, 20001), np.arange(257) / 256, np.arange(256) / 255]
+    want = (colormaps["RdYlGn"](np.clip(t, 0, 1)) * 255).round().astype(np.uint8)
+    assert np.array_equal(quality_colors(t), want)
+
+
+def test_quality_histogram_png(tmp_path):
+    from PIL import Image
+
+    from vmesh.plots import quality_histogram
+
+    for k, sj in enumerate([np.random.default_rng(0).uniform(0.3, 1, 1000), np.array([-0.2, 0.5]), np.zeros(0)]):
+        quality_histogram(sj, tmp_path / f"h{k}.png", title="t", bins=20)
+        with Image.open(tmp_path / f"h{k}.png") as img:
+            assert img.size == (720, 432)

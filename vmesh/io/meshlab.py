@@ -37,12 +37,25 @@ def label_colors(labels: np.ndarray) -> np.ndarray:
     return np.c_[rgb, np.full(len(labels), 255, np.uint8)]
 
 
-def quality_colors(values: np.ndarray, vmin: float = 0.0, vmax: float = 1.0, cmap: str = "RdYlGn") -> np.ndarray:
-    """(n, 4) RGBA colours of values through a matplotlib colour map (red bad, green good)."""
-    from matplotlib import colormaps
+#: ColorBrewer's RdYlGn, the anchors of matplotlib's colour map of that name
+_RDYLGN = np.array([(165, 0, 38), (215, 48, 39), (244, 109, 67), (253, 174, 97), (254, 224, 139), (255, 255, 191),
+                    (217, 239, 139), (166, 217, 106), (102, 189, 99), (26, 152, 80), (0, 104, 55)]) / 255.0
 
+
+def quality_colors(values: np.ndarray, vmin: float = 0.0, vmax: float = 1.0, cmap: str = "RdYlGn") -> np.ndarray:
+    """(n, 4) RGBA colours of values through a matplotlib colour map (red bad, green good).
+
+    RdYlGn, the default, is matplotlib's 256-colour table rebuilt from its anchors, without
+    importing matplotlib (~0.3 s of a run); other maps come from matplotlib."""
     t = np.clip((np.asarray(values, float) - vmin) / max(vmax - vmin, 1e-300), 0, 1)
-    return (colormaps[cmap](t) * 255).round().astype(np.uint8)
+    if cmap != "RdYlGn":
+        from matplotlib import colormaps
+
+        return (colormaps[cmap](t) * 255).round().astype(np.uint8)
+    anchors = np.linspace(0.0, 1.0, len(_RDYLGN))
+    lut = np.stack([np.interp(np.linspace(0.0, 1.0, 256), anchors, _RDYLGN[:, c]) for c in range(3)], axis=1)
+    rgb = (lut[np.minimum((t * 256).astype(np.int64), 255)] * 255).round().astype(np.uint8)
+    return np.c_[rgb, np.full(len(rgb), 255, np.uint8)]
 
 
 def write_face_ply(path, vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | None = None,

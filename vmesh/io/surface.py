@@ -78,6 +78,8 @@ def read_surface(path: str | Path, notes: list | None = None) -> SurfaceMesh:
             vertices, faces, face_data = _read_meshio(path)
         elif suffix == ".vtp":
             vertices, faces, face_data = _read_vtp(path, notes)
+        elif suffix == ".ply":
+            vertices, faces, face_data = _read_ply(path, notes)
         else:
             vertices, faces, face_data = _read_pyvista(path, notes)
     except InputError:
@@ -120,6 +122,16 @@ def _read_vtp(path: Path, notes: list):
     try:
         return read_vtp_triangles(path)
     except UnsupportedVTKXML:
+        return _read_pyvista(path, notes)
+
+
+def _read_ply(path: Path, notes: list):
+    """PLY triangles read with numpy (:mod:`vmesh.io.ply`); anything else goes to VTK."""
+    from .ply import UnsupportedPLY, read_ply_triangles
+
+    try:
+        return read_ply_triangles(path)
+    except UnsupportedPLY:
         return _read_pyvista(path, notes)
 
 
