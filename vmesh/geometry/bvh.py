@@ -258,19 +258,19 @@ class TriangleBVH:
         feature : (n,) int8
             Feature of the triangle holding the closest point (see ``FEATURE_*``).
         """
-        p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        p = np.require(np.asarray(points, dtype=np.float64).reshape(-1, 3), requirements="CW")  # one type: no read-only variant
         n = len(p)
         sq, slot, closest, feature = np.empty(n), np.empty(n, np.int64), np.empty((n, 3)), np.empty(n, np.int8)
         if n == 0:
             return sq, slot, closest, feature
         # the kernel reads and writes through the order: no gathered copies of the points
         order = morton_order(p, bits=10) if sort and n > 4 * _BLOCK else np.arange(n)
-        args = (p, order, self._nodes, self._first_leaf, self.leaf_size, self._a, self._ab, self._ac, self._planes, sq, slot, closest, feature)
+        nodes = (self._nodes, self._first_leaf, self.leaf_size, self._a, self._ab, self._ac, self._planes, sq, slot, closest, feature)
         if n < PARALLEL_MIN:
-            _closest_serial(*args)
+            _closest_run(p, order, 0, n, *nodes)
         else:
             with _dynamic_chunks():
-                _closest_kernel(*args, _BLOCK)
+                _closest_kernel(p, order, *nodes, _BLOCK)
         return sq, self.order[slot], closest, feature
 
     def intersect_lines(self, origins, directions, reach, side=None, sort: bool = True):
@@ -296,21 +296,22 @@ class TriangleBVH:
         face : (n,) int64
             Triangle crossed (-1 where none).
         """
-        o = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
-        d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
+        # writable C arrays always: a read-only input would compile another specialisation
+        o = np.require(np.asarray(origins, dtype=np.float64).reshape(-1, 3), requirements="CW")
+        d = np.require(np.asarray(directions, dtype=np.float64).reshape(-1, 3), requirements="CW")
         n = len(o)
-        r = np.ascontiguousarray(np.broadcast_to(np.asarray(reach, np.float64), (n,)))
-        sd = np.zeros(n, np.int8) if side is None else np.ascontiguousarray(np.broadcast_to(np.sign(side).astype(np.int8), (n,)))
+        r = np.require(np.broadcast_to(np.asarray(reach, np.float64), (n,)), requirements="CW")
+        sd = np.zeros(n, np.int8) if side is None else np.require(np.broadcast_to(np.sign(side).astype(np.int8), (n,)), requirements="CW")
         t, slot = np.empty(n), np.empty(n, np.int64)
         if n == 0:
             return t, slot
         order = morton_order(o, bits=10) if sort and n > 4 * _BLOCK else np.arange(n)
-        args = (o, d, r, sd, order, self._nodes, self._first_leaf, self.leaf_size, self._a, self._ab, self._ac, t, slot)
+        tree = (self._nodes, self._first_leaf, self.leaf_size, self._a, self._ab, self._ac, t, slot)
         if n < PARALLEL_MIN:
-            _line_serial(*args)
+            _line_run(o, d, r, sd, order, 0, n, *tree)
         else:
             with _dynamic_chunks():
-                _line_kernel(*args, _BLOCK)
+                _line_kernel(o, d, r, sd, order, *tree, _BLOCK)
         return t, np.where(slot >= 0, self.order[np.maximum(slot, 0)], -1)
 
 
@@ -506,7 +507,10 @@ def _point_triangle(px, py, pz, A, AB, AC, t):
     return dx * dx + dy * dy + dz * dz, cx, cy, cz, feat
 
 
-@_nb.njit(inline="always", error_model="numpy")
+# The search loops (_closest_run, _line_run) are compiled once as functions of their own,
+# called by the parallel kernels per block and directly for small batches: inlined into a
+# parallel and a serial kernel each, they were compiled twice (~20 s of a first run).
+@_nb.njit(cache=True, error_model="numpy")
 def _closest_run(points, order, k0, k1, nodes, first_leaf, leaf_size, A, AB, AC, planes, out_sq, out_slot, out_c, out_feat):
     """Closest points of ``points[order[k0:k1]]``, each starting from the previous one's triangle."""
     m = A.shape[0]
@@ -571,10 +575,6 @@ def _closest_kernel(points, order, nodes, first_leaf, leaf_size, A, AB, AC, plan
         _closest_run(points, order, b * block, min(n, (b + 1) * block), nodes, first_leaf, leaf_size, A, AB, AC, planes, out_sq, out_slot, out_c, out_feat)
 
 
-@_nb.njit(cache=True, error_model="numpy")
-def _closest_serial(points, order, nodes, first_leaf, leaf_size, A, AB, AC, planes, out_sq, out_slot, out_c, out_feat):
-    _closest_run(points, order, 0, points.shape[0], nodes, first_leaf, leaf_size, A, AB, AC, planes, out_sq, out_slot, out_c, out_feat)
-
 
 @_nb.njit(inline="always")
 def _box_interval(nodes, node, ox, oy, oz, ix, iy, iz):
@@ -632,7 +632,7 @@ def _line_triangle(ox, oy, oz, dx, dy, dz, A, AB, AC, t):
     return (e2x * qx + e2y * qy + e2z * qz) * inv
 
 
-@_nb.njit(inline="always", error_model="numpy")
+@_nb.njit(cache=True, error_model="numpy")
 def _line_run(origins, directions, reach, side, order, k0, k1, nodes, first_leaf, leaf_size, A, AB, AC, out_t, out_slot):
     """Nearest crossings of the lines ``order[k0:k1]``."""
     m = A.shape[0]
@@ -696,10 +696,6 @@ def _line_kernel(origins, directions, reach, side, order, nodes, first_leaf, lea
     for b in _nb.prange((n + block - 1) // block):
         _line_run(origins, directions, reach, side, order, b * block, min(n, (b + 1) * block), nodes, first_leaf, leaf_size, A, AB, AC, out_t, out_slot)
 
-
-@_nb.njit(cache=True, error_model="numpy")
-def _line_serial(origins, directions, reach, side, order, nodes, first_leaf, leaf_size, A, AB, AC, out_t, out_slot):
-    _line_run(origins, directions, reach, side, order, 0, origins.shape[0], nodes, first_leaf, leaf_size, A, AB, AC, out_t, out_slot)
 
 
 def pseudonormal_signs(points, sq, closest, face, feature, faces, face_normals, edge_normals, vertex_normals, degenerate, suspect_vertex):
