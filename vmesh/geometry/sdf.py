@@ -326,7 +326,7 @@ class SignedDistance(SurfaceQueries):
         self.bounds = (v.min(axis=0), v.max(axis=0))
         self.diagonal = float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
         # a shared tree is only valid for the same triangles in the same corner order
-        shared = tree is not None and not self.flipped and tree.vertices is v and tree.faces is f
+        shared = tree is not None and not self.flipped and _same(tree.vertices, v) and _same(tree.faces, f)
         self._tree = tree if shared else _bvh.TriangleBVH(v, f)
         raw = topology.face_normals(v, f, normalize=False)
         area2 = np.linalg.norm(raw, axis=1)
@@ -543,6 +543,13 @@ class TwoStepSignedDistance(SurfaceQueries):
             c, d, f, n = fine._query(p[idx])
             closest[idx], signed[idx], face[idx], normal[idx] = c, d, f, n
         return closest, signed, face, normal
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    """True when two arrays hold the same values (views of one buffer are checked cheaply)."""
+    if a.shape != b.shape:
+        return False
+    return (a.__array_interface__["data"][0] == b.__array_interface__["data"][0] and a.strides == b.strides) or bool(np.array_equal(a, b))
 
 
 def _gradient(p, closest, signed, normal, tol):
