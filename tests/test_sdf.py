@@ -207,3 +207,29 @@ def test_measure_sdf_chain_preset(real_path, tmp_path):
     assert len(ctx.caps) == 3
 
 
+
+
+def test_every_signed_distance_is_a_surface_query():
+    """The three signed distances answer every member of the SurfaceQuery protocol, with
+    ``fine`` the query without a coarse search in front; the surface's cached tree is
+    shared with its projectors and its SignedDistance."""
+    import typing
+
+    from vmesh.geometry.octree_sdf import OctreeSignedDistance
+    from vmesh.geometry.projection import surface_tree, wall_projector
+    from vmesh.geometry.surface_query import SurfaceQuery
+    from vmesh.surface import SurfaceMesh
+
+    v, f = icosphere(1.0, 3)
+    fine_surface = SurfaceMesh(*icosphere(1.0, 4))
+    fine = SignedDistance.from_surface(fine_surface)
+    coarse = SignedDistance(v, f)
+    objects = [fine, TwoStepSignedDistance(coarse, fine), OctreeSignedDistance(coarse)]
+    members = {m for m in dir(SurfaceQuery) if not m.startswith("_")} | set(typing.get_type_hints(SurfaceQuery))
+    p = np.random.default_rng(0).normal(scale=0.6, size=(50, 3))
+    for sdf in objects:
+        assert all(hasattr(sdf, m) for m in members), type(sdf).__name__
+        assert sdf.fine.n_faces == sdf.n_faces and np.allclose(sdf.distance(p), sdf.project(p)[1])
+    assert objects[1].fine is fine and objects[1].coarse is coarse and objects[2].fine is objects[2]
+    assert fine._tree is surface_tree(fine_surface) is wall_projector(fine_surface).tree
+    assert wall_projector(fine_surface) is wall_projector(fine_surface, [])

@@ -73,7 +73,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         dome_max_retreat=dome_max_retreat,
         max_fix_rounds=max_fix_rounds,
     )
-    sdf = ctx.sdf  # a vmesh.geometry.sdf.SurfaceQuery
+    sdf = ctx.sdf  # a vmesh.geometry.surface_query.SurfaceQuery
     bad_path = ctx.output_path("invalid_blocks.vtu")
     if bad_path is None:
         bad_path = Path(tempfile.gettempdir()) / f"vmesh_invalid_blocks_{os.getpid()}.vtu"

@@ -73,7 +73,7 @@ def _count_summary(ctx, skel):
 
 
 def _sdf_functions(sdf):
-    """(distance, gradient) callables of the SDF layer; gradient may be None."""
+    """(distance, gradient) callables of the SDF layer (a :class:`~vmesh.geometry.surface_query.SurfaceQuery`)."""
     return sdf.distance, sdf.gradient
 
 

@@ -198,12 +198,12 @@ class OctreeSignedDistance(SurfaceQueries):
     @property
     def fine(self) -> "OctreeSignedDistance":
         """This distance: it answers on its own surface without a coarse search in front
-        (:class:`~vmesh.geometry.sdf.SurfaceQuery`); ``exact`` is its BVH fallback."""
+        (:class:`~vmesh.geometry.surface_query.SurfaceQuery`); ``exact`` is its BVH fallback."""
         return self
 
     @property
     def coarse(self) -> "OctreeSignedDistance":
-        """This distance (:class:`~vmesh.geometry.sdf.SurfaceQuery`)."""
+        """This distance (:class:`~vmesh.geometry.surface_query.SurfaceQuery`)."""
         return self
 
     def __repr__(self) -> str:

@@ -40,13 +40,12 @@ Backend, chosen by measurement (``benchmarks/sdf_coarse_vs_fine.py --backends``,
 
 from __future__ import annotations
 
-from typing import Protocol
-
 import numpy as np
 
 from ..errors import InputError
 from . import bvh as _bvh
 from . import topology
+from .surface_query import SurfaceQuery  # noqa: F401  (the interface the classes below implement)
 
 #: Barycentric tolerance deciding that a closest point lies on an edge or a vertex.
 #: Classifying a point near an edge as "on the edge" is always safe for the sign.
@@ -141,46 +140,6 @@ def folded_faces(faces: np.ndarray, face_unit_normals: np.ndarray, edge_of_half:
     out[f[sharp]] = True
     out[g[sharp]] = True
     return out
-
-
-class SurfaceQuery(Protocol):
-    """What the filters ask of a signed distance (the ``sdf`` layer): the interface that
-    :class:`SignedDistance`, :class:`TwoStepSignedDistance` and
-    :class:`~vmesh.geometry.octree_sdf.OctreeSignedDistance` implement.
-
-    ``fine`` is the query of the finest surface the object holds without a coarse search
-    in front (the fine :class:`SignedDistance` of a two-step distance; the object itself
-    otherwise); ``coarse`` is the one searched first (the object itself when there is no
-    such step). Distances are positive inside the vessel.
-    """
-
-    name: str
-    vertices: np.ndarray
-    faces: np.ndarray
-    bounds: tuple
-    diagonal: float
-    sign_method: str
-
-    @property
-    def n_faces(self) -> int: ...
-
-    @property
-    def fine(self) -> "SurfaceQuery": ...
-
-    @property
-    def coarse(self) -> "SurfaceQuery": ...
-
-    def project(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
-
-    def distance(self, points) -> np.ndarray: ...
-
-    def closest_points(self, points) -> np.ndarray: ...
-
-    def gradient(self, points) -> np.ndarray: ...
-
-    def intersect_lines(self, points, directions, reach, side=None) -> tuple[np.ndarray, np.ndarray]: ...
-
-    def winding_number(self, points) -> np.ndarray: ...
 
 
 class SurfaceQueries:
