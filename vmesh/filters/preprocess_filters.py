@@ -405,7 +405,7 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
     with warnings.catch_warnings(record=True) as caught:  # the backend fallback goes into the report
         warnings.simplefilter("always", RuntimeWarning)
         if max_error is None:
-            v, f = pre.decimate(s.vertices, s.faces, target_faces, **options)
+            v, f = _decimate_and_index(ctx, target_faces, options)
         else:
             labels = s.face_data.get(pre.CAP_LABEL)
             wall = None if labels is None or len(labels) != s.n_faces else np.asarray(labels) == 0
@@ -444,6 +444,38 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
             ctx.warn(f"the surface has {s.n_faces} faces, no more than the target {target_faces}: kept as it is")
     elif abs(len(f) - target_faces) > 0.01 * target_faces and tries is None:
         ctx.warn(f"decimation stopped at {len(f)} faces, target was {target_faces} (topology or boundary constraints)")
+
+
+def _decimate_and_index(ctx, target_faces, options):
+    """``pre.decimate`` of the fine surface; while pymeshlab decimates (it releases the GIL),
+    the fine surface's tree and its wall projector, which build_sdf and the mesher query
+    next, are built on the other core (cached per surface: docs/sdf.md)."""
+    s = ctx.surface
+    if options["backend"] != "pymeshlab" or target_faces >= s.n_faces:
+        return pre.decimate(s.vertices, s.faces, target_faces, **options)
+    import threading
+
+    from ..geometry.projection import wall_projector
+
+    result = {}
+
+    def work():
+        try:
+            result["surface"] = pre.decimate(s.vertices, s.faces, target_faces, **options)
+        except BaseException as exc:  # re-raised in the calling thread
+            result["error"] = exc
+
+    thread = threading.Thread(target=work, name="vmesh-decimate")
+    thread.start()
+    try:
+        wall_projector(s)
+        if ctx.caps:
+            wall_projector(s, ctx.caps)
+    finally:
+        thread.join()
+    if "error" in result:
+        raise result["error"]
+    return result["surface"]
 
 
 @register_filter(
