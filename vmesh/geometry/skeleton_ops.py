@@ -639,12 +639,50 @@ def node_scale(skeleton: Skeleton) -> np.ndarray:
     return np.where(good, r, fill)
 
 
+def weld_coincident_nodes(skeleton: Skeleton, tolerance: float = 0.001) -> tuple[Skeleton, int]:
+    """Weld nodes closer than ``tolerance`` x the smaller of their radii into one node.
+
+    Centerline files repeat points: an SWC child that starts on its parent's point (a
+    zero-length segment), or two children that both start on the same point, so that two
+    branches leave their junction along one and the same segment (0 degrees apart) and
+    only part at its far end. Welding makes the shared point the junction, where the
+    branches really part, and removes the zero-length segments. Welding is transitive, so
+    ``tolerance`` must stay well below the node spacing (a dense centerline would weld
+    into one node).
+
+    Returns
+    -------
+    skeleton : Skeleton
+    n_welded : int
+        Number of nodes that disappeared.
+    """
+    n = skeleton.n_nodes
+    if tolerance <= 0 or n < 2:
+        return skeleton.copy(), 0
+    scale = node_scale(skeleton)
+    pairs = cKDTree(skeleton.points).query_pairs(tolerance * float(scale.max()), output_type="ndarray")
+    if len(pairs):
+        a, b = pairs.T
+        gap = np.linalg.norm(skeleton.points[a] - skeleton.points[b], axis=1)
+        pairs = pairs[gap <= tolerance * np.minimum(scale[a], scale[b])]
+    if len(pairs) == 0:
+        return skeleton.copy(), 0
+    adj = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    label = connected_components(adj, directed=False)[1]
+    first = np.full(label.max() + 1, n)
+    np.minimum.at(first, label, np.arange(n))  # a group keeps its first node's place
+    out = contract_nodes(skeleton, first[label])
+    return out, n - out.n_nodes
+
+
 def merge_close_junctions(skeleton: Skeleton, tolerance: float = 0.5) -> tuple[Skeleton, int]:
     """Merge junctions joined by a branch shorter than ``tolerance`` x the larger of their
     radii into one junction (at the mean of the merged junctions).
 
     Skeletonisation often splits one junction of four or more branches into two or three
-    junctions a short distance apart, or leaves a tiny loop at a junction; both collapse.
+    junctions a short distance apart, or leaves a tiny loop at a junction; both collapse
+    (a loop from a junction back to itself when it stays within the junction's diameter of
+    it: the tube around it fills its hole).
 
     Returns
     -------
@@ -661,6 +699,11 @@ def merge_close_junctions(skeleton: Skeleton, tolerance: float = 0.5) -> tuple[S
     for p in paths:
         a, b = p[0], p[-1]
         if deg[a] < 3 or deg[b] < 3:
+            continue
+        if a == b:  # a loop narrower than the vessel encloses no wall: a hole of a voxel skeleton
+            reach = np.linalg.norm(skeleton.points[p] - skeleton.points[a], axis=1).max()
+            if reach < 2 * scale[a]:
+                merge_sets.append(p)
             continue
         length = arc_length(skeleton.points[p])[-1]
         if length < tolerance * max(scale[a], scale[b]):
@@ -898,15 +941,38 @@ def reconnect_components(skeleton: Skeleton, tolerance: float = 1.0) -> tuple[Sk
     return skel, joined
 
 
+def _distance_to_polyline(q: np.ndarray, P: np.ndarray) -> float:
+    """Distance from point ``q`` to the polyline through the points ``P``."""
+    if len(P) == 1:
+        return float(np.linalg.norm(q - P[0]))
+    a, d = P[:-1], np.diff(P, axis=0)
+    t = np.clip(((q - a) * d).sum(1) / np.maximum((d * d).sum(1), 1e-300), 0.0, 1.0)
+    return float(np.linalg.norm(a + t[:, None] * d - q, axis=1).min())
+
+
+def _shadowed(skel: Skeleton, end: int, junction: int, spur: np.ndarray, paths: list, scale: np.ndarray, shadow: float) -> bool:
+    """Whether the free ``end`` of a spur lies within ``shadow`` x its radius of another
+    branch leaving the same junction (inside that vessel's lumen, near its axis)."""
+    for p in paths:
+        if junction not in (p[0], p[-1]) or end in (p[0], p[-1]) or len(p) == len(spur) and np.array_equal(p, spur):
+            continue
+        if _distance_to_polyline(skel.points[end], skel.points[p]) < shadow * scale[end]:
+            return True
+    return False
+
+
 def remove_spurs(
-    skeleton: Skeleton, length: float = 1.0, protected: np.ndarray | None = None
+    skeleton: Skeleton, length: float = 1.0, protected: np.ndarray | None = None, shadow: float = 0.5
 ) -> tuple[Skeleton, int]:
     """Remove short side branches: a branch from an endpoint to a junction shorter than
     ``length`` x the junction radius is a bump on the wall, not a vessel.
 
     At most ``degree - 2`` spurs (shortest first) go per junction and round, so a short
     bifurcation (two short daughters) keeps one daughter; rounds repeat until nothing
-    changes. ``protected`` endpoints (e.g. at caps) are never removed.
+    changes. ``protected`` endpoints (e.g. at caps) are never removed, except a spur of
+    any length whose end lies within ``shadow`` x its radius of another branch of its
+    junction: it runs inside that branch's lumen (an extracted skeleton's second path
+    along one vessel, leaving the junction a few degrees from it) and adds no vessel.
 
     Returns
     -------
@@ -914,7 +980,7 @@ def remove_spurs(
     n_removed : int
         Number of spurs removed.
     """
-    if length <= 0:
+    if length <= 0 and shadow <= 0:
         return skeleton.copy(), 0
     skel = skeleton
     prot = np.zeros(skel.n_nodes, bool) if protected is None else np.asarray(protected, bool).copy()
@@ -923,7 +989,8 @@ def remove_spurs(
         deg = skel.degrees
         scale = node_scale(skel)
         candidates = []
-        for p in branch_paths(skel.n_nodes, skel.edges):
+        paths = branch_paths(skel.n_nodes, skel.edges)
+        for p in paths:
             a, b = p[0], p[-1]
             if deg[a] == 1 and deg[b] >= 3:
                 end, junction, inner = a, b, p[:-1]
@@ -931,10 +998,10 @@ def remove_spurs(
                 end, junction, inner = b, a, p[1:]
             else:
                 continue
-            if prot[end]:
-                continue
             s = arc_length(skel.points[p])[-1]
-            if s < length * scale[junction]:
+            if (s < length * scale[junction] and not prot[end]) or (
+                shadow > 0 and _shadowed(skel, end, junction, p, paths, scale, shadow)
+            ):
                 candidates.append((s, junction, inner))
         if not candidates:
             break
