@@ -11,6 +11,7 @@ import pytest
 from conftest import synthetic_case
 from vmesh.chain import FilterChain
 from vmesh.geometry import skeleton_ops as ops
+from vmesh.geometry.skeleton.defects import weld_coincident_nodes
 from vmesh.io.skeleton import read_skeleton
 from vmesh.skeleton import Skeleton
 
@@ -46,7 +47,7 @@ def test_weld_joins_repeated_points_into_the_real_junction():
     gt = y_truth()
     dup = y_with_duplicate_start(gt)
     assert dup.summary()["junctions"] == 1 and dup.n_nodes == gt.n_nodes + 1
-    out, n = ops.weld_coincident_nodes(dup)
+    out, n = weld_coincident_nodes(dup)
     assert n == 1 and out.n_nodes == gt.n_nodes
     assert out.summary()["junctions"] == 1 and out.summary()["endpoints"] == 3
     j = np.flatnonzero(out.degrees >= 3)[0]
@@ -54,9 +55,9 @@ def test_weld_joins_repeated_points_into_the_real_junction():
     assert ops.edge_lengths(out.points, out.edges).min() > 0
     # a zero-length segment inside a branch goes too; distinct nodes stay
     line = Skeleton([[0, 0, 0], [1, 0, 0], [1, 0, 0], [2, 0, 0]], np.ones(4), [[0, 1], [1, 2], [2, 3]])
-    out, n = ops.weld_coincident_nodes(line)
+    out, n = weld_coincident_nodes(line)
     assert n == 1 and out.n_edges == 2 and ops.edge_lengths(out.points, out.edges).min() == 1
-    same, n = ops.weld_coincident_nodes(gt)
+    same, n = weld_coincident_nodes(gt)
     assert n == 0 and same.n_nodes == gt.n_nodes
 
 

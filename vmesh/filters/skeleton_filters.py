@@ -13,6 +13,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import skeleton_ops as ops
+from ..geometry.skeleton.defects import weld_coincident_nodes
 from ..registry import Parameter, register_filter
 
 
@@ -310,7 +311,7 @@ def clean_skeleton(
     if not np.isfinite(skel.radii).all() and ctx.sdf is not None:
         skel, _ = ops.estimate_radii(skel, ctx.sdf.distance)
     counts = {}
-    skel, counts["welded"] = ops.weld_coincident_nodes(skel, weld_distance)
+    skel, counts["welded"] = weld_coincident_nodes(skel, weld_distance)
     caps = list(ctx.caps or [])
     if extend_to_caps and caps:  # centerlines running out through an open end stop at its cap
         cap_arrays = (np.array([c.center for c in caps]), np.array([c.normal for c in caps]), np.array([c.radius for c in caps]))
