@@ -232,8 +232,11 @@ def measure_coverage(
     rel, beyond, face_r, face_node = _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, (skeleton_points, skeleton_edges, skeleton_radii), distance)
     far = rel > distance
     total = float(area.sum())
-    uncovered_area = float((area[:, None] * far).sum() / 4.0)
-    beyond_area = float((area[:, None] * (far & beyond)).sum() / 4.0)
+    # wall past an open end face, no deeper than a rounded end: the end cap of a surface
+    # without flat caps, which the mesh leaves out as it leaves out flat caps
+    end_cap = far & beyond & (rel <= end_depth)
+    uncovered_area = float((area[:, None] * (far & ~end_cap)).sum() / 4.0)
+    beyond_area = float((area[:, None] * end_cap).sum() / 4.0)
     d_n = _wall_node_distances(X, boundary_faces, boundary_ids, V, WF, skeleton_points, skeleton_edges, skeleton_radii)
     surface_volume, mesh_volume = enclosed_volume(V, F), enclosed_volume(X, tri)
     missing, n_patches, n_missing = _missing_parts(
@@ -295,7 +298,6 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
     total = float(area.sum())
     label, n_patches = _patches(WF, len(V), far.sum(axis=1) >= 2)
     missing = []
-    label, n_patches = _patches(WF, len(V), far.sum(axis=1) >= 2)
     if n_patches:
         face_rel = rel.max(axis=1)
         face_area = area * far.mean(axis=1)
