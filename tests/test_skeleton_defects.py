@@ -129,3 +129,37 @@ def test_loop_narrower_than_the_vessel_collapses_into_its_junction():
     assert out.n_nodes == n and out.summary()["cycles"] == 0
     kept, _ = ops.merge_close_junctions(with_loop(3.0), 0.5)  # a ring wider than the vessel stays
     assert kept.n_nodes == n + 2 and kept.summary()["cycles"] == 1
+
+
+def _capsules_sdf(a, b, c, r):
+    """Signed distance (positive inside, exact off the joint) of an L-shaped tube a-b-c of radius r."""
+
+    def seg(p, u, v):
+        d = v - u
+        t = np.clip(((p - u) @ d) / (d @ d), 0, 1)
+        return np.linalg.norm(p - (u + t[:, None] * d), axis=1)
+
+    return lambda p: r - np.minimum(seg(np.atleast_2d(p), a, b), seg(np.atleast_2d(p), b, c))
+
+
+def test_march_follows_a_bent_vessel_from_its_cap_to_the_skeleton():
+    """A thin vessel the thinning missed, bending 90 degrees: no straight line from the
+    skeleton to its cap stays inside; the march along its axis does."""
+    from vmesh.geometry.skeleton.march import march_to_skeleton
+
+    r = 0.5
+    a, b, c = np.array([0.0, 0, 0]), np.array([6.0, 0, 0]), np.array([6.0, 8, 0])
+    sdf = _capsules_sdf(a, b, c, r)
+    # the skeleton: the far half of the second leg (a wider vessel would hold it)
+    targets = b + np.linspace(0.5, 1.0, 11)[:, None] * (c - b)
+    path, k = march_to_skeleton(sdf, a, np.array([1.0, 0, 0]), r, targets, np.full(len(targets), r))
+    assert (sdf(path) > 0).all()
+    axis_gap = np.minimum(np.hypot(path[:, 1], path[:, 2]), np.hypot(path[:, 0] - 6.0, path[:, 2]))
+    assert axis_gap.max() < 0.35 * r  # on the axis of one leg or the other
+    assert np.linalg.norm(path[-1] - targets[k]) < r
+    assert path[:, 1].max() > 3.0  # went round the bend
+    # a straight line from the skeleton point to the cap leaves the vessel
+    line = targets[k] + np.linspace(0, 1, 50)[:, None] * (a - targets[k])
+    assert (sdf(line) < 0).any()
+    # a march into a dead end (no skeleton within reach) fails
+    assert march_to_skeleton(sdf, a, np.array([1.0, 0, 0]), r, np.array([[40.0, 40, 40]]), np.array([r]), max_length=30) is None
