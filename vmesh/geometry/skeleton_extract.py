@@ -1565,7 +1565,9 @@ def _attach_cap(graph: BranchGraph, cap, index: int, spacing: float, sdf: SdfFun
             if pick >= 0:
                 break
         if pick < 0:
-            return _march_cap(graph, cap, index, spacing, sdf, where, pts)
+            from .skeleton.march import attach_by_march
+
+            return attach_by_march(graph, cap, index, spacing, sdf, where, pts)
     location = where[pick]
     base = location[1] if location[0] == "node" else graph.split(*location[1:])
     end = graph.add_node(centre, radius, end=("cap", index))
@@ -1575,25 +1577,6 @@ def _attach_cap(graph: BranchGraph, cap, index: int, spacing: float, sdf: SdfFun
     else:
         path = np.concatenate([_straight(start, via, spacing), via[None], _straight(via, centre, spacing)])
     graph.add_branch(base, end, path, np.full(len(path), radius))
-    return True
-
-
-def _march_cap(graph: BranchGraph, cap, index: int, spacing: float, sdf: SdfFunction, where: list, pts: np.ndarray) -> bool:
-    """Add the branch to ``cap`` marched along its vessel from the cap to the skeleton
-    (a bending vessel the thinning missed); ``False`` when the march fails."""
-    from .skeleton.march import march_to_skeleton
-
-    radii = evaluate_sdf(sdf, pts)  # the inscribed spheres: the lumen around each skeleton point
-    found = march_to_skeleton(sdf, cap.center, -np.asarray(cap.normal, float), float(cap.radius), pts, radii)
-    if found is None:
-        return False
-    path, k = found
-    location = where[k]
-    base = location[1] if location[0] == "node" else graph.split(*location[1:])
-    end = graph.add_node(np.asarray(cap.center, float), float(cap.radius), end=("cap", index))
-    pieces = [_straight(graph.pos(base), path[-1], spacing), path[::-1][:-1]]
-    line = np.concatenate([q for q in pieces if len(q)])
-    graph.add_branch(base, end, line, np.full(len(line), float(cap.radius)))
     return True
 
 

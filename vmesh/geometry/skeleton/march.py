@@ -78,3 +78,23 @@ def march_to_skeleton(
         path.append(q)
         p = q
     return None
+
+
+def attach_by_march(graph, cap, index: int, spacing: float, sdf, where: list, pts: np.ndarray) -> bool:
+    """Add to the extraction's branch graph the branch to ``cap`` marched along its vessel
+    from the cap to the skeleton (``where``/``pts``: the graph's branch points and nodes);
+    ``False`` when the march fails."""
+    from ..skeleton_extract import _straight, evaluate_sdf
+
+    radii = evaluate_sdf(sdf, pts)  # the inscribed spheres: the lumen around each skeleton point
+    found = march_to_skeleton(sdf, cap.center, -np.asarray(cap.normal, float), float(cap.radius), pts, radii)
+    if found is None:
+        return False
+    path, k = found
+    location = where[k]
+    base = location[1] if location[0] == "node" else graph.split(*location[1:])
+    end = graph.add_node(np.asarray(cap.center, float), float(cap.radius), end=("cap", index))
+    pieces = [_straight(graph.pos(base), path[-1], spacing), path[::-1][:-1]]
+    line = np.concatenate([q for q in pieces if len(q)])
+    graph.add_branch(base, end, line, np.full(len(line), float(cap.radius)))
+    return True
