@@ -13,6 +13,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import skeleton_ops as ops
+from ..geometry.skeleton.defects import weld_coincident_nodes
 from ..registry import Parameter, register_filter
 
 
@@ -227,6 +228,26 @@ def estimate_radii(ctx, overwrite, scale):
             unit="× radius",
             min=0.0,
         ),
+        Parameter(
+            "spur_shadow",
+            "float",
+            0.5,
+            "Also remove a side branch of any length whose free end lies this close to another branch of its "
+            "junction (a second path inside that vessel; 0: never).",
+            unit="× radius",
+            min=0.0,
+            max=1.0,
+        ),
+        Parameter(
+            "weld_distance",
+            "float",
+            0.001,
+            "First weld nodes closer than this into one (repeated points of a centerline file; 0: never). Kept far "
+            "below the node spacing of dense centerlines, whose consecutive nodes would otherwise weld in a chain.",
+            unit="× radius",
+            min=0.0,
+            max=0.05,
+        ),
         Parameter("extend_to_caps", "bool", True, "Trim or extend each end that belongs to a cap so that it ends on the cap (needs the caps layer)."),
         Parameter(
             "cap_mode",
@@ -268,13 +289,15 @@ def clean_skeleton(
     parallel_angle,
     part_angle,
     spur_length,
+    spur_shadow,
+    weld_distance,
     extend_to_caps,
     cap_mode,
     cap_distance,
     graft_to_caps,
     graft_join,
 ):
-    """Steps, in order: cutting off what runs out through a cap, nodes outside the wall,
+    """Steps, in order: welding of repeated points, cutting off what runs out through a cap, nodes outside the wall,
     reconnection of separated pieces, merging of junctions split into nearby nodes, spur
     removal (ends at caps are kept), merging again, grafting a branch to every cap no end
     belongs to (then merging again), moving junctions whose branches leave nearly parallel
@@ -286,6 +309,7 @@ def clean_skeleton(
     if not np.isfinite(skel.radii).all() and ctx.sdf is not None:
         skel, _ = ops.estimate_radii(skel, ctx.sdf.distance)
     counts = {}
+    skel, counts["welded"] = weld_coincident_nodes(skel, weld_distance)
     caps = list(ctx.caps or [])
     if extend_to_caps and caps:  # centerlines running out through an open end stop at its cap
         cap_arrays = (np.array([c.center for c in caps]), np.array([c.normal for c in caps]), np.array([c.radius for c in caps]))
@@ -306,7 +330,7 @@ def clean_skeleton(
         near = np.linalg.norm(skel.points[:, None, :] - centers[None], axis=2) <= cap_distance * radii[None]
         protected = near.any(axis=1)
     ctx.tick(0.5, "spurs")
-    skel, counts["spurs_removed"] = ops.remove_spurs(skel, spur_length, protected)
+    skel, counts["spurs_removed"] = ops.remove_spurs(skel, spur_length, protected, spur_shadow)
     skel, merged2 = ops.merge_close_junctions(skel, junction_distance)
     if graft_to_caps and caps:
         skel, counts["grafted"] = _graft_missing_branches(ctx, skel, caps, cap_distance, graft_join)

@@ -235,8 +235,14 @@ def measure_coverage(
     rel, beyond, face_r, face_node = _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, (skeleton_points, skeleton_edges, skeleton_radii), distance)
     far = rel > distance
     total = float(area.sum())
-    uncovered_area = float((area[:, None] * far).sum() / 4.0)
-    beyond_area = float((area[:, None] * (far & beyond)).sum() / 4.0)
+    # wall past an open end face, no deeper than a rounded end: the end cap of a surface
+    # without flat caps, which the mesh leaves out as it leaves out flat caps (past the
+    # face's plane too, up to a hemisphere's depth: the side wall there is as close to the
+    # wall's rim as to the face)
+    past = _past_end_faces(X, boundary_faces, boundary_ids, V[WF].mean(axis=1))
+    end_cap = far & ((beyond & (rel <= end_depth)) | (past[:, None] & (rel <= min(end_depth, 1.0))))
+    uncovered_area = float((area[:, None] * (far & ~end_cap)).sum() / 4.0)
+    beyond_area = float((area[:, None] * end_cap).sum() / 4.0)
     d_n = _wall_node_distances(X, boundary_faces, boundary_ids, TriangleBVH(V, WF) if wall_tree is None else wall_tree, skeleton_points, skeleton_edges, skeleton_radii)
     surface_volume, mesh_volume = enclosed_volume(V, F), enclosed_volume(X, tri)
     missing, n_patches, n_missing = _missing_parts(
@@ -261,6 +267,27 @@ def measure_coverage(
         "missing": [m.as_dict() for m in missing],
     }
     return summary, missing
+
+
+def _past_end_faces(X, boundary_faces, boundary_ids, points) -> np.ndarray:
+    """Whether each point lies past one of the mesh's open end faces: beyond the face's
+    plane (outward: away from the mesh next to it) and within 1.5 x its radius of its
+    axis."""
+    faces, ids = np.asarray(boundary_faces), np.asarray(boundary_ids)
+    out = np.zeros(len(points), bool)
+    for k in np.unique(ids[ids > 0]).tolist():
+        P = X[np.unique(faces[ids == k])]
+        c = P.mean(axis=0)
+        n = np.linalg.svd(P - c)[2][-1]
+        R = float(np.linalg.norm(P - c, axis=1).max())
+        near = np.linalg.norm(X - c, axis=1) < 1.5 * R  # the mesh lies on the inner side
+        if (X[near].mean(axis=0) - c) @ n > 0:
+            n = -n
+        rel = points - c
+        along = rel @ n
+        lateral = np.linalg.norm(rel - along[:, None] * n, axis=1)
+        out |= (along > 0) & (lateral < 1.5 * R)
+    return out
 
 
 def _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, skeleton_points, skeleton_edges, skeleton_radii):
@@ -296,7 +323,6 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
     total = float(area.sum())
     label, n_patches = _patches(WF, len(V), far.sum(axis=1) >= 2)
     missing = []
-    label, n_patches = _patches(WF, len(V), far.sum(axis=1) >= 2)
     if n_patches:
         face_rel = rel.max(axis=1)
         face_area = area * far.mean(axis=1)

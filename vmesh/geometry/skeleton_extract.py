@@ -1565,7 +1565,9 @@ def _attach_cap(graph: BranchGraph, cap, index: int, spacing: float, sdf: SdfFun
             if pick >= 0:
                 break
         if pick < 0:
-            return False
+            from .skeleton.march import attach_by_march
+
+            return attach_by_march(graph, cap, index, spacing, sdf, where, pts)
     location = where[pick]
     base = location[1] if location[0] == "node" else graph.split(*location[1:])
     end = graph.add_node(centre, radius, end=("cap", index))

@@ -644,7 +644,9 @@ def merge_close_junctions(skeleton: Skeleton, tolerance: float = 0.5) -> tuple[S
     radii into one junction (at the mean of the merged junctions).
 
     Skeletonisation often splits one junction of four or more branches into two or three
-    junctions a short distance apart, or leaves a tiny loop at a junction; both collapse.
+    junctions a short distance apart, or leaves a tiny loop at a junction; both collapse
+    (a loop from a junction back to itself when it stays within the junction's diameter of
+    it: the tube around it fills its hole).
 
     Returns
     -------
@@ -661,6 +663,11 @@ def merge_close_junctions(skeleton: Skeleton, tolerance: float = 0.5) -> tuple[S
     for p in paths:
         a, b = p[0], p[-1]
         if deg[a] < 3 or deg[b] < 3:
+            continue
+        if a == b:  # a loop narrower than the vessel encloses no wall: a hole of a voxel skeleton
+            reach = np.linalg.norm(skeleton.points[p] - skeleton.points[a], axis=1).max()
+            if reach < 2 * scale[a]:
+                merge_sets.append(p)
             continue
         length = arc_length(skeleton.points[p])[-1]
         if length < tolerance * max(scale[a], scale[b]):
@@ -899,14 +906,17 @@ def reconnect_components(skeleton: Skeleton, tolerance: float = 1.0) -> tuple[Sk
 
 
 def remove_spurs(
-    skeleton: Skeleton, length: float = 1.0, protected: np.ndarray | None = None
+    skeleton: Skeleton, length: float = 1.0, protected: np.ndarray | None = None, shadow: float = 0.5
 ) -> tuple[Skeleton, int]:
     """Remove short side branches: a branch from an endpoint to a junction shorter than
     ``length`` x the junction radius is a bump on the wall, not a vessel.
 
     At most ``degree - 2`` spurs (shortest first) go per junction and round, so a short
     bifurcation (two short daughters) keeps one daughter; rounds repeat until nothing
-    changes. ``protected`` endpoints (e.g. at caps) are never removed.
+    changes. ``protected`` endpoints (e.g. at caps) are never removed, except a spur of
+    any length whose end lies within ``shadow`` x its radius of another branch of its
+    junction: it runs inside that branch's lumen (an extracted skeleton's second path
+    along one vessel, leaving the junction a few degrees from it) and adds no vessel.
 
     Returns
     -------
@@ -914,7 +924,9 @@ def remove_spurs(
     n_removed : int
         Number of spurs removed.
     """
-    if length <= 0:
+    from .skeleton.defects import shadowed
+
+    if length <= 0 and shadow <= 0:
         return skeleton.copy(), 0
     skel = skeleton
     prot = np.zeros(skel.n_nodes, bool) if protected is None else np.asarray(protected, bool).copy()
@@ -923,7 +935,8 @@ def remove_spurs(
         deg = skel.degrees
         scale = node_scale(skel)
         candidates = []
-        for p in branch_paths(skel.n_nodes, skel.edges):
+        paths = branch_paths(skel.n_nodes, skel.edges)
+        for p in paths:
             a, b = p[0], p[-1]
             if deg[a] == 1 and deg[b] >= 3:
                 end, junction, inner = a, b, p[:-1]
@@ -931,10 +944,10 @@ def remove_spurs(
                 end, junction, inner = b, a, p[1:]
             else:
                 continue
-            if prot[end]:
-                continue
             s = arc_length(skel.points[p])[-1]
-            if s < length * scale[junction]:
+            if (s < length * scale[junction] and not prot[end]) or (
+                shadow > 0 and shadowed(skel, end, junction, p, paths, scale, shadow)
+            ):
                 candidates.append((s, junction, inner))
         if not candidates:
             break

@@ -1,0 +1,69 @@
+"""Defects of real centerlines that the cleaning undoes before the block builder sees them:
+repeated points (two branches leaving a junction along one segment, zero-length segments)
+and second paths inside a vessel's lumen."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from ...skeleton import Skeleton
+from ..skeleton_ops import contract_nodes, node_scale
+
+
+def weld_coincident_nodes(skeleton: Skeleton, tolerance: float = 0.001) -> tuple[Skeleton, int]:
+    """Weld nodes closer than ``tolerance`` x the smaller of their radii into one node.
+
+    Centerline files repeat points: an SWC child that starts on its parent's point (a
+    zero-length segment), or two children that both start on the same point, so that two
+    branches leave their junction along one and the same segment (0 degrees apart) and
+    only part at its far end. Welding makes the shared point the junction, where the
+    branches really part, and removes the zero-length segments. Welding is transitive, so
+    ``tolerance`` must stay well below the node spacing (a dense centerline would weld
+    into one node).
+
+    Returns
+    -------
+    skeleton : Skeleton
+    n_welded : int
+        Number of nodes that disappeared.
+    """
+    n = skeleton.n_nodes
+    if tolerance <= 0 or n < 2:
+        return skeleton.copy(), 0
+    scale = node_scale(skeleton)
+    pairs = cKDTree(skeleton.points).query_pairs(tolerance * float(scale.max()), output_type="ndarray")
+    if len(pairs):
+        a, b = pairs.T
+        gap = np.linalg.norm(skeleton.points[a] - skeleton.points[b], axis=1)
+        pairs = pairs[gap <= tolerance * np.minimum(scale[a], scale[b])]
+    if len(pairs) == 0:
+        return skeleton.copy(), 0
+    adj = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    label = connected_components(adj, directed=False)[1]
+    first = np.full(label.max() + 1, n)
+    np.minimum.at(first, label, np.arange(n))  # a group keeps its first node's place
+    out = contract_nodes(skeleton, first[label])
+    return out, n - out.n_nodes
+
+
+def _distance_to_polyline(q: np.ndarray, P: np.ndarray) -> float:
+    """Distance from point ``q`` to the polyline through the points ``P``."""
+    if len(P) == 1:
+        return float(np.linalg.norm(q - P[0]))
+    a, d = P[:-1], np.diff(P, axis=0)
+    t = np.clip(((q - a) * d).sum(1) / np.maximum((d * d).sum(1), 1e-300), 0.0, 1.0)
+    return float(np.linalg.norm(a + t[:, None] * d - q, axis=1).min())
+
+
+def shadowed(skel: Skeleton, end: int, junction: int, spur: np.ndarray, paths: list, scale: np.ndarray, shadow: float) -> bool:
+    """Whether the free ``end`` of a spur lies within ``shadow`` x its radius of another
+    branch leaving the same junction (inside that vessel's lumen, near its axis)."""
+    for p in paths:
+        if junction not in (p[0], p[-1]) or end in (p[0], p[-1]) or len(p) == len(spur) and np.array_equal(p, spur):
+            continue
+        if _distance_to_polyline(skel.points[end], skel.points[p]) < shadow * scale[end]:
+            return True
+    return False
