@@ -81,6 +81,8 @@ class BlockOptions:
     wall_quality: float = 0.05  # least scaled Jacobian of boundary-layer blocks with projected wall faces
     good_wall_quality: float = 0.3  # projected quality at which a junction end's margin stops growing
     wall_margins: tuple = (0.0, 0.5, 1.0, 2.0)  # extra margins tried at folding junction ends (× radius)
+    relieve_wall_folds: bool = True  # re-place junction sections where boundary-layer blocks would fold (fill-judged)
+    junction_centre: float = 1.0  # how far half-sections' common line moves from the node to the wall's centre (0: at the node)
 
 
 @dataclass
@@ -449,7 +451,8 @@ class _Builder:
                 self.fail(blocks, bad)
         if self.project is not None:
             blocks = self.thicken_layers(blocks)
-            blocks = self.relieve_wall_folds(blocks)
+            if self.opt.relieve_wall_folds:
+                blocks = self.relieve_wall_folds(blocks)
             self.report_wall_folds(blocks)
         blocks.info.update(self.info)
         blocks.info["fixes"] = list(self.fixes)
@@ -584,12 +587,39 @@ class _Builder:
             ang, p, q = cs.order_around(u, d)
             order, sep, gap = cs.separator_angles(ang)
             self.junctions[c] = _Junction(
-                node=c, center=self.pos[c].copy(), radius=float(sk.radii[c]), u=u, p=p, q=q,
+                node=c, center=self._junction_centre(c, u, p, q, sep), radius=float(sk.radii[c]), u=u, p=p, q=q,
                 neighbors=np.array([int(self.branches[bi].nodes[1] if side == 0 else self.branches[bi].nodes[-2]) for bi, side in lst])[order],
                 branch_angle=ang[order], separator=sep, gap=gap, psi=np.zeros(len(lst)),
                 ends=[lst[i] for i in order],
             )
             self.junctions[c].dirs = d[order]
+
+    def _junction_centre(self, c: int, u, p, q, sep) -> np.ndarray:
+        """Point of the junction's common line (the half-sections' spine).
+
+        As vascularmd places a bifurcation's centre (Decroocq et al. 2023), the line goes
+        through the mean of the wall points straight out along the separators (the apex
+        of each crotch and the outer walls between branches), centred between the wall
+        above and below along ``u``. A node far upstream of the apex would otherwise cast
+        the crotch half-section as a long sliver that reaches along the daughters and
+        folds their first boundary-layer blocks. ``junction_centre`` blends from the node
+        (0) to that point (1); it stays at least half the node's radius inside."""
+        o = self.pos[c].copy()
+        w = float(self.opt.junction_centre)
+        if w <= 0:
+            return o
+        rc = float(self.sk.radii[c])
+        sd = np.cos(sep)[:, None] * p + np.sin(sep)[:, None] * q
+        R = self.cast(np.repeat(o[None], len(sd), 0), sd, np.full(len(sd), rc))
+        if not np.all(np.isfinite(R)):
+            return o
+        x = o + w * np.mean(R[:, None] * sd, axis=0)
+        ud = self.cast(np.repeat(x[None], 2, 0), np.stack([u, -u]), np.full(2, rc))
+        if np.all(np.isfinite(ud)):
+            x = x + 0.5 * (ud[0] - ud[1]) * u
+        if float(np.asarray(self.sdf(x[None]))[0]) < 0.5 * rc:
+            return o
+        return x
 
     # -- 3. branches -------------------------------------------------------------
     def make_branches(self):
@@ -789,7 +819,8 @@ class _Builder:
             dirs = j.dirs
             room = self._neighbour_room(j)
             rad = self.sk.radii[j.neighbors]
-            reach_a = (rel @ dirs.T)  # (m, ncand, nv_up, m)
+            # reach along the branches from the node (the half-sections' line may be off it)
+            reach_a = (rel @ dirs.T) + ((j.center - self.pos[c]) @ dirs.T)  # (m, ncand, nv_up, m)
             over = np.zeros((m, ncand))
             for h in range(m):
                 for nbh in (h, (h + 1) % m):
