@@ -42,7 +42,7 @@ from .. import cross_sections as cs
 from .assemble import _Assembly
 from .checks import _Failure
 from .junctions import _Junctions
-from .options import BlockOptions
+from .options import BlockOptions, _LocalFixes
 from .prep import merge_junction_pair, split_nonplanar_junctions
 from .repair import _Repair
 from .sections import _Sections
@@ -152,9 +152,7 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair):
         self.template = cs.o_grid_template(options.blocks_around)
         self.sk = skeleton
         self.fixes: list[str] = []
-        self.core_scale: dict = {}
-        self.layer_scale: dict = {}
-        self.lookahead: dict = {}
+        self.local = _LocalFixes()
 
 
     # -- entry ------------------------------------------------------------------
@@ -183,6 +181,7 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair):
                 self.fail(blocks, bad)
         if self.project is not None:
             blocks = self.thicken_layers(blocks)
+            blocks = self.choose_centres(blocks)
             if self.opt.relieve_wall_folds:
                 blocks = self.relieve_wall_folds(blocks)
             self.report_wall_folds(blocks)

@@ -88,8 +88,8 @@ class _Junctions:
                 if first is None:
                     first = problem
                 if problem is None:
-                    if ahead > 0 and c not in self.lookahead:
-                        self.lookahead[c] = ahead
+                    if ahead > 0 and c not in self.local.lookahead:
+                        self.local.lookahead[c] = ahead
                         self.fixes.append(f"junction node {c}: branch directions taken {ahead:g} radii along its branches ({first[1]} at its first neighbours)")
                     break
             if problem:
@@ -127,7 +127,7 @@ class _Junctions:
         (0) to that point (1); it stays at least half the node's radius inside."""
         o = self.pos[c].copy()
         w = float(self.opt.junction_centre)
-        if w <= 0:
+        if w <= 0 or c in self.local.at_node:
             return o
         rc = float(self.sk.radii[c])
         sd = np.cos(sep)[:, None] * p + np.sin(sep)[:, None] * q

@@ -70,3 +70,13 @@ class _Branch:
     s: np.ndarray  # (K+1,) section positions (arc length)
     margin: np.ndarray = field(default_factory=lambda: np.zeros(2))  # extra clearance per end (× radius)
     straighten: np.ndarray | None = None  # (K+1,) blend of section normals towards the chord
+
+
+@dataclass
+class _LocalFixes:
+    """Local changes the builder's fixes make, kept across rebuilds."""
+
+    core_scale: dict = field(default_factory=dict)  # section key -> core size factor
+    layer_scale: dict = field(default_factory=dict)  # section key -> boundary-layer thickness factor
+    lookahead: dict = field(default_factory=dict)  # junction node -> radii along its branches for their directions
+    at_node: set = field(default_factory=set)  # junctions whose half-sections meet on their node, not the wall's centre

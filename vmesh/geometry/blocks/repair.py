@@ -65,6 +65,58 @@ class _Repair:
         return trial
 
 
+    def choose_centres(self, blocks: BlockStructure) -> BlockStructure:
+        """Per junction, keep the half-sections' line through the wall's centre
+        (:meth:`_junction_centre`) or move it back onto the skeleton node, whichever fills the
+        blocks of the junction's first segments better.
+
+        The centre shortens the crotch half-section of a node far upstream of the apex, but
+        where a thin branch leaves a wide one the node can serve its first blocks better.
+        Both placements are assembled once (all junctions switched together; they are
+        independent), their junction blocks filled (:func:`fill_quality`, without
+        untangling), and a junction switches only when it fills better at one resolution
+        and no worse at any, with every block valid."""
+        if self.opt.junction_centre <= 0 or not self.junctions:
+            return blocks
+        nodes = sorted(c for c in self.junctions if c not in self.local.at_node)
+        if not nodes:
+            return blocks
+        before = self._centre_scores(blocks, nodes)
+        self.local.at_node |= set(nodes)
+        for c in nodes:
+            self._rebuild_junction(c)
+        self._apply_clearance()
+        trial = self.assemble()
+        after = self._centre_scores(trial, nodes) if trial.corner_jacobians().min() > 0 else {c: np.full(len(FILL_CHECKS), -np.inf) for c in nodes}
+        switch = [c for c in nodes if np.all(after[c] >= before[c] - 1e-9) and np.any(after[c] > before[c] + 1e-9)]
+        keep = [c for c in nodes if c not in switch]
+        if not switch:
+            self.local.at_node -= set(nodes)
+        else:
+            self.local.at_node -= set(keep)
+        for c in keep:
+            self._rebuild_junction(c)
+        self._apply_clearance()
+        out = self.assemble()
+        if out.corner_jacobians().min() <= 0:
+            # the junctions' choices interact: back to the centres everywhere
+            self.local.at_node -= set(nodes)
+            for c in switch:
+                self._rebuild_junction(c)
+            self._apply_clearance()
+            return self.assemble()
+        if switch:
+            self.fixes.append(f"half cross-sections of junction node(s) {switch} meet on the node, not the wall's centre, where their blocks fill better")
+        return out
+
+    def _centre_scores(self, blocks: BlockStructure, nodes) -> dict:
+        """:func:`fill_score` per fill resolution of each junction's first-segment blocks."""
+        near = {c: self._junction_blocks([c]) for c in nodes}
+        sel = np.unique(np.concatenate(list(near.values())))
+        q = np.ones((len(FILL_CHECKS), blocks.n_blocks))
+        q[:, sel] = fill_quality(blocks, sel, self.project, self.sdf, self.intersect_lines, per_resolution=True)
+        return {c: np.array([fill_score(row[near[c]]) for row in q]) for c in nodes}
+
     def _checked_score(self, blocks: BlockStructure, near: np.ndarray) -> np.ndarray:
         """:func:`fill_score` of the blocks ``near`` per fill resolution; -inf when any block
         is invalid."""
@@ -193,15 +245,15 @@ class _Repair:
             if len(bad) == 0:
                 break
             keys = {self._section_key(bi, kk) for bi, k in self.block_where[bad].tolist() for kk in (k, k + 1)}
-            keys = {key for key in keys if opt.layer_thickness * self.layer_scale.get(key, 1.0) < 0.5 - 1e-9}
+            keys = {key for key in keys if opt.layer_thickness * self.local.layer_scale.get(key, 1.0) < 0.5 - 1e-9}
             if not keys:
                 break
-            old = dict(self.layer_scale)
+            old = dict(self.local.layer_scale)
             for key in keys:
-                self.layer_scale[key] = self.layer_scale.get(key, 1.0) * 1.25
+                self.local.layer_scale[key] = self.local.layer_scale.get(key, 1.0) * 1.25
             trial = self.assemble()
             if trial.corner_jacobians().min() <= 0:
-                self.layer_scale = old
+                self.local.layer_scale = old
                 break
             thickened |= keys
             blocks, quality = trial, projected_wall_quality(trial, self.project)
@@ -241,9 +293,9 @@ class _Repair:
                 shrunk = False
                 for kk in (k, k + 1):
                     key = self._section_key(bi, kk)
-                    sc = self.core_scale.get(key, 1.0)
+                    sc = self.local.core_scale.get(key, 1.0)
                     if sc > 0.45:
-                        self.core_scale[key] = sc * 0.8
+                        self.local.core_scale[key] = sc * 0.8
                         shrunk = True
                 if shrunk:
                     self.fixes.append(f"shrank the core at skeleton node {int(br.nodes[k])}")

@@ -78,8 +78,8 @@ class _Sections:
 
     def _layer_and_core(self, key):
         """Boundary-layer thickness and core size of a section (after local fixes)."""
-        layer = min(0.5, self.opt.layer_thickness * self.layer_scale.get(key, 1.0))
-        core = self.opt.core_size * self.core_scale.get(key, 1.0)
+        layer = min(0.5, self.opt.layer_thickness * self.local.layer_scale.get(key, 1.0))
+        core = self.opt.core_size * self.local.core_scale.get(key, 1.0)
         # keep the core corner inside the ring with some room
         core = min(core, 0.8 * (1.0 - layer) / np.sqrt(2.0))
         return layer, core
