@@ -28,7 +28,6 @@ KNOWN_LONG_MODULES = {
     "geometry/transfinite.py": 1082,
 }
 KNOWN_LONG_FUNCTIONS = {
-    "geometry/blocks/assemble.py:assemble": 161,
     "geometry/skeleton_extract.py:extract_skeleton": 150,
     "geometry/skeleton_ops.py:separate_parallel_branches": 121,
     "geometry/skeleton_ops.py:extend_to_caps": 136,

@@ -26,7 +26,57 @@ class _Assembly:
 
     # -- 7. assembly ------------------------------------------------------------------
     def assemble(self) -> BlockStructure:
-        t, sk = self.template, self.sk
+        """The block structure of the current state: vertices of every section, half-section
+        and dome cap, blocks along every branch and round every dome, mirrored blocks flipped."""
+        t = self.template
+        idx, sec_ids, vertices, on_surface = self._assemble_vertices()
+        rows = [[] for _ in range(9)]  # hexes, fb, ak, radius, bnode, bseg, blayer, btags, where
+        self._branch_blocks(sec_ids, rows)
+        self._dome_blocks(idx, sec_ids, rows)
+        hexes, fb, ak, radius, bnode, bseg, blayer, btags, where = rows
+        hexes = np.vstack(hexes)
+        fb = np.vstack(fb)
+        ak = np.vstack(ak)
+        # blocks whose every corner is negative are only mirrored: flip them along k
+        J = BlockStructure(vertices, hexes, on_surface, fb, ak, np.concatenate(radius), np.concatenate(bnode),
+                           np.concatenate(bseg), np.concatenate(blayer), btags).corner_jacobians()
+        flip = np.all(J < 0, axis=1)
+        if flip.any():
+            hexes[flip] = hexes[flip][:, [4, 5, 6, 7, 0, 1, 2, 3]]
+            fb[flip] = fb[flip][:, [0, 1, 2, 3, 5, 4]]
+        self.block_where = np.vstack(where)
+        self.block_layers = np.concatenate(blayer)
+        blocks = BlockStructure(
+            vertices=vertices,
+            hexes=hexes,
+            vertex_on_surface=on_surface,
+            face_boundary=fb,
+            axis_kind=ak,
+            block_radius=np.concatenate(radius),
+            block_node=np.concatenate(bnode),
+            block_segment=np.concatenate(bseg),
+            block_layer=np.concatenate(blayer),
+            block_tags=btags,
+            boundary_names=dict(self.boundary_names),
+        )
+        self.info = {
+            "blocks_around": t.n_around,
+            "core": [t.a, t.b],
+            "max_twist_deg": round(self.max_twist, 3),
+            "branches": len(self.branches),
+            "junctions": {int(c): {"neighbors": j.neighbors.tolist(), "axis": j.u.round(6).tolist(),
+                                   "rotation_deg": np.degrees(j.psi).round(2).tolist()} for c, j in self.junctions.items()},
+            "flipped_blocks": int(flip.sum()),
+            "dome_caps": len(self.domes),
+            "dome_retreat": {int(self.branches[bi].nodes[-1 if side else 0]): round(v, 4) for (bi, side), v in self.retreat.items()},
+            "skeleton": self.sk,
+        }
+        return blocks
+
+    def _assemble_vertices(self):
+        """Vertices of the regular sections, the junctions' spines and half-sections and the
+        dome caps (which get their global ids), with the regular sections' keys and ids."""
+        t = self.template
         self.section_geometry()
         nv_t = t.n_vertices
         verts, on_surf = [], []
@@ -72,8 +122,12 @@ class _Assembly:
                 on_surf.append(np.full(len(cv), onwall))
         vertices = np.vstack(verts)
         on_surface = np.concatenate(on_surf)
+        return idx, sec_ids, vertices, on_surface
 
-        hexes, fb, ak, radius, bnode, bseg, blayer, btags, where = [], [], [], [], [], [], [], [], []
+    def _branch_blocks(self, sec_ids: dict, rows: list) -> None:
+        """Append the blocks between consecutive sections of every branch to ``rows``."""
+        t, sk = self.template, self.sk
+        hexes, fb, ak, radius, bnode, bseg, blayer, btags, where = rows
         q = t.quads
         nq = len(q)
         for bi, br in enumerate(self.branches):
@@ -108,6 +162,13 @@ class _Assembly:
                 tags = tuple(sorted(set(sk.node_tags[n0]) | set(sk.node_tags[n1]) | set(sk.edge_tags[e])))
                 btags.extend([tags] * nq)
                 where.append(np.c_[np.full(nq, bi), np.full(nq, k)])
+
+    def _dome_blocks(self, idx: list, sec_ids: dict, rows: list) -> None:
+        """Append the cap blocks round every closed end's dome to ``rows``."""
+        t, sk = self.template, self.sk
+        nv_t = t.n_vertices
+        q = t.quads
+        hexes, fb, ak, radius, bnode, bseg, blayer, btags, where = rows
         loop_of = np.full(nv_t, -1, np.int64)  # ring and outer vertices -> the loop vertex on their ray
         loop_of[t.ring] = t.loop
         loop_of[t.outer] = t.loop
@@ -148,45 +209,6 @@ class _Assembly:
                 blayer.append(np.full(m, lay))
                 btags.extend([tags] * m)
                 where.append(np.c_[np.full(m, bi), np.full(m, kseg)])
-        hexes = np.vstack(hexes)
-        fb = np.vstack(fb)
-        ak = np.vstack(ak)
-        # blocks whose every corner is negative are only mirrored: flip them along k
-        J = BlockStructure(vertices, hexes, on_surface, fb, ak, np.concatenate(radius), np.concatenate(bnode),
-                           np.concatenate(bseg), np.concatenate(blayer), btags).corner_jacobians()
-        flip = np.all(J < 0, axis=1)
-        if flip.any():
-            hexes[flip] = hexes[flip][:, [4, 5, 6, 7, 0, 1, 2, 3]]
-            fb[flip] = fb[flip][:, [0, 1, 2, 3, 5, 4]]
-        self.block_where = np.vstack(where)
-        self.block_layers = np.concatenate(blayer)
-        blocks = BlockStructure(
-            vertices=vertices,
-            hexes=hexes,
-            vertex_on_surface=on_surface,
-            face_boundary=fb,
-            axis_kind=ak,
-            block_radius=np.concatenate(radius),
-            block_node=np.concatenate(bnode),
-            block_segment=np.concatenate(bseg),
-            block_layer=np.concatenate(blayer),
-            block_tags=btags,
-            boundary_names=dict(self.boundary_names),
-        )
-        self.info = {
-            "blocks_around": t.n_around,
-            "core": [t.a, t.b],
-            "max_twist_deg": round(self.max_twist, 3),
-            "branches": len(self.branches),
-            "junctions": {int(c): {"neighbors": j.neighbors.tolist(), "axis": j.u.round(6).tolist(),
-                                   "rotation_deg": np.degrees(j.psi).round(2).tolist()} for c, j in self.junctions.items()},
-            "flipped_blocks": int(flip.sum()),
-            "dome_caps": len(self.domes),
-            "dome_retreat": {int(self.branches[bi].nodes[-1 if side else 0]): round(v, 4) for (bi, side), v in self.retreat.items()},
-            "skeleton": self.sk,
-        }
-        return blocks
-
 
     def _folded_ids(self, bi: int, side: int) -> np.ndarray:
         """Global vertex id of each template vertex of a branch's end section at a junction."""
