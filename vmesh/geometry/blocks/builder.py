@@ -33,6 +33,8 @@ Method (see :mod:`vmesh.geometry.cross_sections` for the kernels)
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ...blocks import BlockStructure
@@ -95,22 +97,34 @@ def build_blocks(
     # Each try either succeeds or fails with what might help: splitting n-furcations
     # (alternative pairings in turn) or merging two junctions too close for their own
     # half-sections. Tries are depth-first and bounded; the first failure is reported.
-    queue = [(skeleton, [])]
+    # Each skeleton is tried with the half-sections at the junction walls' centres first,
+    # then, where its blocks stay invalid, on the skeleton nodes (the wall's centre can crowd
+    # junctions whose branches part early); only then is the skeleton changed.
+    at_node = replace(options, junction_centre=0.0)
+    queue = [(skeleton, [], options)]
     first = None
     tries = 0
     while queue and tries < options.max_retopology_tries:
-        sk, notes = queue.pop(0)
-        tries += 1
+        sk, notes, opts = queue.pop(0)
+        tries += opts is not options or options.junction_centre <= 0  # a skeleton counts once
         try:
-            blocks = _Builder(sk, distance, caps, options, warn, progress, project, intersect_lines).run()
+            blocks = _Builder(sk, distance, caps, opts, warn, progress, project, intersect_lines).run()
         except _Failure as failure:
+            if opts is options and options.junction_centre > 0:
+                queue.insert(0, (sk, notes, at_node))
+                continue
             first = first or failure
-            queue[:0] = _retopology_options(failure, notes, distance, options)
+            queue[:0] = [(s, n, options) for s, n in _retopology_options(failure, notes, distance, options)]
             continue
         except MeshingError:
+            if opts is options and options.junction_centre > 0:
+                queue.insert(0, (sk, notes, at_node))
+                continue
             if first is None:
                 raise  # the skeleton as given is beyond the scheme: say why
             continue  # a changed skeleton that does not work either
+        if opts is at_node:
+            notes = notes + ["half cross-sections on the junction nodes: at the junction walls' centres the blocks stayed invalid"]
         for note in notes:
             if warn:
                 warn(note)
