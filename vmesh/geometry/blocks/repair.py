@@ -82,6 +82,7 @@ class _Repair:
         if not nodes:
             return blocks
         before = self._centre_scores(blocks, nodes)
+        saved = {c: self.junctions[c] for c in nodes}  # with the rotations the fixes chose
         self.local.at_node |= set(nodes)
         for c in nodes:
             self._rebuild_junction(c)
@@ -89,20 +90,17 @@ class _Repair:
         trial = self.assemble()
         after = self._centre_scores(trial, nodes) if trial.corner_jacobians().min() > 0 else {c: np.full(len(FILL_CHECKS), -np.inf) for c in nodes}
         switch = [c for c in nodes if np.all(after[c] >= before[c] - 1e-9) and np.any(after[c] > before[c] + 1e-9)]
-        keep = [c for c in nodes if c not in switch]
-        if not switch:
-            self.local.at_node -= set(nodes)
-        else:
-            self.local.at_node -= set(keep)
-        for c in keep:
-            self._rebuild_junction(c)
+        for c in nodes:
+            if c not in switch:
+                self.junctions[c] = saved[c]
+                self.local.at_node.discard(c)
         self._apply_clearance()
         out = self.assemble()
-        if out.corner_jacobians().min() <= 0:
+        if switch and out.corner_jacobians().min() <= 0:
             # the junctions' choices interact: back to the centres everywhere
-            self.local.at_node -= set(nodes)
             for c in switch:
-                self._rebuild_junction(c)
+                self.junctions[c] = saved[c]
+                self.local.at_node.discard(c)
             self._apply_clearance()
             return self.assemble()
         if switch:
