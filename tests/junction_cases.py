@@ -134,6 +134,15 @@ def bifurcation(angle: float, ratio: float, out_of_plane: float = 0.0, asymmetry
     return furcation(f"bif_{angle:g}_{ratio:g}_{out_of_plane:g}", [(d1, 0.8), (d2, 0.8 / ratio)])
 
 
+def upstream_node(case: JunctionCase, shift: float) -> JunctionCase:
+    """``case`` with its junction node moved ``shift`` parent radii back along the parent (+x
+    is downstream), as centerline tools often join branches before the vessels part."""
+    pts = case.skeleton.points.copy()
+    pts[0] -= np.array([shift * case.r[0], 0.0, 0.0])
+    sk = Skeleton(pts, case.skeleton.radii, case.skeleton.edges)
+    return JunctionCase(f"{case.name}_up{shift:g}", case.a, case.b, case.r, sk, case.blend)
+
+
 def trifurcation(spread: float, ratio: float = 1.0) -> JunctionCase:
     """Three daughters ``spread`` degrees off +x, 120 degrees apart around it."""
     s = np.radians(spread)

@@ -442,7 +442,7 @@ def test_invalid_blocks_are_written_and_named(synthetic, tmp_path):
     ctx, sdf, skeleton, _ = synthetic("trifurcation")
     path = tmp_path / "bad.vtu"
     with pytest.raises(MeshingError, match=r"skeleton node \d+.*bad\.vtu") as err:
-        build_blocks(skeleton, sdf.distance, ctx.caps, BlockOptions(max_fix_rounds=0), bad_blocks_path=path)
+        build_blocks(skeleton, sdf.distance, ctx.caps, BlockOptions(max_fix_rounds=0, junction_centre=0.0), bad_blocks_path=path)
     import pyvista as pv
 
     grid = pv.read(path)

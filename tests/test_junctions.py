@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from junction_cases import bifurcation, close_junctions, trifurcation
+from junction_cases import bifurcation, close_junctions, trifurcation, upstream_node
 from vmesh.errors import MeshingError
 from vmesh.geometry import skeleton_ops as ops
 from vmesh.geometry.block_builder import BlockOptions, build_blocks, fill_quality, fill_score
@@ -91,6 +91,19 @@ def test_junction_fill_valid_without_untangling(name, factory, args, built, requ
     case, blocks = built(name, factory, args)
     sj = fill(case, blocks)
     assert sj.min() > 0, f"{int((sj <= 0).sum())} inverted elements, least scaled Jacobian {sj.min():.3f}"
+
+
+@pytest.mark.parametrize("angle,ratio,shift", [(45, 1.5, 0.6), pytest.param(30, 1, 1.0, marks=pytest.mark.slow)])
+def test_junction_node_upstream_of_the_apex(angle, ratio, shift):
+    """A skeleton joining its branches before the vessels part (as centerline tools do):
+    the half cross-sections meet at the junction wall's centre, not on the node, so the
+    crotch half-section is no long sliver and the raw fill keeps a fair least quality
+    (on the node: 0.04 and 0.15)."""
+    case = upstream_node(bifurcation(angle, ratio), shift)
+    blocks = build(case)
+    sj = fill(case, blocks)
+    assert blocks.corner_jacobians().min() > 0
+    assert sj.min() >= 0.2, f"least scaled Jacobian {sj.min():.3f}"
 
 
 def test_fill_quality_matches_the_mesh(built):

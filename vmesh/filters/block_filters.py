@@ -34,6 +34,8 @@ from ..registry import Parameter, register_filter
         Parameter("dome_depth", "float", 1.0, "A closed end (a dome without cap, such as an aneurysm sac) ends in a cap of blocks that carries the boundary layer round the dome; its last cross-section moves back from the endpoint until the wall ahead along the axis is at least this many times its mean distance to the wall in the section.", unit="× wall distance", min=0.0, max=5.0),
         Parameter("dome_max_retreat", "float", 1.5, "How far a closed end's last cross-section may move back from its endpoint (at most half its branch).", unit="× radius", min=0.0, max=10.0),
         Parameter("max_fix_rounds", "int", 16, "Rounds of repairs of invalid blocks before failing.", min=0, max=100),
+        Parameter("junction_centre", "float", 1.0, "Where a junction's half cross-sections meet: 0 on the skeleton node, 1 at the centre of the wall points straight out between its branches (each crotch's apex and the outer walls), as vascularmd places a bifurcation's centre; blends in between.", min=0.0, max=1.0),
+        Parameter("relieve_wall_folds", "bool", True, "Where a junction's boundary-layer blocks would still fold once projected on the wall, try further first cross-sections and other half-plane rotations, judged by filling the junction's blocks (costs seconds per junction)."),
         Parameter("check_wall_projection", "bool", True, "Also check boundary-layer blocks with their wall faces projected onto the wall, and thicken the layer (up to 0.5) where they would fold."),
     ],
     reads=("skeleton", "sdf"),
@@ -43,7 +45,8 @@ from ..registry import Parameter, register_filter
 )
 def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_bias, junction_rotation, rotation_range,
                           max_out_of_plane, min_branch_gap, split_nonplanar, clear_ray_factor, junction_margin, cap_distance,
-                          dome_depth, dome_max_retreat, max_fix_rounds, check_wall_projection):
+                          dome_depth, dome_max_retreat, max_fix_rounds, check_wall_projection, junction_centre=1.0,
+                          relieve_wall_folds=True):
     """One O-grid cross-section per skeleton node (a core of a x b blocks, a ring and a
     boundary-layer ring whose outer corners are found on the wall by ray casting in the
     section plane), half cross-sections on half-planes through each junction's axis shared
@@ -72,6 +75,8 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         dome_depth=dome_depth,
         dome_max_retreat=dome_max_retreat,
         max_fix_rounds=max_fix_rounds,
+        junction_centre=junction_centre,
+        relieve_wall_folds=relieve_wall_folds,
     )
     sdf = ctx.sdf  # a vmesh.geometry.surface_query.SurfaceQuery
     bad_path = ctx.output_path("invalid_blocks.vtu")

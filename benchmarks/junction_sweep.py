@@ -1,0 +1,58 @@
+"""The generated junctions of ``tests/test_junctions.py``, built and filled without untangling.
+
+Each case is built as the test builds it (``separate_parallel_branches``, then
+``build_blocks`` with the wall projection) and filled at the default chain's resolution;
+the table gives the least and mean scaled Jacobian, the inverted elements and the block
+building time. ``--set name=value`` changes a :class:`BlockOptions` field (e.g.
+``--set junction_centre=0`` for the placement on the skeleton node); ``--cases`` picks
+cases by name.
+
+    python benchmarks/junction_sweep.py [--cases bif_30_2 trif_60_2] [--set junction_centre=0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
+
+import test_junctions as tj  # noqa: E402
+
+from vmesh.errors import MeshingError  # noqa: E402
+from vmesh.geometry import skeleton_ops as ops  # noqa: E402
+from vmesh.geometry.block_builder import BlockOptions, build_blocks  # noqa: E402
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cases", nargs="*", default=None)
+    ap.add_argument("--set", nargs="*", default=[], help="BlockOptions field=value")
+    args = ap.parse_args()
+    options = {}
+    for item in args.set:
+        key, value = item.split("=", 1)
+        options[key] = ast.literal_eval(value)
+    print(f"options {options or 'default'}; load average {os.getloadavg()[0]:.1f}")
+    print(f"{'case':18s} {'blocks':>6s} {'SJ min':>7s} {'mean':>6s} {'inverted':>8s} {'build s':>7s}")
+    for name, (factory, fargs) in tj._cases():
+        if args.cases and name not in args.cases:
+            continue
+        case = factory(*fargs)
+        t = time.perf_counter()
+        try:
+            sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
+            blocks = build_blocks(sk, case.distance, None, BlockOptions(**options), project=case.project)
+        except MeshingError as exc:
+            print(f"{name:18s} blocks invalid: {str(exc)[:90]}")
+            continue
+        seconds = time.perf_counter() - t
+        sj = tj.fill(case, blocks)
+        print(f"{name:18s} {blocks.n_blocks:6d} {sj.min():7.3f} {sj.mean():6.3f} {int((sj <= 0).sum()):8d} {seconds:7.2f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

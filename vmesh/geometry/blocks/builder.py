@@ -1,0 +1,245 @@
+"""Assemble a conforming hexahedral block structure from a skeleton and a signed distance.
+
+Method (see :mod:`vmesh.geometry.cross_sections` for the kernels)
+----------------------------------------------------------------
+1. **Junctions.** Every node with three or more neighbours gets a reference line
+   ``(c, u)``; its neighbours are ordered around ``u`` and the space around it is split by
+   half-planes through the line, one between each pair of consecutive neighbours. Each
+   half-plane carries a *half cross-section* (half O-grid) whose outer corners are found by
+   casting rays from the junction node within the half-plane; the diameter on the line is
+   shared by all of them. Each half-plane may be rotated about ``u``: by default the
+   rotation keeping the half-section closest to the junction node on average, among those
+   that leave the neighbouring branches room for their first blocks.
+2. **Branches.** The skeleton is cut into branches between junctions and endpoints
+   (cycles without junctions are branches that close on themselves). Every other node gets
+   a full cross-section: the bisecting plane of its two segments, the cap plane at an open
+   end, the plane normal to the segment at a closed end (moved back from the endpoint to
+   about the dome's centre; the dome beyond it is filled by a half-ball O-grid whose
+   boundary layer continues the wall's). Near a junction, sections that would still reach
+   into the other branches (rays much longer than the branch radius) or sit behind the
+   half-sections' reach are moved along the branch until they are clear.
+3. **Frames.** The reference direction of each section is transported along its branch
+   by rotation-minimising frames (double reflection) from one end; the twist left at the
+   other end (modulo the template's symmetry) is spread evenly by arc length.
+4. **Blocks.** Consecutive sections of a branch are joined quad by quad into hexahedra.
+   A branch's end section at a junction is the union of its two adjacent half-sections,
+   folded along ``u``; neighbouring branches share the half-section vertices, so the
+   structure is conforming by construction.
+5. **Validity.** Every block must have positive Jacobians at its eight corners. Failing
+   blocks are fixed by moving sections further from junctions, re-rotating junction
+   half-planes, straightening tilted planes and shrinking the core; a block that stays
+   invalid raises :class:`~vmesh.errors.MeshingError` naming its skeleton node.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ...blocks import BlockStructure
+from ...errors import MeshingError
+from ...skeleton import Skeleton
+from .. import cross_sections as cs
+from .assemble import _Assembly
+from .checks import _Failure
+from .junctions import _Junctions
+from .options import BlockOptions, _LocalFixes
+from .prep import merge_junction_pair, split_nonplanar_junctions
+from .repair import _Repair
+from .sections import _Sections
+
+
+def build_blocks(
+    skeleton: Skeleton,
+    distance,
+    caps=None,
+    options: BlockOptions | None = None,
+    bad_blocks_path=None,
+    warn=None,
+    progress=None,
+    project=None,
+    intersect_lines=None,
+) -> BlockStructure:
+    """Build the block structure of a vessel.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+        Centerline graph with radii, coarsely resampled (node spacing ~1-2 radii).
+    distance : callable
+        ``distance(points (n, 3)) -> (n,)`` signed distance, positive inside the vessel.
+    caps : list of vmesh.caps.Cap, optional
+        Flat open ends. Endpoints near a cap end on its plane with their end faces named
+        after it; endpoints without a cap are closed (a cap of blocks fills the dome). Without
+        any caps every endpoint is an open end, named by decreasing radius.
+    options : BlockOptions
+    bad_blocks_path : path, optional
+        Where invalid blocks are written (VTU) before failing.
+    warn, progress : callable, optional
+        ``warn(message)`` and ``progress(fraction, message)``.
+    project : callable, optional
+        ``project(points) -> closest wall points``: when given, boundary-layer blocks are
+        also checked with their wall faces projected onto the wall and thickened where they
+        would fold (:func:`projected_wall_quality`).
+    intersect_lines : callable, optional
+        Line casts on the same surface
+        (:meth:`~vmesh.geometry.sdf.SignedDistance.intersect_lines`): the section rays
+        then find the wall by one cast each instead of bisecting ``distance``
+        (:func:`~vmesh.geometry.cross_sections.cast_rays`).
+
+    Returns
+    -------
+    BlockStructure
+        With ``info`` holding ``max_twist_deg``, ``fixes`` and per-junction details.
+    """
+    options = options or BlockOptions()
+    # Each try either succeeds or fails with what might help: splitting n-furcations
+    # (alternative pairings in turn) or merging two junctions too close for their own
+    # half-sections. Tries are depth-first and bounded; the first failure is reported.
+    # Each skeleton is tried with the half-sections at the junction walls' centres first,
+    # then, where its blocks stay invalid, on the skeleton nodes (the wall's centre can crowd
+    # junctions whose branches part early); only then is the skeleton changed.
+    at_node = replace(options, junction_centre=0.0)
+    queue = [(skeleton, [], options)]
+    first = None
+    tries = 0
+    while queue and tries < options.max_retopology_tries:
+        sk, notes, opts = queue.pop(0)
+        tries += opts is not options or options.junction_centre <= 0  # a skeleton counts once
+        try:
+            blocks = _Builder(sk, distance, caps, opts, warn, progress, project, intersect_lines).run()
+        except _Failure as failure:
+            if opts is options and options.junction_centre > 0:
+                queue.insert(0, (sk, notes, at_node))
+                continue
+            first = first or failure
+            queue[:0] = [(s, n, options) for s, n in _retopology_options(failure, notes, distance, options)]
+            continue
+        except MeshingError:
+            if opts is options and options.junction_centre > 0:
+                queue.insert(0, (sk, notes, at_node))
+                continue
+            if first is None:
+                raise  # the skeleton as given is beyond the scheme: say why
+            continue  # a changed skeleton that does not work either
+        if opts is at_node:
+            notes = notes + ["half cross-sections on the junction nodes: at the junction walls' centres the blocks stayed invalid"]
+        for note in notes:
+            if warn:
+                warn(note)
+        blocks.info["fixes"][:0] = notes
+        return blocks
+    raise first.error(bad_blocks_path, tries)
+
+
+def _retopology_options(failure: "_Failure", notes: list, distance, options: BlockOptions) -> list:
+    """Skeletons to try after ``failure``, most promising first: with two junctions merged
+    (when the branch between them has no room for their half-sections), or with the
+    failing n-furcations split into 3-junctions, one pairing of branches after another."""
+    out = []
+    sk = failure.skeleton
+    if options.split_nonplanar:
+        for a, b in failure.crowded:
+            merged, node = merge_junction_pair(sk, a, b)
+            out.append((merged, notes + [f"merged junction nodes {a} and {b} (their half cross-sections left the branch between them no room) into node {node}"]))
+        if failure.nfurcations:
+            degree = int(max(sk.degrees[c] for c in failure.nfurcations))
+            for rank in range(degree * (degree - 1) // 2):
+                split = split_nonplanar_junctions(sk, failure.nfurcations, distance=distance, rank=rank)
+                out.append((split, notes + [f"split junction node(s) {failure.nfurcations} into 3-junctions (pairing {rank + 1}) after their blocks stayed invalid"]))
+    return out
+
+
+# ---------------------------------------------------------------------------
+# the builder
+# ---------------------------------------------------------------------------
+class _Builder(_Junctions, _Sections, _Assembly, _Repair):
+    def __init__(self, skeleton: Skeleton, distance, caps, options: BlockOptions, warn, progress, project=None, intersect_lines=None):
+        self.opt = options
+        self.sdf = distance
+        self.intersect_lines = intersect_lines
+        self.project = project
+        self.caps = list(caps or [])
+        self.warn = warn or (lambda msg: None)
+        self.tick = progress or (lambda f, m="": None)
+        self.template = cs.o_grid_template(options.blocks_around)
+        self.sk = skeleton
+        self.fixes: list[str] = []
+        self.local = _LocalFixes()
+
+
+    # -- entry ------------------------------------------------------------------
+    def run(self) -> BlockStructure:
+        self.check_skeleton()
+        self.tick(0.05, "junctions")
+        self.split_if_needed()
+        self.pos = self.sk.points.copy()
+        self.make_branches()
+        self.build_junctions()
+        self.classify_ends()
+        self.tick(0.15, "junction planes")
+        self.moves = {}
+        self.choose_rotations()
+        self.tick(0.3, "sections")
+        self.place_sections()
+        blocks = None
+        for round_ in range(self.opt.max_fix_rounds + 1):
+            self.tick(0.4 + 0.5 * round_ / (self.opt.max_fix_rounds + 1), "blocks")
+            blocks = self.assemble()
+            J = blocks.corner_jacobians()
+            bad = np.flatnonzero(J.min(axis=1) <= 0)
+            if len(bad) == 0:
+                break
+            if round_ == self.opt.max_fix_rounds or not self.fix(bad, J):
+                self.fail(blocks, bad)
+        if self.project is not None:
+            blocks = self.thicken_layers(blocks)
+            blocks = self.choose_centres(blocks)
+            if self.opt.relieve_wall_folds:
+                blocks = self.relieve_wall_folds(blocks)
+            self.report_wall_folds(blocks)
+        blocks.info.update(self.info)
+        blocks.info["fixes"] = list(self.fixes)
+        self.tick(1.0, "done")
+        return blocks
+
+
+    # -- 1. skeleton -------------------------------------------------------------
+    def check_skeleton(self):
+        sk = self.sk
+        if sk.n_edges == 0:
+            raise MeshingError("skeleton has no segments: nothing to build blocks along")
+        if np.any(sk.edges[:, 0] == sk.edges[:, 1]):
+            k = int(np.flatnonzero(sk.edges[:, 0] == sk.edges[:, 1])[0])
+            raise MeshingError(f"skeleton segment {k} joins node {sk.edges[k, 0]} to itself")
+        key = np.sort(sk.edges, axis=1)
+        if len(np.unique(key, axis=0)) != len(key):
+            raise MeshingError("skeleton has duplicate segments between the same two nodes")
+        if not np.all(np.isfinite(sk.radii)) or np.any(sk.radii <= 0):
+            bad = int(np.flatnonzero(~np.isfinite(sk.radii) | (sk.radii <= 0))[0])
+            raise MeshingError(f"skeleton node {bad} has no positive radius (run estimate_radii)")
+        length = np.linalg.norm(sk.points[sk.edges[:, 1]] - sk.points[sk.edges[:, 0]], axis=1)
+        if np.any(length <= 1e-9 * max(1.0, sk.radii.max())):
+            k = int(np.argmin(length))
+            raise MeshingError(f"skeleton segment {k} between nodes {sk.edges[k, 0]} and {sk.edges[k, 1]} has zero length")
+        deg = sk.degrees
+        if np.any(deg >= 3) and not self.template.splittable:
+            j = sk.junctions[:3].tolist()
+            raise MeshingError(
+                f"blocks_around = {self.opt.blocks_around} gives a 1 x 1 core without a grid line through its centre, "
+                f"so junctions (nodes {j}) cannot be split into half cross-sections: use 6, 8 (default), 10 ... blocks around"
+            )
+        d = np.asarray(self.sdf(sk.points))
+        inner = (deg >= 2) & (d <= 0)
+        if inner.any():
+            k = int(np.flatnonzero(inner)[0])
+            raise MeshingError(
+                f"skeleton node {k} lies outside the surface (signed distance {d[k]:.3g}); "
+                f"{int(inner.sum())} node(s) outside: add clean_skeleton (outside='pull') and resample_skeleton with the sdf "
+                "before build_block_structure, which bring grazing nodes inside and stop on a centerline of another vessel"
+            )
+        if np.any(deg == 0):
+            self.warn(f"{int((deg == 0).sum())} isolated skeleton node(s) ignored")
+        if sk.n_components > 1:
+            self.warn(f"skeleton has {sk.n_components} components: the block structure will too")

@@ -1,0 +1,230 @@
+"""Checks of block structures: wall-projected and filled quality, invalid blocks written out,
+and the failure raised when blocks stay invalid."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ...blocks import FACE_INTERIOR, FACE_WALL, HEX_FACES, BlockStructure
+from ...errors import MeshingError
+
+
+def projected_wall_quality(blocks: BlockStructure, project, samples: int = 4) -> np.ndarray:
+    """Scaled Jacobian of boundary-layer blocks once their wall faces are projected onto the wall.
+
+    The wall face of every block with a wall face is sampled bilinearly on a
+    ``samples × samples`` grid and projected with ``project``; the sub-hexahedra between
+    the projected wall grid and the matching grid on the opposite face must stay valid, or
+    the meshed boundary layer will fold there (the wall bulging through the layer).
+
+    Parameters
+    ----------
+    blocks : BlockStructure
+    project : callable
+        ``project(points (n, 3)) -> closest wall points (n, 3)``.
+    samples : int
+        Sub-faces per side of a wall face.
+
+    Returns
+    -------
+    (nb,) float: the smallest scaled corner Jacobian per block (1 for blocks off the wall).
+    """
+    from ...blocks import HEX_FACES, scaled_corner_jacobians
+
+    out = np.ones(blocks.n_blocks)
+    b, f = np.nonzero(blocks.face_boundary == FACE_WALL)
+    # faces 0..3 (i, j sides): the opposite face across the layer; end faces (k) are skipped
+    keep = f < 4
+    b, f = b[keep], f[keep]
+    if len(b) == 0:
+        return out
+    wall = blocks.vertices[blocks.hexes[b[:, None], HEX_FACES[f]]]  # (m, 4, 3), outward order
+    # the opposite face in the same corner order: reversed orientation, matched corner by corner
+    match = {0: [1, 5, 6, 2], 1: [0, 3, 7, 4], 2: [3, 2, 6, 7], 3: [0, 4, 5, 1]}
+    inner = blocks.vertices[blocks.hexes[b[:, None], np.array([match[int(x)] for x in f])]]
+    s = np.linspace(0.0, 1.0, samples + 1)
+    U, V = np.meshgrid(s, s, indexing="ij")
+    w = np.stack([(1 - U) * (1 - V), U * (1 - V), U * V, (1 - U) * V], axis=-1)  # (n+1, n+1, 4)
+    outer_grid = np.einsum("abc,mcd->mabd", w, wall)
+    inner_grid = np.einsum("abc,mcd->mabd", w, inner)
+    shape = outer_grid.shape
+    outer_grid = np.asarray(project(outer_grid.reshape(-1, 3))).reshape(shape)
+    o, i = outer_grid, inner_grid
+    # sub-hexes: bottom = inner cell, top = projected wall cell (outward along the layer)
+    H = np.stack([i[:, :-1, :-1], i[:, 1:, :-1], i[:, 1:, 1:], i[:, :-1, 1:],
+                  o[:, :-1, :-1], o[:, 1:, :-1], o[:, 1:, 1:], o[:, :-1, 1:]], axis=3)
+    sj = scaled_corner_jacobians(H.reshape(-1, 8, 3)).min(axis=1).reshape(len(b), -1)
+    # wall corners run outward: the inner cell (bottom) faces the projected wall (top)
+    sj = sj.min(axis=1)
+    np.minimum.at(out, b, sj)
+    return out
+
+
+#: Element counts of the fill checks (around, ring, layer, element length × radius, refinement
+#: dividing the first layer): the default chain's, and a finer one as at vascularmd's resolution.
+FILL_CHECKS = ((2, 2, 3, 0.5, 1), (4, 3, 4, 0.25, 2))
+
+
+def fill_quality(blocks: BlockStructure, subset: np.ndarray, project, distance, intersect_lines=None, refinement=None,
+                 per_resolution: bool = False) -> np.ndarray:
+    """Least scaled Jacobian of each block of ``subset`` once filled with hexahedra.
+
+    The blocks are filled as :func:`~vmesh.geometry.transfinite.mesh_blocks` fills them
+    (edges and faces on the wall projected, transfinite interiors), without any untangling,
+    at each resolution of ``refinement`` (default :data:`FILL_CHECKS`: the default chain's
+    and a finer one); the least over them counts. This, not the blocks' corners, decides
+    whether a junction's blocks map validly.
+
+    Parameters
+    ----------
+    blocks : BlockStructure
+    subset : (k,) int
+        Blocks to fill (shared edges and faces are filled as in the whole structure).
+    project, distance, intersect_lines : callable
+        As for :func:`~vmesh.geometry.transfinite.mesh_blocks`.
+    refinement : sequence of (around, ring, layer, element_length, first-layer divisor), optional
+    per_resolution : bool
+        Return one row per resolution instead of combining them.
+
+    Returns
+    -------
+    (k,) float (``(len(refinement), k)`` with ``per_resolution``): the least scaled Jacobian
+    of each block's elements, or, where some are inverted, minus the share of its elements
+    inverted less the mean of ``min(0, scaled Jacobian)`` (summed over the resolutions).
+    """
+    from ..quality import hex8_scaled_jacobian
+    from ..transfinite import Refinement, mesh_blocks
+
+    subset = np.asarray(subset, np.int64)
+    refs = refinement or FILL_CHECKS
+    if len(subset) == 0:
+        return np.ones((len(refs), 0)) if per_resolution else np.ones(0)
+    # only the subset's vertices: the mesher projects every wall vertex it is given
+    used, hexes = np.unique(blocks.hexes[subset], return_inverse=True)
+    sub = BlockStructure(
+        vertices=blocks.vertices[used], hexes=hexes.reshape(-1, 8), vertex_on_surface=blocks.vertex_on_surface[used],
+        face_boundary=blocks.face_boundary[subset], axis_kind=blocks.axis_kind[subset],
+        block_radius=blocks.block_radius[subset], block_node=blocks.block_node[subset],
+        block_segment=blocks.block_segment[subset], block_layer=blocks.block_layer[subset],
+        boundary_names=dict(blocks.boundary_names),
+    )
+    out = np.ones((len(refs), len(subset)))
+    folded = np.zeros((len(refs), len(subset)))
+    for r, counts in enumerate(refs):
+        ref = Refinement(around=counts[0], core=counts[0], ring=counts[1], layer=counts[2], element_length=counts[3], first_layer=0.02 / counts[4])
+        sm = mesh_blocks(sub, project, ref, signed_distance=distance, intersect_lines=intersect_lines)
+        sj = hex8_scaled_jacobian(sm.points, sm.cells)
+        np.minimum.at(out[r], sm.cell_block, sj)
+        # per element of the block at this resolution: each resolution weighs the same
+        # each inverted element counts one, less its scaled Jacobian: fewer folds first, then shallower
+        np.add.at(folded[r], sm.cell_block, (np.minimum(sj, 0.0) - (sj <= 0)) / np.prod(sm.block_counts, axis=1)[sm.cell_block])
+    # a folded block scores minus the share of its elements inverted (less their scaled
+    # Jacobians): fewer and shallower folds score higher, any fold lower than every valid block
+    if per_resolution:
+        return np.where(folded < 0, folded, out)
+    return np.where(folded.sum(axis=0) < 0, folded.sum(axis=0), out.min(axis=0))
+
+
+def fill_score(quality: np.ndarray) -> float:
+    """One number for a set of blocks' :func:`fill_quality`: the least value when all are
+    valid, else the sum over the folded blocks (always below any valid set's)."""
+    quality = np.asarray(quality, float)
+    neg = quality[quality < 0]
+    return float(neg.sum()) if len(neg) else float(quality.min(initial=1.0))
+
+
+def write_bad_blocks(blocks: BlockStructure, bad: np.ndarray, path) -> Path:
+    """Write the given blocks (with their neighbours for context) to a VTU file."""
+    from ...io.atomic import atomic_path
+
+    path = Path(path)
+    grid = blocks.to_pyvista()
+    bad = np.asarray(bad)
+    mark = np.zeros(blocks.n_blocks, np.uint8)
+    mark[bad] = 1
+    grid.cell_data["invalid"] = mark
+    # the invalid blocks and every block touching them
+    touch = np.isin(blocks.hexes, blocks.hexes[bad]).any(axis=1)
+    sub = grid.extract_cells(np.flatnonzero(touch))
+    with atomic_path(path) as tmp:
+        sub.save(str(tmp), binary=True)
+    return path
+
+
+def block_structure_checks(blocks: BlockStructure) -> dict:
+    """Topological checks of a block structure.
+
+    Returns
+    -------
+    dict with
+        ``invalid_blocks``: blocks with a non-positive corner Jacobian;
+        ``min_corner_jacobian``: the smallest corner Jacobian;
+        ``face_use_errors``: unique faces used by more than two blocks, interior faces used
+        by one block, or boundary faces used by two;
+        ``boundary_quads``: number of outer faces (wall and open ends);
+        ``boundary_components``: connected pieces of the outer quad surface;
+        ``boundary_euler``: its Euler characteristic V - E + F;
+        ``nonmanifold_boundary_edges``: outer edges not shared by exactly two outer quads;
+        ``block_components``: connected pieces of blocks sharing faces.
+    """
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    H = blocks.hexes
+    nb = len(H)
+    faces = H[:, HEX_FACES].reshape(-1, 4)
+    key = np.sort(faces, axis=1)
+    uniq, inv, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    fb = blocks.face_boundary.reshape(-1)
+    use = count[inv]
+    errors = int(np.sum(count > 2)) + int(np.sum((fb == FACE_INTERIOR) & (use != 2))) + int(np.sum((fb != FACE_INTERIOR) & (use != 1)))
+    # block adjacency through shared faces
+    owner = np.repeat(np.arange(nb), 6)
+    order = np.argsort(inv, kind="stable")
+    same = inv[order][1:] == inv[order][:-1]
+    a, b = owner[order][:-1][same], owner[order][1:][same]
+    adj = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(nb, nb))
+    n_blocks_comp = connected_components(adj, directed=False)[0] if nb else 0
+    quads, _ = blocks.boundary_quads()
+    edges = np.sort(np.stack([quads, np.roll(quads, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
+    ue, ecount = np.unique(edges, axis=0, return_counts=True)
+    qv = np.unique(quads)
+    n_comp = 0
+    if len(quads):
+        qi = np.repeat(np.arange(len(quads)), 4)
+        vid = np.searchsorted(qv, quads.reshape(-1))
+        inc = sp.coo_matrix((np.ones(len(qi)), (qi, vid)), shape=(len(quads), len(qv))).tocsr()
+        n_comp = connected_components(inc @ inc.T, directed=False)[0]
+    J = blocks.corner_jacobians()
+    return {
+        "invalid_blocks": int(np.sum(J.min(axis=1) <= 0)),
+        "min_corner_jacobian": float(J.min()) if nb else 0.0,
+        "face_use_errors": errors,
+        "boundary_quads": int(len(quads)),
+        "boundary_components": int(n_comp),
+        "boundary_euler": int(len(qv) - len(ue) + len(quads)),
+        "nonmanifold_boundary_edges": int(np.sum(ecount != 2)),
+        "block_components": int(n_blocks_comp),
+    }
+
+
+class _Failure(Exception):
+    """Blocks that stay invalid, with what a changed skeleton might fix."""
+
+    def __init__(self, message, blocks, bad, skeleton, nfurcations, crowded, hint):
+        super().__init__(message)
+        self.message, self.blocks, self.bad = message, blocks, bad
+        self.skeleton, self.nfurcations, self.crowded, self.hint = skeleton, nfurcations, crowded, hint
+
+    def error(self, path, tries: int = 1) -> MeshingError:
+        written = ""
+        if path is not None:
+            try:
+                written = f"; the {len(self.bad)} invalid block(s) are in {write_bad_blocks(self.blocks, self.bad, path)}"
+            except Exception as exc:  # the error itself matters more than the picture
+                written = f" (could not write the invalid blocks: {exc})"
+        tried = f" ({tries - 1} changed skeleton(s) tried too)" if tries > 1 else ""
+        return MeshingError(self.message + written + tried + self.hint)

@@ -1,0 +1,313 @@
+"""Junction axes, half-planes and their rotations (steps 1 and 4 of the method)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...errors import MeshingError
+from .. import cross_sections as cs
+from .options import JUNCTION, _Junction
+from .prep import polyline_at, split_nonplanar_junctions
+
+
+class _Junctions:
+    """Junction steps of the block builder: axes, separators, centres and half-plane
+    rotations. Mixed into :class:`~vmesh.geometry.blocks.builder._Builder`, whose state
+    they share."""
+
+    # -- 2. junctions ------------------------------------------------------------
+    def junction_problem(self, c: int, d: np.ndarray):
+        """The junction axis of node ``c`` with neighbour directions ``d``, or why the scheme cannot take it."""
+        opt = self.opt
+        u, gap, elev = cs.junction_axis(d, np.radians(opt.max_out_of_plane))
+        if elev > np.radians(opt.max_out_of_plane):
+            k = int(np.argmax(np.abs(d @ u)))
+            return u, (k, f"one of its branches leaves the junction plane by {np.degrees(elev):.0f} degrees (more than max_out_of_plane = {opt.max_out_of_plane:g})")
+        if gap < np.radians(opt.min_branch_gap):
+            return u, (None, f"two of its branches are only {np.degrees(gap):.0f} degrees apart around the junction axis (less than min_branch_gap = {opt.min_branch_gap:g})")
+        return u, None
+
+
+    def split_if_needed(self):
+        """With ``split_nonplanar``: split n-furcations (4+ branches) that are too far from planar
+        into chains of 3-junctions. Other problems are reported by :meth:`build_junctions`."""
+        if not self.opt.split_nonplanar:
+            return
+        sk = self.sk
+        split = []
+        for c in sk.junctions.tolist():
+            nb = sk.neighbors(c)
+            if len(nb) <= 3:
+                continue
+            _, problem = self.junction_problem(c, cs.unit(sk.points[nb] - sk.points[c]))
+            if problem:
+                split.append(c)
+        if split:
+            self.sk = split_nonplanar_junctions(sk, split, distance=self.sdf)
+            self.fixes.append(f"split non-planar junction node(s) {split} into 3-junctions")
+            self.warn(f"split non-planar junction node(s) {split} into 3-junctions")
+            self.check_skeleton()
+
+
+    def _branch_direction(self, bi: int, side: int, length: float) -> np.ndarray:
+        """Unit direction from a branch end (its current position) to the point ``length``
+        further along the branch's nodes (at least its first neighbour)."""
+        br = self.branches[bi]
+        nodes = br.nodes if side == 0 else br.nodes[::-1]
+        P = self.sk.points[nodes]
+        arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))]
+        s = np.array([max(min(length, arc[-1]), arc[1])])
+        target, _ = polyline_at(P, arc, s, np.zeros((len(P), 1)))
+        return cs.unit(target[0] - self.pos[nodes[0]])
+
+
+    def build_junctions(self, nodes=None):
+        """Junction axes, neighbour order and separators (from the current positions), for
+        all junctions or only ``nodes``."""
+        sk = self.sk
+        if nodes is None:
+            self.junctions: dict[int, _Junction] = {}
+        ends = {}
+        for bi, br in enumerate(self.branches):
+            for side in (0, 1):
+                if br.kinds[side] == JUNCTION:
+                    c = int(br.nodes[0] if side == 0 else br.nodes[-1])
+                    ends.setdefault(c, []).append((bi, side))
+        for c, lst in ends.items():
+            if nodes is not None and c not in nodes:
+                continue
+            moved = float(np.linalg.norm(self.pos[c] - sk.points[c]))
+            rc = float(sk.radii[c])
+            # directions to the first neighbours; further along the branches when those are
+            # nearly parallel (a junction node placed before the vessels really part)
+            first = None
+            for ahead in (0.0, 1.5, 2.0, 3.0, 4.0):
+                length = max(moved + 0.5 * rc, ahead * rc) if (moved > 0 or ahead > 0) else 0.0
+                d = np.stack([self._branch_direction(bi, side, length) for bi, side in lst])
+                u, problem = self.junction_problem(c, d)
+                if first is None:
+                    first = problem
+                if problem is None:
+                    if ahead > 0 and c not in self.local.lookahead:
+                        self.local.lookahead[c] = ahead
+                        self.fixes.append(f"junction node {c}: branch directions taken {ahead:g} radii along its branches ({first[1]} at its first neighbours)")
+                    break
+            if problem:
+                k, why = first
+                m = len(lst)
+                if k is not None:
+                    nb = int(self.branches[lst[k][0]].nodes[1] if lst[k][1] == 0 else self.branches[lst[k][0]].nodes[-2])
+                    why = why.replace("one of its branches", f"its branch towards node {nb}")
+                hint = (
+                    "; set split_nonplanar = true to split it into 3-junctions"
+                    if m > 3
+                    else "; move the junction node or resample the skeleton so that its branches spread around it"
+                )
+                raise MeshingError(f"junction at skeleton node {c} ({m} branches) is beyond the junction scheme: {why}{hint}")
+            ang, p, q = cs.order_around(u, d)
+            order, sep, gap = cs.separator_angles(ang)
+            self.junctions[c] = _Junction(
+                node=c, center=self._junction_centre(c, u, p, q, sep), radius=float(sk.radii[c]), u=u, p=p, q=q,
+                neighbors=np.array([int(self.branches[bi].nodes[1] if side == 0 else self.branches[bi].nodes[-2]) for bi, side in lst])[order],
+                branch_angle=ang[order], separator=sep, gap=gap, psi=np.zeros(len(lst)),
+                ends=[lst[i] for i in order],
+            )
+            self.junctions[c].dirs = d[order]
+
+
+    def _junction_centre(self, c: int, u, p, q, sep) -> np.ndarray:
+        """Point of the junction's common line (the half-sections' spine).
+
+        As vascularmd places a bifurcation's centre (Decroocq et al. 2023), the line goes
+        through the mean of the wall points straight out along the separators (the apex
+        of each crotch and the outer walls between branches), centred between the wall
+        above and below along ``u``. A node far upstream of the apex would otherwise cast
+        the crotch half-section as a long sliver that reaches along the daughters and
+        folds their first boundary-layer blocks. ``junction_centre`` blends from the node
+        (0) to that point (1); it stays at least half the node's radius inside."""
+        o = self.pos[c].copy()
+        w = float(self.opt.junction_centre)
+        if w <= 0 or c in self.local.at_node:
+            return o
+        rc = float(self.sk.radii[c])
+        sd = np.cos(sep)[:, None] * p + np.sin(sep)[:, None] * q
+        R = self.cast(np.repeat(o[None], len(sd), 0), sd, np.full(len(sd), rc))
+        if not np.all(np.isfinite(R)):
+            return o
+        x = o + w * np.mean(R[:, None] * sd, axis=0)
+        ud = self.cast(np.repeat(x[None], 2, 0), np.stack([u, -u]), np.full(2, rc))
+        if np.all(np.isfinite(ud)):
+            x = x + 0.5 * (ud[0] - ud[1]) * u
+        if float(np.asarray(self.sdf(x[None]))[0]) < 0.5 * rc:
+            return o
+        return x
+
+
+    def _slack(self, bi: int) -> float:
+        """Room left on a branch between two junctions once both half-sections are in."""
+        br = self.branches[bi]
+        L = float(np.linalg.norm(self.pos[br.nodes[-1]] - self.pos[br.nodes[0]])) if len(br.nodes) == 2 else br.arc[-1]
+        return L - self._junction_reach(bi, 0) - self._junction_reach(bi, 1)
+
+
+    def separate_junctions(self, bi: int) -> bool:
+        """Move one end junction of a branch between two junctions away from the other.
+
+        Each end is tried (half a branch radius along the branch, into the wedge of the
+        junction's other branches, staying well inside and within 1.5 radii of its node);
+        the move that leaves the branch most room is kept."""
+        sk = self.sk
+        br = self.branches[bi]
+        if br.kinds != [JUNCTION, JUNCTION] or br.nodes[0] == br.nodes[-1]:
+            return False
+        rb = float(np.median(sk.radii[br.nodes]))
+        base = self._slack(bi)
+        best = None
+        for side in (0, 1):
+            c = int(br.nodes[0] if side == 0 else br.nodes[-1])
+            other = int(br.nodes[-1] if side == 0 else br.nodes[0])
+            w = cs.unit(self.pos[c] - self.pos[other])
+            new = self.pos[c] + 0.5 * rb * w
+            if np.linalg.norm(new - sk.points[c]) > 1.5 * sk.radii[c]:
+                continue
+            if float(np.asarray(self.sdf(new[None]))[0]) < 0.4 * sk.radii[c]:
+                continue
+            old_pos, old_j = self.pos[c].copy(), self.junctions[c]
+            self.pos[c] = new
+            try:
+                self._rebuild_junction(c)
+                gain = self._slack(bi) - base
+            except MeshingError:
+                gain = -np.inf
+            self.pos[c] = old_pos
+            self.junctions[c] = old_j
+            self._rebuild_branches()
+            if best is None or gain > best[0]:
+                best = (gain, c, new)
+        if best is None or best[0] <= 1e-9 * rb:
+            return False
+        _, c, new = best
+        self.pos[c] = new
+        self._rebuild_junction(c)
+        self.moves[c] = float(np.linalg.norm(new - sk.points[c]))
+        self.fixes.append(f"moved junction node {c} by {self.moves[c]:.3g} along its branch to node {int(br.nodes[0] if c == br.nodes[-1] else br.nodes[-1])}")
+        return True
+
+
+    def _rebuild_branches(self):
+        self.make_branches()
+        self.classify_ends()
+
+
+    def _rebuild_junction(self, c: int):
+        self._rebuild_branches()
+        self.build_junctions({c})
+        self.choose_rotations({c})
+
+
+    # -- 4. junction half-planes --------------------------------------------------
+    def _neighbour_room(self, j: _Junction) -> np.ndarray:
+        """How far (along each ordered neighbour's branch) sections may be pushed."""
+        room = np.empty(len(j.neighbors))
+        for h, (bi, side) in enumerate(j.ends):
+            br = self.branches[bi]
+            L = br.arc[-1]
+            other = br.kinds[1 - side]
+            room[h] = (0.45 if other == JUNCTION else 0.8) * L if len(br.nodes) > 2 else 0.85 * L
+        return room
+
+
+    def _half_rays(self, j: _Junction, sdirs: np.ndarray) -> np.ndarray:
+        """Ray lengths (k, nr) of half-sections with in-plane directions ``sdirs`` (k, 3);
+        angles in (π, 2π) mirror the upper half, 0 and π are the spine."""
+        t = self.template
+        ang = t.ray_angles
+        up = (ang > 1e-9) & (ang < np.pi - 1e-9)
+        k = len(sdirs)
+        e1 = np.repeat(j.u[None, :], k, axis=0)
+        dirs = cs.ray_directions(e1, sdirs, ang[up])
+        o = np.repeat(j.center[None, :], dirs.shape[0] * dirs.shape[1], axis=0)
+        R_up = self.cast(o, dirs.reshape(-1, 3), np.full(len(o), j.radius)).reshape(k, -1)
+        R = np.empty((k, len(ang)))
+        R[:, up] = R_up
+        idx_up = np.flatnonzero(up)
+        lower = np.flatnonzero(ang > np.pi + 1e-9)
+        mirror_of = cs.ray_index(t, cs._TWO_PI - ang[lower])
+        pos = {int(v): n for n, v in enumerate(idx_up)}
+        R[:, lower] = R_up[:, [pos[int(v)] for v in mirror_of]]
+        spine = self.spine_rays(j)
+        R[:, cs.ray_index(t, 0.0)] = spine[0]
+        R[:, cs.ray_index(t, np.pi)] = spine[1]
+        return R
+
+
+    def spine_rays(self, j: _Junction) -> np.ndarray:
+        o = np.repeat(j.center[None, :], 2, axis=0)
+        return self.cast(o, np.stack([j.u, -j.u]), np.full(2, j.radius))
+
+
+    def _half_vertices(self, j: _Junction, sdirs: np.ndarray, R: np.ndarray, core=None, layer=None) -> np.ndarray:
+        k = len(sdirs)
+        e1 = np.repeat(j.u[None, :], k, axis=0)
+        c = np.repeat(j.center[None, :], k, axis=0)
+        core = self.opt.core_size if core is None else core
+        layer = self.opt.layer_thickness if layer is None else layer
+        return cs.section_vertices(self.template, c, e1, sdirs, R, core, layer)
+
+
+    def choose_rotations(self, nodes=None):
+        opt = self.opt
+        ncand = max(1, int(opt.rotation_candidates))
+        for c, j in self.junctions.items():
+            if nodes is not None and c not in nodes:
+                continue
+            m = len(j.neighbors)
+            spine = self.spine_rays(j)
+            if np.any(~np.isfinite(spine)):
+                raise MeshingError(f"junction at skeleton node {c}: no wall found along its reference line (is the node inside the vessel?)")
+            # candidate offsets per separator, symmetric about the bisector
+            frac = np.linspace(-1.0, 1.0, ncand) if ncand > 1 else np.zeros(1)
+            psi = (opt.rotation_range * 0.5 * j.gap)[:, None] * frac[None, :]  # (m, ncand)
+            ang = j.separator[:, None] + psi
+            sdirs = np.cos(ang)[..., None] * j.p + np.sin(ang)[..., None] * j.q  # (m, ncand, 3)
+            R = self._half_rays(j, sdirs.reshape(-1, 3))
+            if np.any(~np.isfinite(R)):
+                bad = ~np.all(np.isfinite(R), axis=1).reshape(m, ncand)
+                if bad.all(axis=1).any():
+                    raise MeshingError(f"junction at skeleton node {c}: a half cross-section finds no wall within reach")
+            V = self._half_vertices(j, sdirs.reshape(-1, 3), np.nan_to_num(R, nan=1e6)).reshape(m, ncand, -1, 3)
+            upper = self.template.upper
+            rel = V[:, :, upper] - j.center
+            mean_dist = np.linalg.norm(rel, axis=3).mean(axis=2)  # (m, ncand)
+            # reach of each half-section along its two neighbours' directions
+            dirs = j.dirs
+            room = self._neighbour_room(j)
+            rad = self.sk.radii[j.neighbors]
+            # reach along the branches from the node (the half-sections' line may be off it)
+            reach_a = (rel @ dirs.T) + ((j.center - self.pos[c]) @ dirs.T)  # (m, ncand, nv_up, m)
+            over = np.zeros((m, ncand))
+            for h in range(m):
+                for nbh in (h, (h + 1) % m):
+                    r = reach_a[h, :, :, nbh].max(axis=1)
+                    over[h] += np.maximum(0.0, r + opt.junction_margin * rad[nbh] - room[nbh]) / rad[nbh]
+            j.reach_table = reach_a.max(axis=2)  # (m, ncand, m)
+            j.cand_psi = psi
+            j.cand_cost = mean_dist / j.radius + 10.0 * over + 0.05 * frac[None, :] ** 2
+            j.cand_cost[~np.isfinite(R).all(axis=1).reshape(m, ncand)] = np.inf
+            if opt.junction_rotation == "bisector":
+                pick = np.full(m, ncand // 2)
+            else:
+                pick = np.argmin(j.cand_cost, axis=1)
+            j.pick = pick
+            j.psi = psi[np.arange(m), pick]
+
+
+    def _junction_reach(self, bi: int, side: int) -> float:
+        """How far the half-sections of the junction at a branch's end reach along it."""
+        br = self.branches[bi]
+        c = int(br.nodes[0] if side == 0 else br.nodes[-1])
+        j = self.junctions[c]
+        h = next(h for h, e in enumerate(j.ends) if e == (bi, side))
+        m = len(j.neighbors)
+        seps = [(h - 1) % m, h]
+        return float(max(j.reach_table[sp, j.pick[sp], h] for sp in seps))

@@ -1,0 +1,82 @@
+"""Options of the block builder and its per-junction and per-branch state."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+JUNCTION, OPEN, CLOSED, CYCLE = "junction", "open", "closed", "cycle"
+
+
+@dataclass
+class BlockOptions:
+    """Parameters of :func:`build_blocks` (see the filter ``build_block_structure``)."""
+
+    blocks_around: int = 8
+    core_size: float = 0.3
+    layer_thickness: float = 0.3
+    plane_bias: float = 1.0
+    junction_rotation: str = "closest"  # or "bisector"
+    rotation_range: float = 0.6
+    rotation_candidates: int = 9
+    max_out_of_plane: float = 60.0  # degrees
+    min_branch_gap: float = 12.0  # degrees
+    split_nonplanar: bool = True
+    max_retopology_tries: int = 8  # whole rebuilds with merged or split junctions
+    clear_ray_factor: float = 1.8
+    junction_margin: float = 0.3  # × branch radius, between half-sections and the first section
+    cap_distance: float = 1.0  # × radius
+    dome_depth: float = 1.0  # wall distance ahead of a closed end's section, × its mean wall distance
+    dome_max_retreat: float = 1.5  # × endpoint radius
+    max_fix_rounds: int = 16
+    wall_quality: float = 0.05  # least scaled Jacobian of boundary-layer blocks with projected wall faces
+    good_wall_quality: float = 0.3  # projected quality at which a junction end's margin stops growing
+    wall_margins: tuple = (0.0, 0.5, 1.0, 2.0)  # extra margins tried at folding junction ends (× radius)
+    relieve_wall_folds: bool = True  # re-place junction sections where boundary-layer blocks would fold (fill-judged)
+    junction_centre: float = 1.0  # how far half-sections' common line moves from the node to the wall's centre (0: at the node)
+
+
+@dataclass
+class _Junction:
+    node: int
+    center: np.ndarray
+    radius: float
+    u: np.ndarray
+    p: np.ndarray  # basis of the plane ⟂ u
+    q: np.ndarray
+    neighbors: np.ndarray  # ordered around u
+    branch_angle: np.ndarray  # (m,) ordered
+    separator: np.ndarray  # (m,) base angles (bisectors), separator h between neighbors h and h+1
+    gap: np.ndarray  # (m,)
+    psi: np.ndarray  # (m,) chosen rotation of each separator
+    ends: list = field(default_factory=list)  # (branch, side) per ordered neighbour
+    allowed: list = field(default_factory=list)  # per separator: bool mask over candidates
+    spine_ids: np.ndarray | None = None  # (nv,) global ids of spine vertices (-1 elsewhere)
+    half_ids: np.ndarray | None = None  # (m, nv) global ids of upper-half vertices per separator
+
+    def separator_dir(self, h, psi=None) -> np.ndarray:
+        ang = self.separator[h] + (self.psi[h] if psi is None else psi)
+        return np.cos(ang)[..., None] * self.p + np.sin(ang)[..., None] * self.q
+
+
+@dataclass
+class _Branch:
+    nodes: np.ndarray  # (K+1,)
+    edges: np.ndarray  # (K,)
+    kinds: list  # [start kind, end kind]
+    caps: list  # cap id per end (0 none)
+    arc: np.ndarray  # (K+1,) arc length at nodes
+    s: np.ndarray  # (K+1,) section positions (arc length)
+    margin: np.ndarray = field(default_factory=lambda: np.zeros(2))  # extra clearance per end (× radius)
+    straighten: np.ndarray | None = None  # (K+1,) blend of section normals towards the chord
+
+
+@dataclass
+class _LocalFixes:
+    """Local changes the builder's fixes make, kept across rebuilds."""
+
+    core_scale: dict = field(default_factory=dict)  # section key -> core size factor
+    layer_scale: dict = field(default_factory=dict)  # section key -> boundary-layer thickness factor
+    lookahead: dict = field(default_factory=dict)  # junction node -> radii along its branches for their directions
+    at_node: set = field(default_factory=set)  # junctions whose half-sections meet on their node, not the wall's centre

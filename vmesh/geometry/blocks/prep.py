@@ -1,0 +1,187 @@
+"""Skeleton preparation for the block builder: splitting and merging junctions, matching
+endpoints to caps, and placing sections along a branch."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...skeleton import Skeleton
+from .. import cross_sections as cs
+
+
+# ---------------------------------------------------------------------------
+# skeleton preparation
+# ---------------------------------------------------------------------------
+def split_nonplanar_junctions(skeleton: Skeleton, nodes, length: float = 1.2, distance=None, inside: float = 0.5, rank: int = 0) -> Skeleton:
+    """Split junctions into chains of 3-junctions.
+
+    At each node of degree ``m > 3`` two neighbours are moved onto a new node placed
+    ``length × radius`` along their mean direction and joined to the original node by a
+    new segment; repeated until every node has at most three neighbours. Tags are
+    inherited. With ``distance`` (signed, positive inside) the new node goes no further
+    than where it is still ``inside × radius`` inside the vessel, and the pairs are ranked
+    by how deep inside their new node lies (a node pushed into the wall between two
+    ostia makes blocks that cannot be fixed), then by how close their directions are;
+    without it by closeness alone. Nearly opposite pairs come last.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+    nodes : sequence of int
+        Junctions to split.
+    length : float
+        Distance of a new node from its junction (× the junction radius).
+    distance : callable, optional
+        Signed distance, positive inside.
+    inside : float
+        Least depth of a new node (× the junction radius).
+    rank : int
+        Which pair to split off at each step (0: the best ranked; alternatives when the
+        best one's blocks cannot be made valid).
+
+    Returns
+    -------
+    Skeleton
+        The split skeleton (the original nodes keep their numbers).
+    """
+    sk = skeleton
+    pts = list(sk.points)
+    rad = list(sk.radii)
+    ntags = list(sk.node_tags)
+    edges = [tuple(e) for e in sk.edges.tolist()]
+    etags = list(sk.edge_tags)
+    todo = [int(n) for n in nodes]
+    while todo:
+        c = todo.pop()
+        inc = [k for k, e in enumerate(edges) if c in e]
+        if len(inc) <= 3:
+            continue
+        nb = [edges[k][0] if edges[k][1] == c else edges[k][1] for k in inc]
+        d = cs.unit(np.asarray([pts[j] for j in nb]) - pts[c])
+        pi, pj = np.triu_indices(len(nb), 1)
+        w = cs.unit(d[pi] + d[pj])  # (pairs, 3)
+        t = np.full(len(pi), length * rad[c])
+        depth = np.zeros(len(pi))
+        if distance is not None:
+            ts = np.linspace(0.25, 1.0, 16) * length * rad[c]
+            probe = np.asarray(pts[c]) + ts[None, :, None] * w[:, None, :]
+            ok = np.asarray(distance(probe.reshape(-1, 3))).reshape(len(pi), -1) >= inside * rad[c]
+            t = np.where(ok.any(axis=1), np.where(ok, ts[None, :], 0.0).max(axis=1), ts[0])
+            depth = np.asarray(distance(np.asarray(pts[c]) + t[:, None] * w)) / rad[c]
+        closeness = np.sum(d[pi] * d[pj], axis=1)
+        # deeper first (to 1 % of the radius), then closer directions; nearly opposite
+        # branches have no mean direction to put a node on: last
+        degenerate = np.linalg.norm(d[pi] + d[pj], axis=1) < 0.2
+        order = np.lexsort((-closeness, -np.round(depth, 2), degenerate))
+        best = order[min(int(rank), len(order) - 1)]
+        i, j = int(pi[best]), int(pj[best])
+        new = len(pts)
+        pts.append(np.asarray(pts[c]) + t[best] * w[best])
+        rad.append(rad[c])
+        ntags.append(ntags[c])
+        for k in (inc[i], inc[j]):
+            a, b = edges[k]
+            edges[k] = (new if a == c else a, new if b == c else b)
+        edges.append((c, new))
+        etags.append(tuple(sorted(set(etags[inc[i]]) | set(etags[inc[j]]))))
+        todo.append(c)
+    return Skeleton(np.asarray(pts), np.asarray(rad), np.asarray(edges), ntags, etags, name=sk.name)
+
+
+def merge_junction_pair(skeleton: Skeleton, a: int, b: int) -> tuple[Skeleton, int]:
+    """Merge junctions ``a`` and ``b`` and the branch between them into one junction.
+
+    The merged junction sits at the mean of the two with the larger radius; the other
+    nodes keep their order.
+
+    Returns
+    -------
+    skeleton : Skeleton
+    node : int
+        The merged junction's number in the new skeleton.
+    """
+    from ..skeleton_ops import branch_paths, contract_nodes
+
+    sk = skeleton
+    path = next(p for p in branch_paths(sk.n_nodes, sk.edges) if {int(p[0]), int(p[-1])} == {a, b})
+    keep = min(a, b)
+    group = np.arange(sk.n_nodes)
+    group[np.asarray(path)] = keep
+    labels = np.unique(group)
+    positions = sk.points[labels].copy()
+    positions[np.searchsorted(labels, keep)] = 0.5 * (sk.points[a] + sk.points[b])
+    merged = contract_nodes(sk, group, positions)
+    return merged, int(np.searchsorted(labels, keep))
+
+
+def endpoint_caps(points: np.ndarray, radii: np.ndarray, endpoints: np.ndarray, caps, cap_distance: float = 1.0) -> dict:
+    """Match endpoints to caps: ``{endpoint node: cap}`` for endpoints within
+    ``cap_distance × max(node radius, cap radius)`` of a cap centre (nearest first, one
+    endpoint per cap)."""
+    if not caps or len(endpoints) == 0:
+        return {}
+    centers = np.asarray([c.center for c in caps], float)
+    crad = np.asarray([c.radius for c in caps], float)
+    d = np.linalg.norm(points[endpoints][:, None, :] - centers[None, :, :], axis=2)
+    limit = cap_distance * np.maximum(radii[endpoints][:, None], crad[None, :])
+    pairs = sorted((d[i, j], i, j) for i, j in zip(*np.nonzero(d <= limit)))
+    out, used_e, used_c = {}, set(), set()
+    for _, i, j in pairs:
+        if i in used_e or j in used_c:
+            continue
+        out[int(endpoints[i])] = caps[j]
+        used_e.add(i)
+        used_c.add(j)
+    return out
+
+
+def redistribute_sections(arc: np.ndarray, lo: float, hi: float, min_spacing: float = 0.6) -> tuple[np.ndarray, bool]:
+    """Move the interior sections of a branch into ``[lo, hi]``.
+
+    Sections closer to the start than ``lo`` are pushed beyond it together with as many
+    following ones as needed to keep their spacing at least ``min_spacing`` times the
+    branch's mean spacing (evenly spaced, the first at ``lo``); likewise from the end. When
+    the pushes meet, all interior sections are spread evenly over ``[lo, hi]``.
+
+    Returns
+    -------
+    s : (K+1,) new positions (ends unchanged)
+    ok : False when ``lo >= hi`` with interior sections to place.
+    """
+    s = np.asarray(arc, float).copy()
+    K = len(s) - 1
+    if K < 2:
+        return s, True
+    if lo >= hi:
+        return s, False
+    h = (s[-1] - s[0]) / K * min_spacing
+
+    def push(x, lim):
+        m0 = int(np.sum(x[1:-1] < lim))
+        if m0 == 0:
+            return x
+        for m in range(m0, K):
+            end = x[m + 1]
+            if (end - lim) / m >= h or m + 1 == K:
+                break
+        x = x.copy()
+        x[1 : m + 1] = lim + np.arange(m) * (end - lim) / m
+        return x
+
+    s = push(s, lo)
+    s = (s[-1] + s[0]) - push((s[-1] + s[0]) - s[::-1], (s[-1] + s[0]) - hi)[::-1]
+    inner = s[1:-1]
+    if np.any(np.diff(s) <= 0) or inner.min() < lo - 1e-9 or inner.max() > hi + 1e-9:
+        n = K - 1
+        s[1:-1] = (lo + hi) / 2 if n == 1 else np.linspace(lo, hi, n)
+    return s, True
+
+
+def polyline_at(points: np.ndarray, arc: np.ndarray, s: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position on a polyline and linearly interpolated per-node ``values`` at arc lengths ``s``."""
+    s = np.clip(s, arc[0], arc[-1])
+    k = np.clip(np.searchsorted(arc, s, side="right") - 1, 0, len(arc) - 2)
+    t = ((s - arc[k]) / np.maximum(arc[k + 1] - arc[k], 1e-300))[:, None]
+    pos = points[k] * (1 - t) + points[k + 1] * t
+    val = values[k] * (1 - t.reshape((-1,) + (1,) * (values.ndim - 1))) + values[k + 1] * t.reshape((-1,) + (1,) * (values.ndim - 1))
+    return pos, val

@@ -1,0 +1,390 @@
+"""Repairs: invalid blocks and boundary-layer blocks that would fold on the wall (step 5 of the method)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...blocks import LAYER_BOUNDARY, BlockStructure
+from .checks import (
+    FILL_CHECKS,
+    _Failure,
+    fill_quality,
+    fill_score,
+    projected_wall_quality,
+)
+from .options import CYCLE, JUNCTION
+
+
+class _Repair:
+    """Repair steps of the block builder: invalid blocks, and boundary-layer blocks that
+    would fold on the wall. Mixed into :class:`~vmesh.geometry.blocks.builder._Builder`,
+    whose state they share."""
+
+    # -- 8. validity -----------------------------------------------------------------------
+    def relieve_wall_folds(self, blocks: BlockStructure) -> BlockStructure:
+        """Re-place the first cross-sections and half-planes at junctions whose boundary
+        layer would fold in the transfinite fill.
+
+        At a junction crotch the half cross-section meets the wall obliquely: a boundary-layer
+        block from it to a branch section that stands close is short on the crotch side and
+        long on the other, and projecting its wall face folds it. Junctions with such blocks
+        (:func:`projected_wall_quality` at most ``wall_quality``) get, per branch end, the
+        extra margin of ``wall_margins`` whose blocks fill best, and where they still fold,
+        the half-plane rotations whose blocks fill best, then margins again. Blocks are
+        judged by filling them (:func:`fill_quality`, at the default and a finer
+        resolution, without untangling); the new placement is kept only when the
+        junction's blocks fill better at one resolution and no worse at any, and every
+        block stays valid."""
+        opt = self.opt
+        quality = projected_wall_quality(blocks, self.project)
+        ends = self._junction_ends(np.flatnonzero(quality <= opt.wall_quality))
+        if not ends:
+            return blocks
+        nodes = sorted({int(self.branches[bi].nodes[-side]) for bi, side in ends})
+        near = self._junction_blocks(nodes)
+        before = self._checked_score(blocks, near)
+        saved = ([br.margin.copy() for br in self.branches],
+                 {c: (j.pick.copy(), j.psi.copy()) for c, j in self.junctions.items()})
+        trial = self._margins_for_wall(ends)
+        after = self._checked_score(trial, near)
+        if np.any(after < 0):
+            # still folded: turn the half-planes too, then place the first sections again
+            self._rotate_for_wall(ends)
+            trial = self._margins_for_wall(ends)
+            after = self._checked_score(trial, near)
+        if not (np.all(after >= before - 1e-9) and np.any(after > before + 1e-9)):
+            # the junction's blocks fill no better at some resolution: back to where they were
+            for br, m in zip(self.branches, saved[0]):
+                br.margin = m
+            for c, (pick, psi) in saved[1].items():
+                self.junctions[c].pick, self.junctions[c].psi = pick, psi
+            self._apply_clearance()
+            return self.assemble()
+        self.fixes.append(f"re-placed the half cross-sections and first cross-sections at junction node(s) {nodes} "
+                          f"where the boundary layer would fold (fill scores {np.round(before, 3).tolist()} -> {np.round(after, 3).tolist()})")
+        return trial
+
+
+    def choose_centres(self, blocks: BlockStructure) -> BlockStructure:
+        """Per junction, keep the half-sections' line through the wall's centre
+        (:meth:`_junction_centre`) or move it back onto the skeleton node, whichever fills the
+        blocks of the junction's first segments better.
+
+        The centre shortens the crotch half-section of a node far upstream of the apex, but
+        where a thin branch leaves a wide one the node can serve its first blocks better.
+        Both placements are assembled once (all junctions switched together; they are
+        independent), their junction blocks filled (:func:`fill_quality`, without
+        untangling), and a junction switches only when it fills better at one resolution
+        and no worse at any, with every block valid."""
+        if self.opt.junction_centre <= 0 or not self.junctions:
+            return blocks
+        nodes = sorted(c for c in self.junctions if c not in self.local.at_node)
+        if not nodes:
+            return blocks
+        before = self._centre_scores(blocks, nodes)
+        saved = {c: self.junctions[c] for c in nodes}  # with the rotations the fixes chose
+        self.local.at_node |= set(nodes)
+        for c in nodes:
+            self._rebuild_junction(c)
+        self._apply_clearance()
+        trial = self.assemble()
+        after = self._centre_scores(trial, nodes) if trial.corner_jacobians().min() > 0 else {c: np.full(len(FILL_CHECKS), -np.inf) for c in nodes}
+        switch = [c for c in nodes if np.all(after[c] >= before[c] - 1e-9) and np.any(after[c] > before[c] + 1e-9)]
+        for c in nodes:
+            if c not in switch:
+                self.junctions[c] = saved[c]
+                self.local.at_node.discard(c)
+        self._apply_clearance()
+        out = self.assemble()
+        if switch and out.corner_jacobians().min() <= 0:
+            # the junctions' choices interact: back to the centres everywhere
+            for c in switch:
+                self.junctions[c] = saved[c]
+                self.local.at_node.discard(c)
+            self._apply_clearance()
+            return self.assemble()
+        if switch:
+            self.fixes.append(f"half cross-sections of junction node(s) {switch} meet on the node, not the wall's centre, where their blocks fill better")
+        return out
+
+    def _centre_scores(self, blocks: BlockStructure, nodes) -> dict:
+        """:func:`fill_score` per fill resolution of each junction's first-segment blocks."""
+        near = {c: self._junction_blocks([c]) for c in nodes}
+        sel = np.unique(np.concatenate(list(near.values())))
+        q = np.ones((len(FILL_CHECKS), blocks.n_blocks))
+        q[:, sel] = fill_quality(blocks, sel, self.project, self.sdf, self.intersect_lines, per_resolution=True)
+        return {c: np.array([fill_score(row[near[c]]) for row in q]) for c in nodes}
+
+    def _checked_score(self, blocks: BlockStructure, near: np.ndarray) -> np.ndarray:
+        """:func:`fill_score` of the blocks ``near`` per fill resolution; -inf when any block
+        is invalid."""
+        if blocks.corner_jacobians().min() <= 0:
+            return np.full(len(FILL_CHECKS), -np.inf)
+        q = fill_quality(blocks, near, self.project, self.sdf, self.intersect_lines, per_resolution=True)
+        return np.array([fill_score(row) for row in q])
+
+
+    def _margins_for_wall(self, ends: list) -> BlockStructure:
+        """Give each junction end of ``ends`` the extra margin of ``wall_margins`` whose
+        first-segment blocks fill best (the least reaching ``good_wall_quality``); the ends
+        are independent, so one assembly per margin scores them all. Returns the assembly."""
+        opt = self.opt
+        base = {e: float(self.branches[e[0]].margin[e[1]]) for e in ends}
+        steps = np.asarray(opt.wall_margins, float)
+        score = np.full((len(ends), len(steps)), -np.inf)
+        for n, add in enumerate(steps):
+            for bi, side in ends:
+                self.branches[bi].margin[side] = base[(bi, side)] + add
+            self._apply_clearance()
+            trial = self.assemble()
+            J = trial.corner_jacobians().min(axis=1)
+            mine = [self._end_blocks(bi, side) for bi, side in ends]
+            sel = np.unique(np.concatenate(mine))
+            q = np.ones(trial.n_blocks)
+            q[sel] = self._fill_quality(trial, sel)
+            for e, (bi, side) in enumerate(ends):
+                if J[self.block_where[:, 0] == bi].min() > 0:
+                    score[e, n] = fill_score(q[mine[e]])
+        pick = np.argmax(np.minimum(score, opt.good_wall_quality), axis=1)
+        for e, (bi, side) in enumerate(ends):
+            self.branches[bi].margin[side] = base[(bi, side)] + (steps[pick[e]] if np.isfinite(score[e, pick[e]]) else 0.0)
+        self._apply_clearance()
+        return self.assemble()
+
+
+    def _junction_blocks(self, nodes) -> np.ndarray:
+        """Blocks of the first segment of every branch end at the junctions ``nodes``."""
+        return np.unique(np.concatenate([self._end_blocks(bi, side) for c in nodes for bi, side in self.junctions[c].ends]))
+
+
+    def _rotate_for_wall(self, ends: list) -> None:
+        """Re-rotate the half-planes next to the junction ends ``ends`` (``(branch, side)``)
+        to the candidate whose boundary-layer blocks fold least on the wall.
+
+        A half-plane's blocks are those with a vertex of its half-section off the spine;
+        all touched half-planes try their candidates in step (one assembly per candidate),
+        each keeps its own best (ties: the current one), and the blocks must stay valid."""
+        opt = self.opt
+        seps = set()
+        for bi, side in ends:
+            c = int(self.branches[bi].nodes[0 if side == 0 else -1])
+            j = self.junctions[c]
+            h = next(h for h, e in enumerate(j.ends) if e == (bi, side))
+            seps |= {(c, (h - 1) % len(j.neighbors)), (c, h)}
+        seps = sorted(seps)
+        ncand = max(len(self.junctions[c].cand_psi[sp]) for c, sp in seps)
+        current = {(c, sp): int(self.junctions[c].pick[sp]) for c, sp in seps}
+        score = np.full((len(seps), ncand), -np.inf)
+        for n in range(ncand):
+            for c, sp in seps:
+                j = self.junctions[c]
+                k = n if np.isfinite(j.cand_cost[sp, n]) else current[(c, sp)]
+                j.pick[sp], j.psi[sp] = k, j.cand_psi[sp, k]
+            self._apply_clearance()
+            trial = self.assemble()
+            J = trial.corner_jacobians().min(axis=1)
+            near = np.unique(np.concatenate([self._end_blocks(bi, side) for c in {c for c, _ in seps} for bi, side in self.junctions[c].ends]))
+            q = np.ones(trial.n_blocks)
+            q[near] = self._fill_quality(trial, near)
+            for e, (c, sp) in enumerate(seps):
+                j = self.junctions[c]
+                if not np.isfinite(j.cand_cost[sp, n]):
+                    continue
+                own = j.half_ids[sp][j.spine_ids < 0]
+                mine = np.flatnonzero(np.isin(trial.hexes, own[own >= 0]).any(axis=1))
+                branches = np.unique(self.block_where[mine, 0])
+                if J[np.isin(self.block_where[:, 0], branches)].min() > 0:
+                    score[e, n] = fill_score(q[mine])
+        for e, (c, sp) in enumerate(seps):
+            j = self.junctions[c]
+            capped = np.minimum(score[e], opt.good_wall_quality)
+            k = current[(c, sp)]
+            if np.isfinite(capped.max()) and capped.max() > capped[k] + 1e-3:
+                k = int(np.argmax(capped))
+            j.pick[sp], j.psi[sp] = k, j.cand_psi[sp, k]
+        self._apply_clearance()
+
+
+    def _fill_quality(self, blocks: BlockStructure, subset: np.ndarray) -> np.ndarray:
+        """:func:`fill_quality` of ``subset`` on this builder's wall."""
+        return fill_quality(blocks, subset, self.project, self.sdf, self.intersect_lines)
+
+
+    def _junction_ends(self, blocks_: np.ndarray) -> list:
+        """The (branch, side) junction ends whose first segment holds any of ``blocks_``."""
+        out = set()
+        for bi, k in np.unique(self.block_where[blocks_], axis=0).tolist():
+            br = self.branches[bi]
+            K = len(br.nodes)
+            if K <= 2:
+                continue
+            for side, at in ((0, k == 0), (1, k == K - 2)):
+                if at and br.kinds[side] == JUNCTION:
+                    out.add((bi, side))
+        return sorted(out)
+
+
+    def _end_blocks(self, bi: int, side: int) -> np.ndarray:
+        """Blocks of the segment next to a branch's end ``side``."""
+        K = len(self.branches[bi].nodes)
+        k = 0 if side == 0 else K - 2
+        return np.flatnonzero((self.block_where[:, 0] == bi) & (self.block_where[:, 1] == k))
+
+
+    def thicken_layers(self, blocks: BlockStructure) -> BlockStructure:
+        """Thicken the boundary layer at sections whose boundary-layer blocks would fold when
+        their wall faces are projected onto the wall (:func:`projected_wall_quality`), as
+        long as every block stays valid; what is left is reported in ``info``."""
+        opt = self.opt
+        quality = projected_wall_quality(blocks, self.project)
+        thickened = set()
+        for _ in range(4):
+            bad = np.flatnonzero(quality <= opt.wall_quality)
+            if len(bad) == 0:
+                break
+            keys = {self._section_key(bi, kk) for bi, k in self.block_where[bad].tolist() for kk in (k, k + 1)}
+            keys = {key for key in keys if opt.layer_thickness * self.local.layer_scale.get(key, 1.0) < 0.5 - 1e-9}
+            if not keys:
+                break
+            old = dict(self.local.layer_scale)
+            for key in keys:
+                self.local.layer_scale[key] = self.local.layer_scale.get(key, 1.0) * 1.25
+            trial = self.assemble()
+            if trial.corner_jacobians().min() <= 0:
+                self.local.layer_scale = old
+                break
+            thickened |= keys
+            blocks, quality = trial, projected_wall_quality(trial, self.project)
+        if thickened:
+            self.fixes.append(f"thickened the boundary layer at {len(thickened)} cross-section(s) where projecting the wall would fold it")
+            blocks.info.update(self.info)
+        return blocks
+
+
+    def report_wall_folds(self, blocks: BlockStructure) -> None:
+        """Record (and warn about) boundary-layer blocks that may still fold on the wall."""
+        quality = projected_wall_quality(blocks, self.project)
+        self.info["min_projected_wall_quality"] = round(float(quality.min()), 4)
+        self.info["blocks_folding_on_wall"] = int(np.sum(quality <= 0))
+        blocks.info.update(self.info)
+        blocks.info["fixes"] = list(self.fixes)
+        if self.info["blocks_folding_on_wall"]:
+            nodes = sorted(set(blocks.block_node[quality <= 0].tolist()))
+            self.warn(f"{self.info['blocks_folding_on_wall']} boundary-layer block(s) next to skeleton node(s) {nodes[:8]} may fold when their faces are projected onto the wall")
+
+
+    def fix(self, bad: np.ndarray, J: np.ndarray) -> bool:
+        """Change the state so that the blocks ``bad`` may become valid; False when out of ideas.
+
+        Per failing segment, in this order: shrink the core where only core and ring blocks
+        fail; near a junction, move the branch's sections further away, then re-rotate the
+        junction's half-planes; between two ordinary sections, straighten their planes
+        towards the segment."""
+        where = self.block_where[bad]
+        layer = self._last_layers(bad)
+        changed = moved = False
+        for bi, k in np.unique(where, axis=0).tolist():
+            br = self.branches[bi]
+            K = len(br.nodes)
+            sel = (where[:, 0] == bi) & (where[:, 1] == k)
+            if np.all(layer[sel] != LAYER_BOUNDARY):
+                shrunk = False
+                for kk in (k, k + 1):
+                    key = self._section_key(bi, kk)
+                    sc = self.local.core_scale.get(key, 1.0)
+                    if sc > 0.45:
+                        self.local.core_scale[key] = sc * 0.8
+                        shrunk = True
+                if shrunk:
+                    self.fixes.append(f"shrank the core at skeleton node {int(br.nodes[k])}")
+                    changed = True
+                    continue
+            ends = [side for side, at in ((0, k == 0), (1, k + 1 == K - 1)) if at and br.kinds[side] == JUNCTION]
+            if ends:
+                for side in ends:
+                    node = int(br.nodes[0 if side == 0 else -1])
+                    if br.margin[side] < 2.0 and K > 2:
+                        br.margin[side] += 0.5
+                        self.fixes.append(f"moved the cross-sections next to junction node {node} further along its branch")
+                        changed = True
+                    elif self._rerotate(bi, side):
+                        self.fixes.append(f"re-rotated the half-planes of junction node {node}")
+                        changed = True
+                    elif self.separate_junctions(bi):
+                        changed = moved = True
+                        break
+                continue
+            straightened = False
+            for kk in (k, k + 1):
+                if br.straighten[kk] < 0.99:
+                    br.straighten[kk] = min(1.0, br.straighten[kk] + 0.34)
+                    straightened = True
+            if straightened:
+                self.fixes.append(f"straightened the cross-sections at skeleton nodes {int(br.nodes[k])}-{int(br.nodes[k + 1])}")
+                changed = True
+        if moved:
+            self.clear = self._clearance()
+        if changed:
+            self._apply_clearance()
+        return changed
+
+
+    def _last_layers(self, bad):
+        return self.block_layers[np.asarray(bad)]
+
+
+    def _section_key(self, bi: int, k: int):
+        br = self.branches[bi]
+        K = len(br.nodes)
+        if (k == 0 and br.kinds[0] == JUNCTION) or (k == K - 1 and br.kinds[1] == JUNCTION):
+            return ("J", int(br.nodes[k]))
+        if k == K - 1 and br.kinds[1] == CYCLE:
+            return (bi, 0)
+        return (bi, k)
+
+
+    def _rerotate(self, bi: int, side: int) -> bool:
+        """Turn the two half-planes next to a branch so that they reach less far along it."""
+        br = self.branches[bi]
+        c = int(br.nodes[0] if side == 0 else br.nodes[-1])
+        j = self.junctions[c]
+        h = next(h for h, e in enumerate(j.ends) if e == (bi, side))
+        m = len(j.neighbors)
+        changed = False
+        for sp in ((h - 1) % m, h):
+            reach = j.reach_table[sp, :, h]
+            better = np.flatnonzero(reach < reach[j.pick[sp]] - 1e-9 * j.radius)
+            better = better[np.isfinite(j.cand_cost[sp, better])]
+            if len(better):
+                # the least costly of those reaching clearly less far
+                target = reach[j.pick[sp]] - 0.25 * (reach[j.pick[sp]] - reach[better].min())
+                pool = better[reach[better] <= target + 1e-12]
+                pick = pool[np.argmin(j.cand_cost[sp, pool])]
+                j.pick[sp] = pick
+                j.psi[sp] = j.cand_psi[sp, pick]
+                changed = True
+        return changed
+
+
+    def fail(self, blocks: BlockStructure, bad: np.ndarray):
+        """Raise :class:`_Failure` for the blocks ``bad``, naming the worst one's skeleton node
+        and what a changed skeleton might fix: n-furcations next to the bad blocks, and
+        pairs of junctions whose half cross-sections leave the branch between them no room."""
+        J = blocks.corner_jacobians()
+        worst = bad[np.argmin(J[bad].min(axis=1))]
+        node = int(blocks.block_node[worst])
+        ends = np.unique(self.sk.edges[blocks.block_segment[bad]])
+        nfurc = [int(c) for c in ends if self.sk.degrees[c] > 3]
+        crowded = []
+        for bi in np.unique(self.block_where[bad, 0]).tolist():
+            br = self.branches[bi]
+            a, b = int(br.nodes[0]), int(br.nodes[-1])
+            if bi in self.crowded and (min(a, b), max(a, b)) not in crowded:
+                crowded.append((min(a, b), max(a, b)))
+        hint = f"; set split_nonplanar = true to split junction node(s) {nfurc} into 3-junctions" if nfurc and not self.opt.split_nonplanar else ""
+        where = f" (segment {int(blocks.block_segment[worst])})"
+        message = (
+            f"{len(bad)} block(s) stay invalid after {len(self.fixes)} fix(es); the worst starts at skeleton node {node}{where} "
+            f"with corner Jacobian {J[worst].min():.3g}"
+        )
+        raise _Failure(message, blocks, bad, self.sk, nfurc, crowded, hint)
