@@ -26,7 +26,6 @@ KNOWN_LONG_MODULES = {
     "geometry/block_builder.py": 1596,
     "geometry/skeleton_extract.py": 1930,
     "geometry/skeleton_ops.py": 1608,
-    "geometry/transfinite.py": 1082,
 }
 KNOWN_LONG_FUNCTIONS = {
     "geometry/block_builder.py:assemble": 161,
@@ -35,7 +34,6 @@ KNOWN_LONG_FUNCTIONS = {
     "geometry/skeleton_ops.py:extend_to_caps": 136,
     "geometry/skeleton_ops.py:graft_branches": 113,
     "geometry/skeleton_ops.py:resample_skeleton": 114,
-    "geometry/transfinite.py:mesh_blocks": 239,
     # grown by the robustness/optimiser round of 2026-12-02 (split next):
     "chain.py:run": 117,
     "filters/extract_filters.py:extract_skeleton": 108,
