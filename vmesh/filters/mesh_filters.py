@@ -33,6 +33,7 @@ from ..registry import Parameter, register_filter
         Parameter("untangle_below", "float", 0.3, "Elements whose scaled Jacobian is below this are optimised with their neighbourhood (p > 1: of the element corners with optimiser = local, of the sub-hexahedra with lbfgs).", min=0.0, max=0.9),
         Parameter("untangle_restart_below", "float", 0.2, "When untangling leaves an element below this, untangle once more from its result (fresh targets) and keep the better; with optimiser = local: the L-BFGS untangler also runs when the local result's minimum is not above this; 0 = never.", min=0.0, max=0.9),
         Parameter("optimiser", "str", "local", "local: compiled per-node Newton steps around bad elements, Gauss-Seidel over a node colouring (vmesh.geometry.optimize); lbfgs: the former global L-BFGS untangler.", choices=("local", "lbfgs")),
+        Parameter("curved_sections", "bool", True, "Curve the core/ring and ring/boundary-layer interfaces of the cross-sections so that the element angles at their corners balance (120° at core corners instead of 90°/135°/135°; docs/optimiser.md)."),
         Parameter("smooth_below", "float", 0.5, "Light pass after untangling (optimiser = local): nodes of elements below this move only where their elements' minimum and mean scaled Jacobian do not drop; 0 = off.", min=0.0, max=0.95),
     ],
     reads=("blocks", "surface"),
@@ -43,7 +44,7 @@ from ..registry import Parameter, register_filter
 def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_layer, element_length, grading, first_layer, growth,
                      first_layer_height, boundary_layer_thickness, y_plus, flow_velocity, flow_density, flow_viscosity, reference_length,
                      order, node_distribution, project_to, untangle, untangle_below, untangle_restart_below,
-                     optimiser="local", smooth_below=0.5):
+                     optimiser="local", smooth_below=0.5, curved_sections=True):
     """Edge nodes are projected onto the wall and re-spaced by arc length; Coons patches fill
     block faces (wall faces projected again) and transfinite interpolation fills the blocks.
     The boundary layer is resolved by grading, never by extra element layers: the element
@@ -65,6 +66,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         element_length=element_length / refinement,
         order=order,
         nodes=node_distribution,
+        curved_sections=curved_sections,
         **layer,
     )
     blocks = ctx.blocks

@@ -36,6 +36,7 @@ from ..blocks import (
     FACE_WALL,
     BlockStructure,
 )
+from .transfinite_curves import curved_edges, edge_turns
 from .transfinite_kernels import (  # noqa: F401  (coons_patch, transfinite_volume, _interp_rows: public here)
     _coons_kernel,
     _fill_blocks_kernel,
@@ -88,6 +89,9 @@ class Refinement:
         Mesh order p (1 = linear hexahedra).
     nodes : str
         ``"gauss_lobatto"`` or ``"equispaced"`` positions of high-order nodes.
+    curved_sections : bool
+        Curve the core/ring and ring/boundary-layer interfaces of the cross-sections so
+        that the angles at their corners balance (:mod:`~vmesh.geometry.transfinite_curves`).
     """
 
     around: int = 2
@@ -100,6 +104,7 @@ class Refinement:
     order: int = 1
     nodes: str = "gauss_lobatto"
     first_layer_absolute: bool = False
+    curved_sections: bool = False
 
     def first_height(self, radius):
         """First boundary-layer element thickness where the local radius is ``radius``."""
@@ -304,6 +309,7 @@ def _fill_edges(fill: _Fill) -> None:
     edge_on_wall = _edge_on_wall(topo)
     wall_face = topo.face_boundary == FACE_WALL
     edge_normal = _wall_edge_normals(blocks, topo, V, wall_face) if signed_distance is not None else None
+    turn, bulge = edge_turns(blocks, topo, V) if ref.curved_sections else (np.zeros((len(topo.edges), 2)), None)
     for n in np.unique(num.n_edge):
         sel = np.flatnonzero(num.n_edge == n)
         a, b = V[topo.edges[sel, 0]], V[topo.edges[sel, 1]]
@@ -320,6 +326,9 @@ def _fill_edges(fill: _Fill) -> None:
         t = with_order(element_boundaries(int(n), ratio), p, ref.nodes)  # (m, N+1)
         pts = a[:, None, :] + t[:, :, None] * (b - a)[:, None, :]
         wall = edge_on_wall[sel]
+        curved = np.any(turn[sel] != 0, axis=1) & ~wall
+        if curved.any():
+            pts[curved] = curved_edges(a[curved], b[curved], t[curved], turn[sel[curved]], bulge[sel[curved]])
         if wall.any():
             if edge_normal is not None and pts.shape[1] > 2:  # edges of one linear element have no inner nodes
                 inner_pts = pts[wall, 1:-1]
