@@ -34,6 +34,7 @@ from ..registry import Parameter, register_filter
         Parameter("untangle_restart_below", "float", 0.2, "When untangling leaves an element below this, untangle once more from its result (fresh targets) and keep the better; with optimiser = local: the L-BFGS untangler also runs when the local result's minimum is not above this; 0 = never.", min=0.0, max=0.9),
         Parameter("optimiser", "str", "local", "local: compiled per-node Newton steps around bad elements, Gauss-Seidel over a node colouring (vmesh.geometry.optimize); lbfgs: the former global L-BFGS untangler.", choices=("local", "lbfgs")),
         Parameter("light_pass_below", "float", 0.95, "Light pass after untangling (optimiser = local; untangle = true): every node of an element below this takes monotone Newton steps (its elements' minimum and mean scaled Jacobian never drop; wall nodes slide on the wall, first boundary-layer heights kept); for p > 1 kept only when the order-p minimum does not drop and the mean rises; 0 = off (docs/optimiser.md).", min=0.0, max=1.0),
+        Parameter("light_pass_sweeps", "int", 8, "Most Gauss–Seidel sweeps of the light pass (4 gives most of its gain at half the cost).", min=1, max=100),
         Parameter("curved_sections", "bool", True, "Curve the core/ring and ring/boundary-layer interfaces of the cross-sections so that the element angles at their corners balance (120° at core corners instead of 90°/135°/135°; docs/optimiser.md)."),
         Parameter("smooth_below", "float", 0.5, "Light pass after untangling (optimiser = local): nodes of elements below this move only where their elements' minimum and mean scaled Jacobian do not drop; 0 = off.", min=0.0, max=0.95),
     ],
@@ -45,7 +46,7 @@ from ..registry import Parameter, register_filter
 def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_layer, element_length, grading, first_layer, growth,
                      first_layer_height, boundary_layer_thickness, y_plus, flow_velocity, flow_density, flow_viscosity, reference_length,
                      order, node_distribution, project_to, untangle, untangle_below, untangle_restart_below,
-                     optimiser="local", smooth_below=0.5, curved_sections=True, light_pass_below=0.95):
+                     optimiser="local", smooth_below=0.5, curved_sections=True, light_pass_below=0.95, light_pass_sweeps=8):
     """Edge nodes are projected onto the wall and re-spaced by arc length; Coons patches fill
     block faces (wall faces projected again) and transfinite interpolation fills the blocks.
     The boundary layer is resolved by grading, never by extra element layers: the element
@@ -83,7 +84,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
     if untangle:
         _untangle(ctx, sm, projector, sdf, untangle_below, untangle_restart_below, optimiser, smooth_below, node_distribution)
         if optimiser == "local" and light_pass_below > 0:
-            _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution)
+            _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps)
     b = sm.cell_block
     mesh = HexMesh(
         points=sm.points,
@@ -173,7 +174,7 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", 
     _keep_untangled(ctx, sm, X, info, info["rounds"], untangled_nodes=info["moved"])
 
 
-def _light_pass(ctx, sm, projector, sdf, below, node_distribution):
+def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8):
     """The default light pass of :mod:`vmesh.geometry.optimize` over every element below
     ``below`` (no untangling): raises the mean without lowering any element's neighbourhood
     minimum. For p > 1 the corners move and the other nodes follow, which can lower the
@@ -188,7 +189,7 @@ def _light_pass(ctx, sm, projector, sdf, below, node_distribution):
     ctx.tick(0.97, "light pass")
     X, info = optimise(
         sm.points, sm.cells, p, ref_nodes=ref_nodes, wall=wall, wall_normals=sdf.gradient, project=projector, cap_nodes=cap_nodes, cap_normals=cap_normals,
-        boundary=boundary, untangle_below=0.0, smooth_below=below,
+        boundary=boundary, untangle_below=0.0, smooth_below=below, smooth_sweeps=sweeps,
     )
     if p > 1:
         before = scaled_jacobian(sm.points, sm.cells, p, ref_nodes)
