@@ -37,7 +37,6 @@ KNOWN_LONG_FUNCTIONS = {
     # grown by the robustness/optimiser round of 2026-12-02 (split next):
     "chain.py:run": 117,
     "filters/extract_filters.py:extract_skeleton": 108,
-    "geometry/optimize/__init__.py:optimise_linear": 150,
     "preprocess.py:repair": 113,
 }
 KNOWN_LARGE_CLASSES = {
