@@ -31,8 +31,11 @@ from ..registry import Parameter, register_filter
         Parameter("project_to", "str", "fine", "Surface the wall nodes are projected onto: the fine (input) or the coarse surface.", choices=("fine", "coarse")),
         Parameter("untangle", "bool", True, "Move the nodes around elements of low scaled Jacobian (folds at junction crotches) to make them valid: wall nodes slide on the wall, cap nodes in the cap plane."),
         Parameter("untangle_below", "float", 0.3, "Elements whose scaled Jacobian is below this are optimised with their neighbourhood (p > 1: of the element corners with optimiser = local, of the sub-hexahedra with lbfgs).", min=0.0, max=0.9),
-        Parameter("untangle_restart_below", "float", 0.2, "When untangling leaves an element below this, untangle once more from its result (fresh targets) and keep the better; with optimiser = local: the L-BFGS untangler also runs when the local result's minimum is not above this; 0 = never.", min=0.0, max=0.9),
+        Parameter("untangle_restart_below", "float", 0.3, "When untangling leaves an element below this, untangle once more from its result (fresh targets) and keep the better; with optimiser = local: the L-BFGS untangler also runs when the local result's minimum is not above this; 0 = never.", min=0.0, max=0.9),
         Parameter("optimiser", "str", "local", "local: compiled per-node Newton steps around bad elements, Gauss-Seidel over a node colouring (vmesh.geometry.optimize); lbfgs: the former global L-BFGS untangler.", choices=("local", "lbfgs")),
+        Parameter("light_pass_below", "float", 0.95, "Light pass after untangling (optimiser = local; untangle = true): every node of an element below this takes monotone Newton steps (its elements' minimum and mean scaled Jacobian never drop; wall nodes slide on the wall, first boundary-layer heights kept); for p > 1 kept only when the order-p minimum does not drop and the mean rises; 0 = off (docs/optimiser.md).", min=0.0, max=1.0),
+        Parameter("light_pass_sweeps", "int", 8, "Most Gauss–Seidel sweeps of the light pass (4 gives most of its gain at half the cost).", min=1, max=100),
+        Parameter("curved_sections", "bool", True, "Curve the core/ring and ring/boundary-layer interfaces of the cross-sections so that the element angles at their corners balance (120° at core corners instead of 90°/135°/135°; docs/optimiser.md)."),
         Parameter("smooth_below", "float", 0.5, "Light pass after untangling (optimiser = local): nodes of elements below this move only where their elements' minimum and mean scaled Jacobian do not drop; 0 = off.", min=0.0, max=0.95),
     ],
     reads=("blocks", "surface"),
@@ -43,7 +46,7 @@ from ..registry import Parameter, register_filter
 def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_layer, element_length, grading, first_layer, growth,
                      first_layer_height, boundary_layer_thickness, y_plus, flow_velocity, flow_density, flow_viscosity, reference_length,
                      order, node_distribution, project_to, untangle, untangle_below, untangle_restart_below,
-                     optimiser="local", smooth_below=0.5):
+                     optimiser="local", smooth_below=0.5, curved_sections=True, light_pass_below=0.95, light_pass_sweeps=8):
     """Edge nodes are projected onto the wall and re-spaced by arc length; Coons patches fill
     block faces (wall faces projected again) and transfinite interpolation fills the blocks.
     The boundary layer is resolved by grading, never by extra element layers: the element
@@ -65,6 +68,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         element_length=element_length / refinement,
         order=order,
         nodes=node_distribution,
+        curved_sections=curved_sections,
         **layer,
     )
     blocks = ctx.blocks
@@ -79,6 +83,8 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
     sm = mesh_blocks(blocks, projector, ref, progress=ctx.tick, signed_distance=exact.distance, intersect_lines=exact.intersect_lines)
     if untangle:
         _untangle(ctx, sm, projector, sdf, untangle_below, untangle_restart_below, optimiser, smooth_below, node_distribution)
+        if optimiser == "local" and light_pass_below > 0:
+            _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps)
     b = sm.cell_block
     mesh = HexMesh(
         points=sm.points,
@@ -105,10 +111,8 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
     ctx.report.sections["order"] = order
 
 
-def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", smooth_below=0.5, node_distribution="gauss_lobatto"):
-    """Optimise the nodes around low-quality elements in place (see :mod:`vmesh.geometry.optimize`
-    and, for ``optimiser = lbfgs``, :mod:`vmesh.geometry.untangle`)."""
-
+def _constraints(sm):
+    """Cap nodes with their cap normals, wall nodes and boundary nodes of a structured mesh."""
     n = len(sm.points)
     cap_nodes = np.zeros(n, bool)
     cap_normals = np.zeros((n, 3))
@@ -121,9 +125,17 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", 
         ids = np.unique(sm.boundary_faces[sel])
         cap_nodes[ids] = True
         cap_normals[ids] = normal / max(np.linalg.norm(normal), 1e-300)
-    wall = sm.on_wall.copy()
     boundary = np.zeros(n, bool)
     boundary[sm.boundary_faces.ravel()] = True
+    return cap_nodes, cap_normals, sm.on_wall.copy(), boundary
+
+
+def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", smooth_below=0.5, node_distribution="gauss_lobatto"):
+    """Optimise the nodes around low-quality elements in place (see :mod:`vmesh.geometry.optimize`
+    and, for ``optimiser = lbfgs``, :mod:`vmesh.geometry.untangle`)."""
+
+    p = sm.order
+    cap_nodes, cap_normals, wall, boundary = _constraints(sm)
     ctx.tick(0.95, "untangling")
     from ..geometry.quality import scaled_jacobian
     from ..geometry.transfinite import reference_points
@@ -160,6 +172,37 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", 
     if local is not None:
         info["after_local_min"] = local[2]
     _keep_untangled(ctx, sm, X, info, info["rounds"], untangled_nodes=info["moved"])
+
+
+def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8):
+    """The default light pass of :mod:`vmesh.geometry.optimize` over every element below
+    ``below`` (no untangling): raises the mean without lowering any element's neighbourhood
+    minimum. For p > 1 the corners move and the other nodes follow, which can lower the
+    order-p quality: the result is kept only when it does not."""
+    from ..geometry.optimize import optimise
+    from ..geometry.quality import scaled_jacobian
+    from ..geometry.transfinite import reference_points
+
+    p = sm.order
+    cap_nodes, cap_normals, wall, boundary = _constraints(sm)
+    ref_nodes = reference_points(p, node_distribution)
+    ctx.tick(0.97, "light pass")
+    X, info = optimise(
+        sm.points, sm.cells, p, ref_nodes=ref_nodes, wall=wall, wall_normals=sdf.gradient, project=projector, cap_nodes=cap_nodes, cap_normals=cap_normals,
+        boundary=boundary, untangle_below=0.0, smooth_below=below, smooth_sweeps=sweeps,
+    )
+    if p > 1:
+        before = scaled_jacobian(sm.points, sm.cells, p, ref_nodes)
+        after = scaled_jacobian(X, sm.cells, p, ref_nodes)
+        info["order_p"] = {"before": {"min": float(before.min()), "mean": float(before.mean())}, "after": {"min": float(after.min()), "mean": float(after.mean())}}
+        if after.min() < before.min() or after.mean() <= before.mean():
+            info["kept"] = False
+            ctx.report.sections["light_pass"] = info
+            return
+    sm.points[:] = X
+    info["kept"] = True
+    ctx.report.sections["light_pass"] = info
+    ctx.count(light_pass_nodes=info["smoothed_nodes"])
 
 
 def _keep_untangled(ctx, sm, X, info, changed, **counts):

@@ -314,6 +314,27 @@ def optimise_linear(
     if not len(q) or q.min() >= max(untangle_below, smooth_below):
         info.update(after=info["before"], seconds=time.perf_counter() - t0)
         return X, info
+    kind, normal, height = _node_kinds(sub, n, wall, project, wall_normals, cap_nodes, cap_normals, boundary, keep_first_layer)
+    fixed = kind == K.FIXED
+    stats = {"updates": 0}
+    untangled, smoothed = np.zeros(n, bool), np.zeros(n, bool)
+    run = dict(kind=kind, normal=normal, project=project, wall_normals=wall_normals, stats=stats, height=height, X0=X.copy())
+    bad = q < untangle_below
+    if bad.any():
+        info["rings"] = _untangle_regions(X, sub, n, fixed, bad, run, untangle_below, max_fraction, sweeps, untangle_mode, grow_below_threshold, untangled)
+        q = hex8_scaled_jacobian(X, sub)
+    low = q < smooth_below
+    if smooth_below > 0 and low.any():
+        _smooth_region(X, sub, n, fixed, low, run, smooth_below, smooth_sweeps, smooth_rings, smoothed)
+        q = hex8_scaled_jacobian(X, sub)
+    info.update(after={"min": float(q.min()), "mean": float(q.mean())}, untangled_nodes=int(untangled.sum()), smoothed_nodes=int((smoothed & ~untangled).sum()),
+                moved=int((untangled | smoothed).sum()), updates=stats["updates"], seconds=time.perf_counter() - t0)
+    return X, info
+
+
+def _node_kinds(sub, n, wall, project, wall_normals, cap_nodes, cap_normals, boundary, keep_first_layer):
+    """How each node may move (``kernels`` FREE, WALL, PLANE, FIXED, OFFSET), the plane normals
+    of cap nodes, and the wall heights of first-layer nodes (NaN: measured when first reached)."""
     wall = np.zeros(n, bool) if wall is None else np.asarray(wall, bool)
     caps = np.zeros(n, bool) if cap_nodes is None else np.asarray(cap_nodes, bool)
     if boundary is None:
@@ -321,10 +342,7 @@ def optimise_linear(
     kind = np.full(n, K.FREE, np.int64)
     kind[np.asarray(boundary, bool)] = K.FIXED
     normal = np.zeros((n, 3))
-    if project is not None and wall_normals is not None:
-        kind[wall] = K.WALL
-    else:
-        kind[wall] = K.FIXED
+    kind[wall] = K.WALL if project is not None and wall_normals is not None else K.FIXED
     plane = caps & ~wall
     if cap_normals is not None:
         kind[plane] = K.PLANE
@@ -337,48 +355,40 @@ def optimise_linear(
         top = _first_layer(sub, wall) & (kind == K.FREE)
         kind[top] = K.OFFSET
         height[top] = np.nan  # measured on the initial mesh when a stage first reaches them
-    fixed = kind == K.FIXED
-    X0 = X.copy()
-    stats = {"updates": 0}
-    untangled = np.zeros(n, bool)
-    smoothed = np.zeros(n, bool)
+    return kind, normal, height
 
-    # untangling: the nodes of bad elements, growing by one ring while inverted elements remain
-    bad = q < untangle_below
-    if bad.any():
-        active = np.zeros(n, bool)
-        active[sub[bad].ravel()] = True
-        # small meshes: at least twice the first region (1 % of a few thousand nodes is less than one fold's neighbourhood)
-        budget = max(int(max_fraction * n), 2 * int((active & ~fixed).sum()))
-        for ring in range(64):
-            st = _Stage(X0, sub, active, n, fixed)
-            qs = _run_stage(X, st, kind, normal, _delta, untangle_mode, project, wall_normals, stats, sweeps, untangle_below, untangled, height, X0)
-            info["rings"] = ring
-            if qs.min() > 0 and not grow_below_threshold or qs.min() >= untangle_below:
-                break
-            grown = K.grow_nodes(st.hexes, st.ptr, st.inc, active)
-            if int((grown & ~fixed).sum()) > budget or (grown == active).all():
-                break
-            active = grown
-        q = hex8_scaled_jacobian(X, sub)
 
-    # light smoothing: the nodes of the elements still below smooth_below
-    low = q < smooth_below
-    if smooth_below > 0 and low.any():
-        active = np.zeros(n, bool)
-        active[sub[low].ravel()] = True
-        if smooth_rings:
-            ptr, inc = K.incidence(sub, n)
-            for _ in range(smooth_rings):
-                active = K.grow_nodes(sub, ptr, inc, active)
-        st = _Stage(X0, sub, active, n, fixed)
-        _run_stage(X, st, kind, normal, lambda qmin: 1e-3 if qmin > 0 else _delta(qmin), K.SMOOTH, project, wall_normals, stats, smooth_sweeps, 1.0, smoothed, height, X0, climb_below=smooth_below)
-        q = hex8_scaled_jacobian(X, sub)
+def _untangle_regions(X, sub, n, fixed, bad, run, below, max_fraction, sweeps, mode, grow_below_threshold, untangled):
+    """Untangle the nodes of the ``bad`` elements, growing the region by one ring while
+    inverted elements (or, with ``grow_below_threshold``, elements below ``below``) remain,
+    up to ``max_fraction`` of the nodes; returns the rings grown."""
+    active = np.zeros(n, bool)
+    active[sub[bad].ravel()] = True
+    # small meshes: at least twice the first region (1 % of a few thousand nodes is less than one fold's neighbourhood)
+    budget = max(int(max_fraction * n), 2 * int((active & ~fixed).sum()))
+    rings = 0
+    for ring in range(64):
+        st = _Stage(run["X0"], sub, active, n, fixed)
+        qs = _run_stage(X, st, run["kind"], run["normal"], _delta, mode, run["project"], run["wall_normals"], run["stats"], sweeps, below, untangled, run["height"], run["X0"])
+        rings = ring
+        if qs.min() > 0 and not grow_below_threshold or qs.min() >= below:
+            break
+        grown = K.grow_nodes(st.hexes, st.ptr, st.inc, active)
+        if int((grown & ~fixed).sum()) > budget or (grown == active).all():
+            break
+        active = grown
+    return rings
 
-    info["after"] = {"min": float(q.min()), "mean": float(q.mean())}
-    info["untangled_nodes"] = int(untangled.sum())
-    info["smoothed_nodes"] = int((smoothed & ~untangled).sum())
-    info["moved"] = int((untangled | smoothed).sum())
-    info["updates"] = stats["updates"]
-    info["seconds"] = time.perf_counter() - t0
-    return X, info
+
+def _smooth_region(X, sub, n, fixed, low, run, below, sweeps, rings, smoothed):
+    """The light pass: monotone steps for the nodes of the ``low`` elements (and ``rings``
+    rings of elements around them); the nodes' neighbourhood minimum and sum of scaled
+    Jacobians never drop, and nodes whose worst element is below ``below`` climb it."""
+    active = np.zeros(n, bool)
+    active[sub[low].ravel()] = True
+    if rings:
+        ptr, inc = K.incidence(sub, n)
+        for _ in range(rings):
+            active = K.grow_nodes(sub, ptr, inc, active)
+    st = _Stage(run["X0"], sub, active, n, fixed)
+    _run_stage(X, st, run["kind"], run["normal"], lambda qmin: 1e-3 if qmin > 0 else _delta(qmin), K.SMOOTH, run["project"], run["wall_normals"], run["stats"], sweeps, 1.0, smoothed, run["height"], run["X0"], climb_below=below)

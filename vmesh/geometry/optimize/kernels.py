@@ -302,12 +302,13 @@ def _sweep_colour(X, hexes, scale, ptr, inc, nodes, kind, normal, step_cap, delt
         state[j, 0], state[j, 1], state[j, 2] = f0, qmin0, qsum0
         d0, d1, d2 = _newton_direction(g0, g1, g2, h00, h01, h02, h11, h12, h22, kind[v], normal[v, 0], normal[v, 1], normal[v, 2])
         length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        if length == 0.0 or not np.isfinite(length):
-            continue
-        if length > step_cap[v]:
+        # a stationary point of the functional (a symmetric mesh) takes no Newton step but
+        # may still climb below
+        newton = length > 0.0 and np.isfinite(length)
+        if newton and length > step_cap[v]:
             d0, d1, d2 = d0 * step_cap[v] / length, d1 * step_cap[v] / length, d2 * step_cap[v] / length
         t = 1.0
-        for _ in range(8):
+        for _ in range(8 if newton else 0):
             y0, y1, y2 = x0 + t * d0, x1 + t * d1, x2 + t * d2
             f = local_functional(X, hexes, scale, ptr, inc, v, y0, y1, y2, delta, False)[0]
             if f < f0:
