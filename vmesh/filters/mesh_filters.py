@@ -34,6 +34,7 @@ from ..registry import Parameter, register_filter
         Parameter("untangle_restart_below", "float", 0.2, "When untangling leaves an element below this, untangle once more from its result (fresh targets) and keep the better; with optimiser = local: the L-BFGS untangler also runs when the local result's minimum is not above this; 0 = never.", min=0.0, max=0.9),
         Parameter("optimiser", "str", "local", "local: compiled per-node Newton steps around bad elements, Gauss-Seidel over a node colouring (vmesh.geometry.optimize); lbfgs: the former global L-BFGS untangler.", choices=("local", "lbfgs")),
         Parameter("smooth_below", "float", 0.5, "Light pass after untangling (optimiser = local): nodes of elements below this move only where their elements' minimum and mean scaled Jacobian do not drop; 0 = off.", min=0.0, max=0.95),
+        Parameter("exact_first_layer", "bool", True, "With first_layer_height (or y_plus): after untangling, re-place the nodes of every boundary-layer line so that the first element is that height along the wall normal (docs/cfd.md)."),
     ],
     reads=("blocks", "surface"),
     optional_reads=("coarse_surface", "caps", "skeleton", "sdf"),
@@ -43,7 +44,7 @@ from ..registry import Parameter, register_filter
 def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_layer, element_length, grading, first_layer, growth,
                      first_layer_height, boundary_layer_thickness, y_plus, flow_velocity, flow_density, flow_viscosity, reference_length,
                      order, node_distribution, project_to, untangle, untangle_below, untangle_restart_below,
-                     optimiser="local", smooth_below=0.5):
+                     optimiser="local", smooth_below=0.5, exact_first_layer=True):
     """Edge nodes are projected onto the wall and re-spaced by arc length; Coons patches fill
     block faces (wall faces projected again) and transfinite interpolation fills the blocks.
     The boundary layer is resolved by grading, never by extra element layers: the element
@@ -79,6 +80,10 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
     sm = mesh_blocks(blocks, projector, ref, progress=ctx.tick, signed_distance=exact.distance, intersect_lines=getattr(exact, "intersect_lines", None))
     if untangle:
         _untangle(ctx, sm, projector, sdf, untangle_below, untangle_restart_below, optimiser, smooth_below, node_distribution)
+    if exact_first_layer and layer["first_layer_absolute"]:  # after the optimiser, which moves layer nodes
+        from ..geometry.boundary_layer import exact_first_layer as place_first_layer
+
+        place_first_layer(ctx, sm, blocks, layer["first_layer"], node_distribution)
     b = sm.cell_block
     mesh = HexMesh(
         points=sm.points,

@@ -370,12 +370,318 @@ def _stats(values: np.ndarray, target: float | None) -> dict:
 
 def record_first_layer(ctx, mesh, target: float | None = None) -> None:
     """Measure the first-layer heights at the wall into the report's ``boundary_layer``:
-    wall-normal per wall face (:func:`first_cell_heights`) and along the layer lines per
-    wall-face corner (:func:`first_edge_lengths`), with the fraction within 5 % of ``target``."""
+    wall-normal per wall node (:func:`first_node_heights`), wall-normal per wall face
+    (:func:`first_cell_heights`) and along the layer lines per wall-face corner
+    (:func:`first_edge_lengths`), with the fraction within 5 % of ``target``."""
     h = first_cell_heights(mesh)
     if len(h) == 0:
         return
     section = ctx.report.sections.setdefault("boundary_layer", {})
     section["measured_first_height"] = _stats(h, target)
     section["measured_first_edge"] = _stats(first_edge_lengths(mesh), target)
+    nodes, _ = first_node_heights(mesh)
+    if len(nodes):
+        section["measured_first_node_height"] = _stats(nodes, target)
     ctx.count(first_height=float(np.median(h)))
+
+
+# ---------------------------------------------------------------------------
+# boundary-layer node lines: the exact first-layer height
+# ---------------------------------------------------------------------------
+
+
+def _local_faces(cells: np.ndarray, p: int, faces: np.ndarray, owners: np.ndarray) -> np.ndarray:
+    """Local face index (0..5, as :func:`~vmesh.io.export.tensor_faces`) of each boundary
+    face (``(k, (p+1)^2)`` node ids) in its owning element, -1 where it is none of them."""
+    from ..io.export import face_corner_ids, tensor_faces
+
+    corners = tensor_faces(p)[:, face_corner_ids(p)]  # (6, 4)
+    own = np.sort(cells[owners][:, corners], axis=2)  # (k, 6, 4)
+    hit = (own == np.sort(faces[:, face_corner_ids(p)], axis=1)[:, None, :]).all(axis=2)
+    return np.where(hit.any(axis=1), hit.argmax(axis=1), -1)
+
+
+def _face_partners(cells: np.ndarray, p: int, members: np.ndarray) -> np.ndarray:
+    """For each (member element, local face) pair, flattened as ``6 i + f``, the entry of the
+    member that shares the face (-1: none among ``members``)."""
+    from ..io.export import face_corner_ids, tensor_faces
+
+    corners = tensor_faces(p)[:, face_corner_ids(p)]
+    keys = np.sort(cells[members][:, corners], axis=2).reshape(-1, 4)
+    partner = np.full(len(keys), -1, np.int64)
+    if len(keys) == 0:
+        return partner
+    _, inv = np.unique(keys, axis=0, return_inverse=True)
+    order = np.argsort(inv.ravel(), kind="stable")
+    same = inv.ravel()[order[1:]] == inv.ravel()[order[:-1]]
+    a, b = order[:-1][same], order[1:][same]
+    partner[a], partner[b] = b, a
+    return partner
+
+
+def layer_lines(cells, p, boundary_faces, boundary_ids, boundary_cells, in_layer, max_elements=256):
+    """The boundary-layer node lines: from every wall node, the nodes of the lattice line
+    that leaves the wall across the boundary-layer elements up to the layer's inner face.
+
+    Parameters
+    ----------
+    cells : (m, (p+1)^3) node ids in tensor order
+    p : int
+        Element order.
+    boundary_faces, boundary_ids, boundary_cells
+        As :class:`~vmesh.mesh.HexMesh` (wall: id 0).
+    in_layer : (m,) bool
+        Elements of the boundary-layer blocks.
+
+    Returns
+    -------
+    lines : (L, N + 1) int64
+        Node ids from the wall node (column 0) inwards, padded with -1 (unique rows).
+    elements : (L,) int64
+        Elements along each line (its length is ``elements * p + 1``).
+    """
+    from ..io.export import tensor_faces
+
+    cells = np.asarray(cells)
+    wall = np.flatnonzero(np.asarray(boundary_ids) == 0)
+    owners = np.asarray(boundary_cells)[wall]
+    local = _local_faces(cells, p, np.asarray(boundary_faces)[wall], owners)
+    keep = (local >= 0) & in_layer[owners]
+    owners, local = owners[keep], local[keep]
+    members = np.flatnonzero(in_layer)
+    position = np.full(len(cells), -1, np.int64)
+    position[members] = np.arange(len(members))
+    partner = _face_partners(cells, p, members)
+    tf = tensor_faces(p)
+    nf = tf.shape[1]
+    cell = np.repeat(owners, nf)
+    face = np.repeat(local, nf)
+    at = np.tile(np.arange(nf), len(owners))
+    columns = [cells[cell, tf[face, at]]]
+    active = np.ones(len(cell), bool)
+    elements = np.zeros(len(cell), np.int64)
+    for _ in range(max_elements):
+        stride = (p + 1) ** (face // 2) * np.where(face % 2 == 0, 1, -1)
+        base = tf[face, at]
+        for j in range(1, p + 1):
+            columns.append(np.where(active, cells[cell, base + j * stride], -1))
+        elements += active
+        nxt = partner[6 * np.maximum(position[cell], 0) + (face ^ 1)]
+        active &= nxt >= 0
+        if not active.any():
+            break
+        last = columns[-1]
+        cell = np.where(active, members[np.maximum(nxt, 0) // 6], cell)
+        face = np.where(active, np.maximum(nxt, 0) % 6, face)
+        hit = cells[cell[:, None], tf[face]] == last[:, None]
+        at = np.where(active, hit.argmax(axis=1), at)
+    lines = np.stack(columns, axis=1)
+    lines, first = np.unique(lines, axis=0, return_index=True)
+    return lines, elements[first]
+
+
+def wall_normals(points, boundary_faces, boundary_ids, p) -> np.ndarray:
+    """(n, 3) unit normals into the vessel at the wall nodes (zero elsewhere): the sum of the
+    vector areas of the wall's sub-quadrilaterals (the quads of each face's node lattice)
+    around each node, i.e. the area-weighted normal of the wall quads."""
+    faces = np.asarray(boundary_faces)[np.asarray(boundary_ids) == 0]
+    n = p + 1
+    a, b = np.meshgrid(np.arange(p), np.arange(p), indexing="xy")
+    q00 = (a + n * b).ravel()
+    loop = np.stack([q00, q00 + 1, q00 + 1 + n, q00 + n], axis=1)  # (p^2, 4), outward like the face
+    quads = faces[:, loop].reshape(-1, 4)
+    x = points[quads]
+    area = 0.5 * np.cross(x[:, 2] - x[:, 0], x[:, 3] - x[:, 1])
+    out = np.zeros((len(points), 3))
+    for c in range(4):
+        np.add.at(out, quads[:, c], -area)  # outward face normals: into the vessel is minus
+    norm = np.linalg.norm(out, axis=1)
+    return np.divide(out, norm[:, None], out=np.zeros_like(out), where=norm[:, None] > 0)
+
+
+def cap_normals(points, boundary_faces, boundary_ids, p) -> np.ndarray:
+    """(n, 3) unit normal of the cap plane (inlet or outlet face set) at each of its nodes,
+    zero elsewhere."""
+    out = np.zeros((len(points), 3))
+    faces, ids = np.asarray(boundary_faces), np.asarray(boundary_ids)
+    corners = faces[:, [0, p, (p + 1) ** 2 - 1, p * (p + 1)]]
+    for bid in np.unique(ids[ids > 0]):  # a few open ends
+        sel = ids == bid
+        q = points[corners[sel]]
+        normal = np.cross(q[:, 2] - q[:, 0], q[:, 3] - q[:, 1]).sum(axis=0)
+        out[np.unique(faces[sel])] = normal / max(np.linalg.norm(normal), 1e-300)
+    return out
+
+
+def _ratios(r: np.ndarray, n: int) -> np.ndarray:
+    """Growth ratios q with ``1 + q + ... + q**(n-1) = r`` (vectorised bisection on log q)."""
+    lo = np.full(len(r), -20.0 / max(n, 1))
+    hi = np.full(len(r), 20.0 / max(n - 1, 1))
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        small = np.abs(mid) < 1e-12
+        s = np.where(small, float(n), np.expm1(n * mid) / np.where(small, 1.0, np.expm1(mid)))
+        below = s < r
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    return np.exp(0.5 * (lo + hi))
+
+
+def _graded_curve(x0, d, xn, first, n, p, kind, samples=48):
+    """Nodes of lines from ``x0`` to ``xn`` leaving ``x0`` along ``d`` (a quadratic Bézier
+    curve tangent to ``d``), spaced by arc length as ``n`` elements of order ``p`` whose
+    first is ``first`` long (then straight along ``d``, so its far node is exactly at
+    ``x0 + first d``) and the rest grow geometrically to the end."""
+    from .transfinite import element_boundaries, with_order
+
+    ctrl = x0 + 0.5 * np.einsum("ij,ij->i", xn - x0, d)[:, None] * d
+    s = np.linspace(0.0, 1.0, samples)[None, :, None]
+    curve = (1 - s) ** 2 * x0[:, None] + 2 * s * (1 - s) * ctrl[:, None] + s**2 * xn[:, None]
+    arc = np.concatenate([np.zeros((len(x0), 1)), np.cumsum(np.linalg.norm(np.diff(curve, axis=1), axis=2), axis=1)], axis=1)
+    total = arc[:, -1]
+    q = _ratios(total / first, n)
+    u = with_order(element_boundaries(n, q), p, kind) * total[:, None]  # (L, n p + 1)
+    # the arc-length targets on the sampled polyline, row by row
+    k = np.clip((arc[:, None, :] <= u[:, :, None]).sum(axis=2) - 1, 0, samples - 2)
+    a0, a1 = np.take_along_axis(arc, k, 1), np.take_along_axis(arc, k + 1, 1)
+    w = np.clip((u - a0) / np.maximum(a1 - a0, 1e-300), 0.0, 1.0)[..., None]
+    c0 = np.take_along_axis(curve, k[..., None], 1)
+    c1 = np.take_along_axis(curve, k[..., None] + 1, 1)
+    out = c0 + w * (c1 - c0)
+    out[:, : p + 1] = x0[:, None] + u[:, : p + 1, None] * d[:, None]
+    out[:, -1] = xn
+    return out
+
+
+def _line_directions(X, lines, normals, caps, p):
+    """Direction of the first element of each line and why a line is left as it is.
+
+    The wall normal, except: on a cap (inlet/outlet rim) its component in the cap plane, so
+    that the cap stays plane; at a wall node with several lines (where layer blocks of
+    different orientation meet) the line's own first edge, so that the lines stay apart."""
+    x0 = X[lines[:, 0]]
+    n0 = normals[lines[:, 0]]
+    wall_node, count = np.unique(lines[:, 0], return_counts=True)
+    several = np.isin(lines[:, 0], wall_node[count > 1])
+    own = X[lines[:, p]] - x0
+    own /= np.maximum(np.linalg.norm(own, axis=1), 1e-300)[:, None]
+    d = np.where(several[:, None], own, n0)
+    c = caps[lines[:, 1]]
+    d = d - np.einsum("ij,ij->i", d, c)[:, None] * c
+    d /= np.maximum(np.linalg.norm(d, axis=1), 1e-300)[:, None]
+    # nodes that two lines share (besides their inner end) cannot follow both: keep those lines
+    inner = lines[:, 1:-1]
+    ids, counts = np.unique(inner[inner >= 0], return_counts=True)
+    shared = np.isin(lines[:, 1:], ids[counts > 1]).any(axis=1)
+    return d, n0, several, shared
+
+
+def place_first_layer(points, cells, p, boundary_faces, boundary_ids, boundary_cells, in_layer, height, kind="gauss_lobatto", floor=0.3):
+    """Re-place the nodes of every boundary-layer node line so that its first element is
+    ``height`` thick along the wall normal and the others grow geometrically to the layer's
+    inner node (which, like the wall node, stays).
+
+    The first node off the wall goes to ``x0 + height d / (d . n)`` (``n`` the area-weighted
+    wall normal, ``d`` the line's first direction, see :func:`_line_directions`): its
+    wall-normal distance is exactly ``height``. Elements whose scaled Jacobian falls below
+    ``min(before, floor)`` get their lines back (repeated until none does).
+
+    Returns
+    -------
+    X : (n, 3) ndarray
+        The new node positions.
+    info : dict
+        Counts: ``lines``, ``placed``, ``reverted``, ``several`` (wall nodes with several
+        lines), ``shared`` and ``oblique`` (lines left as they were), and the minimum scaled
+        Jacobian of the touched elements before and after.
+    """
+    from .quality import scaled_jacobian
+    from .transfinite import reference_points
+
+    X0 = np.asarray(points, float)
+    cells = np.asarray(cells)
+    lines, elements = layer_lines(cells, p, boundary_faces, boundary_ids, boundary_cells, np.asarray(in_layer, bool))
+    info = {"lines": len(lines), "placed": 0, "reverted": 0, "several": 0, "shared": 0, "oblique": 0}
+    if len(lines) == 0:
+        return X0.copy(), info
+    normals = wall_normals(X0, boundary_faces, boundary_ids, p)
+    d, n0, several, shared = _line_directions(X0, lines, normals, cap_normals(X0, boundary_faces, boundary_ids, p), p)
+    cos = np.einsum("ij,ij->i", d, n0)
+    first = height / np.maximum(cos, 1e-3)
+    inner = X0[lines[np.arange(len(lines)), elements * p]]
+    reach = np.einsum("ij,ij->i", inner - X0[lines[:, 0]], d)
+    ok = (cos > 0.5) & ~shared & (elements >= 1) & (reach > first * 1.01)
+    info.update(several=int(several.sum()), shared=int(shared.sum()), oblique=int(((cos <= 0.5) | (reach <= first * 1.01)).sum()))
+    X = X0.copy()
+    for n in np.unique(elements[ok]):
+        sel = np.flatnonzero(ok & (elements == n))
+        ids = lines[sel, : n * p + 1]
+        X[ids[:, 1:-1]] = _graded_curve(X0[ids[:, 0]], d[sel], X0[ids[:, -1]], first[sel], int(n), p, kind)[:, 1:-1]
+    # which line moved each node, to give lines back around a bad element
+    line_of = np.full(len(X), -1, np.int64)
+    placed = np.flatnonzero(ok)
+    moving = lines[placed, 1:]
+    keep_ids = moving >= 0
+    line_of[moving[keep_ids]] = np.broadcast_to(placed[:, None], moving.shape)[keep_ids]
+    line_of[lines[:, 0]] = -1
+    line_of[lines[np.arange(len(lines)), elements * p]] = -1
+    touched = np.flatnonzero((line_of[cells] >= 0).any(axis=1))
+    ref = reference_points(p, kind)
+    before = scaled_jacobian(X0, cells[touched], p, ref)
+    active = ok.copy()
+    for _ in range(100):
+        after = scaled_jacobian(X, cells[touched], p, ref)
+        bad = after < np.minimum(before, floor)
+        if not bad.any():
+            break
+        back = np.unique(line_of[cells[touched[bad]]])
+        back = back[back >= 0]
+        back = back[active[back]]
+        if len(back) == 0:
+            break
+        active[back] = False
+        nodes = lines[back, 1:].ravel()
+        nodes = nodes[nodes >= 0]
+        X[nodes] = X0[nodes]
+    info.update(placed=int(active.sum()), reverted=int((ok & ~active).sum()),
+                sj_before=float(before.min()) if len(before) else None, sj_after=float(after.min()) if len(touched) else None)
+    return X, info
+
+
+def first_node_heights(mesh) -> tuple[np.ndarray, np.ndarray]:
+    """The first-layer height at each wall node: the distance, along the wall normal
+    (:func:`wall_normals`), from the wall node to the first element corner of its
+    boundary-layer node line (:func:`layer_lines`; one value per line).
+
+    Returns
+    -------
+    heights : (L,) ndarray
+    lines : (L, N + 1) ndarray
+        The lines (column 0: the wall node), to say where a height misses.
+    """
+    p = mesh.order
+    layer = mesh.cell_data.get("layer")
+    in_layer = np.asarray(layer) == LAYER_BOUNDARY if layer is not None else np.ones(mesh.n_cells, bool)
+    lines, _ = layer_lines(mesh.cells, p, mesh.boundary_faces, mesh.boundary_ids, mesh.boundary_cells, in_layer)
+    if len(lines) == 0:
+        return np.zeros(0), lines
+    normals = wall_normals(mesh.points, mesh.boundary_faces, mesh.boundary_ids, p)
+    step = mesh.points[lines[:, p]] - mesh.points[lines[:, 0]]
+    return np.einsum("ij,ij->i", step, normals[lines[:, 0]]), lines
+
+
+def exact_first_layer(ctx, sm, blocks, height: float, kind: str = "gauss_lobatto") -> None:
+    """:func:`place_first_layer` on the transfinite mesh ``sm`` (in place), after the
+    optimiser: every boundary-layer line gets its first element ``height`` thick along the
+    wall normal. Recorded in the report's ``boundary_layer.placed``; lines given back to keep
+    elements valid are named in a warning."""
+    in_layer = blocks.block_layer[sm.cell_block] == LAYER_BOUNDARY
+    X, info = place_first_layer(sm.points, sm.cells, sm.order, sm.boundary_faces, sm.boundary_ids, sm.boundary_cells, in_layer, height, kind)
+    sm.points[:] = X
+    ctx.report.sections.setdefault("boundary_layer", {})["placed"] = info
+    left = info["reverted"] + info["shared"] + info["oblique"]
+    if left:
+        ctx.warn(
+            f"first-layer height: {left} of {info['lines']} boundary-layer lines keep the transfinite spacing "
+            f"({info['reverted']} where placing it would lower an element's scaled Jacobian below min(before, 0.3), "
+            f"{info['shared']} sharing nodes, {info['oblique']} too oblique or too short)"
+        )
