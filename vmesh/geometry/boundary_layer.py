@@ -553,26 +553,52 @@ def _graded_curve(x0, d, xn, first, n, p, kind, samples=48):
 
 
 def _line_directions(X, lines, normals, caps, p):
-    """Direction of the first element of each line and why a line is left as it is.
+    """Two directions for the first element of each line, and the lines left as they are.
 
-    The wall normal, except: on a cap (inlet/outlet rim) its component in the cap plane, so
-    that the cap stays plane; at a wall node with several lines (where layer blocks of
-    different orientation meet) the line's own first edge, so that the lines stay apart."""
+    ``d``: the wall normal, except at a wall node with several lines (where layer blocks of
+    different orientation meet): the line's own first edge, so that the lines stay apart.
+    ``own``: the line's own first edge (the fallback where ``d`` would spoil an element). On
+    a cap (inlet/outlet rim) both keep only their component in the cap plane, so that the
+    cap stays plane. ``shared``: lines with a node (besides their inner end) on another line."""
     x0 = X[lines[:, 0]]
-    n0 = normals[lines[:, 0]]
     wall_node, count = np.unique(lines[:, 0], return_counts=True)
     several = np.isin(lines[:, 0], wall_node[count > 1])
     own = X[lines[:, p]] - x0
-    own /= np.maximum(np.linalg.norm(own, axis=1), 1e-300)[:, None]
-    d = np.where(several[:, None], own, n0)
     c = caps[lines[:, 1]]
-    d = d - np.einsum("ij,ij->i", d, c)[:, None] * c
-    d /= np.maximum(np.linalg.norm(d, axis=1), 1e-300)[:, None]
-    # nodes that two lines share (besides their inner end) cannot follow both: keep those lines
+    out = []
+    for d in (np.where(several[:, None], own, normals[lines[:, 0]]), own):
+        d = d - np.einsum("ij,ij->i", d, c)[:, None] * c
+        out.append(d / np.maximum(np.linalg.norm(d, axis=1), 1e-300)[:, None])
     inner = lines[:, 1:-1]
     ids, counts = np.unique(inner[inner >= 0], return_counts=True)
     shared = np.isin(lines[:, 1:], ids[counts > 1]).any(axis=1)
-    return d, n0, several, shared
+    return out[0], out[1], several, shared
+
+
+def _placed(X0, lines, elements, d, n0, height, p, kind, first_only=False):
+    """Node positions with every line whose first element can be ``height`` thick along the
+    wall normal ``n0`` when it leaves the wall along ``d`` re-placed, and which lines those
+    are: the whole line (:func:`_graded_curve`), or with ``first_only`` the first element
+    alone (its far node moves along ``d``; the rest of the line stays)."""
+    cos = np.einsum("ij,ij->i", d, n0)
+    first = height / np.maximum(cos, 1e-3)
+    end = np.minimum(np.where(first_only, 2, elements), elements) * p
+    x0 = X0[lines[:, 0]]
+    reach = np.einsum("ij,ij->i", X0[lines[np.arange(len(lines)), end]] - x0, d)
+    ok = (cos > 0.5) & (elements >= (2 if first_only else 1)) & (reach > first * 1.01)
+    X = X0.copy()
+    if first_only:
+        from .transfinite import reference_points
+
+        t = reference_points(p, kind)[1:]  # the first element's nodes off the wall, along d
+        sel = np.flatnonzero(ok)
+        X[lines[sel, 1 : p + 1]] = x0[sel, None] + (first[sel, None] * t[None, :])[..., None] * d[sel, None]
+        return X, ok
+    for n in np.unique(elements[ok]):
+        sel = np.flatnonzero(ok & (elements == n))
+        ids = lines[sel, : n * p + 1]
+        X[ids[:, 1:-1]] = _graded_curve(X0[ids[:, 0]], d[sel], X0[ids[:, -1]], first[sel], int(n), p, kind)[:, 1:-1]
+    return X, ok
 
 
 def place_first_layer(points, cells, p, boundary_faces, boundary_ids, boundary_cells, in_layer, height, kind="gauss_lobatto", floor=0.3):
@@ -582,17 +608,21 @@ def place_first_layer(points, cells, p, boundary_faces, boundary_ids, boundary_c
 
     The first node off the wall goes to ``x0 + height d / (d . n)`` (``n`` the area-weighted
     wall normal, ``d`` the line's first direction, see :func:`_line_directions`): its
-    wall-normal distance is exactly ``height``. Elements whose scaled Jacobian falls below
-    ``min(before, floor)`` get their lines back (repeated until none does).
+    wall-normal distance is exactly ``height``. Where that would lower an element's scaled
+    Jacobian below ``min(before, floor)``, the line of that element whose first node moved
+    farthest steps back: to its first element alone re-placed (the rest of the line as the
+    optimiser left it), then along its own first direction (the same wall-normal height, a
+    longer first edge), then to its spacing as it was; repeated until no element does.
 
     Returns
     -------
     X : (n, 3) ndarray
         The new node positions.
     info : dict
-        Counts: ``lines``, ``placed``, ``reverted``, ``several`` (wall nodes with several
-        lines), ``shared`` and ``oblique`` (lines left as they were), and the minimum scaled
-        Jacobian of the touched elements before and after.
+        Line counts: ``lines``, ``placed`` (along the normal), ``first_element_only`` and
+        ``own_direction`` (the fallbacks), ``reverted`` (unchanged to keep elements valid), ``unplaced`` (unchanged:
+        shared nodes, no room or too oblique), ``several`` (at wall nodes with several lines);
+        the minimum scaled Jacobian of the touched elements before and after.
     """
     from .quality import scaled_jacobian
     from .transfinite import reference_points
@@ -600,50 +630,60 @@ def place_first_layer(points, cells, p, boundary_faces, boundary_ids, boundary_c
     X0 = np.asarray(points, float)
     cells = np.asarray(cells)
     lines, elements = layer_lines(cells, p, boundary_faces, boundary_ids, boundary_cells, np.asarray(in_layer, bool))
-    info = {"lines": len(lines), "placed": 0, "reverted": 0, "several": 0, "shared": 0, "oblique": 0}
     if len(lines) == 0:
-        return X0.copy(), info
+        return X0.copy(), {"lines": 0}
     normals = wall_normals(X0, boundary_faces, boundary_ids, p)
-    d, n0, several, shared = _line_directions(X0, lines, normals, cap_normals(X0, boundary_faces, boundary_ids, p), p)
-    cos = np.einsum("ij,ij->i", d, n0)
-    first = height / np.maximum(cos, 1e-3)
-    inner = X0[lines[np.arange(len(lines)), elements * p]]
-    reach = np.einsum("ij,ij->i", inner - X0[lines[:, 0]], d)
-    ok = (cos > 0.5) & ~shared & (elements >= 1) & (reach > first * 1.01)
-    info.update(several=int(several.sum()), shared=int(shared.sum()), oblique=int(((cos <= 0.5) | (reach <= first * 1.01)).sum()))
+    d, own, several, shared = _line_directions(X0, lines, normals, cap_normals(X0, boundary_faces, boundary_ids, p), p)
+    n0 = normals[lines[:, 0]]
+    # the tiers a line steps through: the whole line from the wall normal, its first element
+    # alone along the normal, then along its own direction, then as it was
+    tiers = [_placed(X0, lines, elements, d, n0, height, p, kind), _placed(X0, lines, elements, d, n0, height, p, kind, True),
+             _placed(X0, lines, elements, own, n0, height, p, kind, True), (X0, np.ones(len(lines), bool))]
+    last = len(tiers) - 1
+    possible = np.stack([t[1] & ~shared for t in tiers[:-1]] + [np.ones(len(lines), bool)], axis=1)
+    tier = possible.argmax(axis=1)
     X = X0.copy()
-    for n in np.unique(elements[ok]):
-        sel = np.flatnonzero(ok & (elements == n))
-        ids = lines[sel, : n * p + 1]
-        X[ids[:, 1:-1]] = _graded_curve(X0[ids[:, 0]], d[sel], X0[ids[:, -1]], first[sel], int(n), p, kind)[:, 1:-1]
-    # which line moved each node, to give lines back around a bad element
+    for k in range(last):
+        nodes = lines[tier == k, 1:]
+        X[nodes[nodes >= 0]] = tiers[k][0][nodes[nodes >= 0]]
+    # the line of each moving node (not its wall node or inner end), to step lines back
     line_of = np.full(len(X), -1, np.int64)
-    placed = np.flatnonzero(ok)
-    moving = lines[placed, 1:]
-    keep_ids = moving >= 0
-    line_of[moving[keep_ids]] = np.broadcast_to(placed[:, None], moving.shape)[keep_ids]
-    line_of[lines[:, 0]] = -1
-    line_of[lines[np.arange(len(lines)), elements * p]] = -1
+    mid = lines[:, 1:].copy()
+    mid[np.arange(len(lines)), elements * p - 1] = -1
+    has = mid >= 0
+    line_of[mid[has]] = np.broadcast_to(np.arange(len(lines))[:, None], mid.shape)[has]
     touched = np.flatnonzero((line_of[cells] >= 0).any(axis=1))
     ref = reference_points(p, kind)
     before = scaled_jacobian(X0, cells[touched], p, ref)
-    active = ok.copy()
+    # an element may drop to the worst element its lines touch (so that a line through a fold
+    # can unfold it at some cost to its neighbours), never below floor otherwise, nor fold
+    on = line_of[cells[touched]]
+    worst_of_line = np.full(len(lines), np.inf)
+    np.minimum.at(worst_of_line, on[on >= 0], np.broadcast_to(before[:, None], on.shape)[on >= 0])
+    allowed = np.where(on >= 0, worst_of_line[np.maximum(on, 0)], np.inf).min(axis=1)
+    allowed = np.minimum(np.minimum(allowed, floor), before)
+    start = tier.copy()
     for _ in range(100):
         after = scaled_jacobian(X, cells[touched], p, ref)
-        bad = after < np.minimum(before, floor)
-        if not bad.any():
-            break
-        back = np.unique(line_of[cells[touched[bad]]])
-        back = back[back >= 0]
-        back = back[active[back]]
+        bad = touched[(after < allowed) | ((after <= 0) & (after < before))]
+        # in each bad element, the line whose first node moved farthest steps back a tier
+        on = line_of[cells[bad]]
+        moved = np.where(on >= 0, np.linalg.norm(X[lines[np.maximum(on, 0), p]] - X0[lines[np.maximum(on, 0), p]], axis=-1), -1.0)
+        moved[(on >= 0) & (tier[np.maximum(on, 0)] == last)] = -1.0
+        pick = np.take_along_axis(on, moved.argmax(axis=1)[:, None], 1)[:, 0]
+        back = np.unique(pick[moved.max(axis=1) >= 0]) if len(bad) else pick
         if len(back) == 0:
             break
-        active[back] = False
-        nodes = lines[back, 1:].ravel()
-        nodes = nodes[nodes >= 0]
-        X[nodes] = X0[nodes]
-    info.update(placed=int(active.sum()), reverted=int((ok & ~active).sum()),
-                sj_before=float(before.min()) if len(before) else None, sj_after=float(after.min()) if len(touched) else None)
+        later = possible[back] & (np.arange(last + 1)[None, :] > tier[back][:, None])
+        tier[back] = later.argmax(axis=1)
+        nodes = lines[back, 1:]  # back to as it was, then to the new tier
+        X[nodes[nodes >= 0]] = X0[nodes[nodes >= 0]]
+        for k in range(1, last):
+            nodes = lines[back[tier[back] == k], 1:]
+            X[nodes[nodes >= 0]] = tiers[k][0][nodes[nodes >= 0]]
+    info = {"lines": len(lines), "placed": int((tier == 0).sum()), "first_element_only": int((tier == 1).sum()), "own_direction": int((tier == 2).sum()),
+            "reverted": int(((tier == last) & (start < last)).sum()), "unplaced": int((start == last).sum()), "several": int(several.sum()),
+            "sj_before": float(before.min()) if len(touched) else None, "sj_after": float(after.min()) if len(touched) else None}
     return X, info
 
 
@@ -678,10 +718,10 @@ def exact_first_layer(ctx, sm, blocks, height: float, kind: str = "gauss_lobatto
     X, info = place_first_layer(sm.points, sm.cells, sm.order, sm.boundary_faces, sm.boundary_ids, sm.boundary_cells, in_layer, height, kind)
     sm.points[:] = X
     ctx.report.sections.setdefault("boundary_layer", {})["placed"] = info
-    left = info["reverted"] + info["shared"] + info["oblique"]
+    left = info.get("reverted", 0) + info.get("unplaced", 0)
     if left:
         ctx.warn(
             f"first-layer height: {left} of {info['lines']} boundary-layer lines keep the transfinite spacing "
-            f"({info['reverted']} where placing it would lower an element's scaled Jacobian below min(before, 0.3), "
-            f"{info['shared']} sharing nodes, {info['oblique']} too oblique or too short)"
+            f"({info['reverted']} where placing the height would lower an element's scaled Jacobian below min(before, 0.3), "
+            f"{info['unplaced']} sharing nodes with another line, without room for it or too oblique to the wall)"
         )
