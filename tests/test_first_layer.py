@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from cylinder_blocks import cylinder_blocks, project_cylinder
-from vmesh.blocks import LAYER_BOUNDARY
-from vmesh.geometry.boundary_layer import first_cell_heights, first_node_heights, layer_lines, place_first_layer, wall_normals
+from vmesh.blocks import LAYER_BOUNDARY, LAYER_RING
+from vmesh.geometry.boundary_layer import first_cell_heights, first_node_heights
+from vmesh.geometry.layer_placement import layer_lines, offset_layer, place_first_layer, wall_normals
 from vmesh.geometry.quality import scaled_jacobian
 from vmesh.geometry.transfinite import Refinement, mesh_blocks, reference_points
 from vmesh.mesh import HexMesh
@@ -86,3 +87,39 @@ def test_a_fold_is_given_back_locally():
     assert np.mean(np.isclose(heights, H1, rtol=1e-9)) > 0.5  # the fallbacks keep the normal height
     too_thick, info = _place(mesh, height=5.0)  # no room: every line keeps its spacing
     assert info["placed"] == 0 and np.array_equal(too_thick, mesh.points)
+
+
+def _fold_wall(mesh, depth=0.45):
+    """Push the wall in between the block corners (8 lobes) by up to ``depth``, more than
+    the 0.4 thick layer, fading inwards: the wall crosses the layer's inner face (its
+    concave radius of curvature stays above 0.2)."""
+    X = mesh.points.copy()
+    r = np.linalg.norm(X[:, :2], axis=1)
+    theta = np.arctan2(X[:, 1], X[:, 0])
+    push = depth * np.sin(4 * theta) ** 2 * np.clip((r - 1.55) / 0.45, 0, 1) ** 2
+    X[:, :2] *= ((r - push) / np.maximum(r, 1e-300))[:, None]
+    return HexMesh(**{**mesh.__dict__, "points": X})
+
+
+def _offset(mesh, thickness, height=H1):
+    layer = mesh.cell_data["layer"]
+    return offset_layer(mesh.points, mesh.cells, mesh.order, mesh.boundary_faces, mesh.boundary_ids, mesh.boundary_cells,
+                        layer == LAYER_BOUNDARY, layer == LAYER_RING, thickness, height)
+
+
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_offset_layer_gives_the_thickness_from_the_wall(order):
+    mesh = _fold_wall(bent_tapered_mesh(order, bend=0.0, taper=0.0))
+    ref = reference_points(order)
+    assert (scaled_jacobian(mesh.points, mesh.cells, order, ref) <= 0).sum() > 0  # the wall crosses the layer
+    X, info = _offset(mesh, 0.2)
+    assert info["kept"] == 0
+    moved = HexMesh(**{**mesh.__dict__, "points": X})
+    heights, lines = first_node_heights(moved)
+    assert np.allclose(heights, H1, rtol=1e-9)
+    n = wall_normals(X, mesh.boundary_faces, mesh.boundary_ids, order)[lines[:, 0]]
+    inner = X[lines[:, -1]] - X[lines[:, 0]]
+    assert np.allclose(np.einsum("ij,ij->i", inner, n), 0.2, rtol=1e-9)  # the thickness along the normal
+    assert scaled_jacobian(X, mesh.cells, order, ref).min() > 0.4  # unfolded
+    core = mesh.cell_data["layer"] == 0
+    assert np.array_equal(X[mesh.cells[core]], mesh.points[mesh.cells[core]])  # the core stays

@@ -34,7 +34,7 @@ from ..registry import Parameter, register_filter
         Parameter("untangle_restart_below", "float", 0.2, "When untangling leaves an element below this, untangle once more from its result (fresh targets) and keep the better; with optimiser = local: the L-BFGS untangler also runs when the local result's minimum is not above this; 0 = never.", min=0.0, max=0.9),
         Parameter("optimiser", "str", "local", "local: compiled per-node Newton steps around bad elements, Gauss-Seidel over a node colouring (vmesh.geometry.optimize); lbfgs: the former global L-BFGS untangler.", choices=("local", "lbfgs")),
         Parameter("smooth_below", "float", 0.5, "Light pass after untangling (optimiser = local): nodes of elements below this move only where their elements' minimum and mean scaled Jacobian do not drop; 0 = off.", min=0.0, max=0.95),
-        Parameter("exact_first_layer", "bool", True, "With first_layer_height (or y_plus): after untangling, re-place the nodes of every boundary-layer line so that the first element is that height along the wall normal (docs/cfd.md)."),
+        Parameter("exact_first_layer", "bool", True, "With first_layer_height (or y_plus): after untangling, re-place the nodes of every boundary-layer line so that the first element is that height along the wall normal; with boundary_layer_thickness: before untangling, put the layer's inner nodes at that thickness along the wall normal (docs/cfd.md)."),
     ],
     reads=("blocks", "surface"),
     optional_reads=("coarse_surface", "caps", "skeleton", "sdf"),
@@ -78,6 +78,10 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
     # coarse query plus its refinement
     exact = getattr(sdf, "fine", sdf)
     sm = mesh_blocks(blocks, projector, ref, progress=ctx.tick, signed_distance=exact.distance, intersect_lines=getattr(exact, "intersect_lines", None))
+    if exact_first_layer:  # a given layer thickness, from the wall rather than the block corners
+        from ..geometry.boundary_layer import offset_to_thickness
+
+        offset_to_thickness(ctx, sm, blocks, node_distribution)
     if untangle:
         _untangle(ctx, sm, projector, sdf, untangle_below, untangle_restart_below, optimiser, smooth_below, node_distribution)
     if exact_first_layer and layer["first_layer_absolute"]:  # after the optimiser, which moves layer nodes
