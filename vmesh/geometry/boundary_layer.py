@@ -381,10 +381,17 @@ def record_first_layer(ctx, mesh, target: float | None = None) -> None:
     section = ctx.report.sections.setdefault("boundary_layer", {})
     section["measured_first_height"] = _stats(h, target)
     section["measured_first_edge"] = _stats(first_edge_lengths(mesh), target)
-    nodes, _ = first_node_heights(mesh)
-    if len(nodes):
-        section["measured_first_node_height"] = _stats(nodes, target)
-    ctx.count(first_height=float(np.median(h)))
+    nodes, lines = first_node_heights(mesh)
+    if len(nodes) == 0:
+        ctx.count(first_height=float(np.median(h)))
+        return
+    stats = section["measured_first_node_height"] = _stats(nodes, target)
+    ctx.count(first_height=float(np.median(nodes)))
+    if target:
+        miss = np.abs(nodes / target - 1.0) > 0.05
+        caps = np.isin(lines[:, 0], np.asarray(mesh.boundary_faces)[np.asarray(mesh.boundary_ids) > 0])
+        stats["outside_5_percent"] = {"lines": int(miss.sum()), "on_cap_rims": int((miss & caps).sum())}
+        ctx.count(first_height_within_5=round(float(stats["within_5_percent"]), 4))
 
 
 def first_node_heights(mesh) -> tuple[np.ndarray, np.ndarray]:
