@@ -429,7 +429,7 @@ def exact_first_layer(ctx, sm, blocks, height: float, kind: str = "gauss_lobatto
     if left:
         ctx.warn(
             f"first-layer height: {left} of {info['lines']} boundary-layer lines keep the transfinite spacing "
-            f"({info['reverted']} where placing the height would lower an element's scaled Jacobian below min(before, 0.3), "
+            f"({info['reverted']} where placing the height would take an element below 0.3 or below the worst element around it, "
             f"{info['unplaced']} sharing nodes with another line, without room for it or too oblique to the wall)"
         )
 
