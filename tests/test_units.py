@@ -41,6 +41,9 @@ def test_run_units_option_and_every_output(tmp_path, capsys):
     assert (layer["first_height"], layer["thickness"], layer["elements"]) == ("0.01 cm", "0.2 cm", 5)
     assert abs(layer["measured_first_height"]["median"] / 0.01 - 1) < 0.05
     assert layer["measured_first_edge"]["within_5_percent"] > 0.95
+    # along the wall normal, at every wall node (docs/cfd.md): exact by construction
+    assert layer["measured_first_node_height"]["within_5_percent"] == 1.0
+    assert abs(layer["measured_first_node_height"]["min"] / 0.01 - 1) < 1e-6 and layer["offset"]["kept"] == 0
     assert main(["export", str(out), "--format", "msh,inp,exo,mesh,xdmf", "-q"]) == 0
     assert "$Units\ncm\n" in (out / "mesh.msh").read_text()[:100]
     assert "** units: cm" in (out / "mesh.inp").read_text()[:300]

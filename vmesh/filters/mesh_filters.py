@@ -37,6 +37,7 @@ from ..registry import Parameter, register_filter
         Parameter("light_pass_sweeps", "int", 8, "Most Gauss–Seidel sweeps of the light pass (4 gives most of its gain at half the cost).", min=1, max=100),
         Parameter("curved_sections", "bool", True, "Curve the core/ring and ring/boundary-layer interfaces of the cross-sections so that the element angles at their corners balance (120° at core corners instead of 90°/135°/135°; docs/optimiser.md)."),
         Parameter("smooth_below", "float", 0.5, "Light pass after untangling (optimiser = local): nodes of elements below this move only where their elements' minimum and mean scaled Jacobian do not drop; 0 = off.", min=0.0, max=0.95),
+        Parameter("exact_first_layer", "bool", True, "With first_layer_height (or y_plus): after untangling, re-place the nodes of every boundary-layer line so that the first element is that height along the wall normal; with boundary_layer_thickness: before untangling, put the layer's inner nodes at that thickness along the wall normal (docs/cfd.md)."),
     ],
     reads=("blocks", "surface"),
     optional_reads=("coarse_surface", "caps", "skeleton", "sdf"),
@@ -46,7 +47,8 @@ from ..registry import Parameter, register_filter
 def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_layer, element_length, grading, first_layer, growth,
                      first_layer_height, boundary_layer_thickness, y_plus, flow_velocity, flow_density, flow_viscosity, reference_length,
                      order, node_distribution, project_to, untangle, untangle_below, untangle_restart_below,
-                     optimiser="local", smooth_below=0.5, curved_sections=True, light_pass_below=0.95, light_pass_sweeps=8):
+                     optimiser="local", smooth_below=0.5, curved_sections=True, light_pass_below=0.95, light_pass_sweeps=8,
+                     exact_first_layer=True):
     """Edge nodes are projected onto the wall and re-spaced by arc length; Coons patches fill
     block faces (wall faces projected again) and transfinite interpolation fills the blocks.
     The boundary layer is resolved by grading, never by extra element layers: the element
@@ -81,10 +83,18 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
     # coarse query plus its refinement
     exact = sdf.fine
     sm = mesh_blocks(blocks, projector, ref, progress=ctx.tick, signed_distance=exact.distance, intersect_lines=exact.intersect_lines)
+    if exact_first_layer:  # a given layer thickness, from the wall rather than the block corners
+        from ..geometry.boundary_layer import offset_to_thickness
+
+        offset_to_thickness(ctx, sm, blocks, node_distribution)
     if untangle:
         _untangle(ctx, sm, projector, sdf, untangle_below, untangle_restart_below, optimiser, smooth_below, node_distribution)
         if optimiser == "local" and light_pass_below > 0:
             _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps)
+    if exact_first_layer and layer["first_layer_absolute"]:  # after the optimisers, which move layer nodes
+        from ..geometry.boundary_layer import exact_first_layer as place_first_layer
+
+        place_first_layer(ctx, sm, blocks, layer["first_layer"], node_distribution)
     b = sm.cell_block
     mesh = HexMesh(
         points=sm.points,

@@ -25,8 +25,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..blocks import AXIS_LAYER, HEX_EDGE_AXIS, HEX_EDGES, LAYER_BOUNDARY
+from ..blocks import AXIS_LAYER, HEX_EDGE_AXIS, HEX_EDGES, LAYER_BOUNDARY, LAYER_RING
 from ..errors import MeshingError, ParameterError
+from .layer_placement import layer_lines, offset_layer, place_first_layer, wall_normals
 
 #: Metres per length unit.
 LENGTH_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6, "µm": 1e-6}
@@ -334,6 +335,7 @@ def setup_boundary_layer(ctx, refinement, elements_layer, grading, first_layer, 
     ctx.report.sections["boundary_layer"] = section
     out = {"layer": bl.elements * refinement, "first_layer": None, "first_layer_absolute": False, "growth": None}
     section["target_first_height"] = bl.first_height
+    section["target_thickness"] = bl.thickness
     if bl.first_height is not None:
         out.update(first_layer=bl.first_height, first_layer_absolute=True)
     elif bl.first_relative is not None:
@@ -370,12 +372,79 @@ def _stats(values: np.ndarray, target: float | None) -> dict:
 
 def record_first_layer(ctx, mesh, target: float | None = None) -> None:
     """Measure the first-layer heights at the wall into the report's ``boundary_layer``:
-    wall-normal per wall face (:func:`first_cell_heights`) and along the layer lines per
-    wall-face corner (:func:`first_edge_lengths`), with the fraction within 5 % of ``target``."""
+    wall-normal per wall node (:func:`first_node_heights`), wall-normal per wall face
+    (:func:`first_cell_heights`) and along the layer lines per wall-face corner
+    (:func:`first_edge_lengths`), with the fraction within 5 % of ``target``."""
     h = first_cell_heights(mesh)
     if len(h) == 0:
         return
     section = ctx.report.sections.setdefault("boundary_layer", {})
     section["measured_first_height"] = _stats(h, target)
     section["measured_first_edge"] = _stats(first_edge_lengths(mesh), target)
-    ctx.count(first_height=float(np.median(h)))
+    nodes, lines = first_node_heights(mesh)
+    if len(nodes) == 0:
+        ctx.count(first_height=float(np.median(h)))
+        return
+    stats = section["measured_first_node_height"] = _stats(nodes, target)
+    ctx.count(first_height=float(np.median(nodes)))
+    if target:
+        miss = np.abs(nodes / target - 1.0) > 0.05
+        caps = np.isin(lines[:, 0], np.asarray(mesh.boundary_faces)[np.asarray(mesh.boundary_ids) > 0])
+        stats["outside_5_percent"] = {"lines": int(miss.sum()), "on_cap_rims": int((miss & caps).sum())}
+        ctx.count(first_height_within_5=round(float(stats["within_5_percent"]), 4))
+
+
+def first_node_heights(mesh) -> tuple[np.ndarray, np.ndarray]:
+    """The first-layer height at each wall node: the distance, along the wall normal
+    (:func:`wall_normals`), from the wall node to the first element corner of its
+    boundary-layer node line (:func:`layer_lines`; one value per line).
+
+    Returns
+    -------
+    heights : (L,) ndarray
+    lines : (L, N + 1) ndarray
+        The lines (column 0: the wall node), to say where a height misses.
+    """
+    p = mesh.order
+    layer = mesh.cell_data.get("layer")
+    in_layer = np.asarray(layer) == LAYER_BOUNDARY if layer is not None else np.ones(mesh.n_cells, bool)
+    lines, _ = layer_lines(mesh.cells, p, mesh.boundary_faces, mesh.boundary_ids, mesh.boundary_cells, in_layer)
+    if len(lines) == 0:
+        return np.zeros(0), lines
+    normals = wall_normals(mesh.points, mesh.boundary_faces, mesh.boundary_ids, p)
+    step = mesh.points[lines[:, p]] - mesh.points[lines[:, 0]]
+    return np.einsum("ij,ij->i", step, normals[lines[:, 0]]), lines
+
+
+def exact_first_layer(ctx, sm, blocks, height: float, kind: str = "gauss_lobatto") -> None:
+    """:func:`place_first_layer` on the transfinite mesh ``sm`` (in place), after the
+    optimiser: every boundary-layer line gets its first element ``height`` thick along the
+    wall normal. Recorded in the report's ``boundary_layer.placed``; lines given back to keep
+    elements valid are named in a warning."""
+    in_layer = blocks.block_layer[sm.cell_block] == LAYER_BOUNDARY
+    X, info = place_first_layer(sm.points, sm.cells, sm.order, sm.boundary_faces, sm.boundary_ids, sm.boundary_cells, in_layer, height, kind)
+    sm.points[:] = X
+    ctx.report.sections.setdefault("boundary_layer", {})["placed"] = info
+    left = info.get("reverted", 0) + info.get("unplaced", 0)
+    if left:
+        ctx.warn(
+            f"first-layer height: {left} of {info['lines']} boundary-layer lines keep the transfinite spacing "
+            f"({info['reverted']} where placing the height would take an element below 0.3 or below the worst element around it, "
+            f"{info['unplaced']} sharing nodes with another line, without room for it or too oblique to the wall)"
+        )
+
+
+def offset_to_thickness(ctx, sm, blocks, kind: str = "gauss_lobatto") -> None:
+    """With a given total thickness, :func:`~vmesh.geometry.layer_placement.offset_layer` on
+    the transfinite mesh ``sm`` (in place), before the optimiser: the layer's inner nodes at
+    that thickness from the wall along its normal, so that a wall bulging in between the
+    block corners does not cross the layer. Recorded in ``boundary_layer.offset``."""
+    section = ctx.report.sections.get("boundary_layer", {})
+    thickness = section.get("target_thickness")
+    if not thickness:
+        return
+    layer = blocks.block_layer[sm.cell_block]
+    X, info = offset_layer(sm.points, sm.cells, sm.order, sm.boundary_faces, sm.boundary_ids, sm.boundary_cells, layer == LAYER_BOUNDARY,
+                           layer == LAYER_RING, thickness, section.get("target_first_height"), kind)
+    sm.points[:] = X
+    section["offset"] = info
