@@ -235,10 +235,8 @@ def measure_coverage(
     rel, beyond, face_r, face_node = _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, (skeleton_points, skeleton_edges, skeleton_radii), distance)
     far = rel > distance
     total = float(area.sum())
-    # wall past an open end face, no deeper than a rounded end: the end cap of a surface
-    # without flat caps, which the mesh leaves out as it leaves out flat caps (past the
-    # face's plane too, up to a hemisphere's depth: the side wall there is as close to the
-    # wall's rim as to the face)
+    # wall past an open end face, no deeper than a rounded end: the end cap of a surface without
+    # flat caps, left out as flat caps are (past the face's plane too, up to a hemisphere's depth)
     past = _past_end_faces(X, boundary_faces, boundary_ids, V[WF].mean(axis=1))
     end_cap = far & ((beyond & (rel <= end_depth)) | (past[:, None] & (rel <= min(end_depth, 1.0))))
     uncovered_area = float((area[:, None] * (far & ~end_cap)).sum() / 4.0)
