@@ -96,13 +96,19 @@ def test_aneurysm_dome_is_meshed_without_folds():
 
 @pytest.mark.slow
 def test_junction_folds_are_untangled():
-    """Without untangling the crotches of two close junctions have poor (once: folded) elements;
-    with it every element is good."""
+    """Two close junctions: with the half-sections meeting at the junction's wall centre the raw
+    fill has no poor element; with them meeting at the skeleton node (``junction_centre = 0``)
+    the crotches have poor elements, and untangling makes every element good while leaving
+    the untouched elements' nodes in place."""
     surface, skeleton = synthetic_case("two_junctions")
-    raw = run_default(surface, skeleton, **{"mesh_transfinite.untangle": False, "compute_quality.fail_on_invalid": False})
+    raw_fill = {"mesh_transfinite.untangle": False, "compute_quality.fail_on_invalid": False}
+    centred = run_default(surface, skeleton, **raw_fill)
+    assert centred.mesh.cell_data["scaled_jacobian"].min() > 0.2
+    at_node = {"build_block_structure.junction_centre": 0.0}
+    raw = run_default(surface, skeleton, **at_node, **raw_fill)
     assert (raw.mesh.cell_data["scaled_jacobian"] < 0.2).any()
     # the untangling alone (the default light pass after it moves most nodes on purpose)
-    ctx = run_default(surface, skeleton, **{"mesh_transfinite.light_pass_below": 0.0})
+    ctx = run_default(surface, skeleton, **at_node, **{"mesh_transfinite.light_pass_below": 0.0})
     sj = check_mesh(ctx)
     assert sj.min() > 0.2
     assert ctx.report.sections["untangle"]["moved"] > 0
