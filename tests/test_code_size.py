@@ -31,7 +31,6 @@ KNOWN_LONG_FUNCTIONS = {
     "geometry/skeleton_ops.py:graft_branches": 113,
     "geometry/skeleton_ops.py:resample_skeleton": 114,
     # grown by the robustness/optimiser round of 2026-12-02 (split next):
-    "chain.py:run": 117,
     "preprocess.py:repair": 113,
 }
 KNOWN_LARGE_CLASSES = {
