@@ -33,8 +33,6 @@ KNOWN_LONG_FUNCTIONS = {
 KNOWN_LARGE_CLASSES = {
     "geometry/blocks/options.py:BlockOptions": 22,
     "geometry/blocks/sections.py:_Sections": 19,
-    "geometry/octree_sdf.py:OctreeSignedDistance": 26,
-    "geometry/sdf.py:SignedDistance": 16,
 }
 
 
