@@ -85,3 +85,21 @@ def test_code_size(kind, index, known, limit):
     fixed = sorted(set(known) - set(found))
     assert not new, f"over {limit} {kind} (split it): {new}"
     assert not fixed, f"within {limit} {kind} now: remove from the known exceptions in tests/test_code_size.py: {fixed}"
+
+
+def test_old_import_paths():
+    """Code moved out of long modules stays importable from where it was (other modules and
+    branches import it from there): the same objects under the old names."""
+    from vmesh import batch, manifest, preprocess, repair
+    from vmesh.geometry import sdf, sdf_measure, skeleton_extract
+    from vmesh.geometry.skeleton import branch_graph, ends, extract, probe, thin
+
+    assert skeleton_extract.extract_skeleton is extract.extract_skeleton
+    assert skeleton_extract.BranchGraph is branch_graph.BranchGraph
+    assert skeleton_extract._extend is ends._extend and skeleton_extract._straight is ends._straight
+    assert skeleton_extract._OFFSETS26 is probe._OFFSETS26 and skeleton_extract.simple_points is thin.simple_points
+    assert all(hasattr(skeleton_extract, name) for name in skeleton_extract.__all__)
+    assert preprocess.repair is repair.repair and preprocess.RepairReport is repair.RepairReport
+    assert all(hasattr(preprocess, name) for name in preprocess.__all__)
+    assert batch.read_manifest is manifest.read_manifest and batch.Manifest is manifest.Manifest
+    assert sdf.compare_coarse_fine is sdf_measure.compare_coarse_fine
