@@ -104,6 +104,7 @@ class _TriangleArrays:
 
     @classmethod
     def of(cls, sdf) -> "_TriangleArrays":
+        """The arrays of a :class:`~vmesh.geometry.sdf.SignedDistance`'s surface."""
         tri = sdf.vertices[sdf.faces]
         a = np.ascontiguousarray(tri[:, 0])
         ab = np.ascontiguousarray(tri[:, 1] - tri[:, 0])

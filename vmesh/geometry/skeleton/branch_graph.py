@@ -68,6 +68,7 @@ class BranchGraph:
         return pts, rad
 
     def length(self, u: int, v: int, key: int) -> float:
+        """Arclength of a branch, end nodes included."""
         pts, _ = self.polyline(u, v, key)
         return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
 
@@ -105,6 +106,7 @@ class BranchGraph:
         return True
 
     def dissolve_all(self) -> None:
+        """Join the branches at every degree-2 node (:meth:`dissolve`)."""
         for node in [n for n in self.graph.nodes if self.graph.degree(n) == 2]:
             if node in self.graph:
                 self.dissolve(node)
@@ -292,6 +294,7 @@ class BranchGraph:
         return len(nodes)
 
     def n_cycles(self) -> int:
+        """Number of independent cycles (edges - nodes + components)."""
         import networkx as nx
 
         g = self.graph

@@ -39,6 +39,7 @@ def evaluate_sdf(sdf: SdfFunction, points: np.ndarray, chunk: int = 1 << 18) -> 
 
 
 def _arclength(points: np.ndarray) -> np.ndarray:
+    """Cumulative arclength ``(n,)`` at the points ``(n, 3)`` of a polyline."""
     return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
 
 
