@@ -46,7 +46,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from vmesh.chain import FilterChain  # noqa: E402
-from vmesh.geometry.sdf import SignedDistance, compare_coarse_fine, morton_order, vessel_query_points  # noqa: E402
+from vmesh.geometry.sdf import SignedDistance, morton_order, vessel_query_points  # noqa: E402
+from vmesh.geometry.sdf_measure import compare_coarse_fine  # noqa: E402
 from vmesh.io.atomic import write_text_atomic  # noqa: E402
 from vmesh.io.surface import read_surface  # noqa: E402
 from vmesh import realdata  # noqa: E402

@@ -260,11 +260,6 @@ class FilterChain:
             Reuse the steps through ``build_sdf`` from earlier runs on the same input
             with the same parameters (sets ``context.cache``).
         """
-        from .io.skeleton import read_skeleton
-        from .io.surface import read_surface
-        from .skeleton import Skeleton
-        from .surface import SurfaceMesh
-
         resolved = self.resolved()  # every parameter checked before anything runs
         if out_dir is not None:
             out_dir = Path(out_dir)
@@ -272,19 +267,7 @@ class FilterChain:
         ctx = context or Context()
         if cache is not None:
             ctx.cache = cache
-        notes: list[str] = []  # what reading the input changed (volume mesh, stray cells...)
-        if surface is not None:
-            if isinstance(surface, SurfaceMesh):
-                ctx.surface = surface
-            else:
-                ctx.inputs["surface"] = str(surface)
-                ctx.surface = read_surface(surface, notes)
-        if skeleton is not None:
-            if isinstance(skeleton, Skeleton):
-                ctx.skeleton = skeleton
-            else:
-                ctx.inputs["skeleton"] = str(skeleton)
-                ctx.skeleton = read_skeleton(skeleton)
+        notes = _read_inputs(ctx, surface, skeleton)
         resolved.check_layers([layer for layer in ("surface", "coarse_surface", "caps", "sdf", "skeleton", "blocks", "mesh") if ctx.has(layer)])
 
         say = _printer(progress)
@@ -292,13 +275,7 @@ class FilterChain:
             ctx.progress = lambda frac, msg="": say("tick", fraction=frac, message=msg)
         for note in notes:
             ctx.warn(note)
-        stage = None
-        if out_dir is not None:
-            out_dir.parent.mkdir(parents=True, exist_ok=True)
-            remove_stale_stages(out_dir)  # left by killed runs
-            stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=out_dir.parent))
-            mark_owner(stage)
-            ctx.stage_dir, ctx.out_dir = stage, out_dir
+        stage = _open_stage(ctx, out_dir) if out_dir is not None else None
         t0 = time.perf_counter()
         current = None  # (step number, filter name) while a step runs
         try:
@@ -308,47 +285,17 @@ class FilterChain:
             for i, step in enumerate(resolved.steps):
                 if plan is not None and i < plan.skip:
                     continue
-                f = get_filter(step.filter)
-                ctx._step = StepReport(step.filter, step.params)
                 current = (i + 1, step.filter)
                 say("start", index=i + 1, total=n, name=step.filter)
-                with ResourceMonitor() as mon, _Heartbeat(say if progress is True else None, step.filter):
-                    try:
-                        f.function(ctx, **step.params)
-                    except VmeshError as exc:
-                        raise _with_message(exc, f"step {i + 1} '{step.filter}': {exc}") from exc
-                    except MemoryError:
-                        raise ChainError(
-                            f"step {i + 1} '{step.filter}' ran out of memory: decimate the surface "
-                            f"(decimate_surface.target_faces) or mesh a smaller part"
-                        ) from None
-                    except Exception as exc:
-                        # with an output folder the traceback is kept in OUT.failed/failure.log
-                        log = failed_dir(out_dir) / "failure.log" if stage is not None else None
-                        raise ChainError(internal_error_text(i + 1, step.filter, log)) from exc
+                _run_step(ctx, i + 1, step, say if progress is True else None, failed_dir(out_dir) / "failure.log" if stage is not None else None)
                 current = None
-                ctx._step.seconds = mon.seconds
-                ctx._step.peak_memory_mb = mon.peak_mb
-                ctx._step.extra_memory_mb = mon.extra_mb
-                ctx.report.steps.append(ctx._step)
                 say("end", index=i + 1, total=n, name=step.filter, step=ctx._step)
                 ctx._step = None
                 if plan is not None and i + 1 == plan.store_after:
                     plan.store(ctx)
             ctx.report.total_s = time.perf_counter() - t0
             if stage is not None:
-                header = "# vmesh filter chain, exactly as run (every parameter resolved)"
-                if ctx.inputs:
-                    header += "\n# inputs: " + ", ".join(f"{k}={v}" for k, v in ctx.inputs.items())
-                (stage / "chain.toml").write_text(resolved.to_toml(header))
-                report = ctx.report.to_dict()
-                report["inputs"] = dict(ctx.inputs)
-                report["chain"] = resolved.name
-                (stage / "report.json").write_text(json.dumps(report, indent=2))
-                (stage / OWNER_FILE).unlink(missing_ok=True)
-                replace_dir(stage, out_dir)  # the whole folder: no earlier run's files stay beside the new ones
-                ctx.stage_dir = None
-                remove_failed(out_dir)
+                _publish_stage(ctx, resolved, stage, out_dir)
         except BaseException as exc:
             if stage is not None and stage.exists():
                 raise _keep_failed_run(exc, ctx, stage, out_dir, resolved, current) from exc.__cause__
@@ -358,6 +305,82 @@ class FilterChain:
             if stage is not None and stage.exists():
                 shutil.rmtree(stage, ignore_errors=True)
         return ctx
+
+
+def _read_inputs(ctx: Context, surface, skeleton) -> list[str]:
+    """Put the input surface and skeleton (objects or paths) into the context; returns
+    what reading them changed (a volume mesh, stray cells...)."""
+    from .io.skeleton import read_skeleton
+    from .io.surface import read_surface
+    from .skeleton import Skeleton
+    from .surface import SurfaceMesh
+
+    notes: list[str] = []
+    if surface is not None:
+        if isinstance(surface, SurfaceMesh):
+            ctx.surface = surface
+        else:
+            ctx.inputs["surface"] = str(surface)
+            ctx.surface = read_surface(surface, notes)
+    if skeleton is not None:
+        if isinstance(skeleton, Skeleton):
+            ctx.skeleton = skeleton
+        else:
+            ctx.inputs["skeleton"] = str(skeleton)
+            ctx.skeleton = read_skeleton(skeleton)
+    return notes
+
+
+def _open_stage(ctx: Context, out_dir: Path) -> Path:
+    """The hidden staging folder beside ``out_dir`` that the steps write into."""
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_stages(out_dir)  # left by killed runs
+    stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=out_dir.parent))
+    mark_owner(stage)
+    ctx.stage_dir, ctx.out_dir = stage, out_dir
+    return stage
+
+
+def _run_step(ctx: Context, number: int, step: Step, say, log: Path | None) -> None:
+    """Run one step under the resource monitor and record its report in ``ctx._step``.
+
+    Errors become one-line chain errors naming the step; an internal error points to
+    ``log`` (the traceback kept in OUT.failed/failure.log) when there is an output folder.
+    """
+    f = get_filter(step.filter)
+    ctx._step = StepReport(step.filter, step.params)
+    with ResourceMonitor() as mon, _Heartbeat(say, step.filter):
+        try:
+            f.function(ctx, **step.params)
+        except VmeshError as exc:
+            raise _with_message(exc, f"step {number} '{step.filter}': {exc}") from exc
+        except MemoryError:
+            raise ChainError(
+                f"step {number} '{step.filter}' ran out of memory: decimate the surface "
+                f"(decimate_surface.target_faces) or mesh a smaller part"
+            ) from None
+        except Exception as exc:
+            raise ChainError(internal_error_text(number, step.filter, log)) from exc
+    ctx._step.seconds = mon.seconds
+    ctx._step.peak_memory_mb = mon.peak_mb
+    ctx._step.extra_memory_mb = mon.extra_mb
+    ctx.report.steps.append(ctx._step)
+
+
+def _publish_stage(ctx: Context, resolved: "FilterChain", stage: Path, out_dir: Path) -> None:
+    """Write ``chain.toml`` and ``report.json`` and move the staged folder to ``out_dir``."""
+    header = "# vmesh filter chain, exactly as run (every parameter resolved)"
+    if ctx.inputs:
+        header += "\n# inputs: " + ", ".join(f"{k}={v}" for k, v in ctx.inputs.items())
+    (stage / "chain.toml").write_text(resolved.to_toml(header))
+    report = ctx.report.to_dict()
+    report["inputs"] = dict(ctx.inputs)
+    report["chain"] = resolved.name
+    (stage / "report.json").write_text(json.dumps(report, indent=2))
+    (stage / OWNER_FILE).unlink(missing_ok=True)
+    replace_dir(stage, out_dir)  # the whole folder: no earlier run's files stay beside the new ones
+    ctx.stage_dir = None
+    remove_failed(out_dir)
 
 
 #: What to try when a filter stops on an internal error, beyond its own parameters.

@@ -1,4 +1,5 @@
-"""Surface preprocessing kernels: repair, capping, flat-cap detection, smoothing, decimation.
+"""Surface preprocessing kernels: capping, flat-cap detection, smoothing, decimation (and
+the repair kernels of :mod:`vmesh.repair`, re-exported).
 
 Every function here works on plain numpy arrays (``vertices (n, 3)``, ``faces (m, 3)``)
 and returns new arrays; the filters in :mod:`vmesh.filters.preprocess_filters` wrap
@@ -8,433 +9,33 @@ them. Caps are tracked through every step by a per-face integer label
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from .caps import Cap
 from .geometry import topology
+from .repair import (  # the repair kernels, re-exported under their old names
+    face_areas,
+    manifold_face_pairs,
+    remove_unreferenced_vertices,
+    MAX_LISTED_COMPONENTS,
+    RepairReport,
+    component_areas,
+    component_summary,
+    merge_close_vertices,
+    orient_consistently,
+    repair,
+    nonmanifold_fins,
+    HOLE_ALIGNMENT,
+    HOLE_AREA_ALIGNMENT,
+    HOLE_REACH,
+    wall_hole_loops,
+    fill_holes,
+)
 
 #: Name of the per-face cap label array on capped surfaces (0 = wall, k = cap id k).
 CAP_LABEL = "cap_id"
-
-
-# ---------------------------------------------------------------------------
-# small helpers
-# ---------------------------------------------------------------------------
-def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Triangle areas ``(m,)``."""
-    return 0.5 * np.linalg.norm(topology.face_normals(vertices, faces, normalize=False), axis=1)
-
-
-def _half_edge_pairs(faces: np.ndarray):
-    """Half-edges grouped by undirected edge.
-
-    Returns
-    -------
-    edge_id : (3m,) int64
-        Undirected edge of half-edge ``3 f + k`` (corner ``k`` -> ``k+1`` of face ``f``).
-    counts : (e,) int64
-        Faces per edge.
-    a, b : (3m,) int64
-        Start and end vertex of each half-edge.
-    """
-    faces = np.asarray(faces, np.int64)
-    n = int(faces.max()) + 1 if faces.size else 0
-    a, b = faces.ravel(), np.roll(faces, -1, axis=1).ravel()
-    _, edge_id, counts = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_inverse=True, return_counts=True)
-    return edge_id.ravel(), counts, a, b
-
-
-def manifold_face_pairs(faces: np.ndarray):
-    """Pairs of faces sharing a manifold edge (used by exactly two faces).
-
-    Returns
-    -------
-    pairs : (k, 2) int64
-        The two faces of each interior manifold edge.
-    same_direction : (k,) bool
-        True when both faces traverse the shared edge in the same direction
-        (their orientations disagree).
-    half_edges : (k, 2) int64
-        The two half-edge indices (``3 f + corner``).
-    """
-    edge_id, counts, a, _ = _half_edge_pairs(faces)
-    keep = counts[edge_id] == 2
-    halves = np.flatnonzero(keep)
-    halves = halves[np.argsort(edge_id[halves], kind="stable")].reshape(-1, 2)
-    same = a[halves[:, 0]] == a[halves[:, 1]]
-    return halves // 3, same, halves
-
-
-def _row_labels(rows: np.ndarray) -> np.ndarray:
-    """A label per row ``(n, k)``, equal for equal rows (lexsort: np.unique(axis=0) sorts
-    structured rows an order of magnitude slower)."""
-    if len(rows) == 0:
-        return np.zeros(0, np.int64)
-    order = np.lexsort(rows.T[::-1])
-    r = rows[order]
-    new = np.ones(len(r), bool)
-    new[1:] = np.any(r[1:] != r[:-1], axis=1)
-    label = np.empty(len(r), np.int64)
-    label[order] = np.cumsum(new) - 1
-    return label
-
-
-def remove_unreferenced_vertices(vertices: np.ndarray, faces: np.ndarray):
-    """Drop vertices no face uses; returns ``(vertices, faces, kept_vertex_indices)``."""
-    used = np.unique(faces)
-    remap = np.full(len(vertices), -1, np.int64)
-    remap[used] = np.arange(len(used))
-    return vertices[used], remap[faces], used
-
-
-# ---------------------------------------------------------------------------
-# repair
-# ---------------------------------------------------------------------------
-#: Dropped pieces listed one by one in a repair report (the rest are only counted).
-MAX_LISTED_COMPONENTS = 20
-
-
-@dataclass
-class RepairReport:
-    """What :func:`repair` changed (all counts)."""
-
-    merged_vertices: int = 0
-    degenerate_faces: int = 0
-    duplicate_faces: int = 0
-    zero_area_faces: int = 0
-    nonmanifold_edges: int = 0
-    #: faces dropped so that every edge has at most two faces (see :func:`nonmanifold_fins`)
-    nonmanifold_faces: int = 0
-    removed_components: int = 0
-    removed_component_faces: int = 0
-    #: pieces dropped beside the kept one that are large enough to be vessels:
-    #: ``{"faces", "area", "area_fraction", "bbox_min", "bbox_max"}`` each, largest first
-    dropped_components: list = field(default_factory=list)
-    #: pieces dropped as debris (area below ``debris_area`` × the kept piece's)
-    debris_components: int = 0
-    #: holes in the wall that were filled: ``{"edges", "diameter", "center"}`` each
-    filled_holes: list = field(default_factory=list)
-    flipped_faces: int = 0
-    oriented_outward: bool = False
-    non_orientable: bool = False
-    unreferenced_vertices: int = 0
-
-    def as_dict(self) -> dict:
-        d = dict(self.__dict__)
-        d["dropped_components"] = [dict(c) for c in self.dropped_components]
-        d["filled_holes"] = [dict(h) for h in self.filled_holes]
-        return d
-
-
-def component_areas(vertices: np.ndarray, faces: np.ndarray, label: np.ndarray) -> np.ndarray:
-    """Surface area of each connected piece (``label`` per face)."""
-    return np.bincount(label, weights=face_areas(vertices, faces), minlength=int(label.max()) + 1 if len(label) else 0)
-
-
-def component_summary(vertices: np.ndarray, faces: np.ndarray, label: np.ndarray, pieces) -> list[dict]:
-    """Faces, area and bounding box of the connected pieces ``pieces`` (``label`` per face)."""
-    areas = component_areas(vertices, faces, label)
-    n_faces = np.bincount(label, minlength=len(areas))
-    out = []
-    for k in pieces:
-        corners = vertices[faces[label == k].ravel()]
-        out.append({"faces": int(n_faces[k]), "area": float(areas[k]), "bbox_min": corners.min(axis=0).tolist(), "bbox_max": corners.max(axis=0).tolist()})
-    return out
-
-
-def merge_close_vertices(vertices: np.ndarray, faces: np.ndarray, tolerance: float):
-    """Weld vertices closer than ``tolerance`` (0: identical coordinates only).
-
-    Returns
-    -------
-    vertices, faces : arrays with every cluster of close vertices replaced by its first member
-    n_merged : int
-        Number of vertices removed.
-    """
-    n = len(vertices)
-    if tolerance > 0:
-        from scipy.spatial import cKDTree
-
-        pairs = cKDTree(vertices).query_pairs(tolerance, output_type="ndarray")
-        graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-        _, label = connected_components(graph, directed=False)
-    else:
-        label = _row_labels(np.asarray(vertices))
-    # representative: the lowest original index of each cluster
-    first = np.full(label.max() + 1, n, np.int64)
-    np.minimum.at(first, label, np.arange(n))
-    rep = first[label]
-    faces = rep[faces]
-    v, f, _ = remove_unreferenced_vertices(vertices, faces)
-    return v, f, n - len(v)
-
-
-def orient_consistently(faces: np.ndarray) -> tuple[np.ndarray, int, bool]:
-    """Flip faces so that neighbours agree on orientation (per connected piece).
-
-    Uses the orientation double cover: node ``(f, 0)`` is face ``f`` as given, ``(f, 1)``
-    is it flipped; agreeing neighbours link equal states, disagreeing ones opposite
-    states. Within each piece every face takes the state connected to the first face
-    of the piece as given. A piece in which some face is linked to both its states is
-    non-orientable and is left unchanged.
-
-    Returns
-    -------
-    faces : (m, 3) array
-    n_flipped : int
-    orientable : bool
-    """
-    m = len(faces)
-    pairs, same, _ = manifold_face_pairs(faces)
-    f, g = pairs[:, 0], pairs[:, 1]
-    # agreeing neighbours (opposite half-edge directions): (f,s)-(g,s); disagreeing: (f,s)-(g,1-s)
-    rows = np.concatenate([f, f + m])
-    cols = np.concatenate([np.where(same, g + m, g), np.where(same, g, g + m)])
-    graph = sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(2 * m, 2 * m))
-    _, label = connected_components(graph, directed=False)
-    as_given, flipped = label[:m], label[m:]
-    orientable_face = as_given != flipped
-    # per piece of the (manifold-edge) face graph, the reference is its lowest face as given
-    piece_graph = sp.coo_matrix((np.ones(len(f)), (f, g)), shape=(m, m))
-    _, piece = connected_components(piece_graph, directed=False)
-    first = np.full(piece.max() + 1, m, np.int64)
-    np.minimum.at(first, piece, np.arange(m))
-    ref_label = label[first[piece]]
-    piece_ok = np.ones(piece.max() + 1, bool)
-    np.logical_and.at(piece_ok, piece, orientable_face)
-    flip = (flipped == ref_label) & piece_ok[piece]
-    out = faces.copy()
-    out[flip] = out[flip][:, ::-1]
-    return out, int(flip.sum()), bool(piece_ok.all())
-
-
-def repair(
-    vertices: np.ndarray,
-    faces: np.ndarray,
-    merge_tolerance: float = 0.0,
-    keep: str = "largest",
-    orient: bool = True,
-    outward: bool = True,
-    face_data: dict | None = None,
-    debris_area: float = 1e-3,
-    fill_wall_holes: bool = True,
-):
-    """Clean a triangle surface.
-
-    Steps: weld duplicate vertices, drop faces with repeated vertices and duplicate
-    faces (same three vertices in any order), drop unused vertices, keep the largest
-    connected piece (by area) when ``keep="largest"``, orient faces consistently,
-    and turn each piece outward (positive signed volume).
-
-    Parameters
-    ----------
-    vertices : (n, 3) array
-    faces : (m, 3) int array
-    merge_tolerance : float
-        Vertices closer than this are welded; 0 welds only identical coordinates.
-    keep : {"largest", "all"}
-        Which connected pieces to keep.
-    orient, outward : bool
-        Make orientation consistent; then flip pieces enclosing negative volume.
-    face_data : dict of str -> (m, ...) arrays, optional
-        Per-face arrays, filtered along with the faces.
-    debris_area : float
-        Dropped pieces smaller than this fraction of the kept piece's area are counted as
-        debris (``report.debris_components``); larger ones are listed with their size and
-        bounding box (``report.dropped_components``).
-    fill_wall_holes : bool
-        Drop the extra faces of non-manifold edges (:func:`nonmanifold_fins`), then close
-        the boundary loops that are holes in the wall rather than open ends (see
-        :func:`wall_hole_loops`) with a faired patch (``report.filled_holes``); needs
-        ``orient``. Filled faces get 0 in every face array.
-
-    Returns
-    -------
-    vertices, faces, face_data, report : the cleaned surface and a :class:`RepairReport`
-    """
-    report = RepairReport()
-    v = np.asarray(vertices, np.float64)
-    f = np.asarray(faces, np.int64)
-    data = {k: np.asarray(a) for k, a in (face_data or {}).items() if len(a) == len(f)}
-    v, f, report.merged_vertices = merge_close_vertices(v, f, merge_tolerance)
-
-    def keep_faces(mask):
-        nonlocal f, data
-        f = f[mask]
-        data = {k: a[mask] for k, a in data.items()}
-
-    degenerate = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
-    report.degenerate_faces = int(degenerate.sum())
-    keep_faces(~degenerate)
-    label = _row_labels(np.sort(f, axis=1))
-    unique = np.zeros(len(f), bool)
-    unique[np.unique(label, return_index=True)[1]] = True  # the first face of each vertex triple
-    report.duplicate_faces = int((~unique).sum())
-    keep_faces(unique)
-    if len(f) == 0:
-        return v[:0], f, data, report
-    if fill_wall_holes:  # the holes the dropped fins leave are filled below
-        fins = nonmanifold_fins(v, f)
-        report.nonmanifold_faces = len(fins)
-        if len(fins):
-            keep_faces(~np.isin(np.arange(len(f)), fins))
-    if keep == "largest":
-        count, label = topology.face_components(f, len(v))
-        if count > 1:
-            areas = component_areas(v, f, label)
-            largest = int(np.argmax(areas))
-            report.removed_components = count - 1
-            report.removed_component_faces = int(np.sum(label != largest))
-            fraction = areas / areas[largest] if areas[largest] > 0 else np.zeros(count)
-            others = np.argsort(-areas, kind="stable")
-            others = others[others != largest]
-            debris = fraction[others] < debris_area
-            report.debris_components = int(debris.sum())
-            listed = others[~debris][:MAX_LISTED_COMPONENTS]
-            report.dropped_components = [
-                {**piece, "area_fraction": float(fraction[k])} for k, piece in zip(listed, component_summary(v, f, label, listed))
-            ]
-            keep_faces(label == largest)
-    elif keep != "all":
-        raise ValueError(f"keep must be 'largest' or 'all', got {keep!r}")
-    n_before = len(v)
-    v, f, _ = remove_unreferenced_vertices(v, f)
-    report.unreferenced_vertices = n_before - len(v)
-    diag = float(np.linalg.norm(np.ptp(v, axis=0))) if len(v) else 0.0
-    report.zero_area_faces = int(np.sum(face_areas(v, f) <= 1e-14 * diag**2))
-    report.nonmanifold_edges = int(len(topology.non_manifold_edges(f)))
-    if orient:
-        f, report.flipped_faces, orientable = orient_consistently(f)
-        report.non_orientable = not orientable
-    if fill_wall_holes and orient and not report.non_orientable:
-        holes = wall_hole_loops(v, f)
-        if holes:
-            n_faces = len(f)
-            v, f, report.filled_holes = fill_holes(v, f, holes)
-            data = {k: np.concatenate([a, np.zeros((len(f) - n_faces, *a.shape[1:]), a.dtype)]) for k, a in data.items()}
-    if outward:
-        count, label = topology.face_components(f, len(v))
-        for piece in range(count):
-            sel = label == piece
-            if topology.signed_volume(v, f[sel]) < 0:
-                f[sel] = f[sel][:, ::-1]
-                report.flipped_faces += int(sel.sum())
-        report.oriented_outward = True
-    return v, f, data, report
-
-
-def nonmanifold_fins(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Faces to drop so that no edge has more than two faces.
-
-    At an edge with three or more faces the wall continues through the pair that runs
-    on most smoothly: one face using the edge in each direction (as consistently oriented
-    neighbours do; any two when no such pair exists), with the most nearly equal normals.
-    The other faces are fins or overlaps of a bad segmentation export; the holes they
-    leave are holes in the wall (see :func:`wall_hole_loops`). Edges are handled one at a
-    time with the faces already dropped left out, until none has more than two faces.
-    """
-    he = topology.directed_edges(faces)
-    _, inv, counts = np.unique(topology.pair_keys(np.sort(he, axis=1))[0], return_inverse=True, return_counts=True)
-    inv = inv.ravel()
-    crowded = np.flatnonzero(counts[inv] > 2)  # half-edges of non-manifold edges
-    if len(crowded) == 0:
-        return np.zeros(0, np.int64)
-    normals = topology.face_normals(vertices, faces)
-    order = crowded[np.argsort(inv[crowded], kind="stable")]
-    edge_ids, starts = np.unique(inv[order], return_index=True)
-    dropped: set[int] = set()
-    for group in np.split(order, starts[1:]):
-        face_ids = group // 3
-        alive = np.array([int(g) not in dropped for g in face_ids])
-        face_ids, forward = face_ids[alive], (he[group, 0] < he[group, 1])[alive]
-        if len(face_ids) <= 2:
-            continue
-        smooth = normals[face_ids] @ normals[face_ids].T
-        opposite = forward[:, None] != forward[None, :]
-        score = np.where(opposite, smooth, smooth - 4.0)  # a consistently oriented pair first
-        np.fill_diagonal(score, -np.inf)
-        i, j = np.unravel_index(int(np.argmax(score)), score.shape)
-        dropped.update(int(g) for k, g in enumerate(face_ids) if k not in (i, j))
-    return np.array(sorted(dropped), np.int64)
-
-
-#: A boundary loop is a hole in the wall when the faces touching it, and the surface
-#: within ``HOLE_REACH`` loop radii of its centre, lie nearly in the loop's plane: their
-#: mean |cos| between normal and loop normal (area-weighted in the ball) exceeds
-#: ``HOLE_ALIGNMENT`` and ``HOLE_AREA_ALIGNMENT``. Around an open end the wall runs along
-#: the vessel, across the loop plane: for a tube cut at any angle the ring mean is at most
-#: 2/pi = 0.64, and an end whose last row of faces was left in the cap plane (a flange)
-#: still has its wall inside the ball (0.4 or less on real ends). Around a hole spanning
-#: ±45° of a tube's circumference the two are 0.75 and 0.7, growing towards 1 for smaller
-#: holes.
-HOLE_ALIGNMENT = 0.7
-HOLE_AREA_ALIGNMENT = 0.5
-HOLE_REACH = 1.5
-
-
-def wall_hole_loops(vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
-    """The boundary loops of a consistently oriented surface that are holes in its wall
-    (the surface around them lies nearly in the loop's plane), not open ends of a vessel."""
-    loops = topology.boundary_loops(faces)
-    if not loops:
-        return []
-    from scipy.spatial import cKDTree
-
-    normals = topology.face_normals(vertices, faces)
-    areas = face_areas(vertices, faces)
-    centres = vertices[faces].mean(axis=1)
-    tree = cKDTree(centres)
-    face_of_vertex = sp.coo_matrix(
-        (np.ones(faces.size), (faces.ravel(), np.repeat(np.arange(len(faces)), 3))), shape=(len(vertices), len(faces))
-    ).tocsr()
-    holes = []
-    for loop in loops:
-        rim = vertices[loop]
-        centre = rim.mean(axis=0)
-        area_vector = 0.5 * np.cross(rim - centre, np.roll(rim, -1, axis=0) - centre).sum(axis=0)
-        norm = np.linalg.norm(area_vector)
-        if norm == 0 or len(loop) < 3:
-            continue
-        axis = area_vector / norm
-        ring = np.unique(face_of_vertex[loop].indices)
-        if np.mean(np.abs(normals[ring] @ axis)) <= HOLE_ALIGNMENT:
-            continue
-        ball = np.asarray(tree.query_ball_point(centre, HOLE_REACH * np.linalg.norm(rim - centre, axis=1).mean()), np.int64)
-        if len(ball) and np.sum(areas[ball] * np.abs(normals[ball] @ axis)) > HOLE_AREA_ALIGNMENT * np.sum(areas[ball]):
-            holes.append(loop)
-    return holes
-
-
-def fill_holes(vertices: np.ndarray, faces: np.ndarray, loops) -> tuple[np.ndarray, np.ndarray, list[dict]]:
-    """Close ``loops`` with ring patches (as caps), then fair the new vertices so that each
-    patch continues the wall around it (least squared umbrella Laplacian, the original
-    vertices fixed). Returns the surface and ``{"edges", "diameter", "center"}`` per hole."""
-    v_parts, f_parts, n = [vertices], [faces], len(vertices)
-    filled = []
-    for loop in loops:
-        pts, tris = cap_loop(vertices, loop)
-        f_parts.append(np.where(tris >= len(vertices), tris - len(vertices) + n, tris))
-        v_parts.append(pts)
-        n += len(pts)
-        rim = vertices[loop]
-        filled.append({"edges": int(len(loop)), "diameter": float(2 * np.linalg.norm(rim - rim.mean(axis=0), axis=1).mean()), "center": rim.mean(axis=0).tolist()})
-    v, f = np.vstack(v_parts), np.vstack(f_parts)
-    free = np.arange(len(vertices), len(v))
-    fixed = np.arange(len(vertices))
-    lap = uniform_laplacian(len(v), f)
-    energy = (lap.T @ lap).tocsr()
-    rhs = -(energy[free][:, fixed] @ v[fixed])
-    from scipy.sparse.linalg import spsolve
-
-    solved = spsolve(energy[free][:, free].tocsc(), rhs)
-    if np.all(np.isfinite(solved)):
-        v = v.copy()
-        v[free] = np.asarray(solved).reshape(-1, 3)
-    return v, f, filled
 
 
 # ---------------------------------------------------------------------------
@@ -988,3 +589,41 @@ def decimate_to_tolerance(vertices, faces, target_faces: int, max_error: float, 
         if err <= max_error or len(tries) >= max_tries:
             return v2, f2, tries
         target = int(min(len(f), max(1.25, 1.15 * err / max_error) * len(f2)))
+
+
+#: The kernels of this module and the repair kernels it re-exports.
+__all__ = [
+    "Cap",
+    "cap_boundary_loops",
+    "CAP_LABEL",
+    "cap_loop",
+    "caps_from_labels",
+    "component_areas",
+    "component_summary",
+    "decimate",
+    "decimate_to_tolerance",
+    "detect_flat_caps",
+    "face_areas",
+    "faces_near_points",
+    "fill_holes",
+    "flatten_caps",
+    "HOLE_ALIGNMENT",
+    "HOLE_AREA_ALIGNMENT",
+    "HOLE_REACH",
+    "loop_subdivide",
+    "manifold_face_pairs",
+    "MAX_LISTED_COMPONENTS",
+    "merge_close_vertices",
+    "name_caps",
+    "nonmanifold_fins",
+    "orient_consistently",
+    "relabel",
+    "remove_unreferenced_vertices",
+    "repair",
+    "RepairReport",
+    "taubin_smooth",
+    "uniform_laplacian",
+    "vertex_radii",
+    "wall_hole_loops",
+    "wall_radius_deviation",
+]

@@ -1,5 +1,5 @@
 """Skeleton extraction from the surface (issue 4): a thin wrapper around
-:mod:`vmesh.geometry.skeleton_extract`."""
+:mod:`vmesh.geometry.skeleton.extract`."""
 
 from __future__ import annotations
 
@@ -92,24 +92,14 @@ def extract_skeleton(
     (or to flat / rounded end faces), then resample every branch with nodes centred
     in their cross-sections. The report section ``skeleton_extraction`` holds the
     voxel size, grid, distance evaluations, what the cleaning removed and stage times."""
-    from ..geometry import skeleton_extract as se
+    from ..geometry.skeleton.extract import ExtractionSettings
+    from ..geometry.skeleton.extract import extract_skeleton as extract
 
     if only_if_missing and ctx.skeleton is not None:
         ctx.count(extracted=0)
         return
-    sdf = ctx.sdf
-    name = (ctx.surface.name if ctx.surface is not None else "") or "surface"
-    surface = None
-    if ctx.surface is not None:
-        surface = (ctx.surface.vertices, ctx.surface.faces)
-        bounds = ctx.surface.bounds
-    elif sdf is not None:
-        bounds = sdf.bounds
-    else:
-        raise InputError("extract_skeleton needs the surface layer (or an SDF that knows its bounds)")
-    if surface is None and voxel_size is None and min_radius is None:
-        surface = (sdf.vertices, sdf.faces)
-    settings = se.ExtractionSettings(
+    sdf, name, surface, bounds = _extraction_input(ctx, voxel_size, min_radius)
+    settings = ExtractionSettings(
         spacing=voxel_size,
         voxels_per_radius=voxels_per_radius,
         max_voxels=max_voxels,
@@ -122,7 +112,7 @@ def extract_skeleton(
     )
     caps = ctx.caps if (use_caps and ctx.caps) else None
     try:
-        skeleton, stats = se.extract_skeleton(
+        skeleton, stats = extract(
             sdf.distance,
             bounds,
             min_radius=min_radius,
@@ -133,7 +123,39 @@ def extract_skeleton(
         )
     except ValueError as exc:
         raise InputError(f"skeleton extraction failed: {exc}", name) from None
-    unreached = stats["ends"].pop("unreached", [])
+    _check_caps_reached(stats["ends"].pop("unreached", []), caps, name)
+    stats["pulled_in"], skeleton = _pull_inside(skeleton, sdf, name)
+    skeleton.name = f"extracted from {name}"
+    if caps:
+        names = {i: c.name for i, c in enumerate(caps)}
+        _tag_cap_ends(skeleton, stats.pop("cap_of_node", {}), names)
+    else:
+        stats.pop("cap_of_node", None)
+    ctx.skeleton = skeleton
+    ctx.report.sections["skeleton_extraction"] = stats
+    _report(ctx, skeleton, stats, caps, max_voxels)
+
+
+def _extraction_input(ctx, voxel_size, min_radius):
+    """The SDF, the surface's name, the surface ``(vertices, faces)`` (``None`` where not
+    needed) and the bounds the extraction works in."""
+    sdf = ctx.sdf
+    name = (ctx.surface.name if ctx.surface is not None else "") or "surface"
+    surface = None
+    if ctx.surface is not None:
+        surface = (ctx.surface.vertices, ctx.surface.faces)
+        bounds = ctx.surface.bounds
+    elif sdf is not None:
+        bounds = sdf.bounds
+    else:
+        raise InputError("extract_skeleton needs the surface layer (or an SDF that knows its bounds)")
+    if surface is None and voxel_size is None and min_radius is None:
+        surface = (sdf.vertices, sdf.faces)
+    return sdf, name, surface, bounds
+
+
+def _check_caps_reached(unreached, caps, name) -> None:
+    """Fail on caps no path inside the vessel reaches: the vessel behind would be missing."""
     if unreached:
         where = "; ".join(f"{caps[c].name} at {np.round(caps[c].center, 3).tolist()}" for c in unreached)
         raise InputError(
@@ -142,6 +164,11 @@ def extract_skeleton(
             "lower extract_skeleton.voxel_size)",
             name,
         )
+
+
+def _pull_inside(skeleton, sdf, name):
+    """Move nodes outside the surface inside; returns (number moved, skeleton). Fails on
+    a node that cannot be moved inside (an open or broken surface)."""
     from ..geometry.skeleton_fit import ensure_inside
 
     skeleton, moved, stuck = ensure_inside(skeleton, sdf.distance, sdf.gradient)
@@ -152,15 +179,11 @@ def extract_skeleton(
             f"cannot be moved inside ({len(stuck)} such node(s)): is the surface closed and free of holes?",
             name,
         )
-    stats["pulled_in"] = moved
-    skeleton.name = f"extracted from {name}"
-    if caps:
-        names = {i: c.name for i, c in enumerate(caps)}
-        _tag_cap_ends(skeleton, stats.pop("cap_of_node", {}), names)
-    else:
-        stats.pop("cap_of_node", None)
-    ctx.skeleton = skeleton
-    ctx.report.sections["skeleton_extraction"] = stats
+    return moved, skeleton
+
+
+def _report(ctx, skeleton, stats: dict, caps, max_voxels: int) -> None:
+    """Warnings and step counts of an extraction."""
     if stats.get("spacing_limited"):
         ctx.warn(f"voxel size raised to {stats['spacing']:.4g} to stay within max_voxels={max_voxels}: thin vessels may be lost")
     if stats["components"] > 1:

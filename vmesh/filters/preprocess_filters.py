@@ -587,7 +587,7 @@ def measure_sdf(ctx, points, seed, filename, octree):
     import json
 
     from ..geometry import topology
-    from ..geometry.sdf import compare_coarse_fine
+    from ..geometry.sdf_measure import compare_coarse_fine
     from ..io.atomic import write_text_atomic
 
     for layer in ("surface", "coarse_surface"):

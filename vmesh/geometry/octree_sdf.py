@@ -33,6 +33,8 @@ only make the distance longer.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from . import bvh as _bvh
@@ -55,6 +57,63 @@ _MEDIAL_SPREAD = 3.0
 # the wall (local radii)
 _CREASE_COS = np.cos(np.radians(40.0))
 _CREASE_NEAR = 0.25
+
+
+@dataclass(frozen=True)
+class _Octree:
+    """The octree's arrays: root cube ``root_lo + [0, root_size]^3``, ``depth`` levels below
+    it; per node its first child (-1: a leaf; children of one parent are consecutive, in
+    octant order) and its row of ``cand`` (-1: no candidates, the exact query answers);
+    ``cand`` holds the closest faces of each leaf's 3x3x3 lattice."""
+
+    root_lo: np.ndarray
+    root_size: float
+    depth: int
+    child: np.ndarray
+    slot: np.ndarray
+    cand: np.ndarray
+
+
+@dataclass
+class OctreeStats:
+    """What building the octree found: leaves with candidates, leaves that keep the exact
+    query, cells checked near the medial axis, cells left exact at creases, distinct
+    candidate triangles per leaf, per level (leaves, exact leaves, cells split), build time."""
+
+    n_leaves: int
+    n_exact_leaves: int
+    n_medial_checked: int
+    n_creased: int
+    candidates_mean: float
+    level_counts: list
+    build_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class _TriangleArrays:
+    """Per-face triangle data in face order (the BVH's arrays are in its leaf order) and
+    the surface adjacency the query kernels walk over (:func:`surface_adjacency`)."""
+
+    a: np.ndarray
+    ab: np.ndarray
+    ac: np.ndarray
+    faces: np.ndarray
+    edge_nb: np.ndarray
+    vptr: np.ndarray
+    vfaces: np.ndarray
+
+    @classmethod
+    def of(cls, sdf) -> "_TriangleArrays":
+        """The arrays of a :class:`~vmesh.geometry.sdf.SignedDistance`'s surface."""
+        tri = sdf.vertices[sdf.faces]
+        a = np.ascontiguousarray(tri[:, 0])
+        ab = np.ascontiguousarray(tri[:, 1] - tri[:, 0])
+        ac = np.ascontiguousarray(tri[:, 2] - tri[:, 0])
+        return cls(a, ab, ac, np.ascontiguousarray(sdf.faces), *surface_adjacency(sdf.faces, len(sdf.vertices)))
+
+    def kernel_args(self) -> tuple:
+        """The arrays in the order the query kernels take them."""
+        return self.a, self.ab, self.ac, self.faces, self.edge_nb, self.vptr, self.vfaces
 
 
 class OctreeSignedDistance(SurfaceQueries):
@@ -82,11 +141,13 @@ class OctreeSignedDistance(SurfaceQueries):
     Attributes
     ----------
     Those of ``sdf`` (``vertices``, ``faces``, ``n_faces``, ``bounds``, ``diagonal``,
-    ``sign_method``, ...), plus ``exact`` (the wrapped SDF), ``n_leaves`` (leaves with
-    candidates), ``n_exact_leaves`` (leaves that keep the BVH query), ``n_medial_checked``
-    and ``n_creased`` (cells checked near the medial axis, cells left exact at creases),
-    ``candidates_mean`` (distinct triangles per leaf), ``level_counts`` (per octree level:
-    leaves, exact leaves, cells split) and ``build_s``.
+    ``sign_method``, ...), plus ``exact`` (the wrapped SDF), ``tree`` (the octree's
+    arrays) and ``stats`` (:class:`OctreeStats`: ``n_leaves``, leaves with candidates;
+    ``n_exact_leaves``, leaves that keep the BVH query; ``n_medial_checked`` and
+    ``n_creased``, cells checked near the medial axis, cells left exact at creases;
+    ``candidates_mean``, distinct triangles per leaf; ``level_counts``, per octree level:
+    leaves, exact leaves, cells split; ``build_s``). ``n_leaves``, ``n_exact_leaves`` and
+    ``candidates_mean`` are properties too.
 
     The octree pays off for large batches near the wall (projections, distance fields on
     grids): about 5-7x the BVH's points per second on the real cases. Line casts
@@ -113,22 +174,15 @@ class OctreeSignedDistance(SurfaceQueries):
         self.face_radius = _face_radius(sdf, wall_faces) if face_radius is None else np.asarray(face_radius, np.float64).reshape(-1)
         if len(self.face_radius) != sdf.n_faces or not np.all(self.face_radius > 0):
             raise ValueError(f"face_radius needs one positive radius per face ({sdf.n_faces})")
-        tri = sdf.vertices[sdf.faces]
-        # per-face triangle data in face order (the BVH's arrays are in its leaf order)
-        self._a = np.ascontiguousarray(tri[:, 0])
-        self._ab = np.ascontiguousarray(tri[:, 1] - tri[:, 0])
-        self._ac = np.ascontiguousarray(tri[:, 2] - tri[:, 0])
-        self._faces = np.ascontiguousarray(sdf.faces)
-        self._edge_nb, self._vptr, self._vfaces = surface_adjacency(sdf.faces, len(sdf.vertices))
+        self._mesh = _TriangleArrays.of(sdf)
         r_min, r_max = float(self.face_radius.min()), float(self.face_radius.max())
         lo, hi = sdf.bounds
         centre = 0.5 * (lo + hi)
-        self.root_size = float(np.max(hi - lo) + 2 * margin * r_max)
-        self.root_lo = centre - 0.5 * self.root_size
-        self.depth = int(min(_MAX_DEPTH, max(1, np.ceil(np.log2(self.root_size / (min_cell * r_min))))))
+        root_size = float(np.max(hi - lo) + 2 * margin * r_max)
+        depth = int(min(_MAX_DEPTH, max(1, np.ceil(np.log2(root_size / (min_cell * r_min))))))
         self.margin = float(margin)
-        self._build()
-        self.build_s = time.perf_counter() - t0
+        self.tree, self.stats = self._build(centre - 0.5 * root_size, root_size, depth)
+        self.stats.build_s = time.perf_counter() - t0
 
     # the exact SDF's surface and attributes (the SurfaceQuery interface and the report's)
     @property
@@ -206,13 +260,29 @@ class OctreeSignedDistance(SurfaceQueries):
         """This distance (:class:`~vmesh.geometry.surface_query.SurfaceQuery`)."""
         return self
 
+    @property
+    def n_leaves(self) -> int:
+        """Leaves with candidate triangles (``stats.n_leaves``)."""
+        return self.stats.n_leaves
+
+    @property
+    def n_exact_leaves(self) -> int:
+        """Leaves that keep the exact BVH query (``stats.n_exact_leaves``)."""
+        return self.stats.n_exact_leaves
+
+    @property
+    def candidates_mean(self) -> float:
+        """Distinct candidate triangles per leaf (``stats.candidates_mean``)."""
+        return self.stats.candidates_mean
+
     def __repr__(self) -> str:
         return f"OctreeSignedDistance({self.n_faces} triangles, {self.n_leaves} leaves, {self.candidates_mean:.1f} candidates per leaf, max_error {self.max_error:g} R)"
 
     # -- construction --------------------------------------------------------
-    def _build(self):
-        sdf, depth = self.exact, self.depth
-        unit = self.root_size / 2.0 ** (depth + 2)  # lattice step: a quarter of the finest cell
+    def _build(self, root_lo: np.ndarray, root_size: float, depth: int):
+        """The octree over the cube ``root_lo + [0, root_size]^3`` and its statistics."""
+        sdf = self.exact
+        unit = root_size / 2.0 ** (depth + 2)  # lattice step: a quarter of the finest cell
         child, slot, cand = [np.full(1, -1, np.int64)], [np.full(1, -1, np.int64)], []
         n_nodes, n_slots, n_medial, n_creased = 1, 0, 0, 0
         ijk = np.zeros((1, 3), np.int64)  # cells of the current level, in cell units
@@ -224,7 +294,7 @@ class OctreeSignedDistance(SurfaceQueries):
             n = len(ijk)
             # the centre alone tells cells far outside (exact leaves) and cells larger than
             # max_cell (split) apart from those worth the 3x3x3 lattice
-            _, d_c, f_c = sdf.project(self.root_lo + (base + half) * unit)
+            _, d_c, f_c = sdf.project(root_lo + (base + half) * unit)
             r_est = self.face_radius[f_c]
             far = d_c < -(self.margin * r_est + 0.87 * size)
             look = np.flatnonzero(~far & (size <= self.max_cell * r_est))
@@ -233,7 +303,7 @@ class OctreeSignedDistance(SurfaceQueries):
             if len(look):
                 lattice = np.concatenate([base[look, None, :] + _OFF27[None] * (half // 2), base[look, None, :] + _OFF8[None] * (half // 2)], axis=1)
                 uniq, inverse = np.unique(_pack(lattice.reshape(-1, 3)), return_inverse=True)
-                c_u, d_u, f_u = sdf.project(self.root_lo + _unpack(uniq) * unit)
+                c_u, d_u, f_u = sdf.project(root_lo + _unpack(uniq) * unit)
                 inverse = inverse.reshape(len(look), 35)
                 d, f = d_u[inverse], f_u[inverse]
                 r_cell = self.face_radius[f[:, :27]].min(axis=1)
@@ -253,14 +323,14 @@ class OctreeSignedDistance(SurfaceQueries):
                 mean = nrm.sum(axis=1)
                 mean /= np.maximum(np.linalg.norm(mean, axis=1), 1e-300)[:, None]
                 creased = (np.einsum("ijk,ik->ij", nrm, mean).min(axis=1) < _CREASE_COS) & (np.abs(d[test, :27]).min(axis=1) < _CREASE_NEAR * r_cell[test])
-                passed = self._verify(base[look[test]], _OFF8, half // 2, f[test, :27], d[test, 27:].ravel(), r_cell[test], unit) & ~creased
+                passed = self._verify(root_lo, base[look[test]], _OFF8, half // 2, f[test, :27], d[test, 27:].ravel(), r_cell[test], unit) & ~creased
                 medial = np.flatnonzero(passed & (spread > _MEDIAL_SPREAD * (size / 2)))
                 if len(medial):
                     cells = test[medial]
                     extra = base[look[cells], None, :] + _OFF_MEDIAL[None] * (half // 2)
                     ukeys, uinv = np.unique(_pack(extra.reshape(-1, 3)), return_inverse=True)
-                    _, d_extra, _ = sdf.project(self.root_lo + _unpack(ukeys) * unit)
-                    passed[medial] = self._verify(base[look[cells]], _OFF_MEDIAL, half // 2, f[cells, :27], d_extra[uinv.ravel()], r_cell[cells], unit)
+                    _, d_extra, _ = sdf.project(root_lo + _unpack(ukeys) * unit)
+                    passed[medial] = self._verify(root_lo, base[look[cells]], _OFF_MEDIAL, half // 2, f[cells, :27], d_extra[uinv.ravel()], r_cell[cells], unit)
                     n_medial += len(medial)
                 keep = test[passed]
                 ok[look[keep]] = True
@@ -282,26 +352,28 @@ class OctreeSignedDistance(SurfaceQueries):
             ijk = (2 * ijk[split][:, None, :] + _CHILD[None]).reshape(-1, 3)
             child.append(np.full(len(ijk), -1, np.int64))
             slot.append(np.full(len(ijk), -1, np.int64))
-        self._child = np.ascontiguousarray(np.concatenate(child))
-        self._slot = np.ascontiguousarray(np.concatenate(slot))
-        self._cand = np.ascontiguousarray(np.concatenate(cand)) if cand else np.zeros((0, 27), np.int32)
-        self.level_counts = level_counts
-        self.n_leaves = n_slots
-        self.n_exact_leaves = sum(c[1] for c in level_counts)
-        self.n_medial_checked = n_medial
-        self.n_creased = n_creased
-        sample = self._cand[:: max(1, n_slots // 2000)]
-        self.candidates_mean = float(np.mean([len(np.unique(r)) for r in sample])) if n_slots else 0.0
+        tree = _Octree(
+            root_lo,
+            root_size,
+            depth,
+            np.ascontiguousarray(np.concatenate(child)),
+            np.ascontiguousarray(np.concatenate(slot)),
+            np.ascontiguousarray(np.concatenate(cand)) if cand else np.zeros((0, 27), np.int32),
+        )
+        sample = tree.cand[:: max(1, n_slots // 2000)]
+        mean = float(np.mean([len(np.unique(r)) for r in sample])) if n_slots else 0.0
+        return tree, OctreeStats(n_slots, sum(c[1] for c in level_counts), n_medial, n_creased, mean, level_counts)
 
-    def _verify(self, base, offsets, quarter, lattice_faces, exact, r_cell, unit) -> np.ndarray:
+    def _verify(self, root_lo, base, offsets, quarter, lattice_faces, exact, r_cell, unit) -> np.ndarray:
         """True per cell where the query's answer at every check point (``offsets`` (c, 3),
         in quarter cells ``quarter`` lattice units, from each cell's corner ``base`` (k, 3))
-        is within ``max_error`` radii of the ``exact`` signed distance (k c,)."""
+        is within ``max_error`` radii of the ``exact`` signed distance (k c,); lattice
+        unit ``unit``, origin ``root_lo``."""
         k, c = len(base), len(offsets)
-        pts = np.ascontiguousarray((self.root_lo + (base[:, None, :] + offsets[None] * quarter) * unit).reshape(-1, 3))
+        pts = np.ascontiguousarray((root_lo + (base[:, None, :] + offsets[None] * quarter) * unit).reshape(-1, 3))
         cell = np.repeat(np.arange(k), c)
         sub = np.ascontiguousarray(np.tile((offsets >= 2).astype(np.int64), (k, 1)))
-        sq, face, closest, feature = _lattice_answers(pts, cell, sub, np.ascontiguousarray(lattice_faces, dtype=np.int32), *self._mesh())
+        sq, face, closest, feature = _lattice_answers(pts, cell, sub, np.ascontiguousarray(lattice_faces, dtype=np.int32), *self._mesh.kernel_args())
         signed = self.exact.signs(pts, sq, face, closest, feature)[0]
         err = np.abs(signed - exact).reshape(k, c)
         return np.all(err <= self.max_error * r_cell[:, None], axis=1)
@@ -326,9 +398,6 @@ class OctreeSignedDistance(SurfaceQueries):
     def _outside(self, p, closest, face, normal):
         return self.exact._outside(p, closest, face, normal)
 
-    def _mesh(self):
-        return self._a, self._ab, self._ac, self._faces, self._edge_nb, self._vptr, self._vfaces
-
     def _closest_feature(self, p: np.ndarray):
         """``(sq, face, closest, feature)`` like :meth:`TriangleBVH.closest`, input order."""
         ps, order = _morton_sorted(p)
@@ -347,14 +416,15 @@ class OctreeSignedDistance(SurfaceQueries):
             return sq, face, closest, feature, signed, normal
         ex = self.exact
         kernel = _octree_kernel if n >= _bvh.PARALLEL_MIN else _octree_serial
-        kernel(p, self.root_lo, self.root_size, self._child, self._slot, self._cand, *self._mesh(), sq, face, closest, feature,
-               ex.face_normals, ex._edge_normals, ex.vertex_normals, ex.degenerate_faces, ex._suspect_vertex, signed, normal, unsure)
+        tree = self.tree
+        kernel(p, tree.root_lo, tree.root_size, tree.child, tree.slot, tree.cand, *self._mesh.kernel_args(), sq, face, closest, feature,
+               *ex.normals.kernel_arrays(), signed, normal, unsure)
         miss = np.flatnonzero(face < 0)
         if len(miss):  # outside the octree or in a leaf that keeps the exact query
             q = np.ascontiguousarray(p[miss])
             r = ex._tree.closest(q)
             sq[miss], face[miss], closest[miss], feature[miss] = r
-            signed[miss], normal[miss], unsure[miss] = _bvh.pseudonormal_signs(q, r[0], r[2], r[1], r[3], ex.faces, ex.face_normals, ex._edge_normals, ex.vertex_normals, ex.degenerate_faces, ex._suspect_vertex)
+            signed[miss], normal[miss], unsure[miss] = _bvh.pseudonormal_signs(q, r[0], r[2], r[1], r[3], ex.faces, *ex.normals.kernel_arrays())
         ex._resolve_unsure(p, signed, unsure)
         return sq, face, closest, feature, signed, normal
 

@@ -40,12 +40,13 @@ Backend, chosen by measurement (``benchmarks/sdf_coarse_vs_fine.py --backends``,
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..errors import InputError
 from . import bvh as _bvh
 from . import topology
-from .surface_query import SurfaceQuery  # noqa: F401  (the interface the classes below implement)
 
 #: Barycentric tolerance deciding that a closest point lies on an edge or a vertex.
 #: Classifying a point near an edge as "on the edge" is always safe for the sign.
@@ -140,6 +141,51 @@ def folded_faces(faces: np.ndarray, face_unit_normals: np.ndarray, edge_of_half:
     out[f[sharp]] = True
     out[g[sharp]] = True
     return out
+
+
+@dataclass(frozen=True)
+class Pseudonormals:
+    """The normals a pseudonormal sign test reads (Bærentzen & Aanæs 2005), per feature.
+
+    Attributes
+    ----------
+    face : (m, 3)
+        Unit outward face normals (zero for degenerate faces).
+    edge : (m, 3, 3)
+        Unit edge pseudonormals per face and local edge (:func:`edge_pseudonormals`).
+    vertex : (n, 3)
+        Angle-weighted vertex pseudonormals.
+    degenerate : (m,) bool
+        Faces of (numerically) zero area: their closest points take a vertex normal.
+    suspect_vertex : (n,) bool
+        Vertices of folded or sliver faces, where the sign is taken from the winding number.
+    n_suspect_faces : int
+    """
+
+    face: np.ndarray
+    edge: np.ndarray
+    vertex: np.ndarray
+    degenerate: np.ndarray
+    suspect_vertex: np.ndarray
+    n_suspect_faces: int
+
+    @classmethod
+    def of(cls, v: np.ndarray, f: np.ndarray, edge_of_half: np.ndarray, faces_per_edge: np.ndarray, diagonal: float) -> "Pseudonormals":
+        """The normals of an outward-oriented surface (``edge_table(f)``'s first two arrays)."""
+        raw = topology.face_normals(v, f, normalize=False)
+        area2 = np.linalg.norm(raw, axis=1)
+        degenerate = area2 <= 1e-14 * diagonal**2
+        face = raw / np.where(degenerate, np.inf, area2)[:, None]
+        # pseudonormals are only trustworthy away from folds and slivers: points whose
+        # closest face touches one get their sign from the winding number instead
+        suspect = folded_faces(f, face, edge_of_half, faces_per_edge) | (area2 <= 1e-6 * np.median(area2))
+        suspect_vertex = np.zeros(len(v), bool)
+        suspect_vertex[f[suspect].ravel()] = True
+        return cls(face, edge_pseudonormals(f, face, edge_of_half), angle_weighted_vertex_normals(v, f, face), degenerate, suspect_vertex, int(suspect.sum()))
+
+    def kernel_arrays(self) -> tuple:
+        """The arrays in the order :func:`vmesh.geometry.bvh.pseudonormal_signs` takes them."""
+        return self.face, self.edge, self.vertex, self.degenerate, self.suspect_vertex
 
 
 class SurfaceQueries:
@@ -287,19 +333,8 @@ class SignedDistance(SurfaceQueries):
         # a shared tree is only valid for the same triangles in the same corner order
         shared = tree is not None and not self.flipped and _same(tree.vertices, v) and _same(tree.faces, f)
         self._tree = tree if shared else _bvh.TriangleBVH(v, f)
-        raw = topology.face_normals(v, f, normalize=False)
-        area2 = np.linalg.norm(raw, axis=1)
-        self.degenerate_faces = area2 <= 1e-14 * self.diagonal**2
-        self.face_normals = raw / np.where(self.degenerate_faces, np.inf, area2)[:, None]
-        self.vertex_normals = angle_weighted_vertex_normals(v, f, self.face_normals)
-        self._edge_normals = edge_pseudonormals(f, self.face_normals, edge_of_half)
+        self.normals = Pseudonormals.of(v, f, edge_of_half, faces_per_edge, self.diagonal)
         self._wn = None
-        # pseudonormals are only trustworthy away from folds and slivers: points whose
-        # closest face touches one get their sign from the winding number instead
-        suspect = folded_faces(f, self.face_normals, edge_of_half, faces_per_edge) | (area2 <= 1e-6 * np.median(area2))
-        self.n_suspect_faces = int(suspect.sum())
-        self._suspect_vertex = np.zeros(len(v), bool)
-        self._suspect_vertex[f[suspect].ravel()] = True
 
     @classmethod
     def from_surface(cls, surface, sign: str = "auto") -> "SignedDistance":
@@ -316,13 +351,33 @@ class SignedDistance(SurfaceQueries):
 
     @property
     def fine(self) -> "SignedDistance":
-        """This distance (no coarse search in front of it: :class:`SurfaceQuery`)."""
+        """This distance (no coarse search in front of it: :class:`~vmesh.geometry.surface_query.SurfaceQuery`)."""
         return self
 
     @property
     def coarse(self) -> "SignedDistance":
-        """This distance (:class:`SurfaceQuery`)."""
+        """This distance (:class:`~vmesh.geometry.surface_query.SurfaceQuery`)."""
         return self
+
+    @property
+    def face_normals(self) -> np.ndarray:
+        """Unit outward face normals ``(m, 3)`` (zero for degenerate faces)."""
+        return self.normals.face
+
+    @property
+    def vertex_normals(self) -> np.ndarray:
+        """Angle-weighted vertex pseudonormals ``(n, 3)``."""
+        return self.normals.vertex
+
+    @property
+    def degenerate_faces(self) -> np.ndarray:
+        """Boolean ``(m,)``: faces of (numerically) zero area."""
+        return self.normals.degenerate
+
+    @property
+    def n_suspect_faces(self) -> int:
+        """Faces whose pseudonormal sign is not trusted (folds, slivers)."""
+        return self.normals.n_suspect_faces
 
     def __repr__(self) -> str:
         return f"SignedDistance({self.name or 'surface'}: {self.n_faces} triangles, sign={self.sign_method})"
@@ -373,7 +428,7 @@ class SignedDistance(SurfaceQueries):
         if on_edge.any():
             # the edge opposite corner k is local edge (k + 1) % 3
             local = (np.argmax(small[on_edge], axis=1) + 1) % 3
-            normal[on_edge] = self._edge_normals[face[on_edge], local]
+            normal[on_edge] = self.normals.edge[face[on_edge], local]
         on_vertex = (n_small >= 2) | self.degenerate_faces[face]
         if on_vertex.any():
             corner = np.argmax(bary[on_vertex], axis=1)
@@ -396,7 +451,7 @@ class SignedDistance(SurfaceQueries):
         is the pseudonormal test of the feature holding the closest point, or the winding
         number near suspect faces and with ``sign_method="winding_number"``.
         """
-        signed, normal, unsure = _bvh.pseudonormal_signs(p, sq, closest, face, feature, self.faces, self.face_normals, self._edge_normals, self.vertex_normals, self.degenerate_faces, self._suspect_vertex)
+        signed, normal, unsure = _bvh.pseudonormal_signs(p, sq, closest, face, feature, self.faces, *self.normals.kernel_arrays())
         self._resolve_unsure(p, signed, unsure)
         return signed, normal
 
@@ -414,7 +469,7 @@ class SignedDistance(SurfaceQueries):
         if self.sign_method != "pseudonormal":
             return self.winding_number(p) < 0.5
         outside = np.einsum("ij,ij->i", p - closest, normal) > 0
-        unsure = self._suspect_vertex[self.faces[face]].any(axis=1)
+        unsure = self.normals.suspect_vertex[self.faces[face]].any(axis=1)
         if unsure.any():
             outside[unsure] = self.winding_number(p[unsure]) < 0.5
         return outside
@@ -633,129 +688,10 @@ def vessel_query_points(sdf: SignedDistance, n: int, seed: int = 0, inside: floa
     return base - (t * radius)[:, None] * normal, radius
 
 
-def projection_errors(fine: SignedDistance, result, fine_result) -> tuple[np.ndarray, np.ndarray]:
-    """Errors of an approximate ``project`` result against the fine surface.
+def __getattr__(name):
+    """The measurement helpers' old import path (they live in :mod:`.sdf_measure`)."""
+    if name in ("compare_coarse_fine", "projection_errors"):
+        from . import sdf_measure
 
-    Parameters
-    ----------
-    fine : SignedDistance of the fine surface
-    result : (closest, distance, face) from the approximate (coarse or two-step) SDF
-    fine_result : the same from ``fine.project`` at the same points
-
-    Returns
-    -------
-    off_surface : (n,) distance of each projected point from the fine surface
-        (the projection error; closest points themselves are not unique near the
-        centreline, so their displacement is not a meaningful error)
-    distance_error : (n,) absolute difference of the signed distances
-    """
-    off_surface = np.abs(fine.distance(result[0]))
-    return off_surface, np.abs(result[1] - fine_result[1])
-
-
-def compare_coarse_fine(fine_surface, coarse_surfaces, counts=(10_000, 100_000, 1_000_000), seed: int = 0, case: str = "", labels=None, octree: bool = True, repeat: int = 3) -> list[dict]:
-    """Build time, query throughput and projection error of coarse SDFs against the fine one.
-
-    For every number of points in ``counts`` and every coarse surface: project the same
-    query points (:func:`vessel_query_points`, caps excluded when the fine surface has
-    a ``cap_id`` face array) with the fine, the coarse and the two-step SDF. ``labels``
-    name the coarse surfaces in the rows' ``coarse_level`` (default: their face counts).
-
-    Returns
-    -------
-    list of dict rows with keys ``case, triangles_fine, triangles_coarse, points,
-    build_s_fine, build_s_coarse, qps_fine, qps_coarse, speedup, err_max_rel,
-    err_mean_rel`` (projection error relative to the local radius) plus
-    ``err_max_abs, err_mean_abs, dist_err_max_rel, dist_err_mean_rel, cpu_qps_fine,
-    cpu_qps_coarse`` (points per CPU-second, less sensitive to other load), ``qps_two_step,
-    two_step_err_max_rel, two_step_dist_err_max_rel, two_step_dist_err_mean_rel,
-    radius_median, coarse_level, coarse_index``.
-
-    With ``octree`` every coarse surface, and the fine one, also gets an
-    :class:`~vmesh.geometry.octree_sdf.OctreeSignedDistance` (its rows: ``coarse_index``
-    ``"octree"``, ``coarse_level`` ending in ``", octree"``, ``build_s_coarse`` the BVH and
-    the octree together). Times are the best of ``repeat`` runs (the first 10^6-point run
-    of a kernel pays page faults and thread start-up that a mesher pays once).
-    """
-    import time
-
-    t0 = time.perf_counter()
-    fine = SignedDistance.from_surface(fine_surface)
-    build_fine = time.perf_counter() - t0
-    caps = fine_surface.face_data.get("cap_id")
-    wall = None if caps is None or len(caps) != fine_surface.n_faces else np.asarray(caps) == 0
-    labels = list(labels) if labels is not None else [f"{s.n_faces} faces" for s in coarse_surfaces]
-    coarse, kinds = [], []
-    for surface, label in zip(coarse_surfaces, labels):
-        t0 = time.perf_counter()
-        sdf = SignedDistance.from_surface(surface)
-        coarse.append((sdf, time.perf_counter() - t0))
-        kinds.append((label, "bvh"))
-    if octree:
-        from .octree_sdf import OctreeSignedDistance
-
-        for (sdf, build_s), (label, _) in list(zip(coarse, kinds)) + [((fine, build_fine), ("fine surface", ""))]:
-            t0 = time.perf_counter()
-            tree = OctreeSignedDistance(sdf, wall_faces=wall if sdf is fine else None)
-            coarse.append((tree, build_s + time.perf_counter() - t0))
-            kinds.append((f"{label}, octree", "octree"))
-    # warm-up (thread pool, page faults) of the serial and the parallel kernels, every surface
-    warm = np.resize(fine.vertices, (_bvh.PARALLEL_MIN, 3))
-    for sdf in [fine] + [c for c, _ in coarse]:
-        sdf.project(warm[:16])
-        sdf.project(warm)
-    rows = []
-    for n in counts:
-        points, radius = vessel_query_points(fine, int(n), seed=seed, wall_faces=wall)
-        ref, (wall_s, cpu_s) = _timed(fine.project, points, repeat=repeat)
-        qps_fine, cpu_qps_fine = n / wall_s, n / cpu_s
-        for (sdf, build_s), (label, kind) in zip(coarse, kinds):
-            res, (wall_s, cpu_s) = _timed(sdf.project, points, repeat=repeat)
-            qps_coarse, cpu_qps_coarse = n / wall_s, n / cpu_s
-            two = TwoStepSignedDistance(sdf, fine)
-            res2, (wall_s, _) = _timed(two.project, points, repeat=repeat)
-            qps_two = n / wall_s
-            off, derr = projection_errors(fine, res, ref)
-            off2, derr2 = projection_errors(fine, res2, ref)
-            rows.append(
-                {
-                    "case": case or fine_surface.name,
-                    "triangles_fine": fine.n_faces,
-                    "triangles_coarse": sdf.n_faces,
-                    "coarse_level": label,
-                    "coarse_index": kind,
-                    "points": int(n),
-                    "build_s_fine": round(build_fine, 4),
-                    "build_s_coarse": round(build_s, 4),
-                    "qps_fine": round(qps_fine),
-                    "qps_coarse": round(qps_coarse),
-                    "speedup": round(qps_coarse / qps_fine, 2),
-                    "cpu_qps_fine": round(cpu_qps_fine),
-                    "cpu_qps_coarse": round(cpu_qps_coarse),
-                    "err_max_rel": float(np.max(off / radius)),
-                    "err_mean_rel": float(np.mean(off / radius)),
-                    "err_max_abs": float(off.max()),
-                    "err_mean_abs": float(off.mean()),
-                    "dist_err_max_rel": float(np.max(derr / radius)),
-                    "dist_err_mean_rel": float(np.mean(derr / radius)),
-                    "qps_two_step": round(qps_two),
-                    "two_step_err_max_rel": float(np.max(off2 / radius)),
-                    "two_step_dist_err_max_rel": float(np.max(derr2 / radius)),
-                    "two_step_dist_err_mean_rel": float(np.mean(derr2 / radius)),
-                    "radius_median": float(np.median(radius)),
-                }
-            )
-    return rows
-
-
-def _timed(function, *args, repeat: int = 1):
-    """``(result, (wall seconds, CPU seconds of this process))``, the fastest of ``repeat`` runs."""
-    import time
-
-    best = (np.inf, np.inf)
-    for _ in range(max(1, repeat)):
-        w0, c0 = time.perf_counter(), time.process_time()
-        out = function(*args)
-        best = min(best, (max(time.perf_counter() - w0, 1e-9), max(time.process_time() - c0, 1e-9)))
-    return out, best
-
+        return getattr(sdf_measure, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

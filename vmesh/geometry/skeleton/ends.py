@@ -1,0 +1,344 @@
+"""Placing the ends of the skeleton (stage 5): at caps, behind flat ends, into rounded ends.
+
+An end is moved to the centre of the cap it belongs to when caps are known;
+otherwise the branch is extended along its end tangent to the surface: to the last
+full cross-section behind a flat end face (:func:`~.end_faces.flat_end_sections`),
+or into a rounded end (an aneurysm dome) down to a depth where the inscribed radius
+is ``end_depth`` x the end radius. A cap no end reaches gets a branch of its own
+(:func:`_attach_cap`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .branch_graph import BranchGraph
+from .end_faces import end_face_normals, flat_end_sections
+from .probe import SdfFunction, center_in_cross_sections, distance_to_wall, evaluate_sdf
+
+
+def _end_tangent(pts: np.ndarray, window: float) -> np.ndarray:
+    """Unit direction of the last ``window`` of arclength (principal axis of its points,
+    pointing towards the last point); a hook of a few voxels at the very end barely
+    turns it."""
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    from_end = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]])
+    near = pts[from_end <= max(window, 1e-12)]
+    if len(near) < 3:
+        near = pts[-3:]
+    centre = near.mean(axis=0)
+    direction = np.linalg.svd(near - centre, full_matrices=False)[2][0] if len(near) >= 2 else np.zeros(3)
+    if direction @ (near[-1] - near[0]) < 0:
+        direction = -direction
+    norm = np.linalg.norm(direction)
+    return direction / norm if norm > 0 else np.array([1.0, 0.0, 0.0])
+
+
+
+def _straight(a: np.ndarray, b: np.ndarray, step: float) -> np.ndarray:
+    """Points strictly between ``a`` and ``b``, at most ``step`` apart."""
+    n = int(np.ceil(np.linalg.norm(b - a) / max(step, 1e-12)))
+    t = np.arange(1, n)[:, None] / max(n, 1)
+    return a + t * (b - a)
+
+
+
+def _match_caps(ends: np.ndarray, end_radii: np.ndarray, caps) -> dict:
+    """Greedy one-to-one matching of skeleton ends to caps, nearest first.
+
+    An end matches a cap when it lies inside the vessel behind the cap (depth up
+    to a few cap radii along the inward normal) and within a cap radius of its axis.
+    """
+    pairs = []
+    for c, cap in enumerate(caps):
+        centre, normal, radius = np.asarray(cap.center, float), np.asarray(cap.normal, float), float(cap.radius)
+        rel = centre - ends
+        depth = rel @ normal
+        lateral = np.linalg.norm(rel - depth[:, None] * normal, axis=1)
+        reach = 3.0 * radius + 2.0 * end_radii
+        ok = (depth > -0.5 * radius) & (depth < reach) & (lateral < 1.2 * radius)
+        for e in np.flatnonzero(ok):
+            pairs.append((float(np.linalg.norm(rel[e])), int(e), c))
+    pairs.sort()
+    matched, used_ends, used_caps = {}, set(), set()
+    for _, e, c in pairs:
+        if e not in used_ends and c not in used_caps:
+            matched[e] = c
+            used_ends.add(e)
+            used_caps.add(c)
+    return matched
+
+
+
+def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, end_depth: float = 0.5) -> dict:
+    """Move every end of the skeleton to where the vessel ends.
+
+    * With ``caps`` (objects with ``center``, ``normal``, ``radius``): each end is
+      matched to the cap of its open end and extended straight to the cap centre;
+      a cap without a skeleton end (its branch was too short to survive thinning)
+      gets a new branch from the nearest skeleton point with a path inside the
+      vessel to it (:func:`_attach_cap`); caps without one are listed under
+      ``unreached``. A cap overlapping a reached one (a cap face detected in two
+      parts) needs no end of its own.
+    * Other ends are extended along their end tangent to the wall. A flat end
+      (the cross-section keeps its full width up to the wall) ends on the axis
+      through the centre of the end face, at the last cross-section behind it that
+      meets only the side wall (:func:`flat_end_sections`: a quarter radius behind
+      a clean face, more behind a tilted, rough or rounded-rim one, as a clipped face
+      without a detected cap is); a rounded end (an aneurysm dome, a capsule)
+      ends where the inscribed radius has dropped to ``end_depth`` x the radius at
+      the medial end.
+
+    Returns the number of ends of each kind (``cap``, ``flat``, ``rounded``, ``added``)
+    and, when some cap could not be reached, the list ``unreached`` of their indices.
+    """
+    counts = {"cap": 0, "flat": 0, "rounded": 0, "added": 0}
+    ends = [n for n in graph.graph.nodes if graph.degree(n) == 1]
+    info = [(node, *_trim_end(graph, node, spacing)) for node in ends]
+    caps = list(caps or [])
+    matched = {}
+    if caps and ends:
+        end_pos = np.array([graph.pos(n) for n in ends])
+        matched = _match_caps(end_pos, np.array([i[2] for i in info]), caps)
+    for e, (node, tangent, r_ref) in enumerate(info):
+        if e in matched:
+            cap = caps[matched[e]]
+            _extend(graph, node, np.asarray(cap.center, float), float(cap.radius), spacing)
+            graph.graph.nodes[node]["end"] = ("cap", matched[e])
+            counts["cap"] += 1
+    free = [i for e, i in enumerate(info) if e not in matched]
+    taken = set(matched.values())
+    if free:
+        counts_free = _extend_to_wall(graph, sdf, free, spacing, end_depth, caps, taken)
+        for key, value in counts_free.items():
+            counts[key] += value
+    for c in sorted(set(range(len(caps))) - taken):
+        centre = np.asarray(caps[c].center, float)
+        if any(np.linalg.norm(np.asarray(caps[o].center, float) - centre) < caps[o].radius + caps[c].radius for o in taken):
+            continue  # overlaps a reached cap: two open ends cannot, it is a piece of that one
+        if _attach_cap(graph, caps[c], c, spacing, sdf):
+            counts["added"] += 1
+        else:
+            counts.setdefault("unreached", []).append(c)
+    return counts
+
+
+
+def _trim_end(graph: BranchGraph, node: int, spacing: float) -> tuple[np.ndarray, float]:
+    """Cut the wall-ward tail off a terminal branch and return its end tangent and radius.
+
+    Near a flat end the medial axis fans out into a cone towards the rim, and the
+    thinned curve follows one side of it; the points whose inscribed radius has
+    dropped below 85 % of the largest radius near the end are that tail. What
+    remains ends on the vessel axis, about a radius before the end face.
+    """
+    (u, v, k), = list(graph.graph.edges(node, keys=True))
+    other = graph.other(u, v, node)
+    pts, rad = graph.polyline(u, v, k, start=other)
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    from_end = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]])
+    window = min(float(from_end[0]), 2.0 * float(np.median(rad)) + 2 * spacing)
+    tail = np.flatnonzero(from_end <= window)
+    r_ref = float(rad[tail].max())
+    keep = tail[rad[tail] >= 0.85 * r_ref]
+    last = int(keep[-1]) if len(keep) else len(pts) - 1
+    if 0 < last < len(pts) - 1:
+        data = graph.graph.edges[u, v, k]
+        inner = pts[1:last] if data["start"] == other else pts[1:last][::-1]
+        inner_r = rad[1:last] if data["start"] == other else rad[1:last][::-1]
+        data["pts"], data["rad"] = inner, inner_r
+        graph.graph.nodes[node]["pos"] = pts[last]
+        graph.graph.nodes[node]["r"] = float(rad[last])
+        pts, from_end = pts[: last + 1], from_end[: last + 1] - from_end[last]
+    return _end_tangent(pts, max(2.5 * r_ref, 4 * spacing)), r_ref
+
+
+
+def _extend(graph: BranchGraph, node: int, target: np.ndarray, radius: float, spacing: float, direction=None) -> None:
+    """Move end ``node`` to ``target``, keeping its old position as part of the branch.
+
+    With ``direction`` (the outward axis at the end), branch points that do not lie
+    clearly behind ``target`` along it are cut off first: a target set back from an
+    end face may lie behind the traced end, and going there and back would fold the
+    branch."""
+    (u, v, k), = list(graph.graph.edges(node, keys=True))
+    data = graph.graph.edges[u, v, k]
+    target = np.asarray(target, float)
+    towards_end = data["start"] != node
+    pts = data["pts"] if towards_end else data["pts"][::-1]
+    rad = data["rad"] if towards_end else data["rad"][::-1]
+    old, old_r = graph.pos(node), graph.radius(node)
+    if direction is not None and (old - target) @ direction > -spacing:
+        behind = np.flatnonzero((pts - target) @ np.asarray(direction, float) < -spacing)
+        keep = behind[-1] + 1 if len(behind) else 0
+        pts, rad = pts[:keep], rad[:keep]
+        old = pts[-1] if keep else graph.pos(graph.other(u, v, node))
+        old_r = rad[-1] if keep else old_r
+        extra = _straight(old, target, spacing)
+    else:
+        extra = np.concatenate([old[None], _straight(old, target, spacing)])
+    pts = np.concatenate([pts, extra])
+    rad = np.concatenate([rad, np.full(len(extra), old_r)])
+    data["pts"], data["rad"] = (pts, rad) if towards_end else (pts[::-1].copy(), rad[::-1].copy())
+    graph.graph.nodes[node]["pos"] = target
+    graph.graph.nodes[node]["r"] = float(radius)
+
+
+
+def _extend_to_wall(graph: BranchGraph, sdf: SdfFunction, free, spacing: float, end_depth: float, caps=(), taken=None) -> dict:
+    """Extend free ends along their tangent: to just behind a flat end face, or into a rounded end.
+
+    An end whose axis meets the wall on a cap not matched yet (its branch bent away
+    from the cap's axis) goes to that cap's centre; ``taken`` collects such caps."""
+    nodes = [f[0] for f in free]
+    origin = np.array([graph.pos(n) for n in nodes])
+    tangent = np.array([f[1] for f in free])
+    r_ref = np.array([f[2] for f in free])
+    # the axis near the end: through the centres of two sections a radius apart
+    origin, _ = center_in_cross_sections(sdf, origin, tangent, r_ref)
+    behind, _ = center_in_cross_sections(sdf, origin - r_ref[:, None] * tangent, tangent, r_ref)
+    axis = origin - behind
+    length = np.linalg.norm(axis, axis=1, keepdims=True)
+    ok = (length[:, 0] > 0.5 * r_ref) & (np.einsum("ij,ij->i", axis, tangent) > 0.7 * length[:, 0])
+    tangent = np.where(ok[:, None], axis / np.maximum(length, 1e-300), tangent)
+    reach = 4.0 * r_ref + 2 * spacing
+    hit = distance_to_wall(sdf, origin, tangent, reach, samples=24)
+    has_hit = np.isfinite(hit)
+    hit = np.where(has_hit, hit, 0.0)
+    # the wall normal where the axis meets it, from a point a little before the hit
+    centre0, _ = center_in_cross_sections(sdf, origin + np.maximum(hit - 0.3 * r_ref, 0)[:, None] * tangent, tangent, r_ref)
+    to_wall = distance_to_wall(sdf, centre0, tangent, reach)
+    to_wall = np.where(np.isfinite(to_wall), to_wall, 0.3 * r_ref)
+    wall_point = centre0 + to_wall[:, None] * tangent
+    # the end face's normal from a plane through many face points: the gradient at one
+    # point follows every bump of a rough (clipped, smoothed) end face and, tilted, would
+    # put the end off the axis
+    normal = end_face_normals(sdf, centre0, tangent, r_ref, reach)
+    # flat end: facing the axis, and the section a quarter radius inside is still full
+    probe = wall_point - 0.25 * r_ref[:, None] * normal
+    centre, section = center_in_cross_sections(sdf, probe, normal, r_ref)
+    facing = np.einsum("ij,ij->i", normal, tangent) > np.cos(np.radians(45))
+    flat = has_hit & facing & (section >= 0.8 * r_ref)
+    to_face = distance_to_wall(sdf, centre, normal, 0.5 * r_ref + 2 * spacing)
+    face = centre + np.where(np.isfinite(to_face), to_face, 0.25 * r_ref)[:, None] * normal
+    # the end itself is the last full cross-section behind the face
+    flat_end, flat_section, _ = flat_end_sections(sdf, face, normal, tangent, np.where(np.isfinite(section), section, r_ref))
+    # rounded end: where the inscribed radius has dropped to end_depth x r_ref, centred
+    samples = 32
+    t = hit[:, None] * (np.arange(samples + 1) / samples)[None, :]
+    d = evaluate_sdf(sdf, (origin[:, None, :] + t[..., None] * tangent[:, None, :]).reshape(-1, 3)).reshape(len(nodes), -1)
+    target = end_depth * r_ref
+    below = d <= target[:, None]
+    first = np.where(below.any(axis=1), np.argmax(below, axis=1), samples)
+    j0 = np.maximum(first - 1, 0)
+    rows = np.arange(len(nodes))
+    d0, d1 = d[rows, j0], d[rows, first]
+    frac = np.where(first > 0, np.clip((d0 - target) / np.maximum(d0 - d1, 1e-300), 0, 1), 0.0)
+    t_end = t[rows, j0] + frac * (t[rows, first] - t[rows, j0])
+    rounded_end, rounded_section = center_in_cross_sections(sdf, origin + t_end[:, None] * tangent, tangent, r_ref)
+    counts = {"flat": 0, "rounded": 0, "cap": 0}
+    taken = set() if taken is None else taken
+    for i, node in enumerate(nodes):
+        if not has_hit[i]:
+            continue
+        on_cap = [
+            c
+            for c, cap in enumerate(caps)
+            if c not in taken and _on_cap_face(wall_point[i], cap)
+        ]
+        if on_cap:
+            cap = caps[on_cap[0]]
+            _extend(graph, node, np.asarray(cap.center, float), float(cap.radius), spacing)
+            graph.graph.nodes[node]["end"] = ("cap", on_cap[0])
+            taken.add(on_cap[0])
+            counts["cap"] += 1
+            continue
+        if flat[i]:
+            position, radius = flat_end[i], flat_section[i]
+            if not np.isfinite(radius):
+                radius = section[i]
+        else:
+            position, radius = rounded_end[i], rounded_section[i]
+            if not np.isfinite(radius):
+                radius = target[i]
+        _extend(graph, node, position, float(radius), spacing, direction=tangent[i])
+        graph.graph.nodes[node]["end"] = ("flat",) if flat[i] else ("rounded",)
+        counts["flat" if flat[i] else "rounded"] += 1
+    return counts
+
+
+
+def _on_cap_face(point: np.ndarray, cap) -> bool:
+    """Whether a wall point lies on the flat face of ``cap``."""
+    rel = np.asarray(point, float) - np.asarray(cap.center, float)
+    normal = np.asarray(cap.normal, float)
+    depth = float(rel @ normal)
+    lateral = float(np.linalg.norm(rel - depth * normal))
+    return abs(depth) < 0.3 * float(cap.radius) and lateral < 1.2 * float(cap.radius)
+
+
+
+def _attach_cap(graph: BranchGraph, cap, index: int, spacing: float, sdf: SdfFunction | None = None, candidates: int = 64) -> bool:
+    """Add a branch from the skeleton to a cap that no end reached.
+
+    The branch starts at the skeleton point nearest to the cap's centre from which a
+    straight line to the centre stays inside the vessel (``sdf`` positive along it);
+    failing that, from which a line to the point two cap radii behind the cap does
+    (the branch then bends there). Ends of other branches are no start: a branch
+    continuing through one would carry that end to the wrong cap. Without ``sdf``
+    the nearest point is taken. Returns whether a branch was added: none when every
+    such path runs through the outside (more than half a cap radius).
+    """
+    centre = np.asarray(cap.center, float)
+    radius = float(cap.radius)
+    where, pts = [], []
+    for u, v, k, data in graph.graph.edges(keys=True, data=True):
+        where += [("branch", u, v, k, i) for i in range(len(data["pts"]))]
+        pts.append(data["pts"])
+    for n in graph.graph.nodes:
+        if graph.degree(n) != 1:
+            where.append(("node", n))
+            pts.append(graph.pos(n)[None])
+    if not where:
+        return False
+    pts = np.concatenate(pts)
+    order = np.argsort(np.linalg.norm(pts - centre, axis=1))[:candidates]
+    behind = centre - 2.0 * radius * np.asarray(cap.normal, float)
+    pick, via = int(order[0]), None
+    if sdf is not None:
+        t = (np.arange(1, 17) / 17.0)[None, :, None]
+        paths = []  # (depth, weight) along each candidate path, for the direct and the bent one
+        for target in (centre, behind):
+            probes = pts[order][:, None, :] + t * (target - pts[order][:, None, :])
+            if target is behind:  # via the bend: the last stretch, to the cap, too
+                probes = np.concatenate([probes, np.broadcast_to(behind + t[0] * (centre - behind), (len(order), 16, 3))], axis=1)
+            depth = evaluate_sdf(sdf, probes.reshape(-1, 3)).reshape(len(order), -1)
+            # the cap centre is on the surface: the margin asked for fades out over a cap radius
+            weight = np.clip(np.linalg.norm(probes - centre, axis=2) / radius, 0.0, 1.0)
+            paths.append((depth, weight))
+        pick = -1
+        # well inside if possible (a path along the wall makes thin nodes); a path that
+        # grazes the wall is centred later; one through the outside is no path
+        for least in (0.25 * radius, 0.0, -0.5 * radius):
+            for (depth, weight), bend in zip(paths, (None, behind)):
+                ok = np.flatnonzero((depth >= least * weight).all(axis=1))
+                if len(ok):
+                    pick, via = int(order[ok[0]]), bend
+                    break
+            if pick >= 0:
+                break
+        if pick < 0:
+            from .march import attach_by_march
+
+            return attach_by_march(graph, cap, index, spacing, sdf, where, pts)
+    location = where[pick]
+    base = location[1] if location[0] == "node" else graph.split(*location[1:])
+    end = graph.add_node(centre, radius, end=("cap", index))
+    start = graph.pos(base)
+    if via is None:
+        path = _straight(start, centre, spacing)
+    else:
+        path = np.concatenate([_straight(start, via, spacing), via[None], _straight(via, centre, spacing)])
+    graph.add_branch(base, end, path, np.full(len(path), radius))
+    return True
+
