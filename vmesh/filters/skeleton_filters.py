@@ -13,6 +13,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import skeleton_ops as ops
+from ..geometry.skeleton.bends import thin_sharp_bends
 from ..geometry.skeleton.defects import weld_coincident_nodes
 from ..registry import Parameter, register_filter
 
@@ -489,13 +490,21 @@ def _graft_missing_branches(ctx, skel, caps, cap_distance, join):
         ),
         Parameter("smooth_radii", "float", 0.0, "Gaussian smoothing of the radii along each branch (standard deviation; 0: none).", unit="× radius", min=0.0),
         Parameter("min_segments", "int", 1, "Least number of segments per branch.", min=1, max=1000),
+        Parameter(
+            "min_section_gap",
+            "float",
+            1.0,
+            "At sharp bends (SWC corners, hairpins) drop nodes until the cross-section planes of every segment cross only "
+            "this far beyond the wall (x the wall's distance towards the crossing; needs the sdf for the cast); 0: off.",
+            min=0.0,
+        ),
     ],
     reads=("skeleton",),
     optional_reads=("sdf",),
     writes=("skeleton",),
     category="skeleton",
 )
-def resample_skeleton(ctx, spacing, radius_change, smooth_radii, min_segments):
+def resample_skeleton(ctx, spacing, radius_change, smooth_radii, min_segments, min_section_gap):
     """Every branch between junctions and endpoints is resampled as a curve (arc-length
     interpolation of positions and radii); tags come from the nearest original node."""
     skel = ctx.skeleton
@@ -509,6 +518,11 @@ def resample_skeleton(ctx, spacing, radius_change, smooth_radii, min_segments):
     if ctx.sdf is not None:  # a resampled chord across a bend can graze the wall
         skel, moved = _keep_inside(ctx, skel)
         ctx.count(pulled_in=moved)
+    if min_section_gap > 0:
+        distance = _sdf_functions(ctx.sdf)[0] if ctx.sdf is not None else None
+        skel, thinned = thin_sharp_bends(skel, min_section_gap, distance)
+        if thinned:
+            ctx.count(thinned_at_bends=thinned)
     ctx.skeleton = skel
     ctx.count(nodes_before=before)
     _count_summary(ctx, ctx.skeleton)
