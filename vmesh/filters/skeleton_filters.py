@@ -13,8 +13,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import skeleton_ops as ops
-from ..geometry.skeleton.bends import thin_sharp_bends
-from ..geometry.skeleton.defects import weld_coincident_nodes
+from ..geometry.skeleton.bends import thin_sharp_bends, thin_stubs
+from ..geometry.skeleton.defects import drop_outside_components, weld_coincident_nodes
 from ..registry import Parameter, register_filter
 
 
@@ -320,6 +320,11 @@ def clean_skeleton(
             ctx.warn("no sdf layer: nodes outside the wall are not checked")
         else:
             distance, gradient = _sdf_functions(ctx.sdf)
+            skel, gone = drop_outside_components(skel, distance)
+            if gone:  # e.g. the centerlines of surface pieces repair_surface dropped
+                where = "; ".join(f"{n} nodes about {np.round(c, 3).tolist()}" for n, c in gone)
+                ctx.warn(f"removed {len(gone)} skeleton piece(s) lying outside the surface (of a surface piece not meshed?): {where}")
+                counts["pieces_outside"] = len(gone)
             skel, counts["pulled"], counts["dropped"] = ops.pull_inside(skel, distance, gradient, outside_tolerance, outside)
     ctx.tick(0.25, "reconnect")
     skel, counts["reconnected"] = ops.reconnect_components(skel, reconnect_distance)
@@ -518,6 +523,9 @@ def resample_skeleton(ctx, spacing, radius_change, smooth_radii, min_segments, m
     if ctx.sdf is not None:  # a resampled chord across a bend can graze the wall
         skel, moved = _keep_inside(ctx, skel)
         ctx.count(pulled_in=moved)
+    skel, stubs = thin_stubs(skel)
+    if stubs:
+        ctx.count(thinned_stubs=stubs)
     if min_section_gap > 0:
         distance = _sdf_functions(ctx.sdf)[0] if ctx.sdf is not None else None
         skel, thinned = thin_sharp_bends(skel, min_section_gap, distance)

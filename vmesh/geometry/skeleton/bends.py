@@ -180,3 +180,41 @@ def _bridgeable(sk: Skeleton, pick: np.ndarray, distance) -> np.ndarray:
         chosen[p] = True
         ok.append(p)
     return np.asarray(ok, np.int64)
+
+
+def thin_stubs(skeleton: Skeleton, depth: float = 1.0) -> tuple[Skeleton, int]:
+    """Drop the inner nodes of short end branches that never leave their junction's lumen.
+
+    A side branch cut off one or two radii past the wall (a stub) is resampled with nodes
+    whose cross-sections all reach into its (much wider) parent: they find no wall across
+    the parent's lumen, and there is no room further out to move them to. Such a branch
+    (from a junction to an endpoint, every inner node narrower than the junction and
+    closer to the junction node than ``depth`` × the junction radius plus its own radius) keeps only its junction and end:
+    the block builder closes it with the junction's half-sections and the end's section.
+
+    Returns
+    -------
+    skeleton : Skeleton
+    n_removed : int
+        Nodes dropped.
+    """
+    from ..skeleton_ops import branch_paths, remove_nodes
+
+    sk = skeleton
+    deg = sk.degrees
+    drop = np.zeros(sk.n_nodes, bool)
+    for p in branch_paths(sk.n_nodes, sk.edges):  # per branch, not per point
+        if len(p) < 3 or p[0] == p[-1]:
+            continue
+        if deg[p[0]] == 1 and deg[p[-1]] >= 3:
+            p = p[::-1]
+        if not (deg[p[0]] >= 3 and deg[p[-1]] == 1):
+            continue
+        reach = np.linalg.norm(sk.points[p[1:-1]] - sk.points[p[0]], axis=1)
+        inner = sk.radii[p[1:-1]]
+        # narrower than the junction (an aneurysm's sac, wider, keeps its sections)
+        if np.all(inner < sk.radii[p[0]]) and np.all(reach <= depth * sk.radii[p[0]] + inner):
+            drop[p[1:-1]] = True
+    if not drop.any():
+        return sk.copy(), 0
+    return remove_nodes(sk, drop, bridge=True), int(drop.sum())
