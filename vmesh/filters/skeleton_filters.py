@@ -87,6 +87,17 @@ def _surface_bounds(ctx):
     return ctx.skeleton.points.min(axis=0), ctx.skeleton.points.max(axis=0)
 
 
+def _drop_pieces_outside(ctx, skel, distance):
+    """Remove the skeleton's pieces that lie mostly outside the surface (the centerlines of
+    surface pieces repair_surface dropped), with a warning naming them."""
+    skel, gone = drop_outside_components(skel, distance)
+    if gone:
+        where = "; ".join(f"{n} nodes about {np.round(c, 3).tolist()}" for n, c in gone)
+        ctx.warn(f"removed {len(gone)} skeleton piece(s) lying outside the surface (of a surface piece not meshed?): {where}")
+        ctx.count(pieces_outside=len(gone))
+    return skel
+
+
 def _check_fit(ctx, skel) -> bool:
     """Fail when the skeleton does not fit the surface (other units, another vessel);
     returns whether its radii should be measured from the surface instead (all equal,
@@ -159,6 +170,7 @@ def estimate_radii(ctx, overwrite, scale):
     if scale != 1.0:
         skel = ctx.skeleton = skel.copy(points=skel.points * scale, radii=skel.radii * scale)
     if ctx.sdf is not None:
+        skel = _drop_pieces_outside(ctx, skel, ctx.sdf.distance)  # before the fit is judged
         overwrite = _check_fit(ctx, skel) or overwrite
     if ctx.sdf is None:
         if overwrite:
@@ -320,11 +332,7 @@ def clean_skeleton(
             ctx.warn("no sdf layer: nodes outside the wall are not checked")
         else:
             distance, gradient = _sdf_functions(ctx.sdf)
-            skel, gone = drop_outside_components(skel, distance)
-            if gone:  # e.g. the centerlines of surface pieces repair_surface dropped
-                where = "; ".join(f"{n} nodes about {np.round(c, 3).tolist()}" for n, c in gone)
-                ctx.warn(f"removed {len(gone)} skeleton piece(s) lying outside the surface (of a surface piece not meshed?): {where}")
-                counts["pieces_outside"] = len(gone)
+            skel = _drop_pieces_outside(ctx, skel, distance)
             skel, counts["pulled"], counts["dropped"] = ops.pull_inside(skel, distance, gradient, outside_tolerance, outside)
     ctx.tick(0.25, "reconnect")
     skel, counts["reconnected"] = ops.reconnect_components(skel, reconnect_distance)
