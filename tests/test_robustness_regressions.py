@@ -59,3 +59,29 @@ def test_skeleton_pieces_of_surface_pieces_not_meshed_are_dropped():
     assert kept.n_nodes == a.n_nodes and np.allclose(kept.points, a.points)
     # a single piece, even mostly outside, is left to the centerline checks
     assert drop_outside_components(b, dist)[1] == []
+
+
+def test_retopology_does_not_merge_back_what_a_split_made():
+    # sv_rpa extracted, g0000: two crowded junctions merged into a 4-junction, whose split
+    # gave back two crowded junctions, merged again... 4 of the 8 tries went round in circles
+    from test_blocks import star_skeleton
+
+    from vmesh.geometry.blocks.builder import _retopology_options, _skeleton_key
+    from vmesh.geometry.blocks.checks import _Failure
+
+    sk = star_skeleton([[-1, 0, 0], [1, 1, 0], [1, -1, 0], [1, 0, 0.2]])
+    four = _Failure("x", None, [], sk, [0], [], "")
+    options = _retopology_options(four, [], None, BlockOptions())
+    assert len(options) == 6  # every pairing of four branches
+    split, _, made = options[0]
+    assert len(split.junctions) == 2 and len(made) == 1
+    (a, b), = made
+    crowded = _Failure("x", None, [], split, [], [(a, b)], "")
+    assert _retopology_options(crowded, [], None, BlockOptions(), made) == []
+    assert len(_retopology_options(crowded, [], None, BlockOptions())) == 1  # a pair of the input's own: merged
+    # the same skeleton numbered otherwise is the same try
+    perm = np.random.default_rng(0).permutation(sk.n_nodes)
+    inv = np.argsort(perm)
+    renumbered = Skeleton(sk.points[perm], sk.radii[perm], inv[sk.edges][:, ::-1])
+    assert _skeleton_key(renumbered) == _skeleton_key(sk)
+    assert _skeleton_key(split) != _skeleton_key(sk)
