@@ -13,7 +13,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import skeleton_ops as ops
-from ..geometry.skeleton.defects import weld_coincident_nodes
+from ..geometry.skeleton.bends import thin_sharp_bends, thin_stubs
+from ..geometry.skeleton.defects import drop_outside_components, weld_coincident_nodes
 from ..registry import Parameter, register_filter
 
 
@@ -84,6 +85,17 @@ def _surface_bounds(ctx):
     if ctx.sdf is not None:
         return ctx.sdf.bounds
     return ctx.skeleton.points.min(axis=0), ctx.skeleton.points.max(axis=0)
+
+
+def _drop_pieces_outside(ctx, skel, distance):
+    """Remove the skeleton's pieces that lie mostly outside the surface (the centerlines of
+    surface pieces repair_surface dropped), with a warning naming them."""
+    skel, gone = drop_outside_components(skel, distance)
+    if gone:
+        where = "; ".join(f"{n} nodes about {np.round(c, 3).tolist()}" for n, c in gone)
+        ctx.warn(f"removed {len(gone)} skeleton piece(s) lying outside the surface (of a surface piece not meshed?): {where}")
+        ctx.count(pieces_outside=len(gone))
+    return skel
 
 
 def _check_fit(ctx, skel) -> bool:
@@ -158,6 +170,7 @@ def estimate_radii(ctx, overwrite, scale):
     if scale != 1.0:
         skel = ctx.skeleton = skel.copy(points=skel.points * scale, radii=skel.radii * scale)
     if ctx.sdf is not None:
+        skel = _drop_pieces_outside(ctx, skel, ctx.sdf.distance)  # before the fit is judged
         overwrite = _check_fit(ctx, skel) or overwrite
     if ctx.sdf is None:
         if overwrite:
@@ -319,6 +332,7 @@ def clean_skeleton(
             ctx.warn("no sdf layer: nodes outside the wall are not checked")
         else:
             distance, gradient = _sdf_functions(ctx.sdf)
+            skel = _drop_pieces_outside(ctx, skel, distance)
             skel, counts["pulled"], counts["dropped"] = ops.pull_inside(skel, distance, gradient, outside_tolerance, outside)
     ctx.tick(0.25, "reconnect")
     skel, counts["reconnected"] = ops.reconnect_components(skel, reconnect_distance)
@@ -489,13 +503,21 @@ def _graft_missing_branches(ctx, skel, caps, cap_distance, join):
         ),
         Parameter("smooth_radii", "float", 0.0, "Gaussian smoothing of the radii along each branch (standard deviation; 0: none).", unit="× radius", min=0.0),
         Parameter("min_segments", "int", 1, "Least number of segments per branch.", min=1, max=1000),
+        Parameter(
+            "min_section_gap",
+            "float",
+            1.0,
+            "At sharp bends (SWC corners, hairpins) drop nodes until the cross-section planes of every segment cross only "
+            "this far beyond the wall (x the wall's distance towards the crossing; needs the sdf for the cast); 0: off.",
+            min=0.0,
+        ),
     ],
     reads=("skeleton",),
     optional_reads=("sdf",),
     writes=("skeleton",),
     category="skeleton",
 )
-def resample_skeleton(ctx, spacing, radius_change, smooth_radii, min_segments):
+def resample_skeleton(ctx, spacing, radius_change, smooth_radii, min_segments, min_section_gap):
     """Every branch between junctions and endpoints is resampled as a curve (arc-length
     interpolation of positions and radii); tags come from the nearest original node."""
     skel = ctx.skeleton
@@ -509,6 +531,14 @@ def resample_skeleton(ctx, spacing, radius_change, smooth_radii, min_segments):
     if ctx.sdf is not None:  # a resampled chord across a bend can graze the wall
         skel, moved = _keep_inside(ctx, skel)
         ctx.count(pulled_in=moved)
+    skel, stubs = thin_stubs(skel)
+    if stubs:
+        ctx.count(thinned_stubs=stubs)
+    if min_section_gap > 0:
+        distance = _sdf_functions(ctx.sdf)[0] if ctx.sdf is not None else None
+        skel, thinned = thin_sharp_bends(skel, min_section_gap, distance)
+        if thinned:
+            ctx.count(thinned_at_bends=thinned)
     ctx.skeleton = skel
     ctx.count(nodes_before=before)
     _count_summary(ctx, ctx.skeleton)

@@ -101,24 +101,29 @@ def build_blocks(
     # then, where its blocks stay invalid, on the skeleton nodes (the wall's centre can crowd
     # junctions whose branches part early); only then is the skeleton changed.
     at_node = replace(options, junction_centre=0.0)
-    queue = [(skeleton, [], options)]
+    queue = [(skeleton, [], options, frozenset())]  # + the junction pairs a split made
     first = None
     tries = 0
+    seen = set()  # merging two junctions and splitting the result again can give a skeleton back
     while queue and tries < options.max_retopology_tries:
-        sk, notes, opts = queue.pop(0)
+        sk, notes, opts, made = queue.pop(0)
+        key = (_skeleton_key(sk), opts is at_node)
+        if key in seen:
+            continue
+        seen.add(key)
         tries += opts is not options or options.junction_centre <= 0  # a skeleton counts once
         try:
             blocks = _Builder(sk, distance, caps, opts, warn, progress, project, intersect_lines).run()
         except _Failure as failure:
             if opts is options and options.junction_centre > 0:
-                queue.insert(0, (sk, notes, at_node))
+                queue.insert(0, (sk, notes, at_node, made))
                 continue
             first = first or failure
-            queue[:0] = [(s, n, options) for s, n in _retopology_options(failure, notes, distance, options)]
+            queue[:0] = [(s, n, options, m) for s, n, m in _retopology_options(failure, notes, distance, options, made)]
             continue
         except MeshingError:
             if opts is options and options.junction_centre > 0:
-                queue.insert(0, (sk, notes, at_node))
+                queue.insert(0, (sk, notes, at_node, made))
                 continue
             if first is None:
                 raise  # the skeleton as given is beyond the scheme: say why
@@ -133,21 +138,35 @@ def build_blocks(
     raise first.error(bad_blocks_path, tries)
 
 
-def _retopology_options(failure: "_Failure", notes: list, distance, options: BlockOptions) -> list:
+def _skeleton_key(sk: Skeleton) -> bytes:
+    """The same skeleton up to node numbering: its segments' end points, rounded (a merged
+    and re-split junction lands where it was, to rounding)."""
+    scale = max(float(np.ptp(sk.points, axis=0).max()), 1e-300) * 1e-9
+    seg = np.round(sk.points[sk.edges] / scale).astype(np.int64)  # (e, 2, 3)
+    seg = np.sort(seg.view([("", np.int64)] * 3).reshape(len(seg), 2), axis=1).view(np.int64).reshape(len(seg), -1)
+    return np.unique(seg, axis=0).tobytes()
+
+
+def _retopology_options(failure: "_Failure", notes: list, distance, options: BlockOptions, made=frozenset()) -> list:
     """Skeletons to try after ``failure``, most promising first: with two junctions merged
     (when the branch between them has no room for their half-sections), or with the
-    failing n-furcations split into 3-junctions, one pairing of branches after another."""
+    failing n-furcations split into 3-junctions, one pairing of branches after another.
+    Each comes with the junction pairs its splits made (``made``): those are not merged
+    again, which would only give back the n-furcation just split."""
     out = []
     sk = failure.skeleton
     if options.split_nonplanar:
         for a, b in failure.crowded:
+            if (a, b) in made:
+                continue
             merged, node = merge_junction_pair(sk, a, b)
-            out.append((merged, notes + [f"merged junction nodes {a} and {b} (their half cross-sections left the branch between them no room) into node {node}"]))
+            out.append((merged, notes + [f"merged junction nodes {a} and {b} (their half cross-sections left the branch between them no room) into node {node}"], frozenset()))
         if failure.nfurcations:
             degree = int(max(sk.degrees[c] for c in failure.nfurcations))
             for rank in range(degree * (degree - 1) // 2):
                 split = split_nonplanar_junctions(sk, failure.nfurcations, distance=distance, rank=rank)
-                out.append((split, notes + [f"split junction node(s) {failure.nfurcations} into 3-junctions (pairing {rank + 1}) after their blocks stayed invalid"]))
+                new = frozenset(tuple(sorted(e)) for e in split.edges[sk.n_edges:].tolist())
+                out.append((split, notes + [f"split junction node(s) {failure.nfurcations} into 3-junctions (pairing {rank + 1}) after their blocks stayed invalid"], made | new))
     return out
 
 

@@ -67,3 +67,41 @@ def shadowed(skel: Skeleton, end: int, junction: int, spur: np.ndarray, paths: l
         if _distance_to_polyline(skel.points[end], skel.points[p]) < shadow * scale[end]:
             return True
     return False
+
+
+def drop_outside_components(skeleton: Skeleton, distance, share: float = 0.5) -> tuple[Skeleton, list]:
+    """Remove the connected pieces of a skeleton that lie mostly outside the surface.
+
+    A centerline of several trees given with a surface of which only the largest piece is
+    meshed (``repair_surface`` drops the others) holds the centerlines of the dropped
+    pieces too: pulled inside, they would be crammed into the meshed vessel as junk
+    branches. A piece with more than ``share`` of its nodes outside (signed distance below
+    zero) goes, unless it is the piece most inside.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+    distance : callable
+        Signed distance, positive inside.
+    share : float
+        Least share of a piece's nodes outside for it to go.
+
+    Returns
+    -------
+    skeleton : Skeleton
+    dropped : list of (n_nodes, centroid) per removed piece
+    """
+    from ..skeleton_ops import component_labels, remove_nodes
+
+    if skeleton.n_nodes == 0 or skeleton.n_components < 2:
+        return skeleton.copy(), []
+    label = component_labels(skeleton.n_nodes, skeleton.edges)
+    out = np.asarray(distance(skeleton.points), float) < 0
+    size = np.bincount(label)
+    frac = np.bincount(label, weights=out) / size
+    gone = frac > share
+    gone[np.argmin(frac)] = False  # the best piece always stays
+    if not gone.any():
+        return skeleton.copy(), []
+    dropped = [(int(size[k]), skeleton.points[label == k].mean(axis=0)) for k in np.flatnonzero(gone)]
+    return remove_nodes(skeleton, gone[label], bridge=False), dropped
