@@ -16,13 +16,26 @@ the cubic Hermite curve with those end tangents, in the plane of the cross-secti
 its nodes keep their spacing by arc length. The block corners do not move, so junction
 half-sections and any other layout of corners are curved by the same rule; a corner whose
 faces do not close a planar full turn is left alone.
+
+Edges along the skeleton (:func:`along_tangents`) follow the sections too. A straight edge
+between a junction's half cross-section and a branch's first section meets the half-plane
+at the angle between the half-plane and the branch (60° and more at a crotch): the
+elements next to the half-section are sheared to a scaled Jacobian of about the cosine of
+that angle, and every section of a bent vessel kinks the node lines. Each along edge
+becomes the cubic Hermite arc that turns as much as its two end sections do (the rotation
+of one section's normal onto the other's), symmetric about its chord, at most
+:data:`MAX_ALONG_TURN` per end: the node lines run on smoothly through the sections and the
+tilt of the sections against the chord is shared by both ends. Wall edges are curved the
+same way before they are projected, so the boundary layer follows. At a junction's spine
+the two half-planes of a branch's end ask for different turns; the turns fade in over
+:data:`FADE_RADII` local radii from such folds, so neighbouring edges stay alike there.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..blocks import AXIS_ALONG, BlockStructure
+from ..blocks import AXIS_ALONG, HEX_EDGES, HEX_FACES, BlockStructure
 from .transfinite_kernels import _interp_rows
 from .transfinite_lattice import Topology, _row_lookup
 
@@ -31,6 +44,14 @@ MAX_TURN = np.radians(30.0)
 #: a corner whose cross-section faces' angles sum to 2 pi within this tolerance is a planar
 #: interior corner, the only kind whose angles are balanced
 PLANAR_TOL = 0.15
+#: largest turn of an along-skeleton edge's end tangent from its chord (radians); 0 keeps them straight
+MAX_ALONG_TURN = np.radians(30.0)
+#: faces at a vertex whose mean unit normal is shorter than 1 - this make a fold
+FOLD_SPREAD = 0.02
+#: distance (× local radius) from a fold over which along-skeleton edges' turns fade in
+FADE_RADII = 1.0
+#: end turns below this (radians) leave an along-skeleton edge straight
+MIN_ALONG_TURN = np.radians(0.5)
 #: samples per curve for the arc-length re-spacing of its nodes
 _SAMPLES = 64
 
@@ -110,6 +131,104 @@ def edge_turns(blocks: BlockStructure, topo: Topology, V: np.ndarray):
     return turn, normal
 
 
+def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray):
+    """Unit end tangents of the block edges along the skeleton.
+
+    The section normal at each end is the mean unit normal of the cross-section faces (the
+    end faces, across the block's one axis along the skeleton) of the blocks sharing the
+    edge, oriented along the edge. The tangents are the chord turned by minus and plus half
+    the rotation of the first normal onto the second (at most :data:`MAX_ALONG_TURN`),
+    faded near folds (:func:`_fold_fade`).
+
+    Returns
+    -------
+    tangent : (E, 2, 3) float
+        Tangent at the first and last vertex of each unique edge (pointing from the first
+        vertex to the last).
+    curved : (E,) bool
+        Along-skeleton edges whose tangents turn from their chord.
+    """
+    E = len(topo.edges)
+    acc = np.zeros((E, 2, 3))
+    curved = np.zeros(E, bool)
+    if MAX_ALONG_TURN <= 0:
+        return acc, curved
+    count = np.zeros(E)
+    along = blocks.axis_kind == AXIS_ALONG
+    bsel = np.flatnonzero(along.sum(axis=1) == 1)
+    axis = np.argmax(along[bsel], axis=1)
+    for a in range(3):
+        b = bsel[axis == a]
+        if len(b) == 0:
+            continue
+        H = blocks.hexes[b]
+        F0, F1 = V[H[:, HEX_FACES[2 * a]]], V[H[:, HEX_FACES[2 * a + 1]]]  # the two end faces (cyclic corners)
+        forward = F1.mean(axis=1) - F0.mean(axis=1)
+        normals = []
+        for F in (F0, F1):
+            n = np.cross(F[:, 2] - F[:, 0], F[:, 3] - F[:, 1])
+            n *= np.sign(np.einsum("ij,ij->i", n, forward))[:, None]
+            normals.append(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300))
+        for i in range(4 * a, 4 * a + 4):
+            e = topo.block_edge[b, i]
+            lo, hi = H[:, HEX_EDGES[i, 0]], H[:, HEX_EDGES[i, 1]]  # at the end faces 0 and 1
+            up = (lo < hi)[:, None]  # unique edges run from the smaller vertex id
+            n_lo, n_hi = np.where(up, normals[0], -normals[1]), np.where(up, normals[1], -normals[0])
+            np.add.at(acc[:, 0], e, n_lo)
+            np.add.at(acc[:, 1], e, n_hi)
+            np.add.at(count, e, 1)
+            curved[e] = True
+    # folds: edge ends whose blocks' section faces turn against each other (a junction's spine)
+    spread = 1.0 - np.linalg.norm(acc, axis=2) / np.maximum(count, 1)[:, None]
+    fold = np.zeros(len(V), bool)
+    fold[topo.edges[(spread > FOLD_SPREAD) & (count > 0)[:, None]]] = True
+    d = V[topo.edges[:, 1]] - V[topo.edges[:, 0]]
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+    N0, N1 = (acc[:, k] / np.maximum(np.linalg.norm(acc[:, k], axis=1, keepdims=True), 1e-300) for k in (0, 1))
+    # the line turns as much as its end sections do (rotation of N0 onto N1, about w), as a
+    # symmetric arc about the chord: the sections' tilt against the chord is shared by both
+    # ends, not pushed into an S-bend in the middle
+    w = np.cross(N0, N1)
+    sin = np.linalg.norm(w, axis=1)
+    half = 0.5 * np.arctan2(sin, np.einsum("ij,ij->i", N0, N1))
+    w /= np.maximum(sin, 1e-300)[:, None]
+    half = np.minimum(half, MAX_ALONG_TURN) * _fold_fade(blocks, topo, V, fold)
+    for k, sign in ((0, -1.0), (1, 1.0)):
+        acc[:, k] = _rotate(d, w, sign * half)
+    curved &= (half > MIN_ALONG_TURN) & (np.einsum("ij,ij->i", N0, d) > 0) & (np.einsum("ij,ij->i", N1, d) > 0)
+    return acc, curved
+
+
+def _fold_fade(blocks, topo, V, fold):
+    """Per edge, 0 at a fold of its end sections (a junction's spine, whose two half-planes
+    ask for different turns) growing to 1 a local radius away from it."""
+    from scipy.spatial import cKDTree
+
+    fold = np.flatnonzero(fold)
+    E = len(topo.edges)
+    if len(fold) == 0:
+        return np.ones(E)
+    radius = np.zeros(len(V))
+    np.maximum.at(radius, blocks.hexes.ravel(), np.repeat(blocks.block_radius, 8))
+    dist, _ = cKDTree(V[fold]).query(V)
+    w = np.clip(dist / np.maximum(FADE_RADII * radius, 1e-300), 0.0, 1.0)
+    return np.minimum(w[topo.edges[:, 0]], w[topo.edges[:, 1]])
+
+
+def _rotate(x: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Rotate the vectors ``x`` (m, 3) about the unit ``axis`` (m, 3) by ``angle`` (m,) (Rodrigues)."""
+    c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
+    return c * x + s * np.cross(axis, x) + (1 - c) * np.einsum("ij,ij->i", axis, x)[:, None] * axis
+
+
+def hermite_edges(a: np.ndarray, b: np.ndarray, t: np.ndarray, T0: np.ndarray, T1: np.ndarray) -> np.ndarray:
+    """Nodes ``(m, N + 1, 3)`` at the arc-length fractions ``t`` (m, N + 1) of the cubic
+    Hermite curves from ``a`` to ``b`` with unit end tangents ``T0``, ``T1`` (scaled by
+    the chord length)."""
+    length = np.linalg.norm(b - a, axis=1, keepdims=True)
+    return _hermite_nodes(a, b, t, length * T0, length * T1)
+
+
 def curved_edges(a: np.ndarray, b: np.ndarray, t: np.ndarray, turn: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """Nodes ``(m, N + 1, 3)`` at the arc-length fractions ``t`` (m, N + 1) of the cubic
     Hermite curves from ``a`` to ``b`` whose tangents are the chord turned by ``turn``
@@ -119,6 +238,11 @@ def curved_edges(a: np.ndarray, b: np.ndarray, t: np.ndarray, turn: np.ndarray, 
     d = chord / np.maximum(length, 1e-300)
     t0 = length * (np.cos(turn[:, :1]) * d + np.sin(turn[:, :1]) * normal)
     t1 = length * (np.cos(turn[:, 1:]) * d - np.sin(turn[:, 1:]) * normal)
+    return _hermite_nodes(a, b, t, t0, t1)
+
+
+def _hermite_nodes(a, b, t, t0, t1):
+    """Nodes of cubic Hermite curves at arc-length fractions ``t`` (end tangents ``t0``, ``t1``)."""
     s = np.linspace(0.0, 1.0, _SAMPLES + 1)[None, :, None]
     h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
     curve = h00 * a[:, None] + h10 * t0[:, None] + h01 * b[:, None] + h11 * t1[:, None]
