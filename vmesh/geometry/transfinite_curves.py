@@ -27,8 +27,9 @@ of one section's normal onto the other's), symmetric about its chord, at most
 :data:`MAX_ALONG_TURN` per end: the node lines run on smoothly through the sections and the
 tilt of the sections against the chord is shared by both ends. Wall edges are curved the
 same way before they are projected, so the boundary layer follows. At a junction's spine
-the two half-planes of a branch's end ask for different turns; the turns fade in over
-:data:`FADE_RADII` local radii from such folds, so neighbouring edges stay alike there.
+the two half-planes of a branch's end ask for different turns: the turns of a block's
+edges are scaled down until their bulges differ by at most :data:`ALIKE` times the block's
+width, so a thin core block is not sheared between edges bent apart.
 """
 
 from __future__ import annotations
@@ -46,10 +47,8 @@ MAX_TURN = np.radians(30.0)
 PLANAR_TOL = 0.15
 #: largest turn of an along-skeleton edge's end tangent from its chord (radians); 0 keeps them straight
 MAX_ALONG_TURN = np.radians(30.0)
-#: faces at a vertex whose mean unit normal is shorter than 1 - this make a fold
-FOLD_SPREAD = 0.02
-#: distance (× local radius) from a fold over which along-skeleton edges' turns fade in
-FADE_RADII = 1.0
+#: largest spread of the bulges of a block's along edges, × its shortest edge across the skeleton
+ALIKE = 0.25
 #: end turns below this (radians) leave an along-skeleton edge straight
 MIN_ALONG_TURN = np.radians(0.5)
 #: samples per curve for the arc-length re-spacing of its nodes
@@ -138,7 +137,7 @@ def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray):
     end faces, across the block's one axis along the skeleton) of the blocks sharing the
     edge, oriented along the edge. The tangents are the chord turned by minus and plus half
     the rotation of the first normal onto the second (at most :data:`MAX_ALONG_TURN`),
-    faded near folds (:func:`_fold_fade`).
+    scaled down where a block's edges would bulge apart (:func:`_alike_in_blocks`).
 
     Returns
     -------
@@ -153,7 +152,7 @@ def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray):
     curved = np.zeros(E, bool)
     if MAX_ALONG_TURN <= 0:
         return acc, curved
-    count = np.zeros(E)
+    edges_of = []  # per axis: blocks, their along edges, their other edges
     along = blocks.axis_kind == AXIS_ALONG
     bsel = np.flatnonzero(along.sum(axis=1) == 1)
     axis = np.argmax(along[bsel], axis=1)
@@ -169,19 +168,14 @@ def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray):
             n = np.cross(F[:, 2] - F[:, 0], F[:, 3] - F[:, 1])
             n *= np.sign(np.einsum("ij,ij->i", n, forward))[:, None]
             normals.append(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300))
+        edges_of.append((b, topo.block_edge[b, 4 * a: 4 * a + 4], topo.block_edge[b][:, [j for j in range(12) if j // 4 != a]]))
         for i in range(4 * a, 4 * a + 4):
             e = topo.block_edge[b, i]
             lo, hi = H[:, HEX_EDGES[i, 0]], H[:, HEX_EDGES[i, 1]]  # at the end faces 0 and 1
             up = (lo < hi)[:, None]  # unique edges run from the smaller vertex id
-            n_lo, n_hi = np.where(up, normals[0], -normals[1]), np.where(up, normals[1], -normals[0])
-            np.add.at(acc[:, 0], e, n_lo)
-            np.add.at(acc[:, 1], e, n_hi)
-            np.add.at(count, e, 1)
+            np.add.at(acc[:, 0], e, np.where(up, normals[0], -normals[1]))
+            np.add.at(acc[:, 1], e, np.where(up, normals[1], -normals[0]))
             curved[e] = True
-    # folds: edge ends whose blocks' section faces turn against each other (a junction's spine)
-    spread = 1.0 - np.linalg.norm(acc, axis=2) / np.maximum(count, 1)[:, None]
-    fold = np.zeros(len(V), bool)
-    fold[topo.edges[(spread > FOLD_SPREAD) & (count > 0)[:, None]]] = True
     d = V[topo.edges[:, 1]] - V[topo.edges[:, 0]]
     d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
     N0, N1 = (acc[:, k] / np.maximum(np.linalg.norm(acc[:, k], axis=1, keepdims=True), 1e-300) for k in (0, 1))
@@ -192,27 +186,40 @@ def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray):
     sin = np.linalg.norm(w, axis=1)
     half = 0.5 * np.arctan2(sin, np.einsum("ij,ij->i", N0, N1))
     w /= np.maximum(sin, 1e-300)[:, None]
-    half = np.minimum(half, MAX_ALONG_TURN) * _fold_fade(blocks, topo, V, fold)
+    half = np.minimum(half, MAX_ALONG_TURN)
     for k, sign in ((0, -1.0), (1, 1.0)):
         acc[:, k] = _rotate(d, w, sign * half)
+    scale = _alike_in_blocks(blocks, topo, V, acc, edges_of)
+    for k, sign in ((0, -1.0), (1, 1.0)):
+        acc[:, k] = _rotate(d, w, sign * half * scale)
+    half = half * scale
     curved &= (half > MIN_ALONG_TURN) & (np.einsum("ij,ij->i", N0, d) > 0) & (np.einsum("ij,ij->i", N1, d) > 0)
     return acc, curved
 
 
-def _fold_fade(blocks, topo, V, fold):
-    """Per edge, 0 at a fold of its end sections (a junction's spine, whose two half-planes
-    ask for different turns) growing to 1 a local radius away from it."""
-    from scipy.spatial import cKDTree
-
-    fold = np.flatnonzero(fold)
-    E = len(topo.edges)
-    if len(fold) == 0:
-        return np.ones(E)
-    radius = np.zeros(len(V))
-    np.maximum.at(radius, blocks.hexes.ravel(), np.repeat(blocks.block_radius, 8))
-    dist, _ = cKDTree(V[fold]).query(V)
-    w = np.clip(dist / np.maximum(FADE_RADII * radius, 1e-300), 0.0, 1.0)
-    return np.minimum(w[topo.edges[:, 0]], w[topo.edges[:, 1]])
+def _alike_in_blocks(blocks, topo, V, tangent, edges_of, rounds: int = 3):
+    """Per edge, a factor (<= 1) on its turns so that the along edges of every block bulge
+    alike: the spread of their mid-point offsets from the chords stays within
+    :data:`ALIKE` times the block's shortest edge across the skeleton (a thin core block
+    between edges bent apart would be sheared or folded)."""
+    L = np.linalg.norm(V[topo.edges[:, 1]] - V[topo.edges[:, 0]], axis=1)
+    bulge = (L / 8.0)[:, None] * (tangent[:, 0] - tangent[:, 1])  # Hermite mid-point offset
+    scale = np.ones(len(L))
+    for _ in range(rounds):
+        changed = False
+        for b, along, other in edges_of:
+            off = scale[along][..., None] * bulge[along]  # (nb, 4, 3)
+            spread = np.linalg.norm(off[:, :, None] - off[:, None, :], axis=3).max(axis=(1, 2))
+            width = L[other].min(axis=1)
+            f = np.minimum(1.0, ALIKE * width / np.maximum(spread, 1e-300))
+            low = f < 1.0 - 1e-9
+            if low.any():
+                changed = True
+                target = scale[along[low]] * f[low, None]  # relative to the offsets as scaled so far
+                np.minimum.at(scale, along[low].ravel(), target.ravel())
+        if not changed:
+            break
+    return scale
 
 
 def _rotate(x: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
