@@ -5,15 +5,17 @@ Each case is built as the test builds it (``separate_parallel_branches``, then
 the table gives the least and mean scaled Jacobian, the inverted elements and the block
 building time. ``--set name=value`` changes a :class:`BlockOptions` field (e.g.
 ``--set junction_centre=0`` for the placement on the skeleton node); ``--cases`` picks
-cases by name.
+cases by name; ``--curved`` fills as ``mesh_transfinite`` does (curved cross-sections and
+along-skeleton edges; ``--straight-along`` keeps the latter straight).
 
-    python benchmarks/junction_sweep.py [--cases bif_30_2 trif_60_2] [--set junction_centre=0]
+    python benchmarks/junction_sweep.py [--cases bif_30_2 trif_60_2] [--set junction_centre=0] [--curved [--straight-along]]
 """
 
 from __future__ import annotations
 
 import argparse
 import ast
+import dataclasses
 import os
 import sys
 import time
@@ -24,6 +26,7 @@ import test_junctions as tj  # noqa: E402
 
 from vmesh.errors import MeshingError  # noqa: E402
 from vmesh.geometry import skeleton_ops as ops  # noqa: E402
+from vmesh.geometry import transfinite_curves as curves  # noqa: E402
 from vmesh.geometry.block_builder import BlockOptions, build_blocks  # noqa: E402
 
 
@@ -31,12 +34,17 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", nargs="*", default=None)
     ap.add_argument("--set", nargs="*", default=[], help="BlockOptions field=value")
+    ap.add_argument("--curved", action="store_true", help="fill as mesh_transfinite does (curved sections and along-skeleton edges)")
+    ap.add_argument("--straight-along", action="store_true", help="with --curved: keep the along-skeleton edges straight (the previous fill)")
     args = ap.parse_args()
     options = {}
     for item in args.set:
         key, value = item.split("=", 1)
         options[key] = ast.literal_eval(value)
-    print(f"options {options or 'default'}; load average {os.getloadavg()[0]:.1f}")
+    ref = dataclasses.replace(tj.DEFAULT, curved_sections=args.curved)
+    if args.straight_along:
+        curves.MAX_ALONG_TURN = 0.0
+    print(f"options {options or 'default'}; curved {args.curved}, along edges {'straight' if args.straight_along or not args.curved else 'curved'}; load average {os.getloadavg()[0]:.1f}")
     print(f"{'case':18s} {'blocks':>6s} {'SJ min':>7s} {'mean':>6s} {'inverted':>8s} {'build s':>7s}")
     for name, (factory, fargs) in tj._cases():
         if args.cases and name not in args.cases:
@@ -50,7 +58,7 @@ def main():
             print(f"{name:18s} blocks invalid: {str(exc)[:90]}")
             continue
         seconds = time.perf_counter() - t
-        sj = tj.fill(case, blocks)
+        sj = tj.fill(case, blocks, ref)
         print(f"{name:18s} {blocks.n_blocks:6d} {sj.min():7.3f} {sj.mean():6.3f} {int((sj <= 0).sum()):8d} {seconds:7.2f}", flush=True)
 
 

@@ -36,7 +36,7 @@ from ..blocks import (
     FACE_WALL,
     BlockStructure,
 )
-from .transfinite_curves import curved_edges, edge_turns
+from .transfinite_curves import along_tangents, curved_edges, edge_turns, hermite_edges
 from .transfinite_kernels import (  # noqa: F401  (coons_patch, transfinite_volume, _interp_rows: public here)
     _coons_kernel,
     _fill_blocks_kernel,
@@ -310,6 +310,7 @@ def _fill_edges(fill: _Fill) -> None:
     wall_face = topo.face_boundary == FACE_WALL
     edge_normal = _wall_edge_normals(blocks, topo, V, wall_face) if signed_distance is not None else None
     turn, bulge = edge_turns(blocks, topo, V) if ref.curved_sections else (np.zeros((len(topo.edges), 2)), None)
+    tangent, along = along_tangents(blocks, topo, V) if ref.curved_sections else (None, np.zeros(len(topo.edges), bool))
     for n in np.unique(num.n_edge):
         sel = np.flatnonzero(num.n_edge == n)
         a, b = V[topo.edges[sel, 0]], V[topo.edges[sel, 1]]
@@ -329,6 +330,9 @@ def _fill_edges(fill: _Fill) -> None:
         curved = np.any(turn[sel] != 0, axis=1) & ~wall
         if curved.any():
             pts[curved] = curved_edges(a[curved], b[curved], t[curved], turn[sel[curved]], bulge[sel[curved]])
+        bend = along[sel]
+        if bend.any():
+            pts[bend] = hermite_edges(a[bend], b[bend], t[bend], tangent[sel[bend], 0], tangent[sel[bend], 1])
         if wall.any():
             if edge_normal is not None and pts.shape[1] > 2:  # edges of one linear element have no inner nodes
                 inner_pts = pts[wall, 1:-1]

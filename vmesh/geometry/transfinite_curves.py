@@ -16,13 +16,27 @@ the cubic Hermite curve with those end tangents, in the plane of the cross-secti
 its nodes keep their spacing by arc length. The block corners do not move, so junction
 half-sections and any other layout of corners are curved by the same rule; a corner whose
 faces do not close a planar full turn is left alone.
+
+Edges along the skeleton (:func:`along_tangents`) follow the sections too. A straight edge
+between a junction's half cross-section and a branch's first section meets the half-plane
+at the angle between the half-plane and the branch (60° and more at a crotch): the
+elements next to the half-section are sheared to a scaled Jacobian of about the cosine of
+that angle, and every section of a bent vessel kinks the node lines. Each along edge
+becomes the cubic Hermite arc that turns as much as its two end sections do (the rotation
+of one section's normal onto the other's), symmetric about its chord, at most
+:data:`MAX_ALONG_TURN` per end: the node lines run on smoothly through the sections and the
+tilt of the sections against the chord is shared by both ends. Wall edges are curved the
+same way before they are projected, so the boundary layer follows. At a junction's spine
+the two half-planes of a branch's end ask for different turns: the turns of a block's
+edges are scaled down until their bulges differ by at most :data:`ALIKE` times the block's
+width, so a thin core block is not sheared between edges bent apart.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..blocks import AXIS_ALONG, BlockStructure
+from ..blocks import AXIS_ALONG, HEX_EDGES, HEX_FACES, BlockStructure
 from .transfinite_kernels import _interp_rows
 from .transfinite_lattice import Topology, _row_lookup
 
@@ -31,6 +45,12 @@ MAX_TURN = np.radians(30.0)
 #: a corner whose cross-section faces' angles sum to 2 pi within this tolerance is a planar
 #: interior corner, the only kind whose angles are balanced
 PLANAR_TOL = 0.15
+#: largest turn of an along-skeleton edge's end tangent from its chord (radians); 0 keeps them straight
+MAX_ALONG_TURN = np.radians(30.0)
+#: largest spread of the bulges of a block's along edges, × its shortest edge across the skeleton
+ALIKE = 0.25
+#: end turns below this (radians) leave an along-skeleton edge straight
+MIN_ALONG_TURN = np.radians(0.5)
 #: samples per curve for the arc-length re-spacing of its nodes
 _SAMPLES = 64
 
@@ -110,6 +130,112 @@ def edge_turns(blocks: BlockStructure, topo: Topology, V: np.ndarray):
     return turn, normal
 
 
+def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray):
+    """Unit end tangents of the block edges along the skeleton.
+
+    The section normal at each end is the mean unit normal of the cross-section faces (the
+    end faces, across the block's one axis along the skeleton) of the blocks sharing the
+    edge, oriented along the edge. The tangents are the chord turned by minus and plus half
+    the rotation of the first normal onto the second (at most :data:`MAX_ALONG_TURN`),
+    scaled down where a block's edges would bulge apart (:func:`_alike_in_blocks`).
+
+    Returns
+    -------
+    tangent : (E, 2, 3) float
+        Tangent at the first and last vertex of each unique edge (pointing from the first
+        vertex to the last).
+    curved : (E,) bool
+        Along-skeleton edges whose tangents turn from their chord.
+    """
+    E = len(topo.edges)
+    acc = np.zeros((E, 2, 3))
+    curved = np.zeros(E, bool)
+    if MAX_ALONG_TURN <= 0:
+        return acc, curved
+    edges_of = []  # per axis: blocks, their along edges, their other edges
+    along = blocks.axis_kind == AXIS_ALONG
+    bsel = np.flatnonzero(along.sum(axis=1) == 1)
+    axis = np.argmax(along[bsel], axis=1)
+    for a in range(3):
+        b = bsel[axis == a]
+        if len(b) == 0:
+            continue
+        H = blocks.hexes[b]
+        F0, F1 = V[H[:, HEX_FACES[2 * a]]], V[H[:, HEX_FACES[2 * a + 1]]]  # the two end faces (cyclic corners)
+        forward = F1.mean(axis=1) - F0.mean(axis=1)
+        normals = []
+        for F in (F0, F1):
+            n = np.cross(F[:, 2] - F[:, 0], F[:, 3] - F[:, 1])
+            n *= np.sign(np.einsum("ij,ij->i", n, forward))[:, None]
+            normals.append(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300))
+        edges_of.append((b, topo.block_edge[b, 4 * a: 4 * a + 4], topo.block_edge[b][:, [j for j in range(12) if j // 4 != a]]))
+        for i in range(4 * a, 4 * a + 4):
+            e = topo.block_edge[b, i]
+            lo, hi = H[:, HEX_EDGES[i, 0]], H[:, HEX_EDGES[i, 1]]  # at the end faces 0 and 1
+            up = (lo < hi)[:, None]  # unique edges run from the smaller vertex id
+            np.add.at(acc[:, 0], e, np.where(up, normals[0], -normals[1]))
+            np.add.at(acc[:, 1], e, np.where(up, normals[1], -normals[0]))
+            curved[e] = True
+    d = V[topo.edges[:, 1]] - V[topo.edges[:, 0]]
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+    N0, N1 = (acc[:, k] / np.maximum(np.linalg.norm(acc[:, k], axis=1, keepdims=True), 1e-300) for k in (0, 1))
+    # the line turns as much as its end sections do (rotation of N0 onto N1, about w), as a
+    # symmetric arc about the chord: the sections' tilt against the chord is shared by both
+    # ends, not pushed into an S-bend in the middle
+    w = np.cross(N0, N1)
+    sin = np.linalg.norm(w, axis=1)
+    half = 0.5 * np.arctan2(sin, np.einsum("ij,ij->i", N0, N1))
+    w /= np.maximum(sin, 1e-300)[:, None]
+    half = np.minimum(half, MAX_ALONG_TURN)
+    for k, sign in ((0, -1.0), (1, 1.0)):
+        acc[:, k] = _rotate(d, w, sign * half)
+    scale = _alike_in_blocks(blocks, topo, V, acc, edges_of)
+    for k, sign in ((0, -1.0), (1, 1.0)):
+        acc[:, k] = _rotate(d, w, sign * half * scale)
+    half = half * scale
+    curved &= (half > MIN_ALONG_TURN) & (np.einsum("ij,ij->i", N0, d) > 0) & (np.einsum("ij,ij->i", N1, d) > 0)
+    return acc, curved
+
+
+def _alike_in_blocks(blocks, topo, V, tangent, edges_of, rounds: int = 3):
+    """Per edge, a factor (<= 1) on its turns so that the along edges of every block bulge
+    alike: the spread of their mid-point offsets from the chords stays within
+    :data:`ALIKE` times the block's shortest edge across the skeleton (a thin core block
+    between edges bent apart would be sheared or folded)."""
+    L = np.linalg.norm(V[topo.edges[:, 1]] - V[topo.edges[:, 0]], axis=1)
+    bulge = (L / 8.0)[:, None] * (tangent[:, 0] - tangent[:, 1])  # Hermite mid-point offset
+    scale = np.ones(len(L))
+    for _ in range(rounds):
+        changed = False
+        for b, along, other in edges_of:
+            off = scale[along][..., None] * bulge[along]  # (nb, 4, 3)
+            spread = np.linalg.norm(off[:, :, None] - off[:, None, :], axis=3).max(axis=(1, 2))
+            width = L[other].min(axis=1)
+            f = np.minimum(1.0, ALIKE * width / np.maximum(spread, 1e-300))
+            low = f < 1.0 - 1e-9
+            if low.any():
+                changed = True
+                target = scale[along[low]] * f[low, None]  # relative to the offsets as scaled so far
+                np.minimum.at(scale, along[low].ravel(), target.ravel())
+        if not changed:
+            break
+    return scale
+
+
+def _rotate(x: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Rotate the vectors ``x`` (m, 3) about the unit ``axis`` (m, 3) by ``angle`` (m,) (Rodrigues)."""
+    c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
+    return c * x + s * np.cross(axis, x) + (1 - c) * np.einsum("ij,ij->i", axis, x)[:, None] * axis
+
+
+def hermite_edges(a: np.ndarray, b: np.ndarray, t: np.ndarray, T0: np.ndarray, T1: np.ndarray) -> np.ndarray:
+    """Nodes ``(m, N + 1, 3)`` at the arc-length fractions ``t`` (m, N + 1) of the cubic
+    Hermite curves from ``a`` to ``b`` with unit end tangents ``T0``, ``T1`` (scaled by
+    the chord length)."""
+    length = np.linalg.norm(b - a, axis=1, keepdims=True)
+    return _hermite_nodes(a, b, t, length * T0, length * T1)
+
+
 def curved_edges(a: np.ndarray, b: np.ndarray, t: np.ndarray, turn: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """Nodes ``(m, N + 1, 3)`` at the arc-length fractions ``t`` (m, N + 1) of the cubic
     Hermite curves from ``a`` to ``b`` whose tangents are the chord turned by ``turn``
@@ -119,6 +245,11 @@ def curved_edges(a: np.ndarray, b: np.ndarray, t: np.ndarray, turn: np.ndarray, 
     d = chord / np.maximum(length, 1e-300)
     t0 = length * (np.cos(turn[:, :1]) * d + np.sin(turn[:, :1]) * normal)
     t1 = length * (np.cos(turn[:, 1:]) * d - np.sin(turn[:, 1:]) * normal)
+    return _hermite_nodes(a, b, t, t0, t1)
+
+
+def _hermite_nodes(a, b, t, t0, t1):
+    """Nodes of cubic Hermite curves at arc-length fractions ``t`` (end tangents ``t0``, ``t1``)."""
     s = np.linspace(0.0, 1.0, _SAMPLES + 1)[None, :, None]
     h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
     curve = h00 * a[:, None] + h10 * t0[:, None] + h01 * b[:, None] + h11 * t1[:, None]
