@@ -532,3 +532,19 @@ accept_trials_parallel = nb.njit(parallel=True, cache=True)(_variant(_accept_tri
 accept_trials_serial = nb.njit(cache=True)(_variant(_accept_trials, "accept_trials_serial"))
 #: colours with fewer nodes than this run serially
 PARALLEL_FROM = 4096
+
+
+def warm_up() -> None:
+    """Compile (or load) the parallel sweep kernels on a single hexahedron with every node
+    fixed, with the argument types ``optimize`` passes: ``vmesh compile`` calls it, since its
+    small tube only needs the serial variants."""
+    X = np.array([[c & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)], np.float64)
+    hexes = np.arange(8, dtype=np.int64).reshape(1, 8)
+    scale = target_scales(X, hexes, 1e-9)
+    ptr, inc = incidence(hexes, 8)
+    cq = corner_qualities(X, hexes, scale)
+    nodes = np.arange(8, dtype=np.int64)
+    kind, normal, caps = np.full(8, FIXED, np.int64), np.zeros((8, 3)), np.zeros(8)
+    trial, state, dirty, buf = np.empty((8, 3)), np.empty((8, 4)), np.zeros(8, np.bool_), np.empty((8, 32))
+    sweep_colour_parallel(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, caps, 1e-3, SMOOTH, 0.5, trial, state, dirty, buf)
+    accept_trials_parallel(X, hexes, scale, ptr, inc, cq, nodes, trial, 1e-3, SMOOTH, state, dirty, buf)
