@@ -154,3 +154,16 @@ def test_light_pass_raises_the_mean_and_keeps_the_boundary_layer():
     a, b = np.where(radial, cells[:, 0], cells[:, 0]), np.where(radial, cells[:, 1], cells[:, 2])
     r0 = np.linalg.norm(X0[:, :2], axis=1)
     assert np.all(np.sign(r[b] - r[a]) == np.sign(r0[b] - r0[a]))
+
+
+def test_serial_and_parallel_kernels_are_cached_apart():
+    """numba's disk cache is keyed on a function's name and signature, not on ``parallel=``:
+    the serial and parallel variants of a kernel need names of their own, or one loads the
+    other's compiled code (the serial sweep then launched threads for every small colour)."""
+    from numba.core.caching import FunctionCache
+
+    from vmesh.geometry.optimize import kernels as K
+
+    variants = (K.sweep_colour_serial, K.sweep_colour_parallel, K.accept_trials_serial, K.accept_trials_parallel)
+    assert len({FunctionCache(f.py_func)._impl.filename_base for f in variants}) == len(variants)
+    assert not K.sweep_colour_serial.targetoptions.get("parallel") and K.sweep_colour_parallel.targetoptions.get("parallel")

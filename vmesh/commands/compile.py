@@ -73,6 +73,9 @@ def compile_kernels() -> tuple[float, int]:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         FilterChain.load("default").run(surface=surface, skeleton=skeleton, out_dir=None)
+    from ..geometry.optimize.kernels import warm_up
+
+    warm_up()  # the optimiser's parallel variants (the tube's colours are all small)
     return time.perf_counter() - t0, _compiled_count()
 
 

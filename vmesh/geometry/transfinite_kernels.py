@@ -86,7 +86,7 @@ def _ratio_kernel(first, length, n):
     return out
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy")
 def _interp_line(x, xp, fp, out):
     """``out[i] = interp(x[i], xp, fp)`` for one ascending row (fp: (k, d)), the arithmetic of
     the former vectorised row-wise interpolation: interval by normalised position, clipped
@@ -120,7 +120,7 @@ def _interp_rows_kernel(x, xp, fp):
     return out
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy")
 def _arc_lengths(P, out):
     """Arc length from the first node at every node of one polyline (n, 3) into out (n,)."""
     out[0] = 0.0
@@ -129,7 +129,7 @@ def _arc_lengths(P, out):
         out[i] = out[i - 1] + np.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy")
 def _arc_params(P, out):
     """Normalised arc-length parameters of one polyline (n, 3) into out (n,)."""
     _arc_lengths(P, out)
@@ -164,7 +164,7 @@ def _coons_kernel(P):
                     )
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy")
 def _mean_edge_params(e0, e1, e2, e3, tmp, out):
     """Mean of the normalised arc-length parameters of four parallel edges."""
     _arc_params(e0, out)
@@ -204,7 +204,7 @@ def _tfi_one(Q):
                     Q[i, j, kk, d] = row[j] + ((1 - w[kk]) * (Q[i, j, 0, d] - W2lo[i, j, d]) + w[kk] * (Q[i, j, K, d] - W2hi[i, j, d]))
 
 
-@nb.njit(cache=True, error_model="numpy", inline="always")
+@nb.njit(cache=True, error_model="numpy")
 def _w2_row(Q, u, v, i, kk, d, out):
     """``out[j]`` = W2 (the projectors along i and j) at lattice ``(i, j, kk)``, coordinate d,
     for the interior j."""

@@ -70,6 +70,7 @@ class _Stage:
         bounds = np.searchsorted(colour[order], np.arange(colour.max() + 2)) if len(nodes) else np.zeros(1, np.int64)
         self.colours = [nodes[order[bounds[c] : bounds[c + 1]]] for c in range(len(bounds) - 1)]
         self.nodes = nodes
+        self.valence = int(np.diff(self.ptr).max()) if len(self.ptr) > 1 else 0
 
 
 def _delta(qmin: float) -> float:
@@ -85,7 +86,7 @@ def _offset(project, trial, height):
     return foot + up * (height / np.maximum(np.linalg.norm(up, axis=1), 1e-300))[:, None]
 
 
-def _sweep(X, st, kind, normal, caps, delta, mode, goal, project, wall_normals, stats, height, dirty):
+def _sweep(X, st, cq, kind, normal, caps, delta, mode, goal, project, wall_normals, stats, height, dirty):
     """One Gauss–Seidel sweep over every colour of the stage; returns the number of nodes moved.
     ``wall_normals`` (None: keep the current ones) gives the tangent planes of the wall and
     first-layer nodes."""
@@ -95,11 +96,13 @@ def _sweep(X, st, kind, normal, caps, delta, mode, goal, project, wall_normals, 
         if len(w):
             nrm = np.asarray(wall_normals(X[w]), float)
             normal[w] = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+    width = 4 * st.valence
     for nodes in st.colours:
         trial = np.empty((len(nodes), 3))
+        buf = np.empty((len(nodes), width))  # the corner qualities of each node's last trial
         state = np.empty((len(nodes), 4))
         parallel = len(nodes) >= K.PARALLEL_FROM
-        (K.sweep_colour_parallel if parallel else K.sweep_colour_serial)(X, st.hexes, st.scale, st.ptr, st.inc, nodes, kind, normal, caps, delta, mode, goal, trial, state, dirty)
+        (K.sweep_colour_parallel if parallel else K.sweep_colour_serial)(X, st.hexes, st.scale, st.ptr, st.inc, cq, nodes, kind, normal, caps, delta, mode, goal, trial, state, dirty, buf)
         stats["updates"] += int((state[:, 0] != -1.0).sum())
         kinds = kind[nodes]
         wall_trial = ((kinds == K.WALL) | (kinds == K.OFFSET)) & (state[:, 3] > 0)
@@ -112,7 +115,7 @@ def _sweep(X, st, kind, normal, caps, delta, mode, goal, project, wall_normals, 
                 off = ids[~on]
                 proj[~on] = _offset(project, trial[off], height[nodes[off]])
             sub_state = np.ascontiguousarray(state[ids])
-            (K.accept_trials_parallel if len(ids) >= K.PARALLEL_FROM else K.accept_trials_serial)(X, st.hexes, st.scale, st.ptr, st.inc, nodes[ids], proj, delta, mode, sub_state, dirty)
+            (K.accept_trials_parallel if len(ids) >= K.PARALLEL_FROM else K.accept_trials_serial)(X, st.hexes, st.scale, st.ptr, st.inc, cq, nodes[ids], proj, delta, mode, sub_state, dirty, buf)
             state[ids, 3] = sub_state[:, 3]
         moved += int((state[:, 3] > 0).sum())
     return moved
@@ -127,7 +130,8 @@ def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats
     if len(todo):
         height[todo] = np.linalg.norm(X0[todo] - np.asarray(project(X0[todo]), float), axis=1)
     caps = K.step_caps(X, st.hexes, st.ptr, st.inc, st.nodes, len(X), 0.5)
-    q = K.hexes_quality(X, st.hexes)
+    cq = K.corner_qualities(X, st.hexes, st.scale)  # follows every move (kernels.node_eval)
+    q = cq.min(axis=1)
     # progress: the worst element, or the total shortfall below the goal
     best = (float(q.min()), float(np.minimum(q - goal, 0.0).sum()))
     stall = 0
@@ -139,9 +143,9 @@ def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats
         # the tangent planes only steer the steps (the projection puts nodes back on the
         # wall): refreshed every few sweeps, the signed-distance queries cost more than a sweep
         normals = wall_normals if sweep % 8 == 0 else None
-        if _sweep(X, st, kind, normal, caps, delta, mode, climb, project, normals, stats, height, dirty) == 0:
+        if _sweep(X, st, cq, kind, normal, caps, delta, mode, climb, project, normals, stats, height, dirty) == 0:
             break
-        q = K.hexes_quality(X, st.hexes)
+        q = cq.min(axis=1)
         if q.min() >= goal:
             break
         now = (float(q.min()), float(np.minimum(q - goal, 0.0).sum()))
