@@ -96,6 +96,82 @@ def _pair_angle(m: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.arccos(np.clip(cos, -1.0, 1.0))
 
 
+def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead: float, max_shift: float):
+    """The first junction of ``skel`` not in ``done`` with two branches less than ``limit``
+    (radians) apart that part by ``target`` within ``max_shift`` x its radius (see
+    :func:`separate_parallel_branches`): ``(c, pi, ai, pj, aj, star, at, r_at, eps)``, the
+    junction, the two branches from it and their arc lengths, the arc length, position and
+    radius of the new junction and the tolerance on arc length; None if there is none.
+    Adds the junctions looked at to ``done``."""
+    scale = node_scale(skel)
+    paths = branch_paths(skel.n_nodes, skel.edges)
+    for c in np.flatnonzero(skel.degrees >= 3).tolist():
+        if c in done:
+            continue
+        done.add(c)  # unless a move below changes it
+        out = [p if p[0] == c else p[::-1] for p in paths if (p[0] == c) != (p[-1] == c)]  # loops skipped
+        if len(out) < 2:
+            continue
+        rc = scale[c]
+        arcs = [arc_length(skel.points[p]) for p in out]
+        tips = np.stack([_polyline_at(skel.points[p], a, np.array([ahead * rc]))[0] for p, a in zip(out, arcs)])
+        i, j = np.triu_indices(len(out), 1)
+        ang = _pair_angle(skel.points[c], tips[i], tips[j])
+        for k in np.argsort(ang).tolist():
+            if ang[k] >= limit:
+                break
+            pi, ai, pj, aj = out[i[k]], arcs[i[k]], out[j[k]], arcs[j[k]]
+            if pi[-1] == pj[-1]:  # two paths between the same nodes: a loop, not a fork
+                continue
+            eps = 0.02 * rc
+            top = min(max_shift * rc, ai[-1] - ahead * rc, aj[-1] - ahead * rc) - eps
+            if top <= 0:
+                continue
+            # candidate junctions: midpoints of the two branches, every twentieth of a radius
+            s = np.arange(0.05 * rc, top + 1e-12, 0.05 * rc)
+            Pi, Pj, Ri, Rj = skel.points[pi], skel.points[pj], scale[pi], scale[pj]
+            mid = 0.5 * (_polyline_at(Pi, ai, s) + _polyline_at(Pj, aj, s))
+            r = np.maximum(np.interp(s, ai, Ri), np.interp(s, aj, Rj))
+            spread = _pair_angle(mid, _polyline_at(Pi, ai, s + ahead * r), _polyline_at(Pj, aj, s + ahead * r))
+            wide = np.flatnonzero(spread >= target)
+            if len(wide):
+                return (c, pi, ai, pj, aj, s[wide[0]], mid[wide[0]], r[wide[0]], eps)
+    return None
+
+
+def _join_parallel(skel: Skeleton, job: tuple, distance=None) -> tuple[Skeleton, np.ndarray]:
+    """Move the junction of ``job`` (from :func:`_parallel_pair`) to where its two branches
+    part: the common stretch of the two onto their midpoints; returns the new skeleton and
+    the mask of the nodes of ``skel`` (and the new junction, last) dropped."""
+    c, pi, ai, pj, aj, star, at, r_at, eps = job
+    # branch i: pi[:ki] before the new junction (moved onto the midpoints), pi[li:] after
+    # it, nodes at it dropped; branch j: pj[lj:] after it, the rest but c dropped
+    ki = int(np.searchsorted(ai, star - eps, side="left"))
+    li = int(np.searchsorted(ai, star + eps, side="right"))
+    lj = int(np.searchsorted(aj, star + eps, side="right"))
+    n = skel.n_nodes
+    scale = node_scale(skel)
+    pts = np.r_[skel.points, at[None]]
+    rad = np.r_[skel.radii, r_at]
+    inner = pi[1:ki]
+    pts[inner] = 0.5 * (skel.points[inner] + _polyline_at(skel.points[pj], aj, ai[1:ki]))
+    rad[inner] = np.maximum(scale[inner], np.interp(ai[1:ki], aj, scale[pj]))
+    if distance is not None:
+        ids = np.r_[inner, n]
+        depth = np.asarray(distance(pts[ids]), float)
+        rad[ids] = np.where(depth > 0, depth, rad[ids])
+    tags = list(skel.node_tags) + [tuple(t for t in skel.node_tags[c] if t not in END_TAGS)]
+    drop = np.zeros(n + 1, bool)
+    drop[pi[ki:li]] = True
+    drop[pj[1:lj]] = True
+    cut = np.sort([[pi[ki - 1], pi[ki]], [pi[li - 1], pi[li]], [pj[lj - 1], pj[lj]]], axis=1)
+    keep = ~(np.sort(skel.edges, axis=1)[:, None, :] == cut[None]).all(-1).any(-1)
+    edges = np.r_[skel.edges[keep], [[pi[ki - 1], n], [n, pi[li]], [n, pj[lj]]]]
+    etags = [t for t, k in zip(skel.edge_tags, keep) if k] + [()] * 3
+    grown = Skeleton(pts, rad, edges, tags, etags, name=skel.name)
+    return contract_nodes(grown, np.where(drop, -1, np.arange(n + 1))), drop
+
+
 def separate_parallel_branches(
     skeleton: Skeleton,
     min_angle: float = 30.0,
@@ -145,72 +221,12 @@ def separate_parallel_branches(
     limit, target = np.radians(min_angle), np.radians(max(part_angle, min_angle))
     skel, moved, done = skeleton, 0, set()
     while True:
-        scale = node_scale(skel)
-        paths = branch_paths(skel.n_nodes, skel.edges)
-        job = None
-        for c in np.flatnonzero(skel.degrees >= 3).tolist():
-            if c in done:
-                continue
-            done.add(c)  # unless a move below changes it
-            out = [p if p[0] == c else p[::-1] for p in paths if (p[0] == c) != (p[-1] == c)]  # loops skipped
-            if len(out) < 2:
-                continue
-            rc = scale[c]
-            arcs = [arc_length(skel.points[p]) for p in out]
-            tips = np.stack([_polyline_at(skel.points[p], a, np.array([ahead * rc]))[0] for p, a in zip(out, arcs)])
-            i, j = np.triu_indices(len(out), 1)
-            ang = _pair_angle(skel.points[c], tips[i], tips[j])
-            for k in np.argsort(ang).tolist():
-                if ang[k] >= limit:
-                    break
-                pi, ai, pj, aj = out[i[k]], arcs[i[k]], out[j[k]], arcs[j[k]]
-                if pi[-1] == pj[-1]:  # two paths between the same nodes: a loop, not a fork
-                    continue
-                eps = 0.02 * rc
-                top = min(max_shift * rc, ai[-1] - ahead * rc, aj[-1] - ahead * rc) - eps
-                if top <= 0:
-                    continue
-                # candidate junctions: midpoints of the two branches, every twentieth of a radius
-                s = np.arange(0.05 * rc, top + 1e-12, 0.05 * rc)
-                Pi, Pj, Ri, Rj = skel.points[pi], skel.points[pj], scale[pi], scale[pj]
-                mid = 0.5 * (_polyline_at(Pi, ai, s) + _polyline_at(Pj, aj, s))
-                r = np.maximum(np.interp(s, ai, Ri), np.interp(s, aj, Rj))
-                spread = _pair_angle(mid, _polyline_at(Pi, ai, s + ahead * r), _polyline_at(Pj, aj, s + ahead * r))
-                wide = np.flatnonzero(spread >= target)
-                if len(wide):
-                    job = (c, pi, ai, pj, aj, s[wide[0]], mid[wide[0]], r[wide[0]], eps)
-                    break
-            if job is not None:
-                break
+        job = _parallel_pair(skel, done, limit, target, ahead, max_shift)
         if job is None:
             break
-        c, pi, ai, pj, aj, star, at, r_at, eps = job
-        # branch i: pi[:ki] before the new junction (moved onto the midpoints), pi[li:] after
-        # it, nodes at it dropped; branch j: pj[lj:] after it, the rest but c dropped
-        ki = int(np.searchsorted(ai, star - eps, side="left"))
-        li = int(np.searchsorted(ai, star + eps, side="right"))
-        lj = int(np.searchsorted(aj, star + eps, side="right"))
-        n = skel.n_nodes
-        scale = node_scale(skel)
-        pts = np.r_[skel.points, at[None]]
-        rad = np.r_[skel.radii, r_at]
-        inner = pi[1:ki]
-        pts[inner] = 0.5 * (skel.points[inner] + _polyline_at(skel.points[pj], aj, ai[1:ki]))
-        rad[inner] = np.maximum(scale[inner], np.interp(ai[1:ki], aj, scale[pj]))
-        if distance is not None:
-            ids = np.r_[inner, n]
-            depth = np.asarray(distance(pts[ids]), float)
-            rad[ids] = np.where(depth > 0, depth, rad[ids])
-        tags = list(skel.node_tags) + [tuple(t for t in skel.node_tags[c] if t not in END_TAGS)]
-        drop = np.zeros(n + 1, bool)
-        drop[pi[ki:li]] = True
-        drop[pj[1:lj]] = True
-        cut = np.sort([[pi[ki - 1], pi[ki]], [pi[li - 1], pi[li]], [pj[lj - 1], pj[lj]]], axis=1)
-        keep = ~(np.sort(skel.edges, axis=1)[:, None, :] == cut[None]).all(-1).any(-1)
-        edges = np.r_[skel.edges[keep], [[pi[ki - 1], n], [n, pi[li]], [n, pj[lj]]]]
-        etags = [t for t, k in zip(skel.edge_tags, keep) if k] + [()] * 3
-        grown = Skeleton(pts, rad, edges, tags, etags, name=skel.name)
-        skel = contract_nodes(grown, np.where(drop, -1, np.arange(n + 1)))
+        c = job[0]
+        skel, drop = _join_parallel(skel, job, distance)
+        n = len(drop) - 1
         # contract_nodes numbers the kept nodes in order; c is looked at again (it may have
         # more branches), the new junction is not
         new_index = np.cumsum(~drop) - 1

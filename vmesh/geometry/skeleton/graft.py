@@ -34,6 +34,82 @@ def match_ends_to_caps(skeleton: Skeleton, centers: np.ndarray, radii: np.ndarra
     return [(int(ends[r]), int(c)) for r, c in zip(rows[ok], cols[ok])]
 
 
+def _end_chain(adj, deg: np.ndarray, end: int) -> np.ndarray:
+    """The branch from the endpoint ``end`` inwards, up to and including the next key node
+    (``adj``: the skeleton's adjacency, ``deg``: its node degrees)."""
+    chain, prev, cur = [end], -1, end
+    while cur == end or deg[cur] == 2:
+        nb = [int(v) for v in adj.indices[adj.indptr[cur] : adj.indptr[cur + 1]] if v != prev]
+        if not nb:
+            break
+        prev, cur = cur, nb[0]
+        chain.append(cur)
+    return np.asarray(chain)
+
+
+def _cap_target(p_end: np.ndarray, direction: np.ndarray, center: np.ndarray, normal: np.ndarray, cap_radius: float, mode: str) -> np.ndarray:
+    """Where an end at ``p_end`` going along ``direction`` is brought on its cap (see
+    :func:`extend_to_caps`): the cap centre, or with ``mode="plane"`` where the direction
+    meets the cap plane unless that is more than half a cap radius off-centre."""
+    nd = np.linalg.norm(direction)
+    target = center
+    if mode == "plane" and nd > 0:
+        direction = direction / nd
+        cosang = direction @ normal
+        if cosang > 0.2:
+            hit = p_end + ((center - p_end) @ normal) / cosang * direction
+            if np.linalg.norm(hit - center) <= 0.5 * cap_radius:
+                target = hit
+    return target
+
+
+def _bend_end(pts: list, points: np.ndarray, rest: np.ndarray, s: np.ndarray, lateral: np.ndarray, cap_radius: float) -> None:
+    """Shift the last two cap radii of the branch ``rest`` (end node first, arc lengths
+    ``s``) sideways by ``lateral``, weight falling linearly from the end; writes ``pts``."""
+    if len(rest) > 1:
+        reach = min(2.0 * cap_radius, s[-1])
+        weight = np.clip(1.0 - s / max(reach, 1e-300), 0.0, 1.0)
+        weight[-1] = 0.0
+        for node, w_ in zip(rest.tolist(), weight.tolist()):
+            if w_ > 0:
+                pts[node] = points[node] + w_ * lateral
+    else:
+        pts[rest[0]] = points[rest[0]] + lateral
+
+
+def _extend_end(lists: tuple, keep_end: int, p_end, target, r0: float, cap_radius: float, gap: float, spacing: float, base: tuple, end_label: tuple) -> int:
+    """Extend the end node ``keep_end`` (at ``p_end``) in a straight line to ``target``,
+    ``gap`` away: new nodes about ``spacing`` apart, radii blending linearly from ``r0`` to
+    ``cap_radius``, tags ``base`` and ``end_label`` on the new end. ``lists`` are the
+    skeleton's ``(pts, rad, ntags, edges, etags)``, extended in place; returns the new end
+    node."""
+    pts, rad, ntags, edges, etags = lists
+    steps = max(1, int(np.ceil(gap / spacing)))
+    f = np.arange(1, steps + 1) / steps
+    new_r = (1 - f) * r0 + f * cap_radius if np.isfinite(r0) else np.full(steps, cap_radius)
+    ids = list(range(len(pts), len(pts) + steps))
+    pts.extend(p_end + f[:, None] * (target - p_end))
+    rad.extend(new_r)
+    ntags[keep_end] = base
+    ntags.extend([base] * (steps - 1) + [_union(base, end_label)])
+    chain_ids = [keep_end] + ids
+    edges.extend(zip(chain_ids[:-1], chain_ids[1:]))
+    etags.extend([()] * steps)
+    return ids[-1]
+
+
+def _drop_trimmed(out: Skeleton, drop: np.ndarray, end_of_cap: dict, matched: np.ndarray) -> tuple[Skeleton, np.ndarray]:
+    """Remove the trimmed nodes ``drop`` (of the original skeleton, the first nodes of
+    ``out``) and number the end node of each cap in ``matched`` accordingly."""
+    full_drop = np.r_[drop, np.zeros(out.n_nodes - len(drop), bool)]
+    new_index = np.cumsum(~full_drop) - 1
+    for c, node in end_of_cap.items():
+        matched[c] = new_index[node]
+    if full_drop.any():
+        out = remove_nodes(out, full_drop, bridge=False)
+    return out, matched
+
+
 def extend_to_caps(
     skeleton: Skeleton,
     centers: np.ndarray,
@@ -95,14 +171,7 @@ def extend_to_caps(
     end_of_cap = {}
     for end, c in pairs:
         # the branch from the endpoint inwards, up to and including the next key node
-        chain, prev, cur = [end], -1, end
-        while cur == end or deg[cur] == 2:
-            nb = [int(v) for v in adj.indices[adj.indptr[cur] : adj.indptr[cur + 1]] if v != prev]
-            if not nb:
-                break
-            prev, cur = cur, nb[0]
-            chain.append(cur)
-        chain = np.asarray(chain)
+        chain = _end_chain(adj, deg, end)
         height = (skeleton.points[chain] - centers[c]) @ normals[c]
         beyond = height > 1e-3 * cap_r[c]  # on the plane to rounding is not beyond
         # trim the run of end nodes past the cap plane, never the branch's other end
@@ -114,28 +183,12 @@ def extend_to_caps(
         s = arc_length(skeleton.points[rest])
         back = rest[min(int(np.searchsorted(s, scale[keep_end])), len(rest) - 1)]
         direction = p_end - skeleton.points[back]
-        nd = np.linalg.norm(direction)
-        target = centers[c]
-        if mode == "plane" and nd > 0:
-            direction = direction / nd
-            cosang = direction @ normals[c]
-            if cosang > 0.2:
-                hit = p_end + ((centers[c] - p_end) @ normals[c]) / cosang * direction
-                if np.linalg.norm(hit - centers[c]) <= 0.5 * cap_r[c]:
-                    target = hit
+        target = _cap_target(p_end, direction, centers[c], normals[c], cap_r[c], mode)
         # the sideways part of the correction bends the last stretch of the branch (no kink,
         # the branch's other end stays put); the part along the normal extends it
         shift = target - p_end
         lateral = shift - (shift @ normals[c]) * normals[c]
-        if len(rest) > 1:
-            reach = min(2.0 * cap_r[c], s[-1])
-            weight = np.clip(1.0 - s / max(reach, 1e-300), 0.0, 1.0)
-            weight[-1] = 0.0
-            for node, w_ in zip(rest.tolist(), weight.tolist()):
-                if w_ > 0:
-                    pts[node] = skeleton.points[node] + w_ * lateral
-        else:
-            pts[keep_end] = p_end + lateral
+        _bend_end(pts, skeleton.points, rest, s, lateral, cap_r[c])
         p_end = np.asarray(pts[keep_end])
         # end labels (inlet/outlet/cap name), also of trimmed nodes, move to the new end node
         old = ntags[keep_end]
@@ -149,27 +202,47 @@ def extend_to_caps(
             ntags[keep_end] = _union(old, end_label)
             end_of_cap[c] = keep_end
             continue
-        steps = max(1, int(np.ceil(gap / spacing)))
-        f = np.arange(1, steps + 1) / steps
-        r0 = skeleton.radii[keep_end]
-        new_r = (1 - f) * r0 + f * cap_r[c] if np.isfinite(r0) else np.full(steps, cap_r[c])
-        ids = list(range(len(pts), len(pts) + steps))
-        pts.extend(p_end + f[:, None] * (target - p_end))
-        rad.extend(new_r)
-        ntags[keep_end] = base
-        ntags.extend([base] * (steps - 1) + [_union(base, end_label)])
-        chain_ids = [keep_end] + ids
-        edges.extend(zip(chain_ids[:-1], chain_ids[1:]))
-        etags.extend([()] * steps)
-        end_of_cap[c] = ids[-1]
+        lists = (pts, rad, ntags, edges, etags)
+        end_of_cap[c] = _extend_end(lists, keep_end, p_end, target, skeleton.radii[keep_end], cap_r[c], gap, spacing, base, end_label)
     out = Skeleton(np.asarray(pts), np.asarray(rad), np.asarray(edges, np.int64).reshape(-1, 2), ntags, etags, skeleton.name)
-    full_drop = np.r_[drop, np.zeros(out.n_nodes - skeleton.n_nodes, bool)]
-    new_index = np.cumsum(~full_drop) - 1
-    for c, node in end_of_cap.items():
-        matched[c] = new_index[node]
-    if full_drop.any():
-        out = remove_nodes(out, full_drop, bridge=False)
-    return out, matched
+    return _drop_trimmed(out, drop, end_of_cap, matched)
+
+
+def _path_to(pred: np.ndarray, start: int, entry: int) -> np.ndarray:
+    """Nodes of the shortest path from ``start`` to ``entry`` (predecessors ``pred`` of a
+    search from ``start``), without ``entry``."""
+    path = [entry]
+    while path[-1] != start:
+        path.append(int(pred[path[-1]]))
+    return np.asarray(path[:0:-1], np.int64)
+
+
+def _nearest_segment(skel: Skeleton, q: np.ndarray) -> tuple[int, float]:
+    """The edge of ``skel`` nearest to ``q`` and the parameter (0 to 1) of the foot of ``q``
+    on it."""
+    p0, vec = skel.points[skel.edges[:, 0]], skel.points[skel.edges[:, 1]] - skel.points[skel.edges[:, 0]]
+    t = np.clip(((q - p0) * vec).sum(1) / np.maximum((vec * vec).sum(1), 1e-300), 0.0, 1.0)
+    seg = int(np.argmin(np.linalg.norm(q - p0 - t[:, None] * vec, axis=1)))
+    return seg, float(t[seg])
+
+
+def _attach_branch(skel: Skeleton, points: np.ndarray, radii: np.ndarray, node: int, base: tuple, end_label: tuple) -> tuple[Skeleton, np.ndarray]:
+    """Append ``points``/``radii`` (from the cap end inwards) as a branch joined to ``node``,
+    tagged ``base`` and its cap end ``end_label`` too; returns the skeleton and the nodes of
+    the branch, ``node`` last."""
+    n0 = skel.n_nodes
+    chain = np.r_[n0 + np.arange(len(points)), node]
+    tags = list(skel.node_tags) + [base] * len(points)
+    tags[n0] = _union(base, end_label)
+    skel = Skeleton(
+        np.r_[skel.points, points],
+        np.r_[skel.radii, radii],
+        np.r_[skel.edges, np.c_[chain[:-1], chain[1:]]],
+        tags,
+        list(skel.edge_tags) + [()] * len(points),
+        skel.name,
+    )
+    return skel, chain
 
 
 def graft_branches(
@@ -246,35 +319,18 @@ def graft_branches(
             grafts.append({"cap": names[c], "nodes": 0, "reason": "the source skeleton does not come near the skeleton"})
             continue
         entry = int(cand[np.argmin(along[cand])])
-        path = [entry]
-        while path[-1] != start:
-            path.append(int(pred[path[-1]]))
-        new = np.asarray(path[:0:-1], np.int64)  # from the cap end inwards, without the entry node
+        new = _path_to(pred, start, entry)  # from the cap end inwards, without the entry node
         if not len(new):
             grafts.append({"cap": names[c], "nodes": 0, "reason": "the skeleton passes through the cap centre"})
             continue
         # the junction: the foot of the entry node on the nearest segment of the skeleton
-        q = source.points[entry]
-        p0, vec = skel.points[skel.edges[:, 0]], skel.points[skel.edges[:, 1]] - skel.points[skel.edges[:, 0]]
-        t = np.clip(((q - p0) * vec).sum(1) / np.maximum((vec * vec).sum(1), 1e-300), 0.0, 1.0)
-        seg = int(np.argmin(np.linalg.norm(q - p0 - t[:, None] * vec, axis=1)))
+        seg, t_seg = _nearest_segment(skel, source.points[entry])
         e0, e1 = skel.edges[seg]
         base = tuple(x for x in skel.node_tags[e0] if x in skel.node_tags[e1] and x not in end_tags)
-        skel, node = _node_at_foot(skel, seg, float(t[seg]), scale)
+        skel, node = _node_at_foot(skel, seg, t_seg, scale)
         has_inlet = any("inlet" in skel.node_tags[i] for i in skel.endpoints.tolist())
         kind = "inlet" if names[c].startswith("inlet") and not has_inlet else "outlet"
-        n0 = skel.n_nodes
-        chain = np.r_[n0 + np.arange(len(new)), node]
-        tags = list(skel.node_tags) + [base] * len(new)
-        tags[n0] = _union(base, (kind, names[c]))
-        skel = Skeleton(
-            np.r_[skel.points, source.points[new]],
-            np.r_[skel.radii, source.radii[new]],
-            np.r_[skel.edges, np.c_[chain[:-1], chain[1:]]],
-            tags,
-            list(skel.edge_tags) + [()] * len(new),
-            skel.name,
-        )
+        skel, chain = _attach_branch(skel, source.points[new], source.radii[new], node, base, (kind, names[c]))
         grafts.append(
             {
                 "cap": names[c],

@@ -78,6 +78,40 @@ def radius_features(s: np.ndarray, radius: np.ndarray, threshold: float) -> np.n
     return feats[keep], kind[keep]
 
 
+def _branch_stations(s: np.ndarray, R: np.ndarray, r_med: float, spacing: float, radius_change: float, least: int) -> np.ndarray:
+    """Arc lengths of the nodes of one resampled branch, ends included (see
+    :func:`resample_skeleton`): ``spacing`` x the smoothed radius apart, at least ``least``
+    segments, the radius features of :func:`radius_features` kept."""
+    L = s[-1]
+    r_sm = _smooth_along(s, R, 0.5 * r_med, 0.1 * r_med)
+    fixed, extremum = radius_features(s, R, radius_change) if radius_change else (np.zeros(0), np.zeros(0, bool))
+    density = 1.0 / (spacing * np.maximum(r_sm, 1e-12))
+    tau = np.r_[0.0, np.cumsum(0.5 * (density[1:] + density[:-1]) * np.diff(s))]
+    # features closer than half a spacing to each other or to an end are not worth a
+    # node; extrema are placed first
+    if len(fixed):
+        tf = np.interp(fixed, s, tau)
+        taken = [0.0, tau[-1]]
+        keep = []
+        for i in np.r_[np.flatnonzero(extremum), np.flatnonzero(~extremum)].tolist():
+            if np.min(np.abs(np.asarray(taken) - tf[i])) >= 0.5:
+                taken.append(tf[i])
+                keep.append(fixed[i])
+        fixed = np.sort(np.asarray(keep))
+    bounds = np.r_[0.0, fixed, L]
+    tb = np.interp(bounds, s, tau)
+    counts = np.maximum(np.rint(np.diff(tb)).astype(int), 1)
+    while counts.sum() < least:
+        counts[np.argmax(np.diff(tb) / counts)] += 1
+    new_s = [np.array([0.0])]
+    for k in range(len(counts)):
+        t = np.linspace(tb[k], tb[k + 1], counts[k] + 1)[1:]
+        new_s.append(np.interp(t, tau, s))
+    new_s = np.concatenate(new_s)
+    new_s[-1] = L
+    return new_s
+
+
 def resample_skeleton(
     skeleton: Skeleton,
     spacing: float = 1.25,
@@ -139,38 +173,12 @@ def resample_skeleton(
     for p, pe in zip(paths, path_edges):
         P, R = skeleton.points[p], skeleton.radii[p]
         s = arc_length(P)
-        L = s[-1]
         r_med = float(np.median(R))
-        r_sm = _smooth_along(s, R, 0.5 * r_med, 0.1 * r_med)
-        fixed, extremum = radius_features(s, R, radius_change) if radius_change else (np.zeros(0), np.zeros(0, bool))
-        density = 1.0 / (spacing * np.maximum(r_sm, 1e-12))
-        tau = np.r_[0.0, np.cumsum(0.5 * (density[1:] + density[:-1]) * np.diff(s))]
-        # features closer than half a spacing to each other or to an end are not worth a
-        # node; extrema are placed first
-        if len(fixed):
-            tf = np.interp(fixed, s, tau)
-            taken = [0.0, tau[-1]]
-            keep = []
-            for i in np.r_[np.flatnonzero(extremum), np.flatnonzero(~extremum)].tolist():
-                if np.min(np.abs(np.asarray(taken) - tf[i])) >= 0.5:
-                    taken.append(tf[i])
-                    keep.append(fixed[i])
-            fixed = np.sort(np.asarray(keep))
-        bounds = np.r_[0.0, fixed, L]
-        tb = np.interp(bounds, s, tau)
-        counts = np.maximum(np.rint(np.diff(tb)).astype(int), 1)
         pair = (min(p[0], p[-1]), max(p[0], p[-1]))
         least = 3 if p[0] == p[-1] else (2 if pair in seen_pairs else 1)
         least = max(least, min_segments)
         seen_pairs.add(pair)
-        while counts.sum() < least:
-            counts[np.argmax(np.diff(tb) / counts)] += 1
-        new_s = [np.array([0.0])]
-        for k in range(len(counts)):
-            t = np.linspace(tb[k], tb[k + 1], counts[k] + 1)[1:]
-            new_s.append(np.interp(t, tau, s))
-        new_s = np.concatenate(new_s)
-        new_s[-1] = L
+        new_s = _branch_stations(s, R, r_med, spacing, radius_change, least)
         inner_s = new_s[1:-1]
         m = len(inner_s)
         inner_p = np.stack([np.interp(inner_s, s, P[:, j]) for j in range(3)], axis=1)
