@@ -1,0 +1,432 @@
+"""Skeleton cleaning steps: merging close junctions, separating parallel branches,
+reconnecting components, removing spurs, trimming at caps (moved from
+:mod:`vmesh.geometry.skeleton_ops`, issue 20)."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from ...skeleton import Skeleton
+from .graph import arc_length, branch_paths, component_labels, contract_nodes, edge_lengths, END_TAGS, remove_nodes, _union
+
+
+def node_scale(skeleton: Skeleton) -> np.ndarray:
+    """Per-node length scale: the radius where it is known, else the median known radius,
+    else the median segment length (1 where there is none)."""
+    r = skeleton.radii
+    good = np.isfinite(r) & (r > 0)
+    if good.any():
+        fill = float(np.median(r[good]))
+    else:
+        lengths = edge_lengths(skeleton.points, skeleton.edges)
+        fill = float(np.median(lengths)) if len(lengths) and np.median(lengths) > 0 else 1.0
+    return np.where(good, r, fill)
+
+
+def merge_close_junctions(skeleton: Skeleton, tolerance: float = 0.5) -> tuple[Skeleton, int]:
+    """Merge junctions joined by a branch shorter than ``tolerance`` x the larger of their
+    radii into one junction (at the mean of the merged junctions).
+
+    Skeletonisation often splits one junction of four or more branches into two or three
+    junctions a short distance apart, or leaves a tiny loop at a junction; both collapse
+    (a loop from a junction back to itself when it stays within the junction's diameter of
+    it: the tube around it fills its hole).
+
+    Returns
+    -------
+    skeleton : Skeleton
+    n_merged : int
+        Number of junctions that disappeared.
+    """
+    if tolerance <= 0 or skeleton.n_edges == 0:
+        return skeleton.copy(), 0
+    deg = skeleton.degrees
+    scale = node_scale(skeleton)
+    paths = branch_paths(skeleton.n_nodes, skeleton.edges)
+    merge_sets = []
+    for p in paths:
+        a, b = p[0], p[-1]
+        if deg[a] < 3 or deg[b] < 3:
+            continue
+        if a == b:  # a loop narrower than the vessel encloses no wall: a hole of a voxel skeleton
+            reach = np.linalg.norm(skeleton.points[p] - skeleton.points[a], axis=1).max()
+            if reach < 2 * scale[a]:
+                merge_sets.append(p)
+            continue
+        length = arc_length(skeleton.points[p])[-1]
+        if length < tolerance * max(scale[a], scale[b]):
+            merge_sets.append(p)
+    if not merge_sets:
+        return skeleton.copy(), 0
+    n = skeleton.n_nodes
+    rows = np.concatenate([p[:-1] for p in merge_sets])
+    cols = np.concatenate([p[1:] for p in merge_sets])
+    adj = sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+    _, label = connected_components(adj, directed=False)
+    involved = np.zeros(n, bool)
+    involved[np.concatenate(merge_sets)] = True
+    first = np.full(label.max() + 1, n)
+    np.minimum.at(first, label, np.arange(n))
+    group = np.where(involved, first[label], np.arange(n))
+    # a merged junction sits at the mean of the junctions it replaces
+    groups, inverse = np.unique(group, return_inverse=True)
+    weight = np.where(deg >= 3, 1.0, 1e-9)
+    pos = np.zeros((len(groups), 3))
+    np.add.at(pos, inverse, skeleton.points * weight[:, None])
+    pos /= np.bincount(inverse, weights=weight)[:, None]
+    out = contract_nodes(skeleton, group, pos)
+    n_merged = int((deg >= 3).sum() - (out.degrees >= 3).sum())
+    return out, max(n_merged, 0)
+
+
+def _polyline_at(points: np.ndarray, arc: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Points at arc lengths ``s`` (clamped to the ends) of a polyline with arc lengths ``arc``."""
+    s = np.clip(s, 0.0, arc[-1])
+    k = np.clip(np.searchsorted(arc, s, side="right") - 1, 0, len(arc) - 2)
+    t = ((s - arc[k]) / np.maximum(arc[k + 1] - arc[k], 1e-300))[:, None]
+    return (1 - t) * points[k] + t * points[k + 1]
+
+
+def _pair_angle(m: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle (radians) at ``m`` between the directions to ``a`` and to ``b`` (row-wise)."""
+    u, v = a - m, b - m
+    cos = (u * v).sum(-1) / np.maximum(np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1), 1e-300)
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead: float, max_shift: float):
+    """The first junction of ``skel`` not in ``done`` with two branches less than ``limit``
+    (radians) apart that part by ``target`` within ``max_shift`` x its radius (see
+    :func:`separate_parallel_branches`): ``(c, pi, ai, pj, aj, star, at, r_at, eps)``, the
+    junction, the two branches from it and their arc lengths, the arc length, position and
+    radius of the new junction and the tolerance on arc length; None if there is none.
+    Adds the junctions looked at to ``done``."""
+    scale = node_scale(skel)
+    paths = branch_paths(skel.n_nodes, skel.edges)
+    for c in np.flatnonzero(skel.degrees >= 3).tolist():
+        if c in done:
+            continue
+        done.add(c)  # unless a move below changes it
+        out = [p if p[0] == c else p[::-1] for p in paths if (p[0] == c) != (p[-1] == c)]  # loops skipped
+        if len(out) < 2:
+            continue
+        rc = scale[c]
+        arcs = [arc_length(skel.points[p]) for p in out]
+        tips = np.stack([_polyline_at(skel.points[p], a, np.array([ahead * rc]))[0] for p, a in zip(out, arcs)])
+        i, j = np.triu_indices(len(out), 1)
+        ang = _pair_angle(skel.points[c], tips[i], tips[j])
+        for k in np.argsort(ang).tolist():
+            if ang[k] >= limit:
+                break
+            pi, ai, pj, aj = out[i[k]], arcs[i[k]], out[j[k]], arcs[j[k]]
+            if pi[-1] == pj[-1]:  # two paths between the same nodes: a loop, not a fork
+                continue
+            eps = 0.02 * rc
+            top = min(max_shift * rc, ai[-1] - ahead * rc, aj[-1] - ahead * rc) - eps
+            if top <= 0:
+                continue
+            # candidate junctions: midpoints of the two branches, every twentieth of a radius
+            s = np.arange(0.05 * rc, top + 1e-12, 0.05 * rc)
+            Pi, Pj, Ri, Rj = skel.points[pi], skel.points[pj], scale[pi], scale[pj]
+            mid = 0.5 * (_polyline_at(Pi, ai, s) + _polyline_at(Pj, aj, s))
+            r = np.maximum(np.interp(s, ai, Ri), np.interp(s, aj, Rj))
+            spread = _pair_angle(mid, _polyline_at(Pi, ai, s + ahead * r), _polyline_at(Pj, aj, s + ahead * r))
+            wide = np.flatnonzero(spread >= target)
+            if len(wide):
+                return (c, pi, ai, pj, aj, s[wide[0]], mid[wide[0]], r[wide[0]], eps)
+    return None
+
+
+def _join_parallel(skel: Skeleton, job: tuple, distance=None) -> tuple[Skeleton, np.ndarray]:
+    """Move the junction of ``job`` (from :func:`_parallel_pair`) to where its two branches
+    part: the common stretch of the two onto their midpoints; returns the new skeleton and
+    the mask of the nodes of ``skel`` (and the new junction, last) dropped."""
+    c, pi, ai, pj, aj, star, at, r_at, eps = job
+    # branch i: pi[:ki] before the new junction (moved onto the midpoints), pi[li:] after
+    # it, nodes at it dropped; branch j: pj[lj:] after it, the rest but c dropped
+    ki = int(np.searchsorted(ai, star - eps, side="left"))
+    li = int(np.searchsorted(ai, star + eps, side="right"))
+    lj = int(np.searchsorted(aj, star + eps, side="right"))
+    n = skel.n_nodes
+    scale = node_scale(skel)
+    pts = np.r_[skel.points, at[None]]
+    rad = np.r_[skel.radii, r_at]
+    inner = pi[1:ki]
+    pts[inner] = 0.5 * (skel.points[inner] + _polyline_at(skel.points[pj], aj, ai[1:ki]))
+    rad[inner] = np.maximum(scale[inner], np.interp(ai[1:ki], aj, scale[pj]))
+    if distance is not None:
+        ids = np.r_[inner, n]
+        depth = np.asarray(distance(pts[ids]), float)
+        rad[ids] = np.where(depth > 0, depth, rad[ids])
+    tags = list(skel.node_tags) + [tuple(t for t in skel.node_tags[c] if t not in END_TAGS)]
+    drop = np.zeros(n + 1, bool)
+    drop[pi[ki:li]] = True
+    drop[pj[1:lj]] = True
+    cut = np.sort([[pi[ki - 1], pi[ki]], [pi[li - 1], pi[li]], [pj[lj - 1], pj[lj]]], axis=1)
+    keep = ~(np.sort(skel.edges, axis=1)[:, None, :] == cut[None]).all(-1).any(-1)
+    edges = np.r_[skel.edges[keep], [[pi[ki - 1], n], [n, pi[li]], [n, pj[lj]]]]
+    etags = [t for t, k in zip(skel.edge_tags, keep) if k] + [()] * 3
+    grown = Skeleton(pts, rad, edges, tags, etags, name=skel.name)
+    return contract_nodes(grown, np.where(drop, -1, np.arange(n + 1))), drop
+
+
+def separate_parallel_branches(
+    skeleton: Skeleton,
+    min_angle: float = 30.0,
+    part_angle: float = 60.0,
+    ahead: float = 1.0,
+    max_shift: float = 4.0,
+    distance=None,
+) -> tuple[Skeleton, int]:
+    """Move junctions whose branches leave nearly parallel downstream, to where they part.
+
+    Centerlines traced from an inlet to every outlet (VMTK, SimVascular) split as soon as
+    the paths are a fraction of the radius apart, well before the carina: two daughters
+    then leave the junction a few degrees apart and run side by side for a radius or two,
+    and the junction's half cross-sections become slivers reaching down to the carina. At
+    every junction whose two closest branches make an angle below ``min_angle``
+    (directions to the points ``ahead`` x radius along them), the common stretch of those
+    two joins the vessel they leave (nodes on the midpoints of the two, matched by arc
+    length) and the junction moves to the first midpoint from which the two branches,
+    ``ahead`` x radius further on, are ``part_angle`` apart (about where the medial axis
+    of the surface branches).
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+    min_angle : float
+        Least angle (degrees) between two branches at a junction; 0 moves nothing.
+    part_angle : float
+        Angle (degrees, at least ``min_angle``) between the two branches seen from the
+        moved junction.
+    ahead : float
+        Where the branch directions are measured (x radius along the branches).
+    max_shift : float
+        Farthest a junction moves along its branches (x its radius); a junction whose
+        branches are not yet ``part_angle`` apart there is left where it is.
+    distance : callable, optional
+        Signed distance (positive inside): radii of the moved nodes. Without it (or where
+        it is not positive), the larger of the two branch radii at each midpoint.
+
+    Returns
+    -------
+    skeleton : Skeleton
+    n_moved : int
+        Number of junctions moved.
+    """
+    if min_angle <= 0 or skeleton.n_edges == 0:
+        return skeleton.copy(), 0
+    limit, target = np.radians(min_angle), np.radians(max(part_angle, min_angle))
+    skel, moved, done = skeleton, 0, set()
+    while True:
+        job = _parallel_pair(skel, done, limit, target, ahead, max_shift)
+        if job is None:
+            break
+        c = job[0]
+        skel, drop = _join_parallel(skel, job, distance)
+        n = len(drop) - 1
+        # contract_nodes numbers the kept nodes in order; c is looked at again (it may have
+        # more branches), the new junction is not
+        new_index = np.cumsum(~drop) - 1
+        done = {int(new_index[d]) for d in done if d != c and not drop[d]} | {int(new_index[n])}
+        moved += 1
+    return skel.copy() if skel is skeleton else skel, moved
+
+
+def _node_at_foot(skel: Skeleton, seg: int, t: float, scale: np.ndarray) -> tuple[Skeleton, int]:
+    """The node where something joins segment ``seg`` at parameter ``t``: an end node of
+    the segment within a quarter of its radius (``scale``) of the foot point, else a new
+    node splitting the segment there (radius interpolated, tags both ends share)."""
+    a, b = (int(x) for x in skel.edges[seg])
+    length = np.linalg.norm(skel.points[b] - skel.points[a])
+    if t * length <= 0.25 * scale[a]:
+        return skel, a
+    if (1 - t) * length <= 0.25 * scale[b]:
+        return skel, b
+    foot = skel.points[a] + t * (skel.points[b] - skel.points[a])
+    r = (1 - t) * skel.radii[a] + t * skel.radii[b]
+    node = skel.n_nodes
+    edges = np.r_[np.delete(skel.edges, seg, axis=0), [[a, node], [node, b]]]
+    etags = [x for i, x in enumerate(skel.edge_tags) if i != seg] + [skel.edge_tags[seg]] * 2
+    shared = tuple(x for x in skel.node_tags[a] if x in skel.node_tags[b])
+    out = Skeleton(np.r_[skel.points, [foot]], np.r_[skel.radii, r], edges, list(skel.node_tags) + [shared], etags, skel.name)
+    return out, node
+
+
+def reconnect_components(skeleton: Skeleton, tolerance: float = 1.0) -> tuple[Skeleton, int]:
+    """Reconnect separated pieces: an endpoint (or isolated node) within ``tolerance`` x its
+    radius of another component is joined to it, at the foot point on the nearest segment
+    (a new node there, unless an end node of that segment is within a quarter radius).
+
+    Pieces are joined one at a time, closest gap first, so two pieces that could each
+    join the other are joined once.
+
+    Returns
+    -------
+    skeleton : Skeleton
+    n_joined : int
+    """
+    if tolerance <= 0:
+        return skeleton.copy(), 0
+    skel = skeleton.copy()
+    joined = 0
+    while True:
+        label = component_labels(skel.n_nodes, skel.edges)
+        if label.max(initial=0) == 0:
+            break
+        deg = skel.degrees
+        scale = node_scale(skel)
+        a_seg, b_seg = skel.edges.T
+        start, vec = skel.points[a_seg], skel.points[b_seg] - skel.points[a_seg]
+        best = None  # (gap, endpoint, segment or -1, foot parameter, node or -1)
+        for e in np.flatnonzero(deg <= 1).tolist():
+            limit = tolerance * scale[e]
+            segs = np.flatnonzero(label[a_seg] != label[e])
+            if len(segs):
+                rel = skel.points[e] - start[segs]
+                t = np.clip((rel * vec[segs]).sum(1) / np.maximum((vec[segs] ** 2).sum(1), 1e-300), 0, 1)
+                dist = np.linalg.norm(rel - t[:, None] * vec[segs], axis=1)
+                k = int(np.argmin(dist))
+                if dist[k] <= limit and (best is None or dist[k] < best[0]):
+                    best = (dist[k], e, int(segs[k]), float(t[k]), -1)
+            iso = np.flatnonzero((deg == 0) & (label != label[e]))
+            if len(iso):
+                dist = np.linalg.norm(skel.points[iso] - skel.points[e], axis=1)
+                k = int(np.argmin(dist))
+                if dist[k] <= limit and (best is None or dist[k] < best[0]):
+                    best = (dist[k], e, -1, 0.0, int(iso[k]))
+        if best is None:
+            break
+        _, e, seg, t, node = best
+        if seg >= 0:
+            skel, node = _node_at_foot(skel, seg, t, scale)
+        skel = skel.copy(edges=np.r_[skel.edges, [[e, node]]], edge_tags=list(skel.edge_tags) + [()])
+        joined += 1
+    return skel, joined
+
+
+def remove_spurs(
+    skeleton: Skeleton, length: float = 1.0, protected: np.ndarray | None = None, shadow: float = 0.5
+) -> tuple[Skeleton, int]:
+    """Remove short side branches: a branch from an endpoint to a junction shorter than
+    ``length`` x the junction radius is a bump on the wall, not a vessel.
+
+    At most ``degree - 2`` spurs (shortest first) go per junction and round, so a short
+    bifurcation (two short daughters) keeps one daughter; rounds repeat until nothing
+    changes. ``protected`` endpoints (e.g. at caps) are never removed, except a spur of
+    any length whose end lies within ``shadow`` x its radius of another branch of its
+    junction: it runs inside that branch's lumen (an extracted skeleton's second path
+    along one vessel, leaving the junction a few degrees from it) and adds no vessel.
+
+    Returns
+    -------
+    skeleton : Skeleton
+    n_removed : int
+        Number of spurs removed.
+    """
+    from .defects import shadowed
+
+    if length <= 0 and shadow <= 0:
+        return skeleton.copy(), 0
+    skel = skeleton
+    prot = np.zeros(skel.n_nodes, bool) if protected is None else np.asarray(protected, bool).copy()
+    removed = 0
+    while True:
+        deg = skel.degrees
+        scale = node_scale(skel)
+        candidates = []
+        paths = branch_paths(skel.n_nodes, skel.edges)
+        for p in paths:
+            a, b = p[0], p[-1]
+            if deg[a] == 1 and deg[b] >= 3:
+                end, junction, inner = a, b, p[:-1]
+            elif deg[b] == 1 and deg[a] >= 3:
+                end, junction, inner = b, a, p[1:]
+            else:
+                continue
+            s = arc_length(skel.points[p])[-1]
+            if (s < length * scale[junction] and not prot[end]) or (
+                shadow > 0 and shadowed(skel, end, junction, p, paths, scale, shadow)
+            ):
+                candidates.append((s, junction, inner))
+        if not candidates:
+            break
+        candidates.sort(key=lambda c: c[0])
+        budget = {}
+        drop = np.zeros(skel.n_nodes, bool)
+        for s, j, inner in candidates:
+            left = budget.setdefault(j, deg[j] - 2)
+            if left > 0:
+                drop[inner] = True
+                budget[j] = left - 1
+                removed += 1
+        if not drop.any():
+            break
+        keep = ~drop
+        skel = remove_nodes(skel, drop, bridge=False)
+        prot = prot[keep]
+    return skel.copy() if skel is skeleton else skel, removed
+
+
+def trim_at_caps(
+    skeleton: Skeleton, centers: np.ndarray, normals: np.ndarray, radii: np.ndarray, slack: float = 1.5
+) -> tuple[Skeleton, int]:
+    """Cut off what lies beyond the caps: where a segment passes through a cap (crosses
+    its plane within ``slack`` x cap radius of its centre) and the part of the skeleton on
+    the far side hangs on that segment alone and lies mostly beyond the plane, that part
+    is removed and the outer node of the segment moves to the crossing point.
+
+    Centerlines computed on a longer vessel than the surface (the surface was clipped
+    afterwards) run out through the open ends; this makes them end there.
+
+    Returns
+    -------
+    skeleton : Skeleton
+    n_cut : int
+        Number of pieces cut off.
+    """
+    centers = np.asarray(centers, float).reshape(-1, 3)
+    normals = np.asarray(normals, float).reshape(-1, 3)
+    normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
+    cap_r = np.asarray(radii, float).reshape(-1)
+    skel = skeleton.copy()
+    n_cut = 0
+    for c in range(len(centers)):
+        while True:
+            h = (skel.points - centers[c]) @ normals[c]
+            out = h > 1e-3 * cap_r[c]  # nodes on the plane (to rounding) are not beyond it
+            a, b = skel.edges.T
+            cross = out[a] != out[b]
+            t = np.clip(h[a] / np.where(cross & (h[a] != h[b]), h[a] - h[b], 1.0), 0.0, 1.0)
+            foot = skel.points[a] + t[:, None] * (skel.points[b] - skel.points[a])
+            cand = np.flatnonzero(cross & (np.linalg.norm(foot - centers[c], axis=1) <= slack * cap_r[c]))
+            done = True
+            for e in cand.tolist():
+                inner, outer = (a[e], b[e]) if not out[a[e]] else (b[e], a[e])
+                rest = np.delete(skel.edges, e, axis=0)
+                label = component_labels(skel.n_nodes, rest)
+                beyond = np.flatnonzero(label == label[outer])
+                if label[inner] == label[outer] or len(beyond) * 2 > skel.n_nodes or out[beyond].mean() < 0.5:
+                    continue
+                points, rad = skel.points.copy(), skel.radii.copy()
+                te = t[e] if outer == b[e] else 1.0 - t[e]
+                drop = label == label[outer]
+                # the new end: the outer node moved onto the plane, or the inner node if it
+                # is (nearly) there already
+                end = inner if np.linalg.norm(foot[e] - skel.points[inner]) <= 0.05 * cap_r[c] else outer
+                if end == outer:
+                    rad[outer] = (1 - te) * skel.radii[inner] + te * skel.radii[outer]
+                points[end] = foot[e]
+                drop[end] = False
+                tags = list(skel.node_tags)
+                ends = tuple(x for i in np.flatnonzero(drop).tolist() for x in skel.node_tags[i] if x in END_TAGS)
+                tags[end] = _union(tags[end], ends)
+                skel = remove_nodes(skel.copy(points=points, radii=rad, node_tags=tags), drop, bridge=False)
+                n_cut += 1
+                done = False
+                break
+            if done:
+                break
+    return skel, n_cut
