@@ -37,7 +37,7 @@ from ..registry import Parameter, register_filter
         Parameter("light_pass_sweeps", "int", 8, "Most Gauss–Seidel sweeps of the light pass (4 gives most of its gain at half the cost).", min=1, max=100),
         Parameter("curved_sections", "bool", True, "Curve the core/ring and ring/boundary-layer interfaces of the cross-sections so that the element angles at their corners balance (120° at core corners instead of 90°/135°/135°; docs/optimiser.md)."),
         Parameter("smooth_below", "float", 0.5, "Light pass after untangling (optimiser = local): nodes of elements below this move only where their elements' minimum and mean scaled Jacobian do not drop; 0 = off.", min=0.0, max=0.95),
-        Parameter("exact_first_layer", "bool", True, "With first_layer_height (or y_plus): after untangling, re-place the nodes of every boundary-layer line so that the first element is that height along the wall normal; with boundary_layer_thickness: before untangling, put the layer's inner nodes at that thickness along the wall normal (docs/cfd.md)."),
+        Parameter("exact_first_layer", "bool", True, "With first_layer_height (or y_plus): after the optimisers (untangling and the light pass), re-place the nodes of every boundary-layer line so that the first element is that height along the wall normal; with boundary_layer_thickness: before untangling, put the layer's inner nodes at that thickness along the wall normal (docs/cfd.md)."),
     ],
     reads=("blocks", "surface"),
     optional_reads=("coarse_surface", "caps", "skeleton", "sdf"),
