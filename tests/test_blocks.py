@@ -605,3 +605,21 @@ def test_real_carotid_extracted_builds(real_path):
 @pytest.mark.slow
 def test_real_extracted_builds(real_path, surface_name):
     _check_real_blocks(_extracted_blocks(real_path(surface_name)))
+
+
+def test_block_options_groups():
+    """BlockOptions keeps its options in groups by concern; flat (filter) names go to the group
+    that holds them, and copies change one field without touching the original."""
+    from vmesh.geometry.blocks import JunctionOptions, RepairOptions
+
+    opt = BlockOptions(blocks_around=10, junction_centre=0.0, dome_depth=2.0, max_fix_rounds=3)
+    assert (opt.section.blocks_around, opt.junction.junction_centre, opt.ends.dome_depth, opt.repair.max_fix_rounds) == (10, 0.0, 2.0, 3)
+    assert opt.section.core_size == 0.3 and opt.junction.junction_margin == 0.3
+    grouped = BlockOptions(junction=JunctionOptions(junction_centre=0.5), repair=RepairOptions(split_nonplanar=False), core_size=0.2)
+    assert grouped.junction.junction_centre == 0.5 and not grouped.repair.split_nonplanar and grouped.section.core_size == 0.2
+    copy = opt.replace(junction_centre=1.0)
+    assert copy.junction.junction_centre == 1.0 and opt.junction.junction_centre == 0.0
+    assert copy.section == opt.section and copy.section is not opt.section
+    assert BlockOptions() == BlockOptions(junction_centre=1.0)
+    with pytest.raises(TypeError):
+        BlockOptions(no_such_option=1)

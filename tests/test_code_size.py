@@ -22,10 +22,7 @@ MAX_CLASS_ATTRIBUTES = 15
 # small, named functions"; remove the entry when it is within the limit).
 KNOWN_LONG_MODULES = {}
 KNOWN_LONG_FUNCTIONS: dict = {}
-KNOWN_LARGE_CLASSES = {
-    "geometry/blocks/options.py:BlockOptions": 22,
-    "geometry/blocks/sections.py:_Sections": 19,
-}
+KNOWN_LARGE_CLASSES: dict = {}
 
 
 def _class_attributes(node: ast.ClassDef) -> set:

@@ -58,25 +58,17 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
     wall and thickened where they would fold. Endpoints near a cap end on the cap plane with the cap's name; endpoints
     without a cap are closed on the wall by a cap of blocks round the dome; without caps every endpoint is open."""
     from ..geometry.block_builder import BlockOptions, block_structure_checks, build_blocks
+    from ..geometry.blocks.options import EndOptions, JunctionOptions, RepairOptions, SectionOptions
 
     options = BlockOptions(
-        blocks_around=blocks_around,
-        core_size=core_size,
-        layer_thickness=layer_thickness,
-        plane_bias=plane_bias,
-        junction_rotation=junction_rotation,
-        rotation_range=rotation_range,
-        max_out_of_plane=max_out_of_plane,
-        min_branch_gap=min_branch_gap,
-        split_nonplanar=split_nonplanar,
-        clear_ray_factor=clear_ray_factor,
-        junction_margin=junction_margin,
-        cap_distance=cap_distance,
-        dome_depth=dome_depth,
-        dome_max_retreat=dome_max_retreat,
-        max_fix_rounds=max_fix_rounds,
-        junction_centre=junction_centre,
-        relieve_wall_folds=relieve_wall_folds,
+        section=SectionOptions(blocks_around=blocks_around, core_size=core_size, layer_thickness=layer_thickness, plane_bias=plane_bias),
+        junction=JunctionOptions(
+            junction_rotation=junction_rotation, rotation_range=rotation_range, max_out_of_plane=max_out_of_plane,
+            min_branch_gap=min_branch_gap, clear_ray_factor=clear_ray_factor, junction_margin=junction_margin,
+            junction_centre=junction_centre,
+        ),
+        ends=EndOptions(cap_distance=cap_distance, dome_depth=dome_depth, dome_max_retreat=dome_max_retreat),
+        repair=RepairOptions(split_nonplanar=split_nonplanar, max_fix_rounds=max_fix_rounds, relieve_wall_folds=relieve_wall_folds),
     )
     sdf = ctx.sdf  # a vmesh.geometry.surface_query.SurfaceQuery
     bad_path = ctx.output_path("invalid_blocks.vtu")

@@ -1,7 +1,8 @@
 """Block structures of vessels: conforming hexahedral blocks from a skeleton and a signed distance.
 
 Modules: :mod:`.builder` (:func:`build_blocks` and the builder that runs the steps),
-:mod:`.options` (:class:`BlockOptions` and the per-junction and per-branch state),
+:mod:`.options` (:class:`BlockOptions` in groups, and the per-junction and per-branch state),
+:mod:`.state` (the builder's mutable state, by concern),
 :mod:`.prep` (skeleton preparation: splitting and merging junctions, caps, section spacing),
 :mod:`.junctions`, :mod:`.sections`, :mod:`.assemble` and :mod:`.repair` (the builder's steps)
 and :mod:`.checks` (wall-projected and filled quality, invalid blocks, failures).
@@ -16,7 +17,7 @@ from .checks import (
     projected_wall_quality,
     write_bad_blocks,
 )
-from .options import CLOSED, CYCLE, JUNCTION, OPEN, BlockOptions
+from .options import CLOSED, CYCLE, JUNCTION, OPEN, BlockOptions, EndOptions, JunctionOptions, RepairOptions, SectionOptions
 from .prep import (
     endpoint_caps,
     merge_junction_pair,
@@ -26,7 +27,7 @@ from .prep import (
 )
 
 __all__ = [
-    "BlockOptions", "build_blocks", "FILL_CHECKS", "block_structure_checks", "fill_quality", "fill_score",
+    "BlockOptions", "SectionOptions", "JunctionOptions", "EndOptions", "RepairOptions", "build_blocks", "FILL_CHECKS", "block_structure_checks", "fill_quality", "fill_score",
     "projected_wall_quality", "write_bad_blocks", "endpoint_caps", "merge_junction_pair", "polyline_at",
     "redistribute_sections", "split_nonplanar_junctions", "JUNCTION", "OPEN", "CLOSED", "CYCLE",
 ]

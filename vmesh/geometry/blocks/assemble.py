@@ -44,8 +44,8 @@ class _Assembly:
         if flip.any():
             hexes[flip] = hexes[flip][:, [4, 5, 6, 7, 0, 1, 2, 3]]
             fb[flip] = fb[flip][:, [0, 1, 2, 3, 5, 4]]
-        self.block_where = np.vstack(where)
-        self.block_layers = np.concatenate(blayer)
+        self.built.block_where = np.vstack(where)
+        self.built.block_layers = np.concatenate(blayer)
         blocks = BlockStructure(
             vertices=vertices,
             hexes=hexes,
@@ -57,19 +57,19 @@ class _Assembly:
             block_segment=np.concatenate(bseg),
             block_layer=np.concatenate(blayer),
             block_tags=btags,
-            boundary_names=dict(self.boundary_names),
+            boundary_names=dict(self.ends.boundary_names),
         )
-        self.info = {
+        self.built.info = {
             "blocks_around": t.n_around,
             "core": [t.a, t.b],
-            "max_twist_deg": round(self.max_twist, 3),
-            "branches": len(self.branches),
+            "max_twist_deg": round(self.frames.max_twist, 3),
+            "branches": len(self.topo.branches),
             "junctions": {int(c): {"neighbors": j.neighbors.tolist(), "axis": j.u.round(6).tolist(),
-                                   "rotation_deg": np.degrees(j.psi).round(2).tolist()} for c, j in self.junctions.items()},
+                                   "rotation_deg": np.degrees(j.psi).round(2).tolist()} for c, j in self.topo.junctions.items()},
             "flipped_blocks": int(flip.sum()),
-            "dome_caps": len(self.domes),
-            "dome_retreat": {int(self.branches[bi].nodes[-1 if side else 0]): round(v, 4) for (bi, side), v in self.retreat.items()},
-            "skeleton": self.sk,
+            "dome_caps": len(self.frames.domes),
+            "dome_retreat": {int(self.topo.branches[bi].nodes[-1 if side else 0]): round(v, 4) for (bi, side), v in self.placed.retreat.items()},
+            "skeleton": self.topo.sk,
         }
         return blocks
 
@@ -91,7 +91,7 @@ class _Assembly:
         on_surf.append(S.reshape(-1))
         # junctions: spine + upper halves
         upper, spine = t.upper, t.spine
-        for c, j in self.junctions.items():
+        for c, j in self.topo.junctions.items():
             m = len(j.neighbors)
             sdirs = j.separator_dir(np.arange(m))
             R = self._half_rays(j, sdirs)
@@ -110,9 +110,8 @@ class _Assembly:
                 n_vert += int(only_up.sum())
                 verts.append(HV[h, only_up])
                 on_surf.append(t.kind[only_up] == cs.VERTEX_OUTER)
-            j.half_vertices = HV
         # dome caps: the lifted core square, and its rays' points on the layer and the dome
-        for dome in self.domes:
+        for dome in self.frames.domes:
             cv = dome["core"]
             for name, onwall in (("lifted", False), ("inner", False), ("wall", True)):
                 dome[name + "_ids"] = np.full(nv_t, -1, np.int64)
@@ -126,11 +125,11 @@ class _Assembly:
 
     def _branch_blocks(self, sec_ids: dict, rows: list) -> None:
         """Append the blocks between consecutive sections of every branch to ``rows``."""
-        t, sk = self.template, self.sk
+        t, sk = self.template, self.topo.sk
         hexes, fb, ak, radius, bnode, bseg, blayer, btags, where = rows
         q = t.quads
         nq = len(q)
-        for bi, br in enumerate(self.branches):
+        for bi, br in enumerate(self.topo.branches):
             K = len(br.nodes)
             ids = [None] * K
             for k in range(K):
@@ -155,7 +154,7 @@ class _Assembly:
                 ak.append(np.c_[t.quad_axes, np.full(nq, AXIS_ALONG)])
                 n0, n1 = int(br.nodes[k]), int(br.nodes[k + 1])
                 e = int(br.edges[k])
-                radius.append(np.full(nq, 0.5 * (self.R_node[bi][k] + self.R_node[bi][k + 1])))
+                radius.append(np.full(nq, 0.5 * (self.frames.R_node[bi][k] + self.frames.R_node[bi][k + 1])))
                 bnode.append(np.full(nq, n0))
                 bseg.append(np.full(nq, e))
                 blayer.append(t.quad_layer)
@@ -165,16 +164,16 @@ class _Assembly:
 
     def _dome_blocks(self, idx: list, sec_ids: dict, rows: list) -> None:
         """Append the cap blocks round every closed end's dome to ``rows``."""
-        t, sk = self.template, self.sk
+        t, sk = self.template, self.topo.sk
         nv_t = t.n_vertices
         q = t.quads
         hexes, fb, ak, radius, bnode, bseg, blayer, btags, where = rows
         loop_of = np.full(nv_t, -1, np.int64)  # ring and outer vertices -> the loop vertex on their ray
         loop_of[t.ring] = t.loop
         loop_of[t.outer] = t.loop
-        for dome in self.domes:
+        for dome in self.frames.domes:
             bi, k = idx[dome["section"]]
-            br = self.branches[bi]
+            br = self.topo.branches[bi]
             kseg = 0 if k == 0 else k - 1
             E, L, I, W = sec_ids[(bi, k)], dome["lifted_ids"], dome["inner_ids"], dome["wall_ids"]
             cq, rq, bq = (q[t.quad_layer == lay] for lay in (LAYER_CORE, LAYER_RING, LAYER_BOUNDARY))
@@ -203,7 +202,7 @@ class _Assembly:
                     f[:, 1] = FACE_WALL
                 fb.append(f)
                 ak.append(axes)
-                radius.append(np.full(m, self.R_node[bi][k]))
+                radius.append(np.full(m, self.frames.R_node[bi][k]))
                 bnode.append(np.full(m, n0))
                 bseg.append(np.full(m, e))
                 blayer.append(np.full(m, lay))
@@ -213,15 +212,15 @@ class _Assembly:
     def _folded_ids(self, bi: int, side: int) -> np.ndarray:
         """Global vertex id of each template vertex of a branch's end section at a junction."""
         t = self.template
-        br = self.branches[bi]
+        br = self.topo.branches[bi]
         K = len(br.nodes)
         k = 0 if side == 0 else K - 1
         c = int(br.nodes[k])
-        j = self.junctions[c]
+        j = self.topo.junctions[c]
         h = next(h for h, e in enumerate(j.ends) if e == (bi, side))
         m = len(j.neighbors)
-        n = self.T[bi, k]
-        e1 = self.E1[bi, k]
+        n = self.frames.T[bi, k]
+        e1 = self.frames.E1[bi, k]
         E1 = cs.unit(cs.reject(j.u[None], n[None]))[0]
         E2 = np.cross(n, E1)
         rho = cs.signed_angle(E1[None], e1[None], n[None])[0]
@@ -240,8 +239,8 @@ class _Assembly:
     def _cycle_close_ids(self, bi: int, first_ids: np.ndarray) -> np.ndarray:
         """Ids of a cycle's closing section: its first section seen in the transported frame."""
         t = self.template
-        K = self.counts[bi]
-        n = self.T[bi, K - 1]
-        rho = cs.signed_angle(cs.reject(self.E1[bi, 0][None], n[None]), self.E1[bi, K - 1][None], n[None])[0]
+        K = self.frames.counts[bi]
+        n = self.frames.T[bi, K - 1]
+        rho = cs.signed_angle(cs.reject(self.frames.E1[bi, 0][None], n[None]), self.frames.E1[bi, K - 1][None], n[None])[0]
         perm = min(t.symmetries, key=lambda s: abs(np.angle(np.exp(1j * (s[0] - rho)))))[1]
         return first_ids[perm]

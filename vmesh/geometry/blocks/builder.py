@@ -33,8 +33,6 @@ Method (see :mod:`vmesh.geometry.cross_sections` for the kernels)
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from ...blocks import BlockStructure
@@ -48,6 +46,7 @@ from .options import BlockOptions, _LocalFixes
 from .prep import merge_junction_pair, split_nonplanar_junctions
 from .repair import _Repair
 from .sections import _Sections
+from .state import _Assembled, _Ends, _Frames, _Placement, _Topology
 
 
 def build_blocks(
@@ -100,29 +99,29 @@ def build_blocks(
     # Each skeleton is tried with the half-sections at the junction walls' centres first,
     # then, where its blocks stay invalid, on the skeleton nodes (the wall's centre can crowd
     # junctions whose branches part early); only then is the skeleton changed.
-    at_node = replace(options, junction_centre=0.0)
+    at_node = options.replace(junction_centre=0.0)
     queue = [(skeleton, [], options, frozenset())]  # + the junction pairs a split made
     first = None
     tries = 0
     seen = set()  # merging two junctions and splitting the result again can give a skeleton back
-    while queue and tries < options.max_retopology_tries:
+    while queue and tries < options.repair.max_retopology_tries:
         sk, notes, opts, made = queue.pop(0)
         key = (_skeleton_key(sk), opts is at_node)
         if key in seen:
             continue
         seen.add(key)
-        tries += opts is not options or options.junction_centre <= 0  # a skeleton counts once
+        tries += opts is not options or options.junction.junction_centre <= 0  # a skeleton counts once
         try:
             blocks = _Builder(sk, distance, caps, opts, warn, progress, project, intersect_lines).run()
         except _Failure as failure:
-            if opts is options and options.junction_centre > 0:
+            if opts is options and options.junction.junction_centre > 0:
                 queue.insert(0, (sk, notes, at_node, made))
                 continue
             first = first or failure
             queue[:0] = [(s, n, options, m) for s, n, m in _retopology_options(failure, notes, distance, options, made)]
             continue
         except MeshingError:
-            if opts is options and options.junction_centre > 0:
+            if opts is options and options.junction.junction_centre > 0:
                 queue.insert(0, (sk, notes, at_node, made))
                 continue
             if first is None:
@@ -155,7 +154,7 @@ def _retopology_options(failure: "_Failure", notes: list, distance, options: Blo
     again, which would only give back the n-furcation just split."""
     out = []
     sk = failure.skeleton
-    if options.split_nonplanar:
+    if options.repair.split_nonplanar:
         for a, b in failure.crowded:
             if (a, b) in made:
                 continue
@@ -179,46 +178,53 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair):
         self.sdf = distance
         self.intersect_lines = intersect_lines
         self.project = project
-        self.caps = list(caps or [])
         self.warn = warn or (lambda msg: None)
         self.tick = progress or (lambda f, m="": None)
-        self.template = cs.o_grid_template(options.blocks_around)
-        self.sk = skeleton
+        self.template = cs.o_grid_template(options.section.blocks_around)
         self.fixes: list[str] = []
         self.local = _LocalFixes()
+        # the state the steps change, by concern (:mod:`.state`)
+        self.topo = _Topology(skeleton)
+        self.ends = _Ends(list(caps or []))
+        self.placed = _Placement()
+        self.frames = _Frames()
+        self.built = _Assembled()
 
 
     # -- entry ------------------------------------------------------------------
     def run(self) -> BlockStructure:
+        from ..skeleton_ops import branch_paths, path_edge_ids
+
         self.check_skeleton()
         self.tick(0.05, "junctions")
         self.split_if_needed()
-        self.pos = self.sk.points.copy()
+        self.topo.pos = self.topo.sk.points.copy()
+        paths = branch_paths(self.topo.sk.n_nodes, self.topo.sk.edges)
+        self.topo.paths = (paths, path_edge_ids(self.topo.sk.n_nodes, self.topo.sk.edges, paths))
         self.make_branches()
         self.build_junctions()
         self.classify_ends()
         self.tick(0.15, "junction planes")
-        self.moves = {}
         self.choose_rotations()
         self.tick(0.3, "sections")
         self.place_sections()
         blocks = None
-        for round_ in range(self.opt.max_fix_rounds + 1):
-            self.tick(0.4 + 0.5 * round_ / (self.opt.max_fix_rounds + 1), "blocks")
+        for round_ in range(self.opt.repair.max_fix_rounds + 1):
+            self.tick(0.4 + 0.5 * round_ / (self.opt.repair.max_fix_rounds + 1), "blocks")
             blocks = self.assemble()
             J = blocks.corner_jacobians()
             bad = np.flatnonzero(J.min(axis=1) <= 0)
             if len(bad) == 0:
                 break
-            if round_ == self.opt.max_fix_rounds or not self.fix(bad, J):
+            if round_ == self.opt.repair.max_fix_rounds or not self.fix(bad, J):
                 self.fail(blocks, bad)
         if self.project is not None:
             blocks = self.thicken_layers(blocks)
             blocks = self.choose_centres(blocks)
-            if self.opt.relieve_wall_folds:
+            if self.opt.repair.relieve_wall_folds:
                 blocks = self.relieve_wall_folds(blocks)
             self.report_wall_folds(blocks)
-        blocks.info.update(self.info)
+        blocks.info.update(self.built.info)
         blocks.info["fixes"] = list(self.fixes)
         self.tick(1.0, "done")
         return blocks
@@ -226,7 +232,7 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair):
 
     # -- 1. skeleton -------------------------------------------------------------
     def check_skeleton(self):
-        sk = self.sk
+        sk = self.topo.sk
         if sk.n_edges == 0:
             raise MeshingError("skeleton has no segments: nothing to build blocks along")
         if np.any(sk.edges[:, 0] == sk.edges[:, 1]):
@@ -246,7 +252,7 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair):
         if np.any(deg >= 3) and not self.template.splittable:
             j = sk.junctions[:3].tolist()
             raise MeshingError(
-                f"blocks_around = {self.opt.blocks_around} gives a 1 x 1 core without a grid line through its centre, "
+                f"blocks_around = {self.opt.section.blocks_around} gives a 1 x 1 core without a grid line through its centre, "
                 f"so junctions (nodes {j}) cannot be split into half cross-sections: use 6, 8 (default), 10 ... blocks around"
             )
         d = np.asarray(self.sdf(sk.points))

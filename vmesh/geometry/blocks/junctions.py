@@ -6,7 +6,7 @@ import numpy as np
 
 from ...errors import MeshingError
 from .. import cross_sections as cs
-from .options import JUNCTION, _Junction
+from .options import JUNCTION, _Candidates, _Junction
 from .prep import polyline_at, split_nonplanar_junctions
 
 
@@ -19,21 +19,21 @@ class _Junctions:
     def junction_problem(self, c: int, d: np.ndarray):
         """The junction axis of node ``c`` with neighbour directions ``d``, or why the scheme cannot take it."""
         opt = self.opt
-        u, gap, elev = cs.junction_axis(d, np.radians(opt.max_out_of_plane))
-        if elev > np.radians(opt.max_out_of_plane):
+        u, gap, elev = cs.junction_axis(d, np.radians(opt.junction.max_out_of_plane))
+        if elev > np.radians(opt.junction.max_out_of_plane):
             k = int(np.argmax(np.abs(d @ u)))
-            return u, (k, f"one of its branches leaves the junction plane by {np.degrees(elev):.0f} degrees (more than max_out_of_plane = {opt.max_out_of_plane:g})")
-        if gap < np.radians(opt.min_branch_gap):
-            return u, (None, f"two of its branches are only {np.degrees(gap):.0f} degrees apart around the junction axis (less than min_branch_gap = {opt.min_branch_gap:g})")
+            return u, (k, f"one of its branches leaves the junction plane by {np.degrees(elev):.0f} degrees (more than max_out_of_plane = {opt.junction.max_out_of_plane:g})")
+        if gap < np.radians(opt.junction.min_branch_gap):
+            return u, (None, f"two of its branches are only {np.degrees(gap):.0f} degrees apart around the junction axis (less than min_branch_gap = {opt.junction.min_branch_gap:g})")
         return u, None
 
 
     def split_if_needed(self):
         """With ``split_nonplanar``: split n-furcations (4+ branches) that are too far from planar
         into chains of 3-junctions. Other problems are reported by :meth:`build_junctions`."""
-        if not self.opt.split_nonplanar:
+        if not self.opt.repair.split_nonplanar:
             return
-        sk = self.sk
+        sk = self.topo.sk
         split = []
         for c in sk.junctions.tolist():
             nb = sk.neighbors(c)
@@ -43,7 +43,7 @@ class _Junctions:
             if problem:
                 split.append(c)
         if split:
-            self.sk = split_nonplanar_junctions(sk, split, distance=self.sdf)
+            self.topo.sk = split_nonplanar_junctions(sk, split, distance=self.sdf)
             self.fixes.append(f"split non-planar junction node(s) {split} into 3-junctions")
             self.warn(f"split non-planar junction node(s) {split} into 3-junctions")
             self.check_skeleton()
@@ -52,23 +52,23 @@ class _Junctions:
     def _branch_direction(self, bi: int, side: int, length: float) -> np.ndarray:
         """Unit direction from a branch end (its current position) to the point ``length``
         further along the branch's nodes (at least its first neighbour)."""
-        br = self.branches[bi]
+        br = self.topo.branches[bi]
         nodes = br.nodes if side == 0 else br.nodes[::-1]
-        P = self.sk.points[nodes]
+        P = self.topo.sk.points[nodes]
         arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))]
         s = np.array([max(min(length, arc[-1]), arc[1])])
         target, _ = polyline_at(P, arc, s, np.zeros((len(P), 1)))
-        return cs.unit(target[0] - self.pos[nodes[0]])
+        return cs.unit(target[0] - self.topo.pos[nodes[0]])
 
 
     def build_junctions(self, nodes=None):
         """Junction axes, neighbour order and separators (from the current positions), for
         all junctions or only ``nodes``."""
-        sk = self.sk
+        sk = self.topo.sk
         if nodes is None:
-            self.junctions: dict[int, _Junction] = {}
+            self.topo.junctions = {}
         ends = {}
-        for bi, br in enumerate(self.branches):
+        for bi, br in enumerate(self.topo.branches):
             for side in (0, 1):
                 if br.kinds[side] == JUNCTION:
                     c = int(br.nodes[0] if side == 0 else br.nodes[-1])
@@ -76,7 +76,7 @@ class _Junctions:
         for c, lst in ends.items():
             if nodes is not None and c not in nodes:
                 continue
-            moved = float(np.linalg.norm(self.pos[c] - sk.points[c]))
+            moved = float(np.linalg.norm(self.topo.pos[c] - sk.points[c]))
             rc = float(sk.radii[c])
             # directions to the first neighbours; further along the branches when those are
             # nearly parallel (a junction node placed before the vessels really part)
@@ -96,7 +96,7 @@ class _Junctions:
                 k, why = first
                 m = len(lst)
                 if k is not None:
-                    nb = int(self.branches[lst[k][0]].nodes[1] if lst[k][1] == 0 else self.branches[lst[k][0]].nodes[-2])
+                    nb = int(self.topo.branches[lst[k][0]].nodes[1] if lst[k][1] == 0 else self.topo.branches[lst[k][0]].nodes[-2])
                     why = why.replace("one of its branches", f"its branch towards node {nb}")
                 hint = (
                     "; set split_nonplanar = true to split it into 3-junctions"
@@ -106,13 +106,11 @@ class _Junctions:
                 raise MeshingError(f"junction at skeleton node {c} ({m} branches) is beyond the junction scheme: {why}{hint}")
             ang, p, q = cs.order_around(u, d)
             order, sep, gap = cs.separator_angles(ang)
-            self.junctions[c] = _Junction(
+            self.topo.junctions[c] = _Junction(
                 node=c, center=self._junction_centre(c, u, p, q, sep), radius=float(sk.radii[c]), u=u, p=p, q=q,
-                neighbors=np.array([int(self.branches[bi].nodes[1] if side == 0 else self.branches[bi].nodes[-2]) for bi, side in lst])[order],
-                branch_angle=ang[order], separator=sep, gap=gap, psi=np.zeros(len(lst)),
-                ends=[lst[i] for i in order],
+                neighbors=np.array([int(self.topo.branches[bi].nodes[1] if side == 0 else self.topo.branches[bi].nodes[-2]) for bi, side in lst])[order],
+                dirs=d[order], separator=sep, gap=gap, psi=np.zeros(len(lst)), ends=[lst[i] for i in order],
             )
-            self.junctions[c].dirs = d[order]
 
 
     def _junction_centre(self, c: int, u, p, q, sep) -> np.ndarray:
@@ -125,11 +123,11 @@ class _Junctions:
         the crotch half-section as a long sliver that reaches along the daughters and
         folds their first boundary-layer blocks. ``junction_centre`` blends from the node
         (0) to that point (1); it stays at least half the node's radius inside."""
-        o = self.pos[c].copy()
-        w = float(self.opt.junction_centre)
+        o = self.topo.pos[c].copy()
+        w = float(self.opt.junction.junction_centre)
         if w <= 0 or c in self.local.at_node:
             return o
-        rc = float(self.sk.radii[c])
+        rc = float(self.topo.sk.radii[c])
         sd = np.cos(sep)[:, None] * p + np.sin(sep)[:, None] * q
         R = self.cast(np.repeat(o[None], len(sd), 0), sd, np.full(len(sd), rc))
         if not np.all(np.isfinite(R)):
@@ -145,8 +143,8 @@ class _Junctions:
 
     def _slack(self, bi: int) -> float:
         """Room left on a branch between two junctions once both half-sections are in."""
-        br = self.branches[bi]
-        L = float(np.linalg.norm(self.pos[br.nodes[-1]] - self.pos[br.nodes[0]])) if len(br.nodes) == 2 else br.arc[-1]
+        br = self.topo.branches[bi]
+        L = float(np.linalg.norm(self.topo.pos[br.nodes[-1]] - self.topo.pos[br.nodes[0]])) if len(br.nodes) == 2 else br.arc[-1]
         return L - self._junction_reach(bi, 0) - self._junction_reach(bi, 1)
 
 
@@ -156,8 +154,8 @@ class _Junctions:
         Each end is tried (half a branch radius along the branch, into the wedge of the
         junction's other branches, staying well inside and within 1.5 radii of its node);
         the move that leaves the branch most room is kept."""
-        sk = self.sk
-        br = self.branches[bi]
+        sk = self.topo.sk
+        br = self.topo.branches[bi]
         if br.kinds != [JUNCTION, JUNCTION] or br.nodes[0] == br.nodes[-1]:
             return False
         rb = float(np.median(sk.radii[br.nodes]))
@@ -166,31 +164,31 @@ class _Junctions:
         for side in (0, 1):
             c = int(br.nodes[0] if side == 0 else br.nodes[-1])
             other = int(br.nodes[-1] if side == 0 else br.nodes[0])
-            w = cs.unit(self.pos[c] - self.pos[other])
-            new = self.pos[c] + 0.5 * rb * w
+            w = cs.unit(self.topo.pos[c] - self.topo.pos[other])
+            new = self.topo.pos[c] + 0.5 * rb * w
             if np.linalg.norm(new - sk.points[c]) > 1.5 * sk.radii[c]:
                 continue
             if float(np.asarray(self.sdf(new[None]))[0]) < 0.4 * sk.radii[c]:
                 continue
-            old_pos, old_j = self.pos[c].copy(), self.junctions[c]
-            self.pos[c] = new
+            old_pos, old_j = self.topo.pos[c].copy(), self.topo.junctions[c]
+            self.topo.pos[c] = new
             try:
                 self._rebuild_junction(c)
                 gain = self._slack(bi) - base
             except MeshingError:
                 gain = -np.inf
-            self.pos[c] = old_pos
-            self.junctions[c] = old_j
+            self.topo.pos[c] = old_pos
+            self.topo.junctions[c] = old_j
             self._rebuild_branches()
             if best is None or gain > best[0]:
                 best = (gain, c, new)
         if best is None or best[0] <= 1e-9 * rb:
             return False
         _, c, new = best
-        self.pos[c] = new
+        self.topo.pos[c] = new
         self._rebuild_junction(c)
-        self.moves[c] = float(np.linalg.norm(new - sk.points[c]))
-        self.fixes.append(f"moved junction node {c} by {self.moves[c]:.3g} along its branch to node {int(br.nodes[0] if c == br.nodes[-1] else br.nodes[-1])}")
+        moved = float(np.linalg.norm(new - sk.points[c]))
+        self.fixes.append(f"moved junction node {c} by {moved:.3g} along its branch to node {int(br.nodes[0] if c == br.nodes[-1] else br.nodes[-1])}")
         return True
 
 
@@ -210,7 +208,7 @@ class _Junctions:
         """How far (along each ordered neighbour's branch) sections may be pushed."""
         room = np.empty(len(j.neighbors))
         for h, (bi, side) in enumerate(j.ends):
-            br = self.branches[bi]
+            br = self.topo.branches[bi]
             L = br.arc[-1]
             other = br.kinds[1 - side]
             room[h] = (0.45 if other == JUNCTION else 0.8) * L if len(br.nodes) > 2 else 0.85 * L
@@ -250,15 +248,15 @@ class _Junctions:
         k = len(sdirs)
         e1 = np.repeat(j.u[None, :], k, axis=0)
         c = np.repeat(j.center[None, :], k, axis=0)
-        core = self.opt.core_size if core is None else core
-        layer = self.opt.layer_thickness if layer is None else layer
+        core = self.opt.section.core_size if core is None else core
+        layer = self.opt.section.layer_thickness if layer is None else layer
         return cs.section_vertices(self.template, c, e1, sdirs, R, core, layer)
 
 
     def choose_rotations(self, nodes=None):
         opt = self.opt
-        ncand = max(1, int(opt.rotation_candidates))
-        for c, j in self.junctions.items():
+        ncand = max(1, int(opt.junction.rotation_candidates))
+        for c, j in self.topo.junctions.items():
             if nodes is not None and c not in nodes:
                 continue
             m = len(j.neighbors)
@@ -267,7 +265,7 @@ class _Junctions:
                 raise MeshingError(f"junction at skeleton node {c}: no wall found along its reference line (is the node inside the vessel?)")
             # candidate offsets per separator, symmetric about the bisector
             frac = np.linspace(-1.0, 1.0, ncand) if ncand > 1 else np.zeros(1)
-            psi = (opt.rotation_range * 0.5 * j.gap)[:, None] * frac[None, :]  # (m, ncand)
+            psi = (opt.junction.rotation_range * 0.5 * j.gap)[:, None] * frac[None, :]  # (m, ncand)
             ang = j.separator[:, None] + psi
             sdirs = np.cos(ang)[..., None] * j.p + np.sin(ang)[..., None] * j.q  # (m, ncand, 3)
             R = self._half_rays(j, sdirs.reshape(-1, 3))
@@ -282,32 +280,30 @@ class _Junctions:
             # reach of each half-section along its two neighbours' directions
             dirs = j.dirs
             room = self._neighbour_room(j)
-            rad = self.sk.radii[j.neighbors]
+            rad = self.topo.sk.radii[j.neighbors]
             # reach along the branches from the node (the half-sections' line may be off it)
-            reach_a = (rel @ dirs.T) + ((j.center - self.pos[c]) @ dirs.T)  # (m, ncand, nv_up, m)
+            reach_a = (rel @ dirs.T) + ((j.center - self.topo.pos[c]) @ dirs.T)  # (m, ncand, nv_up, m)
             over = np.zeros((m, ncand))
             for h in range(m):
                 for nbh in (h, (h + 1) % m):
                     r = reach_a[h, :, :, nbh].max(axis=1)
-                    over[h] += np.maximum(0.0, r + opt.junction_margin * rad[nbh] - room[nbh]) / rad[nbh]
-            j.reach_table = reach_a.max(axis=2)  # (m, ncand, m)
-            j.cand_psi = psi
-            j.cand_cost = mean_dist / j.radius + 10.0 * over + 0.05 * frac[None, :] ** 2
-            j.cand_cost[~np.isfinite(R).all(axis=1).reshape(m, ncand)] = np.inf
-            if opt.junction_rotation == "bisector":
+                    over[h] += np.maximum(0.0, r + opt.junction.junction_margin * rad[nbh] - room[nbh]) / rad[nbh]
+            cost = mean_dist / j.radius + 10.0 * over + 0.05 * frac[None, :] ** 2
+            cost[~np.isfinite(R).all(axis=1).reshape(m, ncand)] = np.inf
+            if opt.junction.junction_rotation == "bisector":
                 pick = np.full(m, ncand // 2)
             else:
-                pick = np.argmin(j.cand_cost, axis=1)
-            j.pick = pick
+                pick = np.argmin(cost, axis=1)
+            j.cand = _Candidates(psi=psi, cost=cost, reach=reach_a.max(axis=2), pick=pick)  # reach: (m, ncand, m)
             j.psi = psi[np.arange(m), pick]
 
 
     def _junction_reach(self, bi: int, side: int) -> float:
         """How far the half-sections of the junction at a branch's end reach along it."""
-        br = self.branches[bi]
+        br = self.topo.branches[bi]
         c = int(br.nodes[0] if side == 0 else br.nodes[-1])
-        j = self.junctions[c]
+        j = self.topo.junctions[c]
         h = next(h for h, e in enumerate(j.ends) if e == (bi, side))
         m = len(j.neighbors)
         seps = [(h - 1) % m, h]
-        return float(max(j.reach_table[sp, j.pick[sp], h] for sp in seps))
+        return float(max(j.cand.reach[sp, j.cand.pick[sp], h] for sp in seps))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -10,31 +10,95 @@ JUNCTION, OPEN, CLOSED, CYCLE = "junction", "open", "closed", "cycle"
 
 
 @dataclass
-class BlockOptions:
-    """Parameters of :func:`build_blocks` (see the filter ``build_block_structure``)."""
+class SectionOptions:
+    """Cross-sections: the O-grid template and the planes of ordinary sections."""
 
     blocks_around: int = 8
     core_size: float = 0.3
     layer_thickness: float = 0.3
     plane_bias: float = 1.0
+
+
+@dataclass
+class JunctionOptions:
+    """Junction placement: axes, half-plane rotations and the branches' first sections."""
+
     junction_rotation: str = "closest"  # or "bisector"
     rotation_range: float = 0.6
     rotation_candidates: int = 9
     max_out_of_plane: float = 60.0  # degrees
     min_branch_gap: float = 12.0  # degrees
-    split_nonplanar: bool = True
-    max_retopology_tries: int = 8  # whole rebuilds with merged or split junctions
     clear_ray_factor: float = 1.8
     junction_margin: float = 0.3  # × branch radius, between half-sections and the first section
+    junction_centre: float = 1.0  # how far half-sections' common line moves from the node to the wall's centre (0: at the node)
+
+
+@dataclass
+class EndOptions:
+    """Ends: open ends on caps, closed ends (domes)."""
+
     cap_distance: float = 1.0  # × radius
     dome_depth: float = 1.0  # wall distance ahead of a closed end's section, × its mean wall distance
     dome_max_retreat: float = 1.5  # × endpoint radius
+
+
+@dataclass
+class RepairOptions:
+    """Repairs: invalid blocks, changed skeletons and wall-fold relief."""
+
+    split_nonplanar: bool = True
+    max_retopology_tries: int = 8  # whole rebuilds with merged or split junctions
     max_fix_rounds: int = 16
     wall_quality: float = 0.05  # least scaled Jacobian of boundary-layer blocks with projected wall faces
     good_wall_quality: float = 0.3  # projected quality at which a junction end's margin stops growing
     wall_margins: tuple = (0.0, 0.5, 1.0, 2.0)  # extra margins tried at folding junction ends (× radius)
     relieve_wall_folds: bool = True  # re-place junction sections where boundary-layer blocks would fold (fill-judged)
-    junction_centre: float = 1.0  # how far half-sections' common line moves from the node to the wall's centre (0: at the node)
+
+
+_GROUPS = {"section": SectionOptions, "junction": JunctionOptions, "ends": EndOptions, "repair": RepairOptions}
+
+
+@dataclass(init=False)
+class BlockOptions:
+    """Parameters of :func:`build_blocks` (see the filter ``build_block_structure``), in
+    groups by concern: :attr:`section`, :attr:`junction`, :attr:`ends` and :attr:`repair`.
+
+    Built from groups (``BlockOptions(junction=JunctionOptions(junction_centre=0))``) or
+    from the filter's flat parameter names (``BlockOptions(junction_centre=0)``), which
+    go to the group holding a field of that name; :meth:`replace` takes flat names too.
+    """
+
+    section: SectionOptions
+    junction: JunctionOptions
+    ends: EndOptions
+    repair: RepairOptions
+
+    def __init__(self, section=None, junction=None, ends=None, repair=None, **flat):
+        given = {"section": section, "junction": junction, "ends": ends, "repair": repair}
+        groups = {name: replace(given[name]) if given[name] is not None else cls() for name, cls in _GROUPS.items()}
+        for key, value in flat.items():
+            owner = next((name for name, cls in _GROUPS.items() if key in _FIELDS[cls]), None)
+            if owner is None:
+                raise TypeError(f"BlockOptions got an unexpected keyword argument {key!r}")
+            setattr(groups[owner], key, value)
+        self.section, self.junction, self.ends, self.repair = (groups[name] for name in _GROUPS)
+
+    def replace(self, **flat) -> "BlockOptions":
+        """A copy with the given fields (flat names) changed."""
+        return BlockOptions(self.section, self.junction, self.ends, self.repair, **flat)
+
+
+_FIELDS = {cls: {f.name for f in fields(cls)} for cls in _GROUPS.values()}
+
+
+@dataclass
+class _Candidates:
+    """Candidate rotations of a junction's half-planes and the chosen one per separator."""
+
+    psi: np.ndarray  # (m, ncand) rotation of each separator's candidates
+    cost: np.ndarray  # (m, ncand) cost of each (inf: no wall found)
+    reach: np.ndarray  # (m, ncand, m) how far each reaches along each ordered neighbour
+    pick: np.ndarray  # (m,) chosen candidate per separator
 
 
 @dataclass
@@ -46,12 +110,12 @@ class _Junction:
     p: np.ndarray  # basis of the plane ⟂ u
     q: np.ndarray
     neighbors: np.ndarray  # ordered around u
-    branch_angle: np.ndarray  # (m,) ordered
+    dirs: np.ndarray  # (m, 3) directions to the ordered neighbours
     separator: np.ndarray  # (m,) base angles (bisectors), separator h between neighbors h and h+1
     gap: np.ndarray  # (m,)
     psi: np.ndarray  # (m,) chosen rotation of each separator
     ends: list = field(default_factory=list)  # (branch, side) per ordered neighbour
-    allowed: list = field(default_factory=list)  # per separator: bool mask over candidates
+    cand: _Candidates | None = None  # the half-planes' candidate rotations (:meth:`choose_rotations`)
     spine_ids: np.ndarray | None = None  # (nv,) global ids of spine vertices (-1 elsewhere)
     half_ids: np.ndarray | None = None  # (m, nv) global ids of upper-half vertices per separator
 

@@ -37,14 +37,14 @@ class _Repair:
         block stays valid."""
         opt = self.opt
         quality = projected_wall_quality(blocks, self.project)
-        ends = self._junction_ends(np.flatnonzero(quality <= opt.wall_quality))
+        ends = self._junction_ends(np.flatnonzero(quality <= opt.repair.wall_quality))
         if not ends:
             return blocks
-        nodes = sorted({int(self.branches[bi].nodes[-side]) for bi, side in ends})
+        nodes = sorted({int(self.topo.branches[bi].nodes[-side]) for bi, side in ends})
         near = self._junction_blocks(nodes)
         before = self._checked_score(blocks, near)
-        saved = ([br.margin.copy() for br in self.branches],
-                 {c: (j.pick.copy(), j.psi.copy()) for c, j in self.junctions.items()})
+        saved = ([br.margin.copy() for br in self.topo.branches],
+                 {c: (j.cand.pick.copy(), j.psi.copy()) for c, j in self.topo.junctions.items()})
         trial = self._margins_for_wall(ends)
         after = self._checked_score(trial, near)
         if np.any(after < 0):
@@ -54,10 +54,10 @@ class _Repair:
             after = self._checked_score(trial, near)
         if not (np.all(after >= before - 1e-9) and np.any(after > before + 1e-9)):
             # the junction's blocks fill no better at some resolution: back to where they were
-            for br, m in zip(self.branches, saved[0]):
+            for br, m in zip(self.topo.branches, saved[0]):
                 br.margin = m
             for c, (pick, psi) in saved[1].items():
-                self.junctions[c].pick, self.junctions[c].psi = pick, psi
+                self.topo.junctions[c].cand.pick, self.topo.junctions[c].psi = pick, psi
             self._apply_clearance()
             return self.assemble()
         self.fixes.append(f"re-placed the half cross-sections and first cross-sections at junction node(s) {nodes} "
@@ -76,13 +76,13 @@ class _Repair:
         independent), their junction blocks filled (:func:`fill_quality`, without
         untangling), and a junction switches only when it fills better at one resolution
         and no worse at any, with every block valid."""
-        if self.opt.junction_centre <= 0 or not self.junctions:
+        if self.opt.junction.junction_centre <= 0 or not self.topo.junctions:
             return blocks
-        nodes = sorted(c for c in self.junctions if c not in self.local.at_node)
+        nodes = sorted(c for c in self.topo.junctions if c not in self.local.at_node)
         if not nodes:
             return blocks
         before = self._centre_scores(blocks, nodes)
-        saved = {c: self.junctions[c] for c in nodes}  # with the rotations the fixes chose
+        saved = {c: self.topo.junctions[c] for c in nodes}  # with the rotations the fixes chose
         self.local.at_node |= set(nodes)
         for c in nodes:
             self._rebuild_junction(c)
@@ -92,14 +92,14 @@ class _Repair:
         switch = [c for c in nodes if np.all(after[c] >= before[c] - 1e-9) and np.any(after[c] > before[c] + 1e-9)]
         for c in nodes:
             if c not in switch:
-                self.junctions[c] = saved[c]
+                self.topo.junctions[c] = saved[c]
                 self.local.at_node.discard(c)
         self._apply_clearance()
         out = self.assemble()
         if switch and out.corner_jacobians().min() <= 0:
             # the junctions' choices interact: back to the centres everywhere
             for c in switch:
-                self.junctions[c] = saved[c]
+                self.topo.junctions[c] = saved[c]
                 self.local.at_node.discard(c)
             self._apply_clearance()
             return self.assemble()
@@ -129,12 +129,12 @@ class _Repair:
         first-segment blocks fill best (the least reaching ``good_wall_quality``); the ends
         are independent, so one assembly per margin scores them all. Returns the assembly."""
         opt = self.opt
-        base = {e: float(self.branches[e[0]].margin[e[1]]) for e in ends}
-        steps = np.asarray(opt.wall_margins, float)
+        base = {e: float(self.topo.branches[e[0]].margin[e[1]]) for e in ends}
+        steps = np.asarray(opt.repair.wall_margins, float)
         score = np.full((len(ends), len(steps)), -np.inf)
         for n, add in enumerate(steps):
             for bi, side in ends:
-                self.branches[bi].margin[side] = base[(bi, side)] + add
+                self.topo.branches[bi].margin[side] = base[(bi, side)] + add
             self._apply_clearance()
             trial = self.assemble()
             J = trial.corner_jacobians().min(axis=1)
@@ -143,18 +143,18 @@ class _Repair:
             q = np.ones(trial.n_blocks)
             q[sel] = self._fill_quality(trial, sel)
             for e, (bi, side) in enumerate(ends):
-                if J[self.block_where[:, 0] == bi].min() > 0:
+                if J[self.built.block_where[:, 0] == bi].min() > 0:
                     score[e, n] = fill_score(q[mine[e]])
-        pick = np.argmax(np.minimum(score, opt.good_wall_quality), axis=1)
+        pick = np.argmax(np.minimum(score, opt.repair.good_wall_quality), axis=1)
         for e, (bi, side) in enumerate(ends):
-            self.branches[bi].margin[side] = base[(bi, side)] + (steps[pick[e]] if np.isfinite(score[e, pick[e]]) else 0.0)
+            self.topo.branches[bi].margin[side] = base[(bi, side)] + (steps[pick[e]] if np.isfinite(score[e, pick[e]]) else 0.0)
         self._apply_clearance()
         return self.assemble()
 
 
     def _junction_blocks(self, nodes) -> np.ndarray:
         """Blocks of the first segment of every branch end at the junctions ``nodes``."""
-        return np.unique(np.concatenate([self._end_blocks(bi, side) for c in nodes for bi, side in self.junctions[c].ends]))
+        return np.unique(np.concatenate([self._end_blocks(bi, side) for c in nodes for bi, side in self.topo.junctions[c].ends]))
 
 
     def _rotate_for_wall(self, ends: list) -> None:
@@ -167,41 +167,41 @@ class _Repair:
         opt = self.opt
         seps = set()
         for bi, side in ends:
-            c = int(self.branches[bi].nodes[0 if side == 0 else -1])
-            j = self.junctions[c]
+            c = int(self.topo.branches[bi].nodes[0 if side == 0 else -1])
+            j = self.topo.junctions[c]
             h = next(h for h, e in enumerate(j.ends) if e == (bi, side))
             seps |= {(c, (h - 1) % len(j.neighbors)), (c, h)}
         seps = sorted(seps)
-        ncand = max(len(self.junctions[c].cand_psi[sp]) for c, sp in seps)
-        current = {(c, sp): int(self.junctions[c].pick[sp]) for c, sp in seps}
+        ncand = max(len(self.topo.junctions[c].cand.psi[sp]) for c, sp in seps)
+        current = {(c, sp): int(self.topo.junctions[c].cand.pick[sp]) for c, sp in seps}
         score = np.full((len(seps), ncand), -np.inf)
         for n in range(ncand):
             for c, sp in seps:
-                j = self.junctions[c]
-                k = n if np.isfinite(j.cand_cost[sp, n]) else current[(c, sp)]
-                j.pick[sp], j.psi[sp] = k, j.cand_psi[sp, k]
+                j = self.topo.junctions[c]
+                k = n if np.isfinite(j.cand.cost[sp, n]) else current[(c, sp)]
+                j.cand.pick[sp], j.psi[sp] = k, j.cand.psi[sp, k]
             self._apply_clearance()
             trial = self.assemble()
             J = trial.corner_jacobians().min(axis=1)
-            near = np.unique(np.concatenate([self._end_blocks(bi, side) for c in {c for c, _ in seps} for bi, side in self.junctions[c].ends]))
+            near = np.unique(np.concatenate([self._end_blocks(bi, side) for c in {c for c, _ in seps} for bi, side in self.topo.junctions[c].ends]))
             q = np.ones(trial.n_blocks)
             q[near] = self._fill_quality(trial, near)
             for e, (c, sp) in enumerate(seps):
-                j = self.junctions[c]
-                if not np.isfinite(j.cand_cost[sp, n]):
+                j = self.topo.junctions[c]
+                if not np.isfinite(j.cand.cost[sp, n]):
                     continue
                 own = j.half_ids[sp][j.spine_ids < 0]
                 mine = np.flatnonzero(np.isin(trial.hexes, own[own >= 0]).any(axis=1))
-                branches = np.unique(self.block_where[mine, 0])
-                if J[np.isin(self.block_where[:, 0], branches)].min() > 0:
+                branches = np.unique(self.built.block_where[mine, 0])
+                if J[np.isin(self.built.block_where[:, 0], branches)].min() > 0:
                     score[e, n] = fill_score(q[mine])
         for e, (c, sp) in enumerate(seps):
-            j = self.junctions[c]
-            capped = np.minimum(score[e], opt.good_wall_quality)
+            j = self.topo.junctions[c]
+            capped = np.minimum(score[e], opt.repair.good_wall_quality)
             k = current[(c, sp)]
             if np.isfinite(capped.max()) and capped.max() > capped[k] + 1e-3:
                 k = int(np.argmax(capped))
-            j.pick[sp], j.psi[sp] = k, j.cand_psi[sp, k]
+            j.cand.pick[sp], j.psi[sp] = k, j.cand.psi[sp, k]
         self._apply_clearance()
 
 
@@ -213,8 +213,8 @@ class _Repair:
     def _junction_ends(self, blocks_: np.ndarray) -> list:
         """The (branch, side) junction ends whose first segment holds any of ``blocks_``."""
         out = set()
-        for bi, k in np.unique(self.block_where[blocks_], axis=0).tolist():
-            br = self.branches[bi]
+        for bi, k in np.unique(self.built.block_where[blocks_], axis=0).tolist():
+            br = self.topo.branches[bi]
             K = len(br.nodes)
             if K <= 2:
                 continue
@@ -226,9 +226,9 @@ class _Repair:
 
     def _end_blocks(self, bi: int, side: int) -> np.ndarray:
         """Blocks of the segment next to a branch's end ``side``."""
-        K = len(self.branches[bi].nodes)
+        K = len(self.topo.branches[bi].nodes)
         k = 0 if side == 0 else K - 2
-        return np.flatnonzero((self.block_where[:, 0] == bi) & (self.block_where[:, 1] == k))
+        return np.flatnonzero((self.built.block_where[:, 0] == bi) & (self.built.block_where[:, 1] == k))
 
 
     def thicken_layers(self, blocks: BlockStructure) -> BlockStructure:
@@ -239,11 +239,11 @@ class _Repair:
         quality = projected_wall_quality(blocks, self.project)
         thickened = set()
         for _ in range(4):
-            bad = np.flatnonzero(quality <= opt.wall_quality)
+            bad = np.flatnonzero(quality <= opt.repair.wall_quality)
             if len(bad) == 0:
                 break
-            keys = {self._section_key(bi, kk) for bi, k in self.block_where[bad].tolist() for kk in (k, k + 1)}
-            keys = {key for key in keys if opt.layer_thickness * self.local.layer_scale.get(key, 1.0) < 0.5 - 1e-9}
+            keys = {self._section_key(bi, kk) for bi, k in self.built.block_where[bad].tolist() for kk in (k, k + 1)}
+            keys = {key for key in keys if opt.section.layer_thickness * self.local.layer_scale.get(key, 1.0) < 0.5 - 1e-9}
             if not keys:
                 break
             old = dict(self.local.layer_scale)
@@ -257,20 +257,20 @@ class _Repair:
             blocks, quality = trial, projected_wall_quality(trial, self.project)
         if thickened:
             self.fixes.append(f"thickened the boundary layer at {len(thickened)} cross-section(s) where projecting the wall would fold it")
-            blocks.info.update(self.info)
+            blocks.info.update(self.built.info)
         return blocks
 
 
     def report_wall_folds(self, blocks: BlockStructure) -> None:
         """Record (and warn about) boundary-layer blocks that may still fold on the wall."""
         quality = projected_wall_quality(blocks, self.project)
-        self.info["min_projected_wall_quality"] = round(float(quality.min()), 4)
-        self.info["blocks_folding_on_wall"] = int(np.sum(quality <= 0))
-        blocks.info.update(self.info)
+        self.built.info["min_projected_wall_quality"] = round(float(quality.min()), 4)
+        self.built.info["blocks_folding_on_wall"] = int(np.sum(quality <= 0))
+        blocks.info.update(self.built.info)
         blocks.info["fixes"] = list(self.fixes)
-        if self.info["blocks_folding_on_wall"]:
+        if self.built.info["blocks_folding_on_wall"]:
             nodes = sorted(set(blocks.block_node[quality <= 0].tolist()))
-            self.warn(f"{self.info['blocks_folding_on_wall']} boundary-layer block(s) next to skeleton node(s) {nodes[:8]} may fold when their faces are projected onto the wall")
+            self.warn(f"{self.built.info['blocks_folding_on_wall']} boundary-layer block(s) next to skeleton node(s) {nodes[:8]} may fold when their faces are projected onto the wall")
 
 
     def fix(self, bad: np.ndarray, J: np.ndarray) -> bool:
@@ -280,11 +280,11 @@ class _Repair:
         fail; near a junction, move the branch's sections further away, then re-rotate the
         junction's half-planes; between two ordinary sections, straighten their planes
         towards the segment."""
-        where = self.block_where[bad]
+        where = self.built.block_where[bad]
         layer = self._last_layers(bad)
         changed = moved = False
         for bi, k in np.unique(where, axis=0).tolist():
-            br = self.branches[bi]
+            br = self.topo.branches[bi]
             K = len(br.nodes)
             sel = (where[:, 0] == bi) & (where[:, 1] == k)
             if np.all(layer[sel] != LAYER_BOUNDARY):
@@ -323,18 +323,18 @@ class _Repair:
                 self.fixes.append(f"straightened the cross-sections at skeleton nodes {int(br.nodes[k])}-{int(br.nodes[k + 1])}")
                 changed = True
         if moved:
-            self.clear = self._clearance()
+            self.placed.clear = self._clearance()
         if changed:
             self._apply_clearance()
         return changed
 
 
     def _last_layers(self, bad):
-        return self.block_layers[np.asarray(bad)]
+        return self.built.block_layers[np.asarray(bad)]
 
 
     def _section_key(self, bi: int, k: int):
-        br = self.branches[bi]
+        br = self.topo.branches[bi]
         K = len(br.nodes)
         if (k == 0 and br.kinds[0] == JUNCTION) or (k == K - 1 and br.kinds[1] == JUNCTION):
             return ("J", int(br.nodes[k]))
@@ -345,23 +345,23 @@ class _Repair:
 
     def _rerotate(self, bi: int, side: int) -> bool:
         """Turn the two half-planes next to a branch so that they reach less far along it."""
-        br = self.branches[bi]
+        br = self.topo.branches[bi]
         c = int(br.nodes[0] if side == 0 else br.nodes[-1])
-        j = self.junctions[c]
+        j = self.topo.junctions[c]
         h = next(h for h, e in enumerate(j.ends) if e == (bi, side))
         m = len(j.neighbors)
         changed = False
         for sp in ((h - 1) % m, h):
-            reach = j.reach_table[sp, :, h]
-            better = np.flatnonzero(reach < reach[j.pick[sp]] - 1e-9 * j.radius)
-            better = better[np.isfinite(j.cand_cost[sp, better])]
+            reach = j.cand.reach[sp, :, h]
+            better = np.flatnonzero(reach < reach[j.cand.pick[sp]] - 1e-9 * j.radius)
+            better = better[np.isfinite(j.cand.cost[sp, better])]
             if len(better):
                 # the least costly of those reaching clearly less far
-                target = reach[j.pick[sp]] - 0.25 * (reach[j.pick[sp]] - reach[better].min())
+                target = reach[j.cand.pick[sp]] - 0.25 * (reach[j.cand.pick[sp]] - reach[better].min())
                 pool = better[reach[better] <= target + 1e-12]
-                pick = pool[np.argmin(j.cand_cost[sp, pool])]
-                j.pick[sp] = pick
-                j.psi[sp] = j.cand_psi[sp, pick]
+                pick = pool[np.argmin(j.cand.cost[sp, pool])]
+                j.cand.pick[sp] = pick
+                j.psi[sp] = j.cand.psi[sp, pick]
                 changed = True
         return changed
 
@@ -373,18 +373,18 @@ class _Repair:
         J = blocks.corner_jacobians()
         worst = bad[np.argmin(J[bad].min(axis=1))]
         node = int(blocks.block_node[worst])
-        ends = np.unique(self.sk.edges[blocks.block_segment[bad]])
-        nfurc = [int(c) for c in ends if self.sk.degrees[c] > 3]
+        ends = np.unique(self.topo.sk.edges[blocks.block_segment[bad]])
+        nfurc = [int(c) for c in ends if self.topo.sk.degrees[c] > 3]
         crowded = []
-        for bi in np.unique(self.block_where[bad, 0]).tolist():
-            br = self.branches[bi]
+        for bi in np.unique(self.built.block_where[bad, 0]).tolist():
+            br = self.topo.branches[bi]
             a, b = int(br.nodes[0]), int(br.nodes[-1])
-            if bi in self.crowded and (min(a, b), max(a, b)) not in crowded:
+            if bi in self.topo.crowded and (min(a, b), max(a, b)) not in crowded:
                 crowded.append((min(a, b), max(a, b)))
-        hint = f"; set split_nonplanar = true to split junction node(s) {nfurc} into 3-junctions" if nfurc and not self.opt.split_nonplanar else ""
+        hint = f"; set split_nonplanar = true to split junction node(s) {nfurc} into 3-junctions" if nfurc and not self.opt.repair.split_nonplanar else ""
         where = f" (segment {int(blocks.block_segment[worst])})"
         message = (
             f"{len(bad)} block(s) stay invalid after {len(self.fixes)} fix(es); the worst starts at skeleton node {node}{where} "
             f"with corner Jacobian {J[worst].min():.3g}"
         )
-        raise _Failure(message, blocks, bad, self.sk, nfurc, crowded, hint)
+        raise _Failure(message, blocks, bad, self.topo.sk, nfurc, crowded, hint)

@@ -18,16 +18,13 @@ class _Sections:
 
     # -- 3. branches -------------------------------------------------------------
     def make_branches(self):
-        from ..skeleton_ops import branch_paths, path_edge_ids
-
-        sk = self.sk
-        if not hasattr(self, "_paths"):
-            paths = branch_paths(sk.n_nodes, sk.edges)
-            self._paths = (paths, path_edge_ids(sk.n_nodes, sk.edges, paths))
-        paths, eids = self._paths
+        """Branches along the skeleton's paths (``topo.paths``) at the current node
+        positions; rebuilt branches keep their margins and straightening."""
+        sk = self.topo.sk
+        paths, eids = self.topo.paths
         deg = sk.degrees
-        old = getattr(self, "branches", None)
-        self.branches: list[_Branch] = []
+        old = self.topo.branches or None
+        self.topo.branches = []
         for n, (nodes, edges) in enumerate(zip(paths, eids)):
             nodes = np.asarray(nodes)
             edges = np.asarray(edges)
@@ -37,49 +34,49 @@ class _Sections:
                 kinds = [JUNCTION if deg[nodes[0]] >= 3 else "end", JUNCTION if deg[nodes[-1]] >= 3 else "end"]
                 if kinds[0] != JUNCTION and kinds[1] == JUNCTION:
                     nodes, edges, kinds = nodes[::-1].copy(), edges[::-1].copy(), kinds[::-1]
-            seg = np.linalg.norm(np.diff(self.pos[nodes], axis=0), axis=1)
+            seg = np.linalg.norm(np.diff(self.topo.pos[nodes], axis=0), axis=1)
             arc = np.r_[0.0, np.cumsum(seg)]
             br = _Branch(nodes, edges, kinds, [0, 0], arc, arc.copy(), straighten=np.zeros(len(nodes)))
             if old is not None:
                 br.margin = old[n].margin
                 br.straighten = old[n].straighten
-            self.branches.append(br)
+            self.topo.branches.append(br)
 
 
     def classify_ends(self):
-        sk = self.sk
+        sk = self.topo.sk
         ends = sk.endpoints
-        self.cap_of = endpoint_caps(sk.points, sk.radii, ends, self.caps, self.opt.cap_distance)
+        self.ends.cap_of = endpoint_caps(sk.points, sk.radii, ends, self.ends.caps, self.opt.ends.cap_distance)
         names = {FACE_WALL: "wall"}
-        if not self.caps:
+        if not self.ends.caps:
             # every endpoint is an open end, named by decreasing radius
             order = ends[np.argsort(-sk.radii[ends], kind="stable")]
-            self.end_id = {int(e): k + 1 for k, e in enumerate(order.tolist())}
+            self.ends.end_id = {int(e): k + 1 for k, e in enumerate(order.tolist())}
             for k, e in enumerate(order.tolist()):
                 names[k + 1] = "inlet" if k == 0 else f"outlet_{k}"
         else:
-            self.end_id = {e: cap.id for e, cap in self.cap_of.items()}
-            for cap in self.cap_of.values():
+            self.ends.end_id = {e: cap.id for e, cap in self.ends.cap_of.items()}
+            for cap in self.ends.cap_of.values():
                 names[int(cap.id)] = cap.name
-            unused = [c.name for c in self.caps if all(c is not v for v in self.cap_of.values())]
-            if unused and not getattr(self, "_warned_caps", False):
+            unused = [c.name for c in self.ends.caps if all(c is not v for v in self.ends.cap_of.values())]
+            if unused and not self.ends.warned_caps:
                 self.warn(f"no skeleton endpoint near cap(s) {', '.join(unused)}: those open ends are not meshed")
-                self._warned_caps = True
-        self.boundary_names = names
-        for br in self.branches:
+                self.ends.warned_caps = True
+        self.ends.boundary_names = names
+        for br in self.topo.branches:
             for side in (0, 1):
                 if br.kinds[side] in ("end", OPEN, CLOSED):
                     e = int(br.nodes[0] if side == 0 else br.nodes[-1])
-                    if e in self.end_id:
-                        br.kinds[side], br.caps[side] = OPEN, self.end_id[e]
+                    if e in self.ends.end_id:
+                        br.kinds[side], br.caps[side] = OPEN, self.ends.end_id[e]
                     else:
                         br.kinds[side] = CLOSED
 
 
     def _layer_and_core(self, key):
         """Boundary-layer thickness and core size of a section (after local fixes)."""
-        layer = min(0.5, self.opt.layer_thickness * self.local.layer_scale.get(key, 1.0))
-        core = self.opt.core_size * self.local.core_scale.get(key, 1.0)
+        layer = min(0.5, self.opt.section.layer_thickness * self.local.layer_scale.get(key, 1.0))
+        core = self.opt.section.core_size * self.local.core_scale.get(key, 1.0)
         # keep the core corner inside the ring with some room
         core = min(core, 0.8 * (1.0 - layer) / np.sqrt(2.0))
         return layer, core
@@ -88,19 +85,19 @@ class _Sections:
     # -- 5. sections ----------------------------------------------------------------
     def _node_normals(self, br: _Branch) -> np.ndarray:
         """Section normal at each node of a branch (pointing along the branch)."""
-        sk = self.sk
-        P = self.pos[br.nodes]
+        sk = self.topo.sk
+        P = self.topo.pos[br.nodes]
         K = len(P) - 1
         seg = cs.unit(np.diff(P, axis=0))
         n = np.empty((K + 1, 3))
         n[0], n[K] = seg[0], seg[-1]
         if K >= 2:
-            n[1:K] = cs.bisector_normals(P[:-2], P[1:-1], P[2:], sk.radii[br.nodes[1:-1]], self.opt.plane_bias)
+            n[1:K] = cs.bisector_normals(P[:-2], P[1:-1], P[2:], sk.radii[br.nodes[1:-1]], self.opt.section.plane_bias)
         if br.kinds[0] == CYCLE:
-            n[0] = n[K] = cs.bisector_normals(P[-2:-1], P[:1], P[1:2], sk.radii[br.nodes[:1]], self.opt.plane_bias)[0]
+            n[0] = n[K] = cs.bisector_normals(P[-2:-1], P[:1], P[1:2], sk.radii[br.nodes[:1]], self.opt.section.plane_bias)[0]
         for side, k in ((0, 0), (1, K)):
-            if br.kinds[side] == OPEN and br.caps[side] and self.caps:
-                cap = self.cap_of[int(br.nodes[k])]
+            if br.kinds[side] == OPEN and br.caps[side] and self.ends.caps:
+                cap = self.ends.cap_of[int(br.nodes[k])]
                 out = cs.unit(np.asarray(cap.normal, float))
                 n[k] = -out if side == 0 else out
         return n
@@ -108,11 +105,11 @@ class _Sections:
 
     def _clearance(self):
         """Arc length from each junction along each of its branches where sections are clear."""
-        opt, sk, t = self.opt, self.sk, self.template
+        opt, sk, t = self.opt, self.topo.sk, self.template
         jobs = []
-        for c, j in self.junctions.items():
+        for c, j in self.topo.junctions.items():
             for h, (bi, side) in enumerate(j.ends):
-                br = self.branches[bi]
+                br = self.topo.branches[bi]
                 rb = float(np.median(sk.radii[br.nodes]))
                 L = br.arc[-1]
                 limit = min((0.45 if br.kinds[1 - side] == JUNCTION else 0.8) * L, 3.0 * j.radius + 2.0 * rb)
@@ -125,10 +122,10 @@ class _Sections:
             return {}
         centers, normals, radii, owner = [], [], [], []
         for n_job, (c, h, bi, side, s) in enumerate(jobs):
-            br = self.branches[bi]
+            br = self.topo.branches[bi]
             arc = br.arc if side == 0 else br.arc[-1] - br.arc[::-1]
             nodes = br.nodes if side == 0 else br.nodes[::-1]
-            P = self.pos[nodes]
+            P = self.topo.pos[nodes]
             N = self._node_normals(br)
             N = N if side == 0 else -N[::-1]
             pos, nrm = polyline_at(P, arc, s, N)
@@ -142,9 +139,9 @@ class _Sections:
         e2 = np.cross(normals, e1)
         ang = t.loop_angle
         dirs = cs.ray_directions(e1, e2, ang)
-        R = self.cast(np.repeat(centers, len(ang), axis=0), dirs.reshape(-1, 3), np.repeat(radii, len(ang)), reach=4.0 * opt.clear_ray_factor)
+        R = self.cast(np.repeat(centers, len(ang), axis=0), dirs.reshape(-1, 3), np.repeat(radii, len(ang)), reach=4.0 * opt.junction.clear_ray_factor)
         R = R.reshape(len(centers), len(ang))
-        clean = np.all(np.isfinite(R) & (R <= opt.clear_ray_factor * radii[:, None]), axis=1)
+        clean = np.all(np.isfinite(R) & (R <= opt.junction.clear_ray_factor * radii[:, None]), axis=1)
         out = {}
         for n_job, (c, h, bi, side, s) in enumerate(jobs):
             ok = clean[owner == n_job]
@@ -158,10 +155,10 @@ class _Sections:
     def place_sections(self):
         """Section positions along each branch: clear of junctions, otherwise at the nodes."""
         clear = self._clearance()
-        self.clear = clear
-        for br in self.branches:
+        self.placed.clear = clear
+        for br in self.topo.branches:
             br.s = br.arc.copy()
-        self.retreat = self._dome_retreat()
+        self.placed.retreat = self._dome_retreat()
         self._apply_clearance()
 
 
@@ -182,26 +179,26 @@ class _Sections:
         -------
         dict ``{(branch, side): arc length}``.
         """
-        opt, sk, t = self.opt, self.sk, self.template
+        opt, sk, t = self.opt, self.topo.sk, self.template
         jobs = []
-        for bi, br in enumerate(self.branches):
+        for bi, br in enumerate(self.topo.branches):
             for side in (0, 1):
                 if br.kinds[side] != CLOSED:
                     continue
                 end = int(br.nodes[-1] if side == 1 else br.nodes[0])
                 r_end = float(sk.radii[end])
-                limit = min(opt.dome_max_retreat * r_end, 0.5 * br.arc[-1])
+                limit = min(opt.ends.dome_max_retreat * r_end, 0.5 * br.arc[-1])
                 back = np.arange(0.0, limit + 1e-12, 0.1 * r_end)
                 jobs.append((bi, side, back))
         if not jobs:
             return {}
         centers, normals, radii, owner = [], [], [], []
         for n_job, (bi, side, back) in enumerate(jobs):
-            br = self.branches[bi]
+            br = self.topo.branches[bi]
             N = self._node_normals(br)
             s = back if side == 0 else br.arc[-1] - back
-            pos, nrm = polyline_at(self.pos[br.nodes], br.arc, s, N)
-            _, rad = polyline_at(self.pos[br.nodes], br.arc, s, sk.radii[br.nodes])
+            pos, nrm = polyline_at(self.topo.pos[br.nodes], br.arc, s, N)
+            _, rad = polyline_at(self.topo.pos[br.nodes], br.arc, s, sk.radii[br.nodes])
             centers.append(pos)
             normals.append(cs.unit(nrm) * (1.0 if side == 1 else -1.0))  # outward
             radii.append(rad)
@@ -217,63 +214,58 @@ class _Sections:
         out = {}
         for n_job, (bi, side, back) in enumerate(jobs):
             rj = ratio[owner == n_job]
-            deep = np.flatnonzero(rj >= opt.dome_depth)
+            deep = np.flatnonzero(rj >= opt.ends.dome_depth)
             out[(bi, side)] = float(back[deep[0]] if len(deep) else back[int(np.argmax(rj))])
         return out
 
 
     def _apply_clearance(self):
-        opt, sk = self.opt, self.sk
-        self.infeasible = []
-        if not hasattr(self, "crowded"):
-            self.crowded = set()  # branches between two junctions that ever lacked room
-        for bi, br in enumerate(self.branches):
+        opt, sk = self.opt, self.topo.sk
+        for bi, br in enumerate(self.topo.branches):
             if br.kinds == [JUNCTION, JUNCTION] and br.nodes[0] != br.nodes[-1] and self._slack(bi) < 0:
-                self.crowded.add(bi)
+                self.topo.crowded.add(bi)
             lo, hi = 0.0, br.arc[-1]
             rb = float(np.median(sk.radii[br.nodes]))
             for side in (0, 1):
                 if br.kinds[side] != JUNCTION:
                     continue
-                need = max(self.clear.get((bi, side), 0.0), self._junction_reach(bi, side) + (opt.junction_margin + br.margin[side]) * rb)
+                need = max(self.placed.clear.get((bi, side), 0.0), self._junction_reach(bi, side) + (opt.junction.junction_margin + br.margin[side]) * rb)
                 if side == 0:
                     lo = need
                 else:
                     hi = br.arc[-1] - need
             # closed ends' sections stand back from the dome (:meth:`_dome_retreat`)
             ends = br.arc.copy()
-            ends[0] += self.retreat.get((bi, 0), 0.0)
-            ends[-1] -= self.retreat.get((bi, 1), 0.0)
+            ends[0] += self.placed.retreat.get((bi, 0), 0.0)
+            ends[-1] -= self.placed.retreat.get((bi, 1), 0.0)
             if br.kinds[1] in (OPEN, CLOSED):
                 hi = ends[-1] - 0.3 * rb
             if br.kinds[0] in (OPEN, CLOSED):
                 lo = max(lo, ends[0] + 0.3 * rb)
-            br.s, ok = redistribute_sections(ends, lo, hi)
-            if not ok:
-                self.infeasible.append(bi)
+            br.s, _ = redistribute_sections(ends, lo, hi)
 
 
     # -- 6. frames and ray casting ------------------------------------------------------
     def section_geometry(self):
         """Centres, normals, frames and radii of every section (flat arrays) and the
         per-branch index of its sections."""
-        sk, t = self.sk, self.template
+        sk, t = self.topo.sk, self.template
         sym = t.symmetry_angle
         rows = []  # per branch: (centers, normals, radii) at sections
-        B = len(self.branches)
-        Kmax = max(len(br.nodes) for br in self.branches)
+        B = len(self.topo.branches)
+        Kmax = max(len(br.nodes) for br in self.topo.branches)
         X = np.zeros((B, Kmax, 3))
         T = np.zeros((B, Kmax, 3))
         first = np.zeros((B, 3))
         counts = np.zeros(B, np.int64)
-        for bi, br in enumerate(self.branches):
-            P = self.pos[br.nodes].copy()
+        for bi, br in enumerate(self.topo.branches):
+            P = self.topo.pos[br.nodes].copy()
             N = self._node_normals(br)
             pos, nrm = polyline_at(P, br.arc, br.s, N)
             # positions exactly at unmoved nodes, and end sections on their caps
             for side, k in ((0, 0), (1, len(P) - 1)):
-                if br.kinds[side] == OPEN and br.caps[side] and self.caps:
-                    pos[k] = np.asarray(self.cap_of[int(br.nodes[k])].center, float)
+                if br.kinds[side] == OPEN and br.caps[side] and self.ends.caps:
+                    pos[k] = np.asarray(self.ends.cap_of[int(br.nodes[k])].center, float)
             if br.straighten is not None and br.straighten.any():
                 chord = cs.unit(np.gradient(pos, axis=0))
                 nrm = (1 - br.straighten[:, None]) * nrm + br.straighten[:, None] * chord
@@ -283,7 +275,7 @@ class _Sections:
             X[bi, :K], T[bi, :K], counts[bi] = pos, nrm, K
             if br.kinds[0] == JUNCTION:
                 T[bi, 0] = cs.unit(pos[1] - pos[0])
-                first[bi] = self.junctions[int(br.nodes[0])].u
+                first[bi] = self.topo.junctions[int(br.nodes[0])].u
             else:
                 first[bi] = cs.any_perpendicular(nrm[:1])[0]
             if br.kinds[1] == JUNCTION:
@@ -291,26 +283,25 @@ class _Sections:
             rows.append(rad)
         E1 = cs.transport_frames(X, T, first, counts)
         twist_total = np.zeros(B)
-        self.end_turn = {}
-        for bi, br in enumerate(self.branches):
+        for bi, br in enumerate(self.topo.branches):
             K = counts[bi]
             if br.kinds[1] == JUNCTION or br.kinds[1] == CYCLE:
-                target = self.junctions[int(br.nodes[-1])].u if br.kinds[1] == JUNCTION else E1[bi, 0]
+                target = self.topo.junctions[int(br.nodes[-1])].u if br.kinds[1] == JUNCTION else E1[bi, 0]
                 phi, _ = cs.residual_twist(E1[bi, K - 1][None], target[None], T[bi, K - 1][None], sym)
                 twist_total[bi] = phi[0]
                 s = br.s - br.s[0]
                 frac = s / max(s[-1], 1e-300)
                 E1[bi, :K] = cs.rotate_about(E1[bi, :K], T[bi, :K], twist_total[bi] * frac)
-        self.X, self.T, self.E1, self.counts, self.R_node = X, T, E1, counts, rows
-        self.twist_total = twist_total
+        f = self.frames
+        f.X, f.T, f.E1, f.counts, f.R_node = X, T, E1, counts, rows
         # twist between consecutive sections (after spreading) for the report
         tw = []
-        for bi, br in enumerate(self.branches):
+        for bi, br in enumerate(self.topo.branches):
             K = counts[bi]
             if K >= 2:
                 s = br.s - br.s[0]
                 tw.append(np.abs(twist_total[bi]) * np.diff(s) / max(s[-1], 1e-300))
-        self.max_twist = float(np.degrees(np.concatenate(tw).max())) if tw else 0.0
+        self.frames.max_twist = float(np.degrees(np.concatenate(tw).max())) if tw else 0.0
 
 
     def cast(self, origins, directions, scale, reach: float = 12.0) -> np.ndarray:
@@ -321,7 +312,7 @@ class _Sections:
         """Vertices of every regular (non-junction) section."""
         t = self.template
         idx = []  # (branch, k)
-        for bi, br in enumerate(self.branches):
+        for bi, br in enumerate(self.topo.branches):
             K = len(br.nodes)
             for k in range(K):
                 side = 0 if k == 0 else (1 if k == K - 1 else -1)
@@ -332,22 +323,22 @@ class _Sections:
                 idx.append((bi, k))
         bi_arr = np.array([i for i, _ in idx])
         k_arr = np.array([k for _, k in idx])
-        C = self.X[bi_arr, k_arr]
-        Nn = self.T[bi_arr, k_arr]
-        E1 = cs.unit(cs.reject(self.E1[bi_arr, k_arr], Nn))
+        C = self.frames.X[bi_arr, k_arr]
+        Nn = self.frames.T[bi_arr, k_arr]
+        E1 = cs.unit(cs.reject(self.frames.E1[bi_arr, k_arr], Nn))
         E2 = np.cross(Nn, E1)
-        rad = np.array([self.R_node[b][k] for b, k in idx])
+        rad = np.array([self.frames.R_node[b][k] for b, k in idx])
         # which way is out at end sections
         outward = np.zeros(len(idx))
         for n, (b, k) in enumerate(idx):
-            br = self.branches[b]
+            br = self.topo.branches[b]
             if k == 0 and br.kinds[0] in (OPEN, CLOSED):
                 outward[n] = -1.0
             elif k == len(br.nodes) - 1 and br.kinds[1] in (OPEN, CLOSED):
                 outward[n] = 1.0
         # flat caps give the signed distance no sign on their plane: cast from just inside
-        is_open = np.array([(k == 0 and self.branches[b].kinds[0] == OPEN) or
-                            (k == len(self.branches[b].nodes) - 1 and self.branches[b].kinds[1] == OPEN) for b, k in idx])
+        is_open = np.array([(k == 0 and self.topo.branches[b].kinds[0] == OPEN) or
+                            (k == len(self.topo.branches[b].nodes) - 1 and self.topo.branches[b].kinds[1] == OPEN) for b, k in idx])
         shift = (0.05 * rad * outward * is_open)[:, None] * Nn
         origin = C - shift
         ang = t.ray_angles
@@ -356,18 +347,18 @@ class _Sections:
         if np.any(~np.isfinite(R)):
             n = int(np.flatnonzero(~np.all(np.isfinite(R), axis=1))[0])
             b, k = idx[n]
-            node = int(self.branches[b].nodes[k])
+            node = int(self.topo.branches[b].nodes[k])
             raise MeshingError(f"cross-section at skeleton node {node} finds no wall within reach (is the node inside the vessel?)")
         lc = np.array([self._layer_and_core((b, k)) for b, k in idx]).reshape(-1, 2)
         V = cs.section_vertices(t, C, E1, E2, R, lc[:, 1], lc[:, 0])
         on_surface = np.zeros(V.shape[:2], bool)
         on_surface[:, t.kind == cs.VERTEX_OUTER] = True
         # closed ends: the section stays flat; the dome beyond it is closed by a cap of blocks
-        self.domes = []
+        self.frames.domes = []
         for n, (b, k) in enumerate(idx):
-            br = self.branches[b]
+            br = self.topo.branches[b]
             if (k == 0 and br.kinds[0] == CLOSED) or (k == len(br.nodes) - 1 and br.kinds[1] == CLOSED):
-                self.domes.append(self._dome_cap(n, int(br.nodes[k]), C[n], V[n], Nn[n] * outward[n], rad[n], lc[n, 0], lc[n, 1]))
+                self.frames.domes.append(self._dome_cap(n, int(br.nodes[k]), C[n], V[n], Nn[n] * outward[n], rad[n], lc[n, 0], lc[n, 1]))
         return idx, V, on_surface, R
 
 
