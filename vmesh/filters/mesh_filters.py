@@ -378,9 +378,8 @@ def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing)
 def write_mesh(ctx, filename, boundary):
     from ..io.mesh import write_boundary, write_mesh as write
 
-    path = ctx.output_path(filename)
+    path = ctx.output_file(filename)
     if path is None:
-        ctx.warn(f"no output folder: {filename} not written")
         return
     write(path, ctx.mesh)
     if boundary:

@@ -711,9 +711,8 @@ def render_skeleton_png(path, skeleton, surface=None, size=(1200, 900), opacity=
     category="export",
 )
 def render_skeleton(ctx, filename, width, height, surface_opacity):
-    path = ctx.output_path(filename)
+    path = ctx.output_file(filename)
     if path is None:
-        ctx.warn(f"no output folder: {filename} not written")
         return
     surface = ctx.surface if surface_opacity > 0 else None
     try:
