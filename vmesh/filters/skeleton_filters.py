@@ -681,14 +681,9 @@ def render_skeleton_png(path, skeleton, surface=None, size=(1200, 900), opacity=
         text = title if title is not None else skeleton.name
         text = f"{text}\n{s['nodes']} nodes, {s['segments']} segments, {s['junctions']} junctions, {s['endpoints']} endpoints, {s['cycles']} cycles"
         plotter.add_text(text, font_size=10, color="black")
-        pts = skeleton.points if surface is None or not surface.n_vertices else surface.vertices
-        centre = pts.mean(axis=0)
-        if len(pts) >= 3:
-            _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
-            view, up = vt[2], vt[1]
-        else:
-            view, up = np.array([0, 0, 1.0]), np.array([0, 1.0, 0])
-        extent = float(np.ptp(pts, axis=0).max()) or 1.0
+        from ..render import view_frame
+
+        centre, view, up, extent = view_frame(skeleton.points if surface is None or not surface.n_vertices else surface.vertices)
         plotter.camera_position = [tuple(centre + 3 * extent * view), tuple(centre), tuple(up)]
         plotter.reset_camera()
         with atomic_path(path) as tmp:

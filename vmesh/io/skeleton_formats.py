@@ -38,6 +38,7 @@ from ..errors import InputError
 from ..geometry.skeleton import graph as sk_graph, polylines as sk_polylines, tags as sk_tags
 from ..skeleton import Skeleton
 from .atomic import atomic_path, write_text_atomic
+from .ply import _TYPES as _PLY_TYPES, UnsupportedPLY, ply_header
 
 #: Point-array names holding the vessel radius, in order of preference (case-insensitive).
 RADIUS_ARRAYS = ("MaximumInscribedSphereRadius", "Radius", "Radii", "radius", "R", "InscribedSphereRadius")
@@ -594,11 +595,6 @@ def write_skeleton_csv(path, skeleton: Skeleton) -> Path:
 # PLY edge meshes
 # ---------------------------------------------------------------------------
 
-_PLY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
-    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
-}  # fmt: skip
 
 
 def write_skeleton_ply(path, skeleton: Skeleton) -> Path:
@@ -632,29 +628,18 @@ def read_skeleton_ply(path) -> Skeleton:
     and ``edge`` (``vertex1``, ``vertex2``) elements; other elements are skipped."""
     path = Path(path)
     raw = path.read_bytes()
-    end = raw.find(b"end_header")
-    if not raw.startswith(b"ply") or end < 0:
-        raise InputError("not a PLY file (no 'ply' magic or no end_header)", path)
-    body_start = raw.index(b"\n", end) + 1
-    header = raw[:end].decode("ascii", "replace").splitlines()
-    fmt, elements = None, []
-    for line in header:
-        parts = line.split()
-        if not parts:
-            continue
-        if parts[0] == "format":
-            fmt = parts[1]
-        elif parts[0] == "element":
-            elements.append((parts[1], int(parts[2]), []))
-        elif parts[0] == "property" and elements:
-            if parts[1] == "list":
-                elements[-1][2].append(("list", parts[2], parts[3], parts[4]))
-            elif parts[1] in _PLY_TYPES:
-                elements[-1][2].append((parts[1], parts[2]))
-            else:
-                raise InputError(f"unknown PLY property type '{parts[1]}'", path)
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise InputError(f"unknown PLY format '{fmt}'", path)
+    try:
+        fmt, elements, body_start = ply_header(raw)
+    except UnsupportedPLY as exc:
+        what = "not a PLY file (no 'ply' magic or no end_header)" if str(exc) == "no PLY header" else str(exc)
+        raise InputError(what, path) from None
+    # properties as (type, name) or ("list", count type, item type, name)
+    elements = [(name, count, [("list", p[1], p[2], p[0]) if len(p) == 3 else (p[1], p[0]) for p in props])
+                for name, count, props in elements]
+    for _, _, props in elements:
+        for p in props:
+            if p[0] != "list" and p[0] not in _PLY_TYPES:
+                raise InputError(f"unknown PLY property type '{p[0]}'", path)
     data = {}
     if fmt == "ascii":
         tokens = raw[body_start:].split()
