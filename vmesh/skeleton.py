@@ -49,6 +49,7 @@ class Skeleton:
             raise ValueError("skeleton tags do not match its nodes/edges")
 
     # -- graph structure -------------------------------------------------
+    # duplicates: count properties like SurfaceMesh's and HexMesh's: each class counts its own arrays
     @property
     def n_nodes(self) -> int:
         return len(self.points)

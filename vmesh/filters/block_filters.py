@@ -150,6 +150,7 @@ def block_edges(blocks) -> tuple[np.ndarray, np.ndarray]:
     return e, on_wall
 
 
+# duplicates: the name checks and register_filter declarations of the writers share their shape, not logic (other parameters)
 def _check_block_file_names(filename, edges_filename):
     if not filename.lower().endswith(".vtu"):
         raise ParameterError(f"filter 'write_blocks': parameter 'filename' must end in .vtu, got {filename!r}")

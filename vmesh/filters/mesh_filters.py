@@ -366,6 +366,7 @@ def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing)
     ctx.warn(message)
 
 
+# duplicates: a writer's declaration, same shape as export_mesh's and write_blocks', not shared logic
 @register_filter(
     description="Write the hexahedral mesh (mesh.vtu with every cell array; boundary faces as boundary.vtp).",
     parameters=[

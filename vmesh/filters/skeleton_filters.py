@@ -18,6 +18,7 @@ from ..geometry.skeleton.defects import drop_outside_components, weld_coincident
 from ..registry import Parameter, register_filter
 
 
+# duplicates: the register_filter declarations in this module share their shape (Parameter lists), not logic
 @register_filter(
     description="Read a centerline file (json, swc, csv, ply, or vtp/vtk from VMTK, SimVascular or plain polylines) as the skeleton.",
     parameters=[

@@ -695,6 +695,7 @@ def read_skeleton_ply(path) -> Skeleton:
     return Skeleton(xyz, np.where(rad > 0, rad, np.nan), edges, name=path.name)
 
 
+# duplicates: the READERS and WRITERS tables below share their shape: they are data
 #: Readers and writers added to :mod:`vmesh.io.skeleton`'s suffix tables.
 READERS = {
     ".vtp": ("VTK PolyData centerline (VMTK, SimVascular or polylines)", read_centerline_vtk),
