@@ -97,6 +97,7 @@ def main(argv=None) -> int:
         series = [(r["run"], r.get("_sj")) for r in rows if r["case"] == name]
         panels.append((f"{name} ({surface.name})", series))
     png = C.histogram_figure(panels, C.RESULTS / f"{args.name}_sj.png", title="Scaled Jacobian, real surfaces (given vs extracted skeleton)")
+    # duplicates: same shape as paper_cases.py's ending (its own header text, then the shared _common writer)
     header = (f"# all_real\n\n`python benchmarks/all_real.py` — {time.strftime('%Y-%m-%d %H:%M')}, {C.load_line()} "
               "(other jobs ran concurrently: times are noisy). Default chain, `compute_quality.fail_on_invalid=false`; "
               "`given` = the data set's centerline file, `extracted` = `extract_skeleton`. Columns as in paper_cases.md.\n")

@@ -126,17 +126,9 @@ def coverage_passed(cov: dict | None) -> bool | None:
 
 
 def judge(row: dict) -> list[str]:
-    """Why a run is not a success (empty: success)."""
-    if row["status"] != "ok":
-        return [f"failed: {row.get('error', '')}"]
-    miss = []
-    if row.get("invalid", 0):
-        miss.append(f"{row['invalid']} invalid elements")
-    if row.get("sj_min") is None or row["sj_min"] < SJ_MIN:
-        miss.append(f"min SJ {C.fmt(row.get('sj_min'), '.3f')} < {SJ_MIN}")
-    if row.get("sj_mean") is None or row["sj_mean"] < SJ_MEAN:
-        miss.append(f"mean SJ {C.fmt(row.get('sj_mean'), '.3f')} < {SJ_MEAN}")
-    if coverage_passed(row.get("coverage")) is False:
+    """Why a run is not a success (empty: success): the quality targets, then coverage."""
+    miss = C.check_targets(row, SJ_MIN, SJ_MEAN, missing_passes=False)
+    if row["status"] == "ok" and coverage_passed(row.get("coverage")) is False:
         miss.append("coverage failed")
     return miss
 

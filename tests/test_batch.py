@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 import signal
 import socket
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -127,6 +127,18 @@ def start_batch(*args):
     return subprocess.Popen([sys.executable, "-m", "vmesh", "batch", *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
 
 
+@contextmanager
+def running_batch(*args):
+    """``start_batch(*args)``, killed when the block ends and it still runs."""
+    proc = start_batch(*args)
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
+
+
 def wait_for_rows(out: Path, n: int, proc, timeout=90.0) -> list[Path]:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -226,15 +238,10 @@ def test_resume_after_interrupt(dask_procs, tmp_path):
     manifest = sweep_csv(tmp_path / "rows.csv", extra_rows=[["broken", bad, SKELETON, 1.0, 0.02]], scales=SCALES[1:], layers=LAYERS)
     out = tmp_path / "out"
     args = (manifest, "--chain", "batch_sweep", "--out", out, "--scheduler", dask_procs.address, *CHEAP)
-    proc = start_batch(*args)
-    try:
+    with running_batch(*args) as proc:
         wait_for_rows(out, 2, proc)
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=10)
     assert proc.returncode == 130, err[-2000:]
     interrupted = batch.read_summary(out / "summary.csv")
     assert len(interrupted) == 9 and any(s["status"] == "pending" for s in interrupted)
@@ -267,16 +274,11 @@ def test_worker_killed_mid_batch(dask_procs, tmp_path):
     dask_procs.ensure_workers()
     manifest = sweep_csv(tmp_path / "rows.csv")
     out = tmp_path / "out"
-    proc = start_batch(manifest, "--chain", "batch_sweep", "--out", out, "--scheduler", dask_procs.address, *CHEAP)
-    try:
+    with running_batch(manifest, "--chain", "batch_sweep", "--out", out, "--scheduler", dask_procs.address, *CHEAP) as proc:
         wait_for_rows(out, 2, proc)
         dask_procs.kill_worker("w2")
         assert len(list(out.glob(f"*/{batch.ROW_FILE}"))) < 12  # really mid-batch
         stdout, err = proc.communicate(timeout=180)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=10)
     assert proc.returncode == 0, err[-3000:]
     assert "12 rows: 12 ok, 0 failed" in stdout
     summary = batch.read_summary(out / "summary.csv")

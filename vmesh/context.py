@@ -88,19 +88,23 @@ def _fmt(v):
     return f"{v:.4g}" if isinstance(v, float) else str(v)
 
 
-def _plain(obj):
-    """Convert numpy scalars/arrays inside nested dicts to JSON-friendly values."""
+def _plain(obj, other=None):
+    """Convert numpy scalars/arrays inside nested dicts to JSON-friendly values; paths
+    become strings, any other value goes through ``other`` (kept as it is by default;
+    ``str`` makes the result JSON-safe, as the pymeshlab filter needs for its results)."""
     if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
+        return {str(k): _plain(v, other) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
+        return [_plain(v, other) for v in obj]
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     if isinstance(obj, np.generic):
         return obj.item()
     if isinstance(obj, Path):
         return str(obj)
-    return obj
+    if other is None or isinstance(obj, (int, float, str, bool)) or obj is None:
+        return obj
+    return other(obj)
 
 
 @dataclass
@@ -154,6 +158,14 @@ class Context:
             return None
         path = Path(self.stage_dir) / name
         path.parent.mkdir(parents=True, exist_ok=True)
+        return path
+
+    def output_file(self, name: str) -> Path | None:
+        """:meth:`output_path`, or ``None`` with the warning "no output folder: NAME not
+        written" when the run has no output folder: the start of every file writer."""
+        path = self.output_path(name)
+        if path is None:
+            self.warn(f"no output folder: {name} not written")
         return path
 
     def count(self, **counts) -> None:

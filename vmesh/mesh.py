@@ -88,6 +88,7 @@ class HexMesh:
     node_distribution: str = "gauss_lobatto"
     units: str | None = None
 
+    # duplicates: count properties like Skeleton's and SurfaceMesh's: each class counts its own arrays
     @property
     def n_points(self) -> int:
         return len(self.points)

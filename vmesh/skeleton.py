@@ -49,6 +49,7 @@ class Skeleton:
             raise ValueError("skeleton tags do not match its nodes/edges")
 
     # -- graph structure -------------------------------------------------
+    # duplicates: count properties like SurfaceMesh's and HexMesh's: each class counts its own arrays
     @property
     def n_nodes(self) -> int:
         return len(self.points)
@@ -98,8 +99,8 @@ class Skeleton:
         return np.linalg.norm(self.points[self.edges[:, 1]] - self.points[self.edges[:, 0]], axis=1)
 
     def branches(self) -> list:
-        """Node paths between junctions/endpoints (see :func:`vmesh.geometry.skeleton_ops.branch_paths`)."""
-        from .geometry.skeleton_ops import branch_paths
+        """Node paths between junctions/endpoints (see :func:`vmesh.geometry.skeleton.graph.branch_paths`)."""
+        from .geometry.skeleton.graph import branch_paths
 
         return branch_paths(self.n_nodes, self.edges)
 

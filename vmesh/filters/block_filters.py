@@ -119,42 +119,12 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
 
 
 def write_edge_ply(path, vertices: np.ndarray, edges: np.ndarray, edge_data: dict | None = None) -> Path:
-    """Write a binary PLY with vertices and edges (``element edge``, read by MeshLab).
+    """Write a binary PLY with vertices and edges (``element edge``, read by MeshLab);
+    ``edge_data`` maps names to (ne,) integer arrays written as edge properties
+    (:func:`vmesh.io.meshlab.write_edge_ply`)."""
+    from ..io.meshlab import write_edge_ply as write
 
-    ``edge_data`` maps names to (ne,) integer arrays written as edge properties.
-    """
-    from ..io.atomic import atomic_path
-
-    vertices = np.asarray(vertices, np.float64).reshape(-1, 3)
-    edges = np.asarray(edges, np.int64).reshape(-1, 2)
-    edge_data = edge_data or {}
-    vdt = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
-    edt = np.dtype([("vertex1", "<i4"), ("vertex2", "<i4")] + [(k, "<i4") for k in edge_data])
-    v = np.empty(len(vertices), vdt)
-    v["x"], v["y"], v["z"] = vertices.T
-    e = np.empty(len(edges), edt)
-    e["vertex1"], e["vertex2"] = edges.T
-    for k, val in edge_data.items():
-        e[k] = np.asarray(val).astype(np.int32)
-    header = [
-        "ply",
-        "format binary_little_endian 1.0",
-        "comment vmesh block edges",
-        f"element vertex {len(v)}",
-        "property float x",
-        "property float y",
-        "property float z",
-        f"element edge {len(e)}",
-        "property int vertex1",
-        "property int vertex2",
-    ] + [f"property int {k}" for k in edge_data] + ["end_header"]
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            fh.write(("\n".join(header) + "\n").encode("ascii"))
-            fh.write(v.tobytes())
-            fh.write(e.tobytes())
-    return path
+    return write(path, vertices, edges, "vmesh block edges", edge_data)
 
 
 def block_edges(blocks) -> tuple[np.ndarray, np.ndarray]:
@@ -172,6 +142,7 @@ def block_edges(blocks) -> tuple[np.ndarray, np.ndarray]:
     return e, on_wall
 
 
+# duplicates: the name checks and register_filter declarations of the writers share their shape, not logic (other parameters)
 def _check_block_file_names(filename, edges_filename):
     if not filename.lower().endswith(".vtu"):
         raise ParameterError(f"filter 'write_blocks': parameter 'filename' must end in .vtu, got {filename!r}")
@@ -198,9 +169,8 @@ def write_blocks(ctx, filename, edges_filename):
     from ..mesh import VTK_HEXAHEDRON
 
     blocks = ctx.blocks
-    path = ctx.output_path(filename)
+    path = ctx.output_file(filename)
     if path is None:
-        ctx.warn(f"no output folder: {filename} not written")
         return
     boundary = blocks.face_boundary
     cell_data = {

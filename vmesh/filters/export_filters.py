@@ -30,9 +30,8 @@ def export_mesh(ctx, filename, format, linearize):
 
     fmt = None if format == "auto" else format
     resolve_format(filename, fmt)  # unknown extensions fail before any work
-    path = ctx.output_path(filename)
+    path = ctx.output_file(filename)
     if path is None:
-        ctx.warn(f"no output folder: {filename} not written")
         return
     f = resolve_format(path, fmt)
     if ctx.mesh.order > f.max_order and not linearize:
@@ -67,9 +66,8 @@ def export_meshlab(ctx, folder, project):
     ``vmesh export --format meshlab`` reuse the surfaces written here."""
     from ..io.meshlab import write_meshlab_folder
 
-    path = ctx.output_path(folder)
+    path = ctx.output_file(folder)
     if path is None:
-        ctx.warn(f"no output folder: {folder}/ not written")
         return
     edges = None
     if ctx.blocks is not None:

@@ -66,6 +66,7 @@ from ..registry import Parameter, register_filter
         ),
         Parameter("use_caps", "bool", True, "Put the ends at the centres of the caps of open ends (layer 'caps') when present."),
     ],
+    # duplicates: a declaration and signature like clean_skeleton's, not shared logic
     reads=("sdf",),
     optional_reads=("skeleton", "caps", "surface"),
     writes=("skeleton",),
@@ -99,6 +100,7 @@ def extract_skeleton(
         ctx.count(extracted=0)
         return
     sdf, name, surface, bounds = _extraction_input(ctx, voxel_size, min_radius)
+    # duplicates: same shape as BlockOptions(...) in block_filters: options passed on by keyword
     settings = ExtractionSettings(
         spacing=voxel_size,
         voxels_per_radius=voxels_per_radius,

@@ -66,9 +66,8 @@ def write_surface_layer(ctx, layer, filename):
     surface = getattr(ctx, layer)
     if surface is None:
         raise InputError(f"there is no {layer} layer to write")
-    path = ctx.output_path(filename)
+    path = ctx.output_file(filename)
     if path is None:
-        ctx.warn(f"no output folder: {filename} not written")
         return
     write_surface(path, surface)
 
@@ -82,8 +81,7 @@ def write_surface_layer(ctx, layer, filename):
 def write_skeleton_layer(ctx, filename):
     from ..io.skeleton import write_skeleton
 
-    path = ctx.output_path(filename)
+    path = ctx.output_file(filename)
     if path is None:
-        ctx.warn(f"no output folder: {filename} not written")
         return
     write_skeleton(path, ctx.skeleton)

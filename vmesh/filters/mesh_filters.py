@@ -366,6 +366,7 @@ def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing)
     ctx.warn(message)
 
 
+# duplicates: a writer's declaration, same shape as export_mesh's and write_blocks', not shared logic
 @register_filter(
     description="Write the hexahedral mesh (mesh.vtu with every cell array; boundary faces as boundary.vtp).",
     parameters=[
@@ -378,9 +379,8 @@ def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing)
 def write_mesh(ctx, filename, boundary):
     from ..io.mesh import write_boundary, write_mesh as write
 
-    path = ctx.output_path(filename)
+    path = ctx.output_file(filename)
     if path is None:
-        ctx.warn(f"no output folder: {filename} not written")
         return
     write(path, ctx.mesh)
     if boundary:

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import preprocess as pre
+from ..context import _plain
 from ..errors import ChainError, InputError, ParameterError
 from ..registry import Parameter, register_filter, suggest
 from ..surface import SurfaceMesh
@@ -178,7 +179,7 @@ def meshlab_filter(ctx, name, params, layer):
     except pymeshlab.PyMeshLabException as exc:
         raise ChainError(f"pymeshlab filter '{name}' failed: {_short(exc)}") from None
     if result:
-        ctx.report.sections.setdefault("meshlab", {})[name] = _plain(result)
+        ctx.report.sections.setdefault("meshlab", {})[name] = _plain(result, str)
     _take_result(ctx, ms, layer, surface, f"pymeshlab filter '{name}'")
 
 
@@ -249,16 +250,3 @@ def _short(exc) -> str:
     text = " ".join(str(exc).split()) or type(exc).__name__
     return text.split("Please report")[0].strip()[:200]
 
-
-def _plain(obj):
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, (int, float, str, bool)) or obj is None:
-        return obj
-    return str(obj)

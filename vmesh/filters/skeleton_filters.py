@@ -1,6 +1,6 @@
 """Skeleton filters: load, estimate radii, clean, resample, tag and render a skeleton.
 
-Thin wrappers around :mod:`vmesh.geometry.skeleton_ops` and
+Thin wrappers around :mod:`vmesh.geometry.skeleton` (the kernels) and
 :mod:`vmesh.io.skeleton_formats`. Extraction from the surface is the separate
 ``extract_skeleton`` filter.
 """
@@ -12,12 +12,13 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..geometry import skeleton_ops as ops
+from ..geometry.skeleton import clean as sk_clean, distance as sk_distance, graft as sk_graft, graph as sk_graph, sample as sk_sample, tags as sk_tags
 from ..geometry.skeleton.bends import thin_sharp_bends, thin_stubs
 from ..geometry.skeleton.defects import drop_outside_components, weld_coincident_nodes
 from ..registry import Parameter, register_filter
 
 
+# duplicates: the register_filter declarations in this module share their shape (Parameter lists), not logic
 @register_filter(
     description="Read a centerline file (json, swc, csv, ply, or vtp/vtk from VMTK, SimVascular or plain polylines) as the skeleton.",
     parameters=[
@@ -98,6 +99,16 @@ def _drop_pieces_outside(ctx, skel, distance):
     return skel
 
 
+def _fit_to_surface(ctx, skel):
+    """The one place where pieces outside the surface go (:func:`_drop_pieces_outside`)
+    and the fit is judged (:func:`_check_fit`), in that order: a dropped piece must not
+    count against the fit. ``estimate_radii`` calls it; ``clean_skeleton`` only when
+    ``estimate_radii`` did not run (no ``skeleton_fit`` section), since nothing between
+    them makes new pieces. Returns the skeleton and whether its radii are unknown."""
+    skel = _drop_pieces_outside(ctx, skel, ctx.sdf.distance)
+    return skel, _check_fit(ctx, skel)
+
+
 def _check_fit(ctx, skel) -> bool:
     """Fail when the skeleton does not fit the surface (other units, another vessel);
     returns whether its radii should be measured from the surface instead (all equal,
@@ -170,8 +181,8 @@ def estimate_radii(ctx, overwrite, scale):
     if scale != 1.0:
         skel = ctx.skeleton = skel.copy(points=skel.points * scale, radii=skel.radii * scale)
     if ctx.sdf is not None:
-        skel = _drop_pieces_outside(ctx, skel, ctx.sdf.distance)  # before the fit is judged
-        overwrite = _check_fit(ctx, skel) or overwrite
+        skel, unknown = _fit_to_surface(ctx, skel)
+        overwrite = unknown or overwrite
     if ctx.sdf is None:
         if overwrite:
             raise InputError("estimate_radii: overwrite needs the sdf layer (add build_sdf before it)")
@@ -181,7 +192,7 @@ def estimate_radii(ctx, overwrite, scale):
     before = skel.radii
     if distance is not None:
         skel = _radii_from_sections(skel, distance, overwrite, ctx.caps or ())
-    ctx.skeleton, _ = ops.estimate_radii(skel, distance, overwrite=False)
+    ctx.skeleton, _ = sk_distance.estimate_radii(skel, distance, overwrite=False)
     filled = int((~np.isclose(ctx.skeleton.radii, before, equal_nan=True)).sum())
     ctx.count(radii_filled=filled, radius_min=float(np.min(ctx.skeleton.radii)), radius_max=float(np.max(ctx.skeleton.radii)))
 
@@ -318,25 +329,24 @@ def clean_skeleton(
     listed in the report section ``grafted_branches``."""
     skel = ctx.skeleton
     if ctx.sdf is not None and outside != "keep" and "skeleton_fit" not in ctx.report.sections:
-        _check_fit(ctx, skel)  # estimate_radii did not check it
+        skel, _ = _fit_to_surface(ctx, skel)  # estimate_radii did not run
     if not np.isfinite(skel.radii).all() and ctx.sdf is not None:
-        skel, _ = ops.estimate_radii(skel, ctx.sdf.distance)
+        skel, _ = sk_distance.estimate_radii(skel, ctx.sdf.distance)
     counts = {}
     skel, counts["welded"] = weld_coincident_nodes(skel, weld_distance)
     caps = list(ctx.caps or [])
     if extend_to_caps and caps:  # centerlines running out through an open end stop at its cap
         cap_arrays = (np.array([c.center for c in caps]), np.array([c.normal for c in caps]), np.array([c.radius for c in caps]))
-        skel, counts["cut_at_caps"] = ops.trim_at_caps(skel, *cap_arrays)
+        skel, counts["cut_at_caps"] = sk_clean.trim_at_caps(skel, *cap_arrays)
     if outside != "keep":
         if ctx.sdf is None:
             ctx.warn("no sdf layer: nodes outside the wall are not checked")
         else:
             distance, gradient = _sdf_functions(ctx.sdf)
-            skel = _drop_pieces_outside(ctx, skel, distance)
-            skel, counts["pulled"], counts["dropped"] = ops.pull_inside(skel, distance, gradient, outside_tolerance, outside)
+            skel, counts["pulled"], counts["dropped"] = sk_distance.pull_inside(skel, distance, gradient, outside_tolerance, outside)
     ctx.tick(0.25, "reconnect")
-    skel, counts["reconnected"] = ops.reconnect_components(skel, reconnect_distance)
-    skel, merged = ops.merge_close_junctions(skel, junction_distance)
+    skel, counts["reconnected"] = sk_clean.reconnect_components(skel, reconnect_distance)
+    skel, merged = sk_clean.merge_close_junctions(skel, junction_distance)
     protected = None
     if caps:
         centers = np.array([c.center for c in caps], float)
@@ -344,20 +354,20 @@ def clean_skeleton(
         near = np.linalg.norm(skel.points[:, None, :] - centers[None], axis=2) <= cap_distance * radii[None]
         protected = near.any(axis=1)
     ctx.tick(0.5, "spurs")
-    skel, counts["spurs_removed"] = ops.remove_spurs(skel, spur_length, protected, spur_shadow)
-    skel, merged2 = ops.merge_close_junctions(skel, junction_distance)
+    skel, counts["spurs_removed"] = sk_clean.remove_spurs(skel, spur_length, protected, spur_shadow)
+    skel, merged2 = sk_clean.merge_close_junctions(skel, junction_distance)
     if graft_to_caps and caps:
         skel, counts["grafted"] = _graft_missing_branches(ctx, skel, caps, cap_distance, graft_join)
         if counts["grafted"]:
-            skel, merged3 = ops.merge_close_junctions(skel, junction_distance)
+            skel, merged3 = sk_clean.merge_close_junctions(skel, junction_distance)
             merged2 += merged3
     counts["junctions_merged"] = merged + merged2
-    skel, counts["junctions_moved"] = ops.separate_parallel_branches(
+    skel, counts["junctions_moved"] = sk_clean.separate_parallel_branches(
         skel, parallel_angle, part_angle, distance=ctx.sdf.distance if ctx.sdf is not None else None
     )
     if extend_to_caps and caps:
         ctx.tick(0.75, "caps")
-        skel, matched = ops.extend_to_caps(
+        skel, matched = sk_graft.extend_to_caps(
             skel,
             *cap_arrays,
             [c.name for c in caps],
@@ -382,7 +392,7 @@ def clean_skeleton(
             ctx.warn(f"no skeleton end near cap(s) {', '.join(c.name for c in missing)}")
     if outside != "keep" and ctx.sdf is not None:
         skel, counts["pulled_in"] = _keep_inside(ctx, skel)
-    skel.edge_tags = ops.derive_edge_tags(skel)  # new segments take the tags of their nodes
+    skel.edge_tags = sk_tags.derive_edge_tags(skel)  # new segments take the tags of their nodes
     ctx.skeleton = skel
     ctx.count(**counts)
     _count_summary(ctx, skel)
@@ -406,7 +416,7 @@ def _radii_from_sections(skel, distance, overwrite: bool, caps=()):
         p = skel.points[nodes]
         d = np.asarray(distance(p), float)
         extent = float(np.ptp(skel.points, axis=0).max()) or 1.0
-        towards_wall = ops.distance_gradient(distance, p, np.maximum(0.1 * np.abs(d), 1e-9 * extent))
+        towards_wall = sk_distance.distance_gradient(distance, p, np.maximum(0.1 * np.abs(d), 1e-9 * extent))
         along = np.abs(np.einsum("ij,ij->i", towards_wall, node_tangents(skel)[nodes])) > np.cos(np.radians(45.0))
         along &= skel.degrees[nodes] == 2  # a junction has no section plane
         mask = np.zeros(skel.n_nodes, bool)
@@ -414,7 +424,7 @@ def _radii_from_sections(skel, distance, overwrite: bool, caps=()):
         section = section_radii(skel, distance, mask, caps)[nodes]
         radii[nodes] = np.where(along, section, np.where(d > 0, d, np.nan))
     if np.isfinite(radii).any():
-        radii = ops.fill_missing_along_branches(skel.n_nodes, skel.edges, skel.points, radii)
+        radii = sk_distance.fill_missing_along_branches(skel.n_nodes, skel.edges, skel.points, radii)
     return skel.copy(radii=radii)
 
 
@@ -448,18 +458,18 @@ def _overlapping_cap(caps, c: int, others) -> int | None:
 
 def _graft_missing_branches(ctx, skel, caps, cap_distance, join):
     """Graft a branch of an extracted skeleton to each cap that no endpoint of ``skel``
-    belongs to (see :func:`~vmesh.geometry.skeleton_ops.graft_branches`); returns the
+    belongs to (see :func:`~vmesh.geometry.skeleton.graft.graft_branches`); returns the
     skeleton and the number of branches grafted."""
     centers = np.array([c.center for c in caps], float)
     radii = np.array([c.radius for c in caps], float)
-    reached = {c for _, c in ops.match_ends_to_caps(skel, centers, radii, cap_distance)}
+    reached = {c for _, c in sk_graft.match_ends_to_caps(skel, centers, radii, cap_distance)}
     missing = [c for c in range(len(caps)) if c not in reached and _overlapping_cap(caps, c, reached) is None]
     if not missing:
         return skel, 0
     if ctx.sdf is None:
         ctx.warn("no sdf layer: caps without a skeleton end get no grafted branch")
         return skel, 0
-    from ..geometry import skeleton_extract as se
+    from ..geometry.skeleton import extract as se
 
     if ctx.surface is not None:
         surface, bounds = (ctx.surface.vertices, ctx.surface.faces), ctx.surface.bounds
@@ -475,7 +485,7 @@ def _graft_missing_branches(ctx, skel, caps, cap_distance, join):
         ctx.warn(f"could not extract a skeleton to graft from: {exc}")
         return skel, 0
     names = [caps[c].name for c in missing]
-    skel, grafts = ops.graft_branches(skel, source, centers[missing], radii[missing], names, join=join)
+    skel, grafts = sk_graft.graft_branches(skel, source, centers[missing], radii[missing], names, join=join)
     ctx.report.sections["grafted_branches"] = grafts
     done = [g for g in grafts if g["nodes"]]
     for g in done:
@@ -525,9 +535,9 @@ def resample_skeleton(ctx, spacing, radius_change, smooth_radii, min_segments, m
         if ctx.sdf is None and not np.isfinite(skel.radii).any():
             raise InputError("the skeleton has no radii (add build_sdf and estimate_radii before resample_skeleton)")
         ctx.warn("some radii were missing: estimated first")
-        skel, _ = ops.estimate_radii(skel, ctx.sdf.distance if ctx.sdf is not None else None)
+        skel, _ = sk_distance.estimate_radii(skel, ctx.sdf.distance if ctx.sdf is not None else None)
     before = skel.n_nodes
-    skel = ops.resample_skeleton(skel, spacing, radius_change or None, smooth_radii, min_segments)
+    skel = sk_sample.resample_skeleton(skel, spacing, radius_change or None, smooth_radii, min_segments)
     if ctx.sdf is not None:  # a resampled chord across a bend can graze the wall
         skel, moved = _keep_inside(ctx, skel)
         ctx.count(pulled_in=moved)
@@ -583,26 +593,26 @@ def tag_skeleton(ctx, clear, branches, regions, sac_ratio, sac_tag, nodes):
 
     def apply(mask, tag):
         nonlocal node_tags, edge_tags
-        node_tags = ops.tag_nodes(node_tags, mask, tag)
-        edge_tags = ops.tag_nodes(edge_tags, mask[a] & mask[b], tag)
+        node_tags = sk_tags.tag_nodes(node_tags, mask, tag)
+        edge_tags = sk_tags.tag_nodes(edge_tags, mask[a] & mask[b], tag)
         tagged[tag] = tagged.get(tag, 0) + int(mask.sum())
 
     if branches:
-        tree = ops.branch_tree(skel)
+        tree = sk_tags.branch_tree(skel)
         node_tags = [tuple(t for t in x if not t.startswith("branch_")) for x in node_tags]
         edge_tags = [tuple(t for t in x if not t.startswith("branch_")) for x in edge_tags]
         for k, p in enumerate(tree.paths):
-            node_tags = ops.tag_nodes(node_tags, np.isin(np.arange(skel.n_nodes), p), f"branch_{k}")
+            node_tags = sk_tags.tag_nodes(node_tags, np.isin(np.arange(skel.n_nodes), p), f"branch_{k}")
         for e, k in enumerate(tree.edge_branch.tolist()):
             if k >= 0:
-                edge_tags[e] = ops._union(edge_tags[e], (f"branch_{k}",))
+                edge_tags[e] = sk_graph._union(edge_tags[e], (f"branch_{k}",))
         ctx.count(branches=len(tree.paths))
     for tag, sphere in regions.items():
         if not isinstance(sphere, (list, tuple)) or len(sphere) != 4 or not all(isinstance(v, (int, float)) for v in sphere):
             raise InputError(f"tag_skeleton: region '{tag}' must be [x, y, z, radius], got {sphere!r}")
-        apply(ops.nodes_in_sphere(skel.points, sphere[:3], float(sphere[3])), tag)
+        apply(sk_tags.nodes_in_sphere(skel.points, sphere[:3], float(sphere[3])), tag)
     if sac_ratio is not None:
-        apply(ops.sac_nodes(skel, sac_ratio), sac_tag)
+        apply(sk_tags.sac_nodes(skel, sac_ratio), sac_tag)
     for tag, ids in nodes.items():
         ids = np.asarray(ids)
         if ids.dtype.kind not in "iu" or (len(ids) and (ids.min() < 0 or ids.max() >= skel.n_nodes)):
@@ -611,7 +621,7 @@ def tag_skeleton(ctx, clear, branches, regions, sac_ratio, sac_tag, nodes):
         mask[ids.astype(np.int64)] = True
         apply(mask, tag)
     out = skel.copy(node_tags=node_tags, edge_tags=edge_tags)
-    out.edge_tags = ops.derive_edge_tags(out)
+    out.edge_tags = sk_tags.derive_edge_tags(out)
     ctx.skeleton = out
     ctx.count(tags=len(out.tag_names()), **{f"tagged_{k}": v for k, v in tagged.items()})
 
@@ -672,14 +682,9 @@ def render_skeleton_png(path, skeleton, surface=None, size=(1200, 900), opacity=
         text = title if title is not None else skeleton.name
         text = f"{text}\n{s['nodes']} nodes, {s['segments']} segments, {s['junctions']} junctions, {s['endpoints']} endpoints, {s['cycles']} cycles"
         plotter.add_text(text, font_size=10, color="black")
-        pts = skeleton.points if surface is None or not surface.n_vertices else surface.vertices
-        centre = pts.mean(axis=0)
-        if len(pts) >= 3:
-            _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
-            view, up = vt[2], vt[1]
-        else:
-            view, up = np.array([0, 0, 1.0]), np.array([0, 1.0, 0])
-        extent = float(np.ptp(pts, axis=0).max()) or 1.0
+        from ..render import view_frame
+
+        centre, view, up, extent = view_frame(skeleton.points if surface is None or not surface.n_vertices else surface.vertices)
         plotter.camera_position = [tuple(centre + 3 * extent * view), tuple(centre), tuple(up)]
         plotter.reset_camera()
         with atomic_path(path) as tmp:
@@ -702,9 +707,8 @@ def render_skeleton_png(path, skeleton, surface=None, size=(1200, 900), opacity=
     category="export",
 )
 def render_skeleton(ctx, filename, width, height, surface_opacity):
-    path = ctx.output_path(filename)
+    path = ctx.output_file(filename)
     if path is None:
-        ctx.warn(f"no output folder: {filename} not written")
         return
     surface = ctx.surface if surface_opacity > 0 else None
     try:

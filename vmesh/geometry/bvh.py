@@ -462,6 +462,7 @@ def _point_triangle(px, py, pz, A, AB, AC, t):
     apx, apy, apz = px - ax, py - ay, pz - az
     d1 = abx * apx + aby * apy + abz * apz
     d2 = acx * apx + acy * apy + acz * apz
+    # duplicates: Ericson's region tests repeat one shape per vertex and edge (unrolled for the kernel)
     if d1 <= 0.0 and d2 <= 0.0:
         cx, cy, cz, feat = ax, ay, az, 4
     else:

@@ -167,6 +167,7 @@ class OGridTemplate:
     symmetries: tuple = field(default_factory=tuple)
     splittable: bool = True
 
+    # duplicates: count properties like Skeleton's, SurfaceMesh's and HexMesh's: each class counts its own arrays
     @property
     def n_vertices(self) -> int:
         return len(self.xy)

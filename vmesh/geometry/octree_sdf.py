@@ -275,6 +275,7 @@ class OctreeSignedDistance(SurfaceQueries):
         """Distinct candidate triangles per leaf (``stats.candidates_mean``)."""
         return self.stats.candidates_mean
 
+    # duplicates: properties and __repr__ shaped like SignedDistance's: each names its own statistics
     def __repr__(self) -> str:
         return f"OctreeSignedDistance({self.n_faces} triangles, {self.n_leaves} leaves, {self.candidates_mean:.1f} candidates per leaf, max_error {self.max_error:g} R)"
 

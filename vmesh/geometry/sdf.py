@@ -510,6 +510,7 @@ class TwoStepSignedDistance(SurfaceQueries):
         self.bounds, self.diagonal = fine.bounds, fine.diagonal
         self.sign_method = fine.sign_method
 
+    # duplicates: properties and __repr__ shaped like SignedDistance's above: the two-step one delegates to its fine surface
     @property
     def n_faces(self) -> int:
         return self.fine.n_faces

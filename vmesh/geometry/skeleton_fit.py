@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..skeleton import Skeleton
-from .skeleton_ops import ascend_distance, node_scale
+from .skeleton.clean import node_scale
+from .skeleton.distance import ascend_distance
 
 #: Scale factors between the usual length units (m, cm, mm, um): what a centerline in
 #: other units than its surface is off by.
@@ -101,7 +102,7 @@ def ensure_inside(
     A node whose signed distance is below ``depth`` x its radius (endpoints only with
     ``include_ends``: they may sit on a cap, which is on the wall) walks up the signed
     distance towards its radius as depth, stopping on the medial ridge
-    (:func:`~vmesh.geometry.skeleton_ops.ascend_distance`): onto the vessel's axis.
+    (:func:`~vmesh.geometry.skeleton.distance.ascend_distance`): onto the vessel's axis.
 
     Returns
     -------
@@ -159,8 +160,8 @@ def section_radii(skeleton: Skeleton, distance, nodes: np.ndarray | None = None,
     right next to the cap) does not count. NaN where no ray meets the wall, the node is
     outside or not asked.
     """
-    from .skeleton_extract import distance_to_wall, plane_basis
-    from .skeleton_ops import branch_paths
+    from .skeleton.probe import distance_to_wall, plane_basis
+    from .skeleton.graph import branch_paths
 
     n = skeleton.n_nodes
     d = np.asarray(distance(skeleton.points), float)

@@ -70,6 +70,7 @@ def write(path, mesh) -> Path:
     surf_tags = {b: i + 1 for i, b in enumerate(bnames)}
     with atomic_path(path) as tmp, open(tmp, "w") as fh:
         fh.write("$MeshFormat\n4.1 0 8\n$EndMeshFormat\n")
+        # duplicates: same shape as abaqus.py's header (units, then name tables): each format spells its own
         if mesh.units:
             fh.write(f"$Units\n{mesh.units}\n$EndUnits\n")
         fh.write(f"$PhysicalNames\n{len(names) + len(bnames)}\n")

@@ -90,28 +90,35 @@ def write_face_ply(path, vertices: np.ndarray, faces: np.ndarray, colors: np.nda
             f[c] = colors[:, i]
     if quality is not None:
         f["quality"] = quality
-    header = ["ply", "format binary_little_endian 1.0", f"comment {comment}", f"element vertex {len(vertices)}",
-              "property float x", "property float y", "property float z", f"element face {len(faces)}", *props, "end_header"]
-    path = Path(path)
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        fh.write(("\n".join(header) + "\n").encode("ascii"))
-        fh.write(vertices.astype("<f4").tobytes())
-        fh.write(f.tobytes())
-    return path
+    return _write_binary_ply(path, comment, vertices, "face", f, props)
 
 
-def write_edge_ply(path, vertices: np.ndarray, edges: np.ndarray, comment: str = "vmesh edges") -> Path:
-    """Write a binary PLY edge mesh (``element edge``, read by MeshLab)."""
+def write_edge_ply(path, vertices: np.ndarray, edges: np.ndarray, comment: str = "vmesh edges", edge_data: dict | None = None) -> Path:
+    """Write a binary PLY edge mesh (``element edge``, read by MeshLab): float32 x, y, z
+    per vertex, int32 ``vertex1``, ``vertex2`` per edge, then one int32 property per entry
+    of ``edge_data`` (name -> (ne,) integers). The one edge-mesh writer (skeleton and block
+    edges of the MeshLab folder, ``write_blocks``' edges file)."""
     vertices = np.asarray(vertices, np.float64).reshape(-1, 3)
     edges = np.asarray(edges, np.int64).reshape(-1, 2)
+    edge_data = edge_data or {}
+    e = np.empty(len(edges), np.dtype([("vertex1", "<i4"), ("vertex2", "<i4")] + [(k, "<i4") for k in edge_data]))
+    e["vertex1"], e["vertex2"] = edges.T
+    for k, val in edge_data.items():
+        e[k] = np.asarray(val).astype(np.int32)
+    props = ["property int vertex1", "property int vertex2"] + [f"property int {k}" for k in edge_data]
+    return _write_binary_ply(path, comment, vertices, "edge", e, props)
+
+
+def _write_binary_ply(path, comment: str, vertices: np.ndarray, element: str, rows: np.ndarray, props: list[str]) -> Path:
+    """Write a little-endian binary PLY: float32 vertices, then ``rows`` (a structured
+    array) as ``element`` with the ``props`` header lines, atomically."""
     header = ["ply", "format binary_little_endian 1.0", f"comment {comment}", f"element vertex {len(vertices)}",
-              "property float x", "property float y", "property float z", f"element edge {len(edges)}",
-              "property int vertex1", "property int vertex2", "end_header"]
+              "property float x", "property float y", "property float z", f"element {element} {len(rows)}", *props, "end_header"]
     path = Path(path)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         fh.write(("\n".join(header) + "\n").encode("ascii"))
-        fh.write(vertices.astype("<f4").tobytes())
-        fh.write(edges.astype("<i4").tobytes())
+        fh.write(np.asarray(vertices, np.float64).astype("<f4").tobytes())
+        fh.write(rows.tobytes())
     return path
 
 

@@ -22,8 +22,12 @@ class UnsupportedPLY(Exception):
     """The file is valid PLY, perhaps, but not the plain triangle surface read here."""
 
 
-def _header(data: bytes):
-    """(format, [(element, count, [(name, type) or (name, count type, item type)])], header length)."""
+def ply_header(data: bytes):
+    """The header of any PLY file: ``(format, [(element, count, properties)], header
+    length)``, a property ``(name, type)`` or, for a list, ``(name, count type, item
+    type)``. Raises :class:`UnsupportedPLY` without a header or with an unknown format.
+    The one PLY header parser (surfaces here, edge-mesh skeletons in
+    :mod:`vmesh.io.skeleton_formats`)."""
     end = data.find(b"end_header")
     if not data.startswith(b"ply") or end < 0:
         raise UnsupportedPLY("no PLY header")
@@ -39,7 +43,15 @@ def _header(data: bytes):
             elements.append((words[1], int(words[2]), []))
         elif words[0] == "property" and elements:
             elements[-1][2].append(tuple(words[:0:-1]) if words[1] != "list" else (words[4], words[2], words[3]))
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian") or [e[0] for e in elements] != ["vertex", "face"]:
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise UnsupportedPLY(f"unknown PLY format '{fmt}'")
+    return fmt, elements, stop
+
+
+def _header(data: bytes):
+    """:func:`ply_header` of a vertex + face PLY (else :class:`UnsupportedPLY`)."""
+    fmt, elements, stop = ply_header(data)
+    if [e[0] for e in elements] != ["vertex", "face"]:
         raise UnsupportedPLY("not a vertex + face PLY")
     return fmt, elements, stop
 

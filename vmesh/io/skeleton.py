@@ -118,7 +118,7 @@ def read_skeleton(path, **options) -> Skeleton:
     if skeleton.n_nodes == 0:
         raise InputError("skeleton has no nodes", path)
     if not any(skeleton.edge_tags):
-        from ..geometry.skeleton_ops import derive_edge_tags
+        from ..geometry.skeleton.tags import derive_edge_tags
 
         skeleton.edge_tags = derive_edge_tags(skeleton)
     return skeleton

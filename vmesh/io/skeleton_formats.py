@@ -10,7 +10,7 @@ their content (:func:`vtk_centerline_kind`):
 ``vmtk``
     Several polylines from the inlet to each outlet that coincide along shared trunks
     (``vmtkcenterlines``), radius in ``MaximumInscribedSphereRadius``. The trunks are
-    merged into one tree (:func:`~vmesh.geometry.skeleton_ops.merge_overlapping_polylines`).
+    merged into one tree (:func:`~vmesh.geometry.skeleton.polylines.merge_overlapping_polylines`).
 ``simvascular``
     A centerline graph of two-point segments with ``GlobalNodeId``, ``BranchId`` and
     ``BifurcationId`` point arrays (``sv.centerlines``); points sharing a global id are
@@ -35,9 +35,10 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..geometry import skeleton_ops as ops
+from ..geometry.skeleton import graph as sk_graph, polylines as sk_polylines, tags as sk_tags
 from ..skeleton import Skeleton
 from .atomic import atomic_path, write_text_atomic
+from .ply import _TYPES as _PLY_TYPES, UnsupportedPLY, ply_header
 
 #: Point-array names holding the vessel radius, in order of preference (case-insensitive).
 RADIUS_ARRAYS = ("MaximumInscribedSphereRadius", "Radius", "Radii", "radius", "R", "InscribedSphereRadius")
@@ -131,7 +132,7 @@ def _tags_from_arrays(data, n: int) -> list[tuple]:
             prefix = LABEL_ARRAYS[low]
             found.append([(f"{prefix}_{v}",) if v >= 0 else () for v in arr.tolist()])
     for column in found:
-        tags = [ops._union(a, b) for a, b in zip(tags, column)]
+        tags = [sk_graph._union(a, b) for a, b in zip(tags, column)]
     return [tuple(t.strip() for t in x) for x in tags]
 
 
@@ -144,7 +145,7 @@ def vtk_centerline_kind(mesh, lines: list[np.ndarray] | None = None) -> str:
     if len(lines) >= 2:
         pts = np.asarray(mesh.points, float)
         r = point_radius(mesh)
-        if ops.polylines_overlap([pts[l] for l in lines], [r[l] for l in lines]):
+        if sk_polylines.polylines_overlap([pts[l] for l in lines], [r[l] for l in lines]):
             return "vmtk"
     return "polylines"
 
@@ -240,7 +241,7 @@ def _graph_skeleton(pts, radius, ptags, lines, ctags, name, node_ids=None, path_
         rep = first[inv.ravel()]
     else:
         scale = float(np.ptp(pts, axis=0).max()) or 1.0
-        rep, _ = ops.merge_coincident_points(pts, seg, 1e-9 * scale)
+        rep, _ = sk_polylines.merge_coincident_points(pts, seg, 1e-9 * scale)
     used = np.unique(np.r_[rep[seg.ravel()], rep[np.concatenate(lines)]])
     index = np.full(len(pts), -1, np.int64)
     index[used] = np.arange(len(used))
@@ -249,13 +250,13 @@ def _graph_skeleton(pts, radius, ptags, lines, ctags, name, node_ids=None, path_
     tags = [()] * len(used)
     for p in np.flatnonzero(node_of >= 0).tolist():
         if ptags[p]:
-            tags[node_of[p]] = ops._union(tags[node_of[p]], ptags[p])
+            tags[node_of[p]] = sk_graph._union(tags[node_of[p]], ptags[p])
     rad = np.full(len(used), np.nan)
     ok = np.isfinite(radius) & (node_of >= 0)
     np.fmax.at(rad, node_of[ok], radius[ok])
     edges = node_of[seg]
     etags = [ctags[c] if len(ctags) else () for c in seg_cell.tolist()]
-    edges, etags = ops.simplify_edges(edges, etags)
+    edges, etags = sk_graph.simplify_edges(edges, etags)
     skel = Skeleton(pts[used], rad, edges, tags, etags, name=name)
     if path_length is not None:
         skel = _tag_ends_by_path(skel, np.asarray(path_length, float)[used])
@@ -270,12 +271,12 @@ def _tag_ends_by_path(skel: Skeleton, path_length: np.ndarray) -> Skeleton:
     inlet = ends[np.argmin(path_length[ends])]
     tags = list(skel.node_tags)
     for e in ends.tolist():
-        tags[e] = ops._union(tags[e], ("inlet",) if e == inlet else ("outlet",))
+        tags[e] = sk_graph._union(tags[e], ("inlet",) if e == inlet else ("outlet",))
     return skel.copy(node_tags=tags)
 
 
 def _vmtk_skeleton(pts, radius, ptags, lines, tolerance, name) -> Skeleton:
-    merged = ops.merge_overlapping_polylines([pts[l] for l in lines], [radius[l] for l in lines], tolerance)
+    merged = sk_polylines.merge_overlapping_polylines([pts[l] for l in lines], [radius[l] for l in lines], tolerance)
     src = np.array([lines[li][k] for li, k in merged.origin.tolist()], np.int64)
     tags = [ptags[p] for p in src.tolist()]
     skel = Skeleton(merged.points, merged.radii, merged.edges, tags, name=name)
@@ -285,9 +286,9 @@ def _vmtk_skeleton(pts, radius, ptags, lines, tolerance, name) -> Skeleton:
     for e in ends.tolist():
         li, k = merged.origin[e]
         if e == merged.source:
-            tags[e] = ops._union(tags[e], ("inlet",))
+            tags[e] = sk_graph._union(tags[e], ("inlet",))
         elif merged.source >= 0 and (int(li), int(k)) in last:
-            tags[e] = ops._union(tags[e], ("outlet",))
+            tags[e] = sk_graph._union(tags[e], ("outlet",))
     return skel.copy(node_tags=tags)
 
 
@@ -300,8 +301,8 @@ def write_skeleton_vtk(path, skeleton: Skeleton) -> Path:
     import pyvista as pv
 
     path = Path(path)
-    paths = ops.branch_paths(skeleton.n_nodes, skeleton.edges)
-    path_e = ops.path_edge_ids(skeleton.n_nodes, skeleton.edges, paths)
+    paths = sk_graph.branch_paths(skeleton.n_nodes, skeleton.edges)
+    path_e = sk_graph.path_edge_ids(skeleton.n_nodes, skeleton.edges, paths)
     cells, cell_tags = [], []
     for p, pe in zip(paths, path_e):
         tags = [skeleton.edge_tags[e] for e in pe.tolist()]
@@ -417,10 +418,10 @@ def write_swc(path, skeleton: Skeleton) -> Path:
     import scipy.sparse.csgraph as csg
 
     adj = skeleton.adjacency()
-    label = ops.component_labels(skeleton.n_nodes, skeleton.edges)
+    label = sk_graph.component_labels(skeleton.n_nodes, skeleton.edges)
     order, parent = [], []
     for comp in np.unique(label).tolist():
-        root = ops.choose_root(skeleton, np.flatnonzero(label == comp))
+        root = sk_tags.choose_root(skeleton, np.flatnonzero(label == comp))
         nodes, preds = csg.breadth_first_order(adj, root, directed=False, return_predecessors=True)
         order.extend(nodes.tolist())
         parent.extend(preds[nodes].tolist())
@@ -568,7 +569,7 @@ def read_skeleton_csv(path) -> Skeleton:
                 etags.append(())
     else:
         raise InputError("CSV skeleton edge file not found (and the node file has no parent column)", edges_path)
-    e, et = ops.simplify_edges(np.asarray(edges, np.int64).reshape(-1, 2), etags)
+    e, et = sk_graph.simplify_edges(np.asarray(edges, np.int64).reshape(-1, 2), etags)
     rad = np.asarray(rad, float)
     return Skeleton(pts, np.where(rad > 0, rad, np.nan), e, tags, et, name=nodes_path.name)
 
@@ -594,11 +595,6 @@ def write_skeleton_csv(path, skeleton: Skeleton) -> Path:
 # PLY edge meshes
 # ---------------------------------------------------------------------------
 
-_PLY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
-    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
-}  # fmt: skip
 
 
 def write_skeleton_ply(path, skeleton: Skeleton) -> Path:
@@ -632,29 +628,18 @@ def read_skeleton_ply(path) -> Skeleton:
     and ``edge`` (``vertex1``, ``vertex2``) elements; other elements are skipped."""
     path = Path(path)
     raw = path.read_bytes()
-    end = raw.find(b"end_header")
-    if not raw.startswith(b"ply") or end < 0:
-        raise InputError("not a PLY file (no 'ply' magic or no end_header)", path)
-    body_start = raw.index(b"\n", end) + 1
-    header = raw[:end].decode("ascii", "replace").splitlines()
-    fmt, elements = None, []
-    for line in header:
-        parts = line.split()
-        if not parts:
-            continue
-        if parts[0] == "format":
-            fmt = parts[1]
-        elif parts[0] == "element":
-            elements.append((parts[1], int(parts[2]), []))
-        elif parts[0] == "property" and elements:
-            if parts[1] == "list":
-                elements[-1][2].append(("list", parts[2], parts[3], parts[4]))
-            elif parts[1] in _PLY_TYPES:
-                elements[-1][2].append((parts[1], parts[2]))
-            else:
-                raise InputError(f"unknown PLY property type '{parts[1]}'", path)
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise InputError(f"unknown PLY format '{fmt}'", path)
+    try:
+        fmt, elements, body_start = ply_header(raw)
+    except UnsupportedPLY as exc:
+        what = "not a PLY file (no 'ply' magic or no end_header)" if str(exc) == "no PLY header" else str(exc)
+        raise InputError(what, path) from None
+    # properties as (type, name) or ("list", count type, item type, name)
+    elements = [(name, count, [("list", p[1], p[2], p[0]) if len(p) == 3 else (p[1], p[0]) for p in props])
+                for name, count, props in elements]
+    for _, _, props in elements:
+        for p in props:
+            if p[0] != "list" and p[0] not in _PLY_TYPES:
+                raise InputError(f"unknown PLY property type '{p[0]}'", path)
     data = {}
     if fmt == "ascii":
         tokens = raw[body_start:].split()
@@ -706,10 +691,11 @@ def read_skeleton_ply(path) -> Skeleton:
     edges = e[:, cols].astype(np.int64)
     if len(edges) and (edges.min() < 0 or edges.max() >= len(xyz)):
         raise InputError("edge vertex indices are out of range", path)
-    edges, _ = ops.simplify_edges(edges)
+    edges, _ = sk_graph.simplify_edges(edges)
     return Skeleton(xyz, np.where(rad > 0, rad, np.nan), edges, name=path.name)
 
 
+# duplicates: the READERS and WRITERS tables below share their shape: they are data
 #: Readers and writers added to :mod:`vmesh.io.skeleton`'s suffix tables.
 READERS = {
     ".vtp": ("VTK PolyData centerline (VMTK, SimVascular or polylines)", read_centerline_vtk),

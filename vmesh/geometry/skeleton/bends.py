@@ -116,7 +116,7 @@ def thin_sharp_bends(skeleton: Skeleton, min_gap: float = 1.0, distance=None, bi
     skeleton : Skeleton
     n_removed : int
     """
-    from ..skeleton_ops import remove_nodes
+    from .graph import remove_nodes
 
     sk = skeleton
     removed = 0
@@ -198,7 +198,7 @@ def thin_stubs(skeleton: Skeleton, depth: float = 1.0) -> tuple[Skeleton, int]:
     n_removed : int
         Nodes dropped.
     """
-    from ..skeleton_ops import branch_paths, remove_nodes
+    from .graph import branch_paths, remove_nodes
 
     sk = skeleton
     deg = sk.degrees

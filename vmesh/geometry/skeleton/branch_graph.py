@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .clean import select_spurs
 from .probe import SdfFunction, _arclength, evaluate_sdf, maximise_sdf
 
 
@@ -157,7 +158,7 @@ class BranchGraph:
         only shrinks towards a tip that close leaks into a wide saddle (between
         two branches leaving a wide vessel) or a bulge. A real side branch reaches
         well beyond. The least salient spurs go first; a junction keeps at least
-        one branch.
+        one branch: both cleanings choose with :func:`~.clean.select_spurs`.
         """
         removed = 0
         while True:
@@ -174,11 +175,10 @@ class BranchGraph:
                 candidates.append((score, u, v, k, tip, base))
             if not candidates:
                 return removed
-            candidates.sort(key=lambda c: c[0])
+            degree = {c[5]: self.degree(c[5]) for c in candidates}
             touched = set()
-            for _, u, v, k, tip, base in candidates:
-                if base in touched or not self.graph.has_edge(u, v, k) or self.degree(base) < 3:
-                    continue
+            for i in select_spurs([c[0] for c in candidates], [c[5] for c in candidates], degree):
+                _, u, v, k, tip, base = candidates[i]
                 self.graph.remove_edge(u, v, k)
                 self.graph.remove_node(tip)
                 touched.add(base)

@@ -307,6 +307,41 @@ def reconnect_components(skeleton: Skeleton, tolerance: float = 1.0) -> tuple[Sk
     return skel, joined
 
 
+def select_spurs(scores, junctions, degree) -> list[int]:
+    """Which candidate spurs go in one round of spur pruning: the lowest ``scores`` first
+    (the shortest or least salient), at most ``degree[j] - 2`` at junction ``j``, so that
+    a junction keeps two branches (a short bifurcation keeps one daughter).
+
+    The one pruning rule of both cleanings: the extraction's branch graph
+    (:meth:`~.branch_graph.BranchGraph.prune_spurs`, where a spur is a tip whose ball
+    barely leaves its junction's) and a given or extracted skeleton
+    (:func:`remove_spurs`, where a spur is a short or shadowed branch); they differ only in
+    which branches are candidates.
+
+    Parameters
+    ----------
+    scores : sequence of float
+        One per candidate, lower goes first (ties keep their order).
+    junctions : sequence of int
+        The junction each candidate leaves.
+    degree : mapping or array
+        ``degree[j]``: the number of branches at junction ``j`` now.
+
+    Returns
+    -------
+    list of int
+        Indices of the chosen candidates, in the order they were chosen.
+    """
+    budget, chosen = {}, []
+    for k in sorted(range(len(scores)), key=lambda i: scores[i]):
+        j = junctions[k]
+        left = budget.setdefault(j, int(degree[j]) - 2)
+        if left > 0:
+            chosen.append(k)
+            budget[j] = left - 1
+    return chosen
+
+
 def remove_spurs(
     skeleton: Skeleton, length: float = 1.0, protected: np.ndarray | None = None, shadow: float = 0.5
 ) -> tuple[Skeleton, int]:
@@ -353,15 +388,10 @@ def remove_spurs(
                 candidates.append((s, junction, inner))
         if not candidates:
             break
-        candidates.sort(key=lambda c: c[0])
-        budget = {}
         drop = np.zeros(skel.n_nodes, bool)
-        for s, j, inner in candidates:
-            left = budget.setdefault(j, deg[j] - 2)
-            if left > 0:
-                drop[inner] = True
-                budget[j] = left - 1
-                removed += 1
+        for k in select_spurs([c[0] for c in candidates], [c[1] for c in candidates], deg):
+            drop[candidates[k][2]] = True
+            removed += 1
         if not drop.any():
             break
         keep = ~drop

@@ -10,7 +10,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ...skeleton import Skeleton
-from ..skeleton_ops import contract_nodes, node_scale
+from .clean import node_scale
+from .graph import contract_nodes
 
 
 def weld_coincident_nodes(skeleton: Skeleton, tolerance: float = 0.001) -> tuple[Skeleton, int]:
@@ -91,7 +92,7 @@ def drop_outside_components(skeleton: Skeleton, distance, share: float = 0.5) ->
     skeleton : Skeleton
     dropped : list of (n_nodes, centroid) per removed piece
     """
-    from ..skeleton_ops import component_labels, remove_nodes
+    from .graph import component_labels, remove_nodes
 
     if skeleton.n_nodes == 0 or skeleton.n_components < 2:
         return skeleton.copy(), []

@@ -55,6 +55,7 @@ from .voxelize import choose_spacing, estimate_min_radius, grid_for_bounds, insi
 class ExtractionSettings:
     """Parameters of :func:`extract_skeleton` (lengths relative to the local radius)."""
 
+    # duplicates: same shape as repair.RepairReport/RepairOptions: both are field lists, not shared logic
     spacing: float | None = None
     voxels_per_radius: float = 3.0
     max_voxels: int = 60_000_000

@@ -50,7 +50,7 @@ def march_to_skeleton(
         The points marched from the cap (first: the start) and the index of the target
         point reached; ``None`` when the march leaves the vessel or goes too far.
     """
-    from ..skeleton_extract import center_in_cross_sections, evaluate_sdf
+    from .probe import center_in_cross_sections, evaluate_sdf
 
     tree = cKDTree(np.asarray(targets, float))
     r_max = float(np.max(target_radii))
@@ -84,7 +84,8 @@ def attach_by_march(graph, cap, index: int, spacing: float, sdf, where: list, pt
     """Add to the extraction's branch graph the branch to ``cap`` marched along its vessel
     from the cap to the skeleton (``where``/``pts``: the graph's branch points and nodes);
     ``False`` when the march fails."""
-    from ..skeleton_extract import _straight, evaluate_sdf
+    from .ends import _straight
+    from .probe import evaluate_sdf
 
     radii = evaluate_sdf(sdf, pts)  # the inscribed spheres: the lumen around each skeleton point
     found = march_to_skeleton(sdf, cap.center, -np.asarray(cap.normal, float), float(cap.radius), pts, radii)
