@@ -303,7 +303,8 @@ def _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, row, least)
     """Move ``v`` to (y0, y1, y2): its corners' cached qualities follow (from ``buf[row]``,
     the values :func:`node_eval` left there at this position, or recomputed when ``row < 0``)
     and its neighbours are dirty when it moved at least ``least`` (a converged node's tiny
-    moves change its neighbours' optimum by less than they gain from another try)."""
+    moves change its neighbours' optimum by less than they gain from another try; callers
+    pass 0 for a move that raised the worst element around the node, which may go on)."""
     step = np.sqrt((X[v, 0] - y0) ** 2 + (X[v, 1] - y1) ** 2 + (X[v, 2] - y2) ** 2)
     X[v, 0], X[v, 1], X[v, 2] = y0, y1, y2
     if row < 0:
@@ -364,7 +365,7 @@ def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, 
                     state[j, 3] = 1.0
                     break
                 if mode != UNTANGLE or _acceptable(mode, r[0], r[10], r[11], f0, qmin0, qsum0):
-                    _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, np.int64(j) if judge or smooth else np.int64(-1), tol * step_cap[v])
+                    _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, np.int64(j) if judge or smooth else np.int64(-1), 0.0 if r[10] > qmin0 else tol * step_cap[v])
                     state[j, 3] = 1.0
                     break
             t *= 0.5
@@ -389,7 +390,8 @@ def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, 
                     break
                 r = node_eval(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, delta, False, False, True, buf, np.int64(j))
                 if _acceptable(mode, np.inf, r[10], r[11], np.inf, qmin0, qsum0):
-                    _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, np.int64(j), tol * step_cap[v])
+                    # a climb raises a worst element: however short, the neighbours try again
+                    _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, np.int64(j), 0.0)
                     state[j, 3] = 1.0
                     break
                 t *= 0.5
@@ -404,7 +406,7 @@ def _accept_trials(X, hexes, scale, ptr, inc, cq, nodes, projected, delta, mode,
         y0, y1, y2 = projected[j, 0], projected[j, 1], projected[j, 2]
         r = node_eval(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, delta, False, mode != SMOOTH, True, buf, np.int64(j))
         if _acceptable(mode, r[0], r[10], r[11], state[j, 0], state[j, 1], state[j, 2]):
-            _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, np.int64(j), tol * step_cap[v])
+            _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, np.int64(j), 0.0 if state[j, 0] == np.inf or r[10] > state[j, 1] else tol * step_cap[v])
         else:
             state[j, 3] = 0.0
 
