@@ -300,8 +300,7 @@ def optimise_linear(
         Grow the untangling region also while valid elements below ``untangle_below``
         remain (not only inverted ones), within ``max_fraction``.
     smooth_tol : float
-        Light pass only: a node that moves less than this fraction of its step cap (half
-        its longest edge) does not make its neighbours worth another try; 0 = every move does.
+        Light pass: moves shorter than this fraction of the step cap leave the neighbours clean.
 
     Returns
     -------
@@ -321,8 +320,7 @@ def optimise_linear(
     q = hex8_scaled_jacobian(X, sub)
     info = {"before": {"min": float(q.min()), "mean": float(q.mean())} if len(q) else None, "untangled_nodes": 0, "smoothed_nodes": 0, "moved": 0, "rings": 0, "updates": 0}
     if not len(q) or q.min() >= max(untangle_below, smooth_below):
-        info.update(after=info["before"], seconds=time.perf_counter() - t0)
-        return X, info
+        return X, {**info, "after": info["before"], "seconds": time.perf_counter() - t0}
     kind, normal, height = _node_kinds(sub, n, wall, project, wall_normals, cap_nodes, cap_normals, boundary, keep_first_layer)
     fixed = kind == K.FIXED
     stats = {"updates": 0}
