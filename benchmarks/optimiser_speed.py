@@ -11,7 +11,11 @@ rate is the steadier one. Issue 18's target is 10^6 updates per second.
 
 Usage::
 
-    python benchmarks/optimiser_speed.py [--case ica|y_bifurcation] [--repeat 3]
+    python benchmarks/optimiser_speed.py [--case ica|y_bifurcation] [--repeat 3] [--smooth-tol 0 0.01]
+
+``--smooth-tol`` runs the light pass once per value (``optimise(..., smooth_tol=)``, the
+filter's ``light_pass_tol``) instead of the recorded one; ``NUMBA_NUM_THREADS=1`` gives the
+steadiest CPU seconds on a loaded machine.
 """
 
 from __future__ import annotations
@@ -65,13 +69,18 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--case", choices=("ica", "y_bifurcation"), default="ica")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs per call (best kept)")
+    ap.add_argument("--smooth-tol", type=float, nargs="+", help="light-pass tolerances to compare (default: the recorded one)")
     args = ap.parse_args(argv)
     from vmesh.geometry.optimize import optimise
 
     calls = record_calls(*inputs(args.case))
     print(f"load average {os.getloadavg()[0]:.1f}; {args.case}")
     print("| call | nodes | updates | wall s | CPU s | updates/s (per CPU-s) | SJ min / mean before | after |\n|---|---|---|---|---|---|---|---|")
-    for name, (a, kw) in zip(("untangling", "light pass"), calls):
+    runs = list(zip(("untangling", "light pass"), calls))
+    if args.smooth_tol and len(calls) > 1:
+        a, kw = calls[1]
+        runs = runs[:1] + [(f"light pass, tol {t:g}", (a, {**kw, "smooth_tol": t})) for t in args.smooth_tol]
+    for name, (a, kw) in runs:
         best = None
         for _ in range(args.repeat):
             t, c = time.perf_counter(), time.process_time()

@@ -35,6 +35,7 @@ from ..registry import Parameter, register_filter
         Parameter("optimiser", "str", "local", "local: compiled per-node Newton steps around bad elements, Gauss-Seidel over a node colouring (vmesh.geometry.optimize); lbfgs: the former global L-BFGS untangler.", choices=("local", "lbfgs")),
         Parameter("light_pass_below", "float", 0.95, "Light pass after untangling (optimiser = local; untangle = true): every node of an element below this takes monotone Newton steps (its elements' minimum and mean scaled Jacobian never drop; wall nodes slide on the wall, first boundary-layer heights kept); for p > 1 kept only when the order-p minimum does not drop and the mean rises; 0 = off (docs/optimiser.md).", min=0.0, max=1.0),
         Parameter("light_pass_sweeps", "int", 8, "Most Gauss–Seidel sweeps of the light pass (4 gives most of its gain at half the cost).", min=1, max=100),
+        Parameter("light_pass_tol", "float", 0.01, "Light pass: a node that moves less than this fraction of half its longest edge does not send its neighbours back to work (converged regions stop early; 0 = every move does; docs/speed.md).", min=0.0, max=0.5),
         Parameter("curved_sections", "bool", True, "Curve the core/ring and ring/boundary-layer interfaces of the cross-sections so that the element angles at their corners balance (120° at core corners instead of 90°/135°/135°; docs/optimiser.md)."),
         Parameter("smooth_below", "float", 0.5, "Light pass after untangling (optimiser = local): nodes of elements below this move only where their elements' minimum and mean scaled Jacobian do not drop; 0 = off.", min=0.0, max=0.95),
         Parameter("exact_first_layer", "bool", True, "With first_layer_height (or y_plus): after the optimisers (untangling and the light pass), re-place the nodes of every boundary-layer line so that the first element is that height along the wall normal; with boundary_layer_thickness: before untangling, put the layer's inner nodes at that thickness along the wall normal (docs/cfd.md)."),
@@ -48,7 +49,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
                      first_layer_height, boundary_layer_thickness, y_plus, flow_velocity, flow_density, flow_viscosity, reference_length,
                      order, node_distribution, project_to, untangle, untangle_below, untangle_restart_below,
                      optimiser="local", smooth_below=0.5, curved_sections=True, light_pass_below=0.95, light_pass_sweeps=8,
-                     exact_first_layer=True):
+                     exact_first_layer=True, light_pass_tol=0.01):
     """Edge nodes are projected onto the wall and re-spaced by arc length; Coons patches fill
     block faces (wall faces projected again) and transfinite interpolation fills the blocks.
     The boundary layer is resolved by grading, never by extra element layers: the element
@@ -90,7 +91,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
     if untangle:
         _untangle(ctx, sm, projector, sdf, untangle_below, untangle_restart_below, optimiser, smooth_below, node_distribution)
         if optimiser == "local" and light_pass_below > 0:
-            _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps)
+            _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps, light_pass_tol)
     if exact_first_layer and layer["first_layer_absolute"]:  # after the optimisers, which move layer nodes
         from ..geometry.boundary_layer import exact_first_layer as place_first_layer
 
@@ -184,7 +185,7 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", 
     _keep_untangled(ctx, sm, X, info, info["rounds"], untangled_nodes=info["moved"])
 
 
-def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8):
+def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol=0.0):
     """The default light pass of :mod:`vmesh.geometry.optimize` over every element below
     ``below`` (no untangling): raises the mean without lowering any element's neighbourhood
     minimum. For p > 1 the corners move and the other nodes follow, which can lower the
@@ -199,7 +200,7 @@ def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8):
     ctx.tick(0.97, "light pass")
     X, info = optimise(
         sm.points, sm.cells, p, ref_nodes=ref_nodes, wall=wall, wall_normals=sdf.gradient, project=projector, cap_nodes=cap_nodes, cap_normals=cap_normals,
-        boundary=boundary, untangle_below=0.0, smooth_below=below, smooth_sweeps=sweeps,
+        boundary=boundary, untangle_below=0.0, smooth_below=below, smooth_sweeps=sweeps, smooth_tol=tol,
     )
     if p > 1:
         before = scaled_jacobian(sm.points, sm.cells, p, ref_nodes)

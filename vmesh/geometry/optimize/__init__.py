@@ -86,10 +86,11 @@ def _offset(project, trial, height):
     return foot + up * (height / np.maximum(np.linalg.norm(up, axis=1), 1e-300))[:, None]
 
 
-def _sweep(X, st, cq, kind, normal, caps, delta, mode, goal, project, wall_normals, stats, height, dirty):
+def _sweep(X, st, cq, kind, normal, caps, delta, mode, goal, project, wall_normals, stats, height, dirty, tol=0.0):
     """One Gauss–Seidel sweep over every colour of the stage; returns the number of nodes moved.
     ``wall_normals`` (None: keep the current ones) gives the tangent planes of the wall and
-    first-layer nodes."""
+    first-layer nodes; moves shorter than ``tol`` times a node's step cap leave its
+    neighbours clean."""
     moved = 0
     if wall_normals is not None:
         w = st.nodes[(kind[st.nodes] == K.WALL) | (kind[st.nodes] == K.OFFSET)]
@@ -102,7 +103,7 @@ def _sweep(X, st, cq, kind, normal, caps, delta, mode, goal, project, wall_norma
         buf = np.empty((len(nodes), width))  # the corner qualities of each node's last trial
         state = np.empty((len(nodes), 4))
         parallel = len(nodes) >= K.PARALLEL_FROM
-        (K.sweep_colour_parallel if parallel else K.sweep_colour_serial)(X, st.hexes, st.scale, st.ptr, st.inc, cq, nodes, kind, normal, caps, delta, mode, goal, trial, state, dirty, buf)
+        (K.sweep_colour_parallel if parallel else K.sweep_colour_serial)(X, st.hexes, st.scale, st.ptr, st.inc, cq, nodes, kind, normal, caps, delta, mode, goal, trial, state, dirty, buf, tol)
         stats["updates"] += int((state[:, 0] != -1.0).sum())
         kinds = kind[nodes]
         wall_trial = ((kinds == K.WALL) | (kinds == K.OFFSET)) & (state[:, 3] > 0)
@@ -115,13 +116,13 @@ def _sweep(X, st, cq, kind, normal, caps, delta, mode, goal, project, wall_norma
                 off = ids[~on]
                 proj[~on] = _offset(project, trial[off], height[nodes[off]])
             sub_state = np.ascontiguousarray(state[ids])
-            (K.accept_trials_parallel if len(ids) >= K.PARALLEL_FROM else K.accept_trials_serial)(X, st.hexes, st.scale, st.ptr, st.inc, cq, nodes[ids], proj, delta, mode, sub_state, dirty, buf)
+            (K.accept_trials_parallel if len(ids) >= K.PARALLEL_FROM else K.accept_trials_serial)(X, st.hexes, st.scale, st.ptr, st.inc, cq, nodes[ids], proj, delta, mode, sub_state, dirty, buf, caps, tol)
             state[ids, 3] = sub_state[:, 3]
         moved += int((state[:, 3] > 0).sum())
     return moved
 
 
-def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats, sweeps, goal, moved_mask, height, X0, patience=10, climb_below=None):
+def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats, sweeps, goal, moved_mask, height, X0, patience=10, climb_below=None, tol=0.0):
     """Sweeps over a stage until its worst element reaches ``goal`` or stops improving; nodes
     whose worst incident element is below ``climb_below`` (default ``goal``) try a max-min
     step when their Newton step is refused."""
@@ -143,7 +144,7 @@ def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats
         # the tangent planes only steer the steps (the projection puts nodes back on the
         # wall): refreshed every few sweeps, the signed-distance queries cost more than a sweep
         normals = wall_normals if sweep % 8 == 0 else None
-        if _sweep(X, st, cq, kind, normal, caps, delta, mode, climb, project, normals, stats, height, dirty) == 0:
+        if _sweep(X, st, cq, kind, normal, caps, delta, mode, climb, project, normals, stats, height, dirty, tol) == 0:
             break
         q = cq.min(axis=1)
         if q.min() >= goal:
@@ -255,6 +256,7 @@ def optimise_linear(
     untangle_mode: int = K.ESCOBAR,
     smooth_rings: int = 0,
     grow_below_threshold: bool = True,
+    smooth_tol: float = 0.0,
 ) -> tuple[np.ndarray, dict]:
     """Untangle and smooth the neighbourhood of low-quality linear hexahedra.
 
@@ -297,6 +299,8 @@ def optimise_linear(
     grow_below_threshold : bool
         Grow the untangling region also while valid elements below ``untangle_below``
         remain (not only inverted ones), within ``max_fraction``.
+    smooth_tol : float
+        Light pass: moves shorter than this fraction of the step cap leave the neighbours clean.
 
     Returns
     -------
@@ -316,8 +320,7 @@ def optimise_linear(
     q = hex8_scaled_jacobian(X, sub)
     info = {"before": {"min": float(q.min()), "mean": float(q.mean())} if len(q) else None, "untangled_nodes": 0, "smoothed_nodes": 0, "moved": 0, "rings": 0, "updates": 0}
     if not len(q) or q.min() >= max(untangle_below, smooth_below):
-        info.update(after=info["before"], seconds=time.perf_counter() - t0)
-        return X, info
+        return X, {**info, "after": info["before"], "seconds": time.perf_counter() - t0}
     kind, normal, height = _node_kinds(sub, n, wall, project, wall_normals, cap_nodes, cap_normals, boundary, keep_first_layer)
     fixed = kind == K.FIXED
     stats = {"updates": 0}
@@ -329,7 +332,7 @@ def optimise_linear(
         q = hex8_scaled_jacobian(X, sub)
     low = q < smooth_below
     if smooth_below > 0 and low.any():
-        _smooth_region(X, sub, n, fixed, low, run, smooth_below, smooth_sweeps, smooth_rings, smoothed)
+        _smooth_region(X, sub, n, fixed, low, run, smooth_below, smooth_sweeps, smooth_rings, smoothed, smooth_tol)
         q = hex8_scaled_jacobian(X, sub)
     info.update(after={"min": float(q.min()), "mean": float(q.mean())}, untangled_nodes=int(untangled.sum()), smoothed_nodes=int((smoothed & ~untangled).sum()),
                 moved=int((untangled | smoothed).sum()), updates=stats["updates"], seconds=time.perf_counter() - t0)
@@ -384,7 +387,7 @@ def _untangle_regions(X, sub, n, fixed, bad, run, below, max_fraction, sweeps, m
     return rings
 
 
-def _smooth_region(X, sub, n, fixed, low, run, below, sweeps, rings, smoothed):
+def _smooth_region(X, sub, n, fixed, low, run, below, sweeps, rings, smoothed, tol=0.0):
     """The light pass: monotone steps for the nodes of the ``low`` elements (and ``rings``
     rings of elements around them); the nodes' neighbourhood minimum and sum of scaled
     Jacobians never drop, and nodes whose worst element is below ``below`` climb it."""
@@ -395,4 +398,4 @@ def _smooth_region(X, sub, n, fixed, low, run, below, sweeps, rings, smoothed):
         for _ in range(rings):
             active = K.grow_nodes(sub, ptr, inc, active)
     st = _Stage(run["X0"], sub, active, n, fixed)
-    _run_stage(X, st, run["kind"], run["normal"], lambda qmin: 1e-3 if qmin > 0 else _delta(qmin), K.SMOOTH, run["project"], run["wall_normals"], run["stats"], sweeps, 1.0, smoothed, run["height"], run["X0"], climb_below=below)
+    _run_stage(X, st, run["kind"], run["normal"], lambda qmin: 1e-3 if qmin > 0 else _delta(qmin), K.SMOOTH, run["project"], run["wall_normals"], run["stats"], sweeps, 1.0, smoothed, run["height"], run["X0"], climb_below=below, tol=tol)

@@ -72,9 +72,10 @@ def _corner_edges(X, hexes, scale, se, e, c, v, l, x0, x1, x2):
     cx = _pos(X, v, n0, x0, x1, x2, 0)
     cy = _pos(X, v, n0, x0, x1, x2, 1)
     cz = _pos(X, v, n0, x0, x1, x2, 2)
-    e00, e01, e02, k0 = _edge(X, hexes, scale, se, e, c, 0, v, l, x0, x1, x2, cx, cy, cz)
-    e10, e11, e12, k1 = _edge(X, hexes, scale, se, e, c, 1, v, l, x0, x1, x2, cx, cy, cz)
-    e20, e21, e22, k2 = _edge(X, hexes, scale, se, e, c, 2, v, l, x0, x1, x2, cx, cy, cz)
+    # np.int64(...): an int literal argument would compile a specialisation of its own
+    e00, e01, e02, k0 = _edge(X, hexes, scale, se, e, c, np.int64(0), v, l, x0, x1, x2, cx, cy, cz)
+    e10, e11, e12, k1 = _edge(X, hexes, scale, se, e, c, np.int64(1), v, l, x0, x1, x2, cx, cy, cz)
+    e20, e21, e22, k2 = _edge(X, hexes, scale, se, e, c, np.int64(2), v, l, x0, x1, x2, cx, cy, cz)
     return e00, e01, e02, e10, e11, e12, e20, e21, e22, k0, k1, k2
 
 
@@ -165,7 +166,7 @@ def _worst_corner_direction(X, hexes, ptr, inc, v, x0, x1, x2):
         l = inc[t] & 7
         for q in range(4):
             c = l if q == 0 else l ^ (1 << (q - 1))
-            e00, e01, e02, e10, e11, e12, e20, e21, e22, k0, k1, k2 = _corner_edges(X, hexes, unit, 0, e, c, v, l, x0, x1, x2)
+            e00, e01, e02, e10, e11, e12, e20, e21, e22, k0, k1, k2 = _corner_edges(X, hexes, unit, np.int64(0), e, c, v, l, x0, x1, x2)
             C0x, C0y, C0z, C1x, C1y, C1z, C2x, C2y, C2z = _cofactors(e00, e01, e02, e10, e11, e12, e20, e21, e22)
             D = e00 * C0x + e01 * C0y + e02 * C0z
             ln = np.sqrt((e00 * e00 + e01 * e01 + e02 * e02) * (e10 * e10 + e11 * e11 + e12 * e12) * (e20 * e20 + e21 * e21 + e22 * e22))
@@ -287,7 +288,7 @@ def corner_qualities(X, hexes, scale):
     out = np.empty((m, 8))
     for e in nb.prange(m):
         for c in range(8):
-            e00, e01, e02, e10, e11, e12, e20, e21, e22, k0, k1, k2 = _corner_edges(X, hexes, scale, e, e, c, -1, c, 0.0, 0.0, 0.0)
+            e00, e01, e02, e10, e11, e12, e20, e21, e22, k0, k1, k2 = _corner_edges(X, hexes, scale, np.int64(e), np.int64(e), c, np.int64(-1), c, 0.0, 0.0, 0.0)
             C0x, C0y, C0z, C1x, C1y, C1z, C2x, C2y, C2z = _cofactors(e00, e01, e02, e10, e11, e12, e20, e21, e22)
             D = e00 * C0x + e01 * C0y + e02 * C0z
             n0 = e00 * e00 + e01 * e01 + e02 * e02
@@ -298,29 +299,34 @@ def corner_qualities(X, hexes, scale):
 
 
 @nb.njit(cache=True)
-def _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, row):
+def _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, row, least):
     """Move ``v`` to (y0, y1, y2): its corners' cached qualities follow (from ``buf[row]``,
     the values :func:`node_eval` left there at this position, or recomputed when ``row < 0``)
-    and its neighbours are dirty."""
+    and its neighbours are dirty when it moved at least ``least`` (a converged node's tiny
+    moves change its neighbours' optimum by less than they gain from another try; callers
+    pass 0 for a move that raised the worst element around the node, which may go on)."""
+    step = np.sqrt((X[v, 0] - y0) ** 2 + (X[v, 1] - y1) ** 2 + (X[v, 2] - y2) ** 2)
     X[v, 0], X[v, 1], X[v, 2] = y0, y1, y2
     if row < 0:
-        node_eval(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, 0.0, False, False, True, buf, -2)
+        node_eval(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, 0.0, False, False, True, buf, np.int64(-2))
     else:
         for t in range(ptr[v], ptr[v + 1]):
             e = inc[t] >> 3
             l = inc[t] & 7
             for q in range(4):
                 cq[e, l if q == 0 else l ^ (1 << (q - 1))] = buf[row, 4 * (t - ptr[v]) + q]
-    _mark(hexes, ptr, inc, v, dirty)
+    if step >= least:
+        _mark(hexes, ptr, inc, v, dirty)
 
 
-def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf):
+def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol):
     """One Newton step with backtracking for every node of one colour (no two share a hexahedron).
 
     Free and plane nodes are updated in ``X``; wall nodes get their tangential trial
     position in ``trial`` (to be projected onto the wall and checked by :func:`accept_trials`),
     with their start values ``(f, qmin, qsum)`` in ``state``. ``cq`` holds the corner scaled
-    Jacobians of the stage's hexahedra and follows every move. Returns nothing;
+    Jacobians of the stage's hexahedra and follows every move. A move shorter than ``tol``
+    times the node's step cap does not make its neighbours dirty. Returns nothing;
     ``state[:, 3]`` is 1 where a node moved (or has a trial), else 0.
     """
     for j in nb.prange(len(nodes)):
@@ -333,10 +339,10 @@ def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, 
         dirty[v] = False
         x0, x1, x2 = X[v, 0], X[v, 1], X[v, 2]
         on_wall = kind[v] == WALL or kind[v] == OFFSET
-        f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, _, _ = node_eval(X, hexes, scale, ptr, inc, cq, v, x0, x1, x2, delta, True, True, False, buf, -1)
         qmin0, qsum0 = np.inf, 0.0
         if mode != ESCOBAR or on_wall:
             qmin0, qsum0 = cached_quality(cq, ptr, inc, v)
+        f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, _, _ = node_eval(X, hexes, scale, ptr, inc, cq, v, x0, x1, x2, delta, True, True, False, buf, np.int64(-1))
         state[j, 0], state[j, 1], state[j, 2] = f0, qmin0, qsum0
         d0, d1, d2 = _newton_direction(g0, g1, g2, h00, h01, h02, h11, h12, h22, kind[v], normal[v, 0], normal[v, 1], normal[v, 2])
         length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
@@ -359,7 +365,7 @@ def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, 
                     state[j, 3] = 1.0
                     break
                 if mode != UNTANGLE or _acceptable(mode, r[0], r[10], r[11], f0, qmin0, qsum0):
-                    _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, np.int64(j) if judge or smooth else np.int64(-1))
+                    _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, np.int64(j) if judge or smooth else np.int64(-1), 0.0 if r[10] > qmin0 else tol * step_cap[v])
                     state[j, 3] = 1.0
                     break
             t *= 0.5
@@ -384,13 +390,14 @@ def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, 
                     break
                 r = node_eval(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, delta, False, False, True, buf, np.int64(j))
                 if _acceptable(mode, np.inf, r[10], r[11], np.inf, qmin0, qsum0):
-                    _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, np.int64(j))
+                    # a climb raises a worst element: however short, the neighbours try again
+                    _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, np.int64(j), 0.0)
                     state[j, 3] = 1.0
                     break
                 t *= 0.5
 
 
-def _accept_trials(X, hexes, scale, ptr, inc, cq, nodes, projected, delta, mode, state, dirty, buf):
+def _accept_trials(X, hexes, scale, ptr, inc, cq, nodes, projected, delta, mode, state, dirty, buf, step_cap, tol):
     """Move wall nodes to their projected trial positions where that still improves them
     (the functional decreases and, for untangling, no incident element gets worse than
     the worst before; for smoothing, their minimum and sum of scaled Jacobians do not drop)."""
@@ -399,7 +406,7 @@ def _accept_trials(X, hexes, scale, ptr, inc, cq, nodes, projected, delta, mode,
         y0, y1, y2 = projected[j, 0], projected[j, 1], projected[j, 2]
         r = node_eval(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, delta, False, mode != SMOOTH, True, buf, np.int64(j))
         if _acceptable(mode, r[0], r[10], r[11], state[j, 0], state[j, 1], state[j, 2]):
-            _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, np.int64(j))
+            _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, np.int64(j), 0.0 if state[j, 0] == np.inf or r[10] > state[j, 1] else tol * step_cap[v])
         else:
             state[j, 3] = 0.0
 
@@ -546,5 +553,5 @@ def warm_up() -> None:
     nodes = np.arange(8, dtype=np.int64)
     kind, normal, caps = np.full(8, FIXED, np.int64), np.zeros((8, 3)), np.zeros(8)
     trial, state, dirty, buf = np.empty((8, 3)), np.empty((8, 4)), np.zeros(8, np.bool_), np.empty((8, 32))
-    sweep_colour_parallel(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, caps, 1e-3, SMOOTH, 0.5, trial, state, dirty, buf)
-    accept_trials_parallel(X, hexes, scale, ptr, inc, cq, nodes, trial, 1e-3, SMOOTH, state, dirty, buf)
+    sweep_colour_parallel(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, caps, 1e-3, SMOOTH, 0.5, trial, state, dirty, buf, 0.0)
+    accept_trials_parallel(X, hexes, scale, ptr, inc, cq, nodes, trial, 1e-3, SMOOTH, state, dirty, buf, caps, 0.0)
