@@ -150,3 +150,27 @@ def test_junctions_and_lone_bridges_are_not_cut_as_necks():
     lone = sk.copy(edges=sk.edges[~to_b], edge_tags=[t for t, x in zip(sk.edge_tags, to_b) if not x])
     assert to_b.sum() == 1 and lone.n_components == 1 and lone.n_cycles == 0
     assert cut_necks(lone, dist)[1] == 0
+
+
+def test_a_missing_triangle_across_the_wall_is_a_hole_not_an_open_end():
+    # g0018 (a clean generated trifurcation): a wall triangle beside outlet_5's rim lay in
+    # the end plane and went with the end disc; its 3-edge loop, across the wall, became a
+    # 0.038-radius cap "outlet_8" that no skeleton end reached
+    from test_preprocess import open_tube
+
+    from vmesh import preprocess as pre
+    from vmesh.geometry import topology
+
+    n_around = 48
+    v, f = open_tube(n_around=n_around)
+    a, b = n_around, n_around + 1  # ring 1
+    d = 2 * n_around + 1  # ring 2, above b
+    t = 2 * np.pi / n_around
+    v[d] = [0.95 * 2.0 * np.cos(t / 2), 0.95 * 2.0 * np.sin(t / 2), v[a, 2]]  # the triangle lies across the wall
+    gone = np.flatnonzero(np.all(np.isin(f, [a, b, d]), axis=1))
+    assert len(gone) == 1
+    f = np.delete(f, gone, axis=0)
+    loops = topology.boundary_loops(f)
+    assert sorted(len(loop) for loop in loops) == [3, n_around, n_around]
+    holes = pre.wall_hole_loops(v, f)
+    assert [len(h) for h in holes] == [3]  # the two open ends stay open ends
