@@ -1,6 +1,7 @@
 """Defects of real centerlines that the cleaning undoes before the block builder sees them:
-repeated points (two branches leaving a junction along one segment, zero-length segments)
-and second paths inside a vessel's lumen."""
+repeated points (two branches leaving a junction along one segment, zero-length segments),
+second paths inside a vessel's lumen, pieces of surface pieces not meshed, and bridges
+through the neck where two vessels touch."""
 
 from __future__ import annotations
 
