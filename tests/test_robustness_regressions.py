@@ -85,3 +85,92 @@ def test_retopology_does_not_merge_back_what_a_split_made():
     renumbered = Skeleton(sk.points[perm], sk.radii[perm], inv[sk.edges][:, ::-1])
     assert _skeleton_key(renumbered) == _skeleton_key(sk)
     assert _skeleton_key(split) != _skeleton_key(sk)
+
+
+def kissing_y(gap: float = 1.9, spacing: float = 1.2):
+    """A Y whose daughter B turns back across daughter A and touches it (axes ``gap`` apart,
+    radii 1), with the skeleton thinning makes of it: A's node nearest the contact moved
+    into the neck and joined to B's axis (BraVa BG0002 extracted, node 14); its signed
+    distance; and the two nodes of the bridge."""
+    from vmesh.geometry.skeleton.distance import estimate_radii
+
+    knots = [
+        np.array([[0, 0, -16.0], [0, 0, -8.0]]),  # parent
+        np.array([[0, 0, -8.0], [0, 0, 8.0]]),  # A
+        np.array([[0, 0, -8.0], [5, 0, -6.0], [5, gap, 0.0], [-6, gap, 0.0]]),  # B, back across A
+    ]
+    a = np.concatenate([k[:-1] for k in knots])
+    b = np.concatenate([k[1:] for k in knots])
+    dist = capsule_distance(a, b, np.array([1.2, 1.0, 1.0, 1.0, 1.0]))
+    pts, edges, ids = [knots[0][0]], [], []
+    for k, path in enumerate(knots):
+        prev = 0 if k == 0 else ids[0][-1]  # A and B start at the parent's last node
+        run = []
+        for p, q in zip(path[:-1], path[1:]):
+            n = int(np.ceil(np.linalg.norm(q - p) / spacing))
+            for t in np.arange(1, n + 1) / n:
+                pts.append(p + t * (q - p))
+                edges.append((prev, len(pts) - 1))
+                prev = len(pts) - 1
+                run.append(prev)
+        ids.append(run)
+    pts = np.array(pts)
+    k = ids[1][int(np.argmin(np.abs(pts[ids[1], 2])))]
+    m = ids[2][int(np.argmin(np.linalg.norm(pts[ids[2]] - [0, gap, 0], axis=1)))]
+    pts[k], pts[m] = [0, 0.5 * gap, 0], [0, gap, 0]
+    sk = Skeleton(pts, np.full(len(pts), np.nan), np.array(edges + [(k, m)]))
+    return estimate_radii(sk, dist, overwrite=True)[0], dist, k, m
+
+
+def test_a_bridge_through_the_neck_of_touching_vessels_is_cut():
+    # BraVa BG0002 extracted: a junction in the neck where two vessels touch (radius 0.010
+    # against 0.36-0.76), "a branch 67 degrees out of its plane"
+    from vmesh.geometry.skeleton.defects import cut_necks
+
+    sk, dist, k, m = kissing_y()
+    assert sk.radii[k] < 0.1 and set(sk.junctions.tolist()) >= {k, m}
+    with pytest.raises(MeshingError):
+        build_blocks(sk, dist, None, BlockOptions())
+    cut, n = cut_necks(sk, dist)
+    assert n == 1 and cut.n_nodes == sk.n_nodes - 1 and len(cut.junctions) == 1 and cut.n_cycles == 0
+    assert cut.n_components == 1 and np.all(dist(cut.points) > 0.5)  # A runs past the neck, inside
+    checks = block_structure_checks(build_blocks(cut, dist, None, BlockOptions()))
+    assert checks["invalid_blocks"] == checks["face_use_errors"] == 0 and checks["boundary_euler"] == 2
+
+
+def test_junctions_and_lone_bridges_are_not_cut_as_necks():
+    from vmesh.geometry.skeleton.defects import cut_necks
+
+    sk, dist = tee(8.0)  # a real junction: as wide as its branches
+    assert cut_necks(sk, dist)[1] == 0
+    # a bridge that alone holds two vessels together stays (cutting would split the skeleton)
+    sk, dist, k, m = kissing_y()
+    j = int(np.argmin(np.linalg.norm(sk.points - [0, 0, -8.0], axis=1)))  # the Y's junction
+    to_b = (sk.edges == j).any(axis=1) & (sk.points[sk.edges].max(axis=1)[:, 0] > 0.5)
+    lone = sk.copy(edges=sk.edges[~to_b], edge_tags=[t for t, x in zip(sk.edge_tags, to_b) if not x])
+    assert to_b.sum() == 1 and lone.n_components == 1 and lone.n_cycles == 0
+    assert cut_necks(lone, dist)[1] == 0
+
+
+def test_a_missing_triangle_across_the_wall_is_a_hole_not_an_open_end():
+    # g0018 (a clean generated trifurcation): a wall triangle beside outlet_5's rim lay in
+    # the end plane and went with the end disc; its 3-edge loop, across the wall, became a
+    # 0.038-radius cap "outlet_8" that no skeleton end reached
+    from test_preprocess import open_tube
+
+    from vmesh import preprocess as pre
+    from vmesh.geometry import topology
+
+    n_around = 48
+    v, f = open_tube(n_around=n_around)
+    a, b = n_around, n_around + 1  # ring 1
+    d = 2 * n_around + 1  # ring 2, above b
+    t = 2 * np.pi / n_around
+    v[d] = [0.95 * 2.0 * np.cos(t / 2), 0.95 * 2.0 * np.sin(t / 2), v[a, 2]]  # the triangle lies across the wall
+    gone = np.flatnonzero(np.all(np.isin(f, [a, b, d]), axis=1))
+    assert len(gone) == 1
+    f = np.delete(f, gone, axis=0)
+    loops = topology.boundary_loops(f)
+    assert sorted(len(loop) for loop in loops) == [3, n_around, n_around]
+    holes = pre.wall_hole_loops(v, f)
+    assert [len(h) for h in holes] == [3]  # the two open ends stay open ends

@@ -384,11 +384,15 @@ def nonmanifold_fins(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 HOLE_ALIGNMENT = 0.7
 HOLE_AREA_ALIGNMENT = 0.5
 HOLE_REACH = 1.5
+#: a boundary loop of fewer edges is a hole (a few missing triangles), never a vessel's open end
+HOLE_MAX_EDGES = 5
 
 
 def wall_hole_loops(vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
     """The boundary loops of a consistently oriented surface that are holes in its wall
-    (the surface around them lies nearly in the loop's plane), not open ends of a vessel."""
+    (the surface around them lies nearly in the loop's plane, or the loop has at most
+    ``HOLE_MAX_EDGES`` edges: a missing triangle beside an open end's rim lies in the end's
+    plane, across the wall), not open ends of a vessel."""
     loops = topology.boundary_loops(faces)
     if not loops:
         return []
@@ -408,6 +412,9 @@ def wall_hole_loops(vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]
         area_vector = 0.5 * np.cross(rim - centre, np.roll(rim, -1, axis=0) - centre).sum(axis=0)
         norm = np.linalg.norm(area_vector)
         if norm == 0 or len(loop) < 3:
+            continue
+        if len(loop) <= HOLE_MAX_EDGES:
+            holes.append(loop)
             continue
         axis = area_vector / norm
         ring = np.unique(face_of_vertex[loop].indices)

@@ -14,7 +14,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry.skeleton import clean as sk_clean, distance as sk_distance, graft as sk_graft, graph as sk_graph, sample as sk_sample, tags as sk_tags
 from ..geometry.skeleton.bends import thin_sharp_bends, thin_stubs
-from ..geometry.skeleton.defects import drop_outside_components, weld_coincident_nodes
+from ..geometry.skeleton.defects import cut_necks, drop_outside_components, weld_coincident_nodes
 from ..registry import Parameter, register_filter
 
 
@@ -298,6 +298,15 @@ def estimate_radii(ctx, overwrite, scale):
             min=0.0,
             max=5.0,
         ),
+        Parameter(
+            "neck",
+            "float",
+            0.25,
+            "Cut the bridge through the neck where two vessels touch: a junction whose radius is below this share of "
+            "its neighbours' (median), and whose neighbours do not all see each other through the lumen (0: never).",
+            min=0.0,
+            max=1.0,
+        ),
     ],
     reads=("skeleton",),
     optional_reads=("sdf", "caps", "surface"),
@@ -320,9 +329,10 @@ def clean_skeleton(
     cap_distance,
     graft_to_caps,
     graft_join,
+    neck=0.25,
 ):
     """Steps, in order: welding of repeated points, cutting off what runs out through a cap, nodes outside the wall,
-    reconnection of separated pieces, merging of junctions split into nearby nodes, spur
+    bridges through the neck where two vessels touch, reconnection of separated pieces, merging of junctions split into nearby nodes, spur
     removal (ends at caps are kept), merging again, grafting a branch to every cap no end
     belongs to (then merging again), moving junctions whose branches leave nearly parallel
     to where they part, and trimming/extending the ends to the caps. Grafted branches are
@@ -344,6 +354,8 @@ def clean_skeleton(
         else:
             distance, gradient = _sdf_functions(ctx.sdf)
             skel, counts["pulled"], counts["dropped"] = sk_distance.pull_inside(skel, distance, gradient, outside_tolerance, outside)
+            if neck > 0:  # before reconnecting and merging, which would take the bridge for a junction
+                skel, counts["necks_cut"] = cut_necks(skel, distance, neck)
     ctx.tick(0.25, "reconnect")
     skel, counts["reconnected"] = sk_clean.reconnect_components(skel, reconnect_distance)
     skel, merged = sk_clean.merge_close_junctions(skel, junction_distance)

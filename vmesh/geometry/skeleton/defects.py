@@ -1,6 +1,7 @@
 """Defects of real centerlines that the cleaning undoes before the block builder sees them:
-repeated points (two branches leaving a junction along one segment, zero-length segments)
-and second paths inside a vessel's lumen."""
+repeated points (two branches leaving a junction along one segment, zero-length segments),
+second paths inside a vessel's lumen, pieces of surface pieces not meshed, and bridges
+through the neck where two vessels touch."""
 
 from __future__ import annotations
 
@@ -106,3 +107,65 @@ def drop_outside_components(skeleton: Skeleton, distance, share: float = 0.5) ->
         return skeleton.copy(), []
     dropped = [(int(size[k]), skeleton.points[label == k].mean(axis=0)) for k in np.flatnonzero(gone)]
     return remove_nodes(skeleton, gone[label], bridge=False), dropped
+
+
+def _lumen_groups(points: np.ndarray, radii: np.ndarray, distance, samples: int = 9) -> np.ndarray:
+    """Group label per node of ``points``: two nodes are in one group when the chord between
+    them stays inside the lumen at no less than half the smaller of their radii."""
+    m = len(points)
+    i, j = np.triu_indices(m, 1)
+    t = np.linspace(0.0, 1.0, samples)[1:-1]
+    chord = points[i, None, :] * (1.0 - t)[None, :, None] + points[j, None, :] * t[None, :, None]
+    depth = np.asarray(distance(chord.reshape(-1, 3)), float).reshape(len(i), -1).min(axis=1)
+    seen = depth >= 0.5 * np.minimum(radii[i], radii[j])
+    adj = sp.coo_matrix((np.ones(int(seen.sum())), (i[seen], j[seen])), shape=(m, m))
+    return connected_components(adj, directed=False)[1]
+
+
+def cut_necks(skeleton: Skeleton, distance, neck: float = 0.25) -> tuple[Skeleton, int]:
+    """Cut the bridges a skeleton makes through the neck where two vessels touch.
+
+    Where two vessels touch (kissing vessels, a tree whose tubes overlap), thinning joins
+    their centerlines across the contact: a junction node sits in the neck, with an
+    inscribed radius a small fraction of its branches' (BraVa BG0002 extracted: 0.010
+    against 0.36-0.76), and its branches leave it into one half-space, so that the block
+    builder finds the junction far out of any plane. A junction whose radius is below
+    ``neck`` x the median radius of its neighbours is such a neck when its neighbours fall
+    into groups that do not see each other through the lumen (the chord between them
+    leaves it, or runs shallower than half their radius): a group of one loses its edge
+    to the node (the bridge), a group of two is joined directly (the vessel that ran
+    through the neck), a larger group keeps the node. A cut that would split the skeleton
+    in pieces is not made.
+
+    Returns
+    -------
+    skeleton : Skeleton
+    n_cut : int
+        Number of necks cut.
+    """
+    from ..skeleton_ops import component_labels, remove_nodes
+
+    sk = skeleton.copy()
+    n_cut = 0
+    # from the last node down: removing a node renumbers only the nodes after it
+    for c in np.flatnonzero(sk.degrees >= 3)[::-1].tolist():
+        r = sk.radii
+        nb = sk.neighbors(c)
+        if not r[c] < neck * np.median(r[nb]):
+            continue
+        group = _lumen_groups(sk.points[nb], r[nb], distance)
+        sizes = np.bincount(group)
+        if len(sizes) < 2:
+            continue  # one vessel on every side: a junction placed badly, not a neck
+        gone = nb[sizes[group] <= 2]
+        keep = ~(np.isin(sk.edges, gone).any(axis=1) & (sk.edges == c).any(axis=1))
+        pairs = np.array([nb[group == g] for g in np.flatnonzero(sizes == 2)], np.int64).reshape(-1, 2)
+        tags = [t for t, k in zip(sk.edge_tags, keep) if k] + [()] * len(pairs)
+        cut = sk.copy(edges=np.r_[sk.edges[keep], pairs], edge_tags=tags)
+        if not (sizes > 2).any():
+            cut = remove_nodes(cut, np.arange(cut.n_nodes) == c, bridge=False)
+        pieces = len(np.unique(component_labels(cut.n_nodes, cut.edges)))
+        if pieces > len(np.unique(component_labels(sk.n_nodes, sk.edges))):
+            continue  # the bridge is all that holds two parts together
+        sk, n_cut = cut, n_cut + 1
+    return sk, n_cut
