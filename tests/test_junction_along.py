@@ -77,8 +77,7 @@ def test_along_edges_of_a_block_bend_alike(bif_30_1):
 @pytest.mark.parametrize("angle,ratio", [(30, 1), (15, 1)])
 def test_averaged_bulges_fill_better_at_the_crotch(angle, ratio, monkeypatch):
     """The raw fill (curved sections, no untangling) of a narrow bifurcation is valid and
-    better with the bulges averaged than bounded edge by edge (bif_30_1: 0.277 -> 0.316,
-    bif_15_1: 0.12 -> 0.16)."""
+    better with the bulges averaged than bounded edge by edge (numbers in docs/junctions.md)."""
     case = bifurcation(angle, ratio)
     blocks = build(case)
     averaged = fill(case, blocks, CURVED)
