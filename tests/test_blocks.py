@@ -623,3 +623,20 @@ def test_block_options_groups():
     assert BlockOptions() == BlockOptions(junction_centre=1.0)
     with pytest.raises(TypeError):
         BlockOptions(no_such_option=1)
+
+
+def test_acute_bifurcation_thin_daughter_first_section_straightened():
+    """A 15-degree bifurcation with a daughter 5 times thinner, its junction moved towards the
+    carina (``separate_parallel_branches``): the thin daughter's first blocks stayed invalid
+    once its first section stood 2 radii further and the half-planes had turned all they
+    could (issue 17). Straightening that section towards its chord makes them valid."""
+    from junction_cases import bifurcation
+    from vmesh.blocks import scaled_corner_jacobians
+    from vmesh.geometry import skeleton_ops as ops
+
+    case = bifurcation(15, 5)
+    sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
+    blocks = build_blocks(sk, case.distance, None, BlockOptions())
+    assert any("straightened the first cross-section next to junction" in f for f in blocks.info["fixes"])
+    assert block_structure_checks(blocks)["invalid_blocks"] == 0
+    assert scaled_corner_jacobians(blocks.vertices[blocks.hexes]).min() > 0.1

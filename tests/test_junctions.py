@@ -52,7 +52,7 @@ def _cases():
 KNOWN_FOLDS = {"bif_15_2", "bif_15_5", "bif_30_2", "bif_30_5", "bif_60_5", "trif_30_1", "trif_60_2"}
 #: Configurations whose blocks stay invalid once ``separate_parallel_branches`` has moved the
 #: junction towards the carina ("blocks stay invalid", issue 17).
-KNOWN_INVALID = {"bif_15_2", "bif_15_5", "bif_30_5"}
+KNOWN_INVALID = {"bif_15_2", "bif_30_5"}
 #: Fast representatives (the rest of the sweep is slow-marked).
 FAST = {"bif_90_1", "bif_130_5"}
 

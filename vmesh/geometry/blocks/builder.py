@@ -134,6 +134,15 @@ def build_blocks(
                 warn(note)
         blocks.info["fixes"][:0] = notes
         return blocks
+    if not options.repair.straighten_stuck_ends:
+        # every try failed: the skeleton as given once more, now also turning the first
+        # sections at junction ends out of other fixes towards their chords (a last resort:
+        # builds that succeed without it stay as they are)
+        try:
+            return build_blocks(skeleton, distance, caps, options.replace(straighten_stuck_ends=True, max_retopology_tries=1),
+                                None, warn, progress, project, intersect_lines)
+        except MeshingError:
+            pass
     raise first.error(bad_blocks_path, tries)
 
 

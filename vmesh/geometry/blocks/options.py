@@ -53,6 +53,7 @@ class RepairOptions:
     good_wall_quality: float = 0.3  # projected quality at which a junction end's margin stops growing
     wall_margins: tuple = (0.0, 0.5, 1.0, 2.0)  # extra margins tried at folding junction ends (× radius)
     relieve_wall_folds: bool = True  # re-place junction sections where boundary-layer blocks would fold (fill-judged)
+    straighten_stuck_ends: bool = False  # straighten first sections at junction ends out of fixes (build_blocks' last try)
 
 
 _GROUPS = {"section": SectionOptions, "junction": JunctionOptions, "ends": EndOptions, "repair": RepairOptions}

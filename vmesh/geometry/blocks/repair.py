@@ -279,10 +279,13 @@ class _Repair:
         Per failing segment, in this order: shrink the core where only core and ring blocks
         fail; near a junction, move the branch's sections further away, then re-rotate the
         junction's half-planes; between two ordinary sections, straighten their planes
-        towards the segment."""
+        towards the segment. Only when nothing of that is left and ``straighten_stuck_ends``
+        is set: straighten the first sections next to the junction ends that are out of
+        fixes towards their chords."""
         where = self.built.block_where[bad]
         layer = self._last_layers(bad)
         changed = moved = False
+        stuck = []  # junction ends out of margins, rotations and moves
         for bi, k in np.unique(where, axis=0).tolist():
             br = self.topo.branches[bi]
             K = len(br.nodes)
@@ -313,6 +316,8 @@ class _Repair:
                     elif self.separate_junctions(bi):
                         changed = moved = True
                         break
+                    else:
+                        stuck.append((bi, side, node))
                 continue
             straightened = False
             for kk in (k, k + 1):
@@ -322,11 +327,30 @@ class _Repair:
             if straightened:
                 self.fixes.append(f"straightened the cross-sections at skeleton nodes {int(br.nodes[k])}-{int(br.nodes[k + 1])}")
                 changed = True
+        if not changed and self.opt.repair.straighten_stuck_ends:
+            # out of every other idea: turn the first sections at stuck junction ends
+            # towards their chords (:func:`build_blocks`' last resort)
+            for bi, side, node in stuck:
+                if self._straighten_first(bi, side):
+                    self.fixes.append(f"straightened the first cross-section next to junction node {node}")
+                    changed = True
         if moved:
             self.placed.clear = self._clearance()
         if changed:
             self._apply_clearance()
         return changed
+
+
+    def _straighten_first(self, bi: int, side: int) -> bool:
+        """Turn the first regular section next to a branch's junction end towards the chord
+        (see :meth:`section_geometry`); False when it is straight already."""
+        br = self.topo.branches[bi]
+        K = len(br.nodes)
+        kk = 1 if side == 0 else K - 2
+        if K <= 2 or br.straighten[kk] >= 0.99:
+            return False
+        br.straighten[kk] = min(1.0, br.straighten[kk] + 0.34)
+        return True
 
 
     def _last_layers(self, bad):
