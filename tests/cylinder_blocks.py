@@ -2,6 +2,7 @@
 
 import numpy as np
 
+# duplicates: an import list like blocks/assemble.py's, no shared logic
 from vmesh.blocks import (
     AXIS_ALONG,
     AXIS_AROUND,

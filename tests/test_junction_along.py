@@ -80,6 +80,7 @@ def test_averaged_bulges_fill_better_at_the_crotch(angle, ratio, monkeypatch):
     better with the bulges averaged than bounded edge by edge (numbers in docs/junctions.md)."""
     case = bifurcation(angle, ratio)
     blocks = build(case)
+    # duplicates: the same A/B check as test_junctions' curved-edge test, on another switch
     averaged = fill(case, blocks, CURVED)
     monkeypatch.setattr(curves, "SMOOTH_ROUNDS", 0)
     alone = fill(case, blocks, CURVED)

@@ -125,20 +125,25 @@ def test_order_2_mesh_is_untangled_and_its_high_order_nodes_follow():
     check_boundary(sm, kw, X0, X)
 
 
+def _jittered_cylinder():
+    """A curved O-grid cylinder with its free interior nodes jittered by 1e-4 radii: a mesh
+    of a real vessel is never exactly symmetric, and at an exactly symmetric node two mirror
+    elements tie for the worst and no monotone step helps both."""
+    blocks = cylinder_blocks(radius=R)
+    sm = mesh_blocks(blocks, project_cylinder(R), Refinement(around=2, core=2, ring=2, layer=3, element_length=0.5, first_layer=FIRST, curved_sections=True))
+    kw = optimiser_constraints(sm, R)
+    X0 = sm.points.copy()
+    free = ~kw["boundary"] & ~first_layer_nodes(sm)
+    X0[free] += np.random.default_rng(0).normal(size=(free.sum(), 3)) * 1e-4 * R
+    return blocks, sm, kw, X0, hex8_scaled_jacobian(X0, sm.cells)
+
+
 def test_light_pass_raises_the_mean_and_keeps_the_boundary_layer():
     """The default light pass (every element below 0.95, no untangling) on a curved O-grid:
     the mean rises, no neighbourhood minimum drops, wall nodes stay on the wall, the first
     boundary-layer height is kept exactly and the node lines across the boundary layer stay
     graded outward (the re-grading to an exact first height stays valid)."""
-    blocks = cylinder_blocks(radius=R)
-    sm = mesh_blocks(blocks, project_cylinder(R), Refinement(around=2, core=2, ring=2, layer=3, element_length=0.5, first_layer=FIRST, curved_sections=True))
-    kw = optimiser_constraints(sm, R)
-    # a mesh of a real vessel is never exactly symmetric: at an exactly symmetric node two
-    # mirror elements tie for the worst and no monotone step helps both
-    X0 = sm.points.copy()
-    free = ~kw["boundary"] & ~first_layer_nodes(sm)
-    X0[free] += np.random.default_rng(0).normal(size=(free.sum(), 3)) * 1e-4 * R
-    q0 = hex8_scaled_jacobian(X0, sm.cells)
+    blocks, sm, kw, X0, q0 = _jittered_cylinder()
     X, info = optimise(X0, sm.cells, 1, untangle_below=0.0, smooth_below=0.95, **kw)
     q = hex8_scaled_jacobian(X, sm.cells)
     assert q.mean() > q0.mean() + 0.005 and q.min() >= q0.min()
@@ -173,13 +178,7 @@ def test_light_pass_tolerance_skips_converged_nodes_and_keeps_the_guarantees():
     """``smooth_tol``: a node that moves less than that fraction of its step cap does not
     make its neighbours worth another try. Fewer node updates; the light pass's guarantees (minimum and mean do not drop, walls, caps
     and the first boundary-layer height kept) stay, and the mean gain stays close."""
-    blocks = cylinder_blocks(radius=R)
-    sm = mesh_blocks(blocks, project_cylinder(R), Refinement(around=2, core=2, ring=2, layer=3, element_length=0.5, first_layer=FIRST, curved_sections=True))
-    kw = optimiser_constraints(sm, R)
-    X0 = sm.points.copy()
-    free = ~kw["boundary"] & ~first_layer_nodes(sm)
-    X0[free] += np.random.default_rng(0).normal(size=(free.sum(), 3)) * 1e-4 * R
-    q0 = hex8_scaled_jacobian(X0, sm.cells)
+    blocks, sm, kw, X0, q0 = _jittered_cylinder()
     X_all, all_info = optimise(X0, sm.cells, 1, untangle_below=0.0, smooth_below=0.95, smooth_tol=0.0, **kw)
     X, info = optimise(X0, sm.cells, 1, untangle_below=0.0, smooth_below=0.95, smooth_tol=0.01, **kw)
     q, q_all = hex8_scaled_jacobian(X, sm.cells), hex8_scaled_jacobian(X_all, sm.cells)

@@ -43,10 +43,10 @@ from .skeleton.distance import (
     fill_missing_along_branches,
     pull_inside,
 )
+from .skeleton.graph import polyline_at as _polyline_at  # old private name, kept for old imports
 from .skeleton.clean import (
     node_scale,
     merge_close_junctions,
-    _polyline_at,
     _pair_angle,
     separate_parallel_branches,
     _node_at_foot,

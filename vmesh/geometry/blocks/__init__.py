@@ -18,10 +18,10 @@ from .checks import (
     write_bad_blocks,
 )
 from .options import CLOSED, CYCLE, JUNCTION, OPEN, BlockOptions, EndOptions, JunctionOptions, RepairOptions, SectionOptions
+from ..skeleton.graph import polyline_at
 from .prep import (
     endpoint_caps,
     merge_junction_pair,
-    polyline_at,
     redistribute_sections,
     split_nonplanar_junctions,
 )

@@ -46,6 +46,7 @@ class _Assembly:
             fb[flip] = fb[flip][:, [0, 1, 2, 3, 5, 4]]
         self.built.block_where = np.vstack(where)
         self.built.block_layers = np.concatenate(blayer)
+        # duplicates: a keyword construction, like the filters' option objects; no shared logic
         blocks = BlockStructure(
             vertices=vertices,
             hexes=hexes,

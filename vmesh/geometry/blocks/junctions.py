@@ -7,7 +7,8 @@ import numpy as np
 from ...errors import MeshingError
 from .. import cross_sections as cs
 from .options import JUNCTION, _Candidates, _Junction
-from .prep import polyline_at, split_nonplanar_junctions
+from ..skeleton.graph import polyline_at
+from .prep import split_nonplanar_junctions
 
 
 class _Junctions:
@@ -298,12 +299,16 @@ class _Junctions:
             j.psi = psi[np.arange(m), pick]
 
 
+    def _junction_end(self, bi: int, side: int):
+        """The junction at one end of a branch, and that end's place ``h`` among its
+        ordered neighbours: the half-planes next to the end are separators ``h - 1`` and ``h``."""
+        br = self.topo.branches[bi]
+        j = self.topo.junctions[int(br.nodes[0] if side == 0 else br.nodes[-1])]
+        h = next(h for h, e in enumerate(j.ends) if e == (bi, side))
+        return j, h, ((h - 1) % len(j.neighbors), h)
+
+
     def _junction_reach(self, bi: int, side: int) -> float:
         """How far the half-sections of the junction at a branch's end reach along it."""
-        br = self.topo.branches[bi]
-        c = int(br.nodes[0] if side == 0 else br.nodes[-1])
-        j = self.topo.junctions[c]
-        h = next(h for h, e in enumerate(j.ends) if e == (bi, side))
-        m = len(j.neighbors)
-        seps = [(h - 1) % m, h]
+        j, h, seps = self._junction_end(bi, side)
         return float(max(j.cand.reach[sp, j.cand.pick[sp], h] for sp in seps))

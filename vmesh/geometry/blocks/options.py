@@ -9,6 +9,7 @@ import numpy as np
 JUNCTION, OPEN, CLOSED, CYCLE = "junction", "open", "closed", "cycle"
 
 
+# duplicates: field lists like repair.RepairReport's: declarations, no shared logic
 @dataclass
 class SectionOptions:
     """Cross-sections: the O-grid template and the planes of ordinary sections."""

@@ -175,13 +175,3 @@ def redistribute_sections(arc: np.ndarray, lo: float, hi: float, min_spacing: fl
         n = K - 1
         s[1:-1] = (lo + hi) / 2 if n == 1 else np.linspace(lo, hi, n)
     return s, True
-
-
-def polyline_at(points: np.ndarray, arc: np.ndarray, s: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Position on a polyline and linearly interpolated per-node ``values`` at arc lengths ``s``."""
-    s = np.clip(s, arc[0], arc[-1])
-    k = np.clip(np.searchsorted(arc, s, side="right") - 1, 0, len(arc) - 2)
-    t = ((s - arc[k]) / np.maximum(arc[k + 1] - arc[k], 1e-300))[:, None]
-    pos = points[k] * (1 - t) + points[k + 1] * t
-    val = values[k] * (1 - t.reshape((-1,) + (1,) * (values.ndim - 1))) + values[k + 1] * t.reshape((-1,) + (1,) * (values.ndim - 1))
-    return pos, val

@@ -369,13 +369,9 @@ class _Repair:
 
     def _rerotate(self, bi: int, side: int) -> bool:
         """Turn the two half-planes next to a branch so that they reach less far along it."""
-        br = self.topo.branches[bi]
-        c = int(br.nodes[0] if side == 0 else br.nodes[-1])
-        j = self.topo.junctions[c]
-        h = next(h for h, e in enumerate(j.ends) if e == (bi, side))
-        m = len(j.neighbors)
+        j, h, seps = self._junction_end(bi, side)
         changed = False
-        for sp in ((h - 1) % m, h):
+        for sp in seps:
             reach = j.cand.reach[sp, :, h]
             better = np.flatnonzero(reach < reach[j.cand.pick[sp]] - 1e-9 * j.radius)
             better = better[np.isfinite(j.cand.cost[sp, better])]

@@ -8,7 +8,8 @@ from ...blocks import FACE_WALL
 from ...errors import MeshingError
 from .. import cross_sections as cs
 from .options import CLOSED, CYCLE, JUNCTION, OPEN, _Branch
-from .prep import endpoint_caps, polyline_at, redistribute_sections
+from ..skeleton.graph import polyline_at
+from .prep import endpoint_caps, redistribute_sections
 
 
 class _Sections:

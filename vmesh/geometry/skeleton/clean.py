@@ -9,7 +9,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from ...skeleton import Skeleton
-from .graph import arc_length, branch_paths, component_labels, contract_nodes, edge_lengths, END_TAGS, remove_nodes, _union
+from .graph import arc_length, polyline_at, branch_paths, component_labels, contract_nodes, edge_lengths, END_TAGS, remove_nodes, _union
 
 
 def node_scale(skeleton: Skeleton) -> np.ndarray:
@@ -81,14 +81,6 @@ def merge_close_junctions(skeleton: Skeleton, tolerance: float = 0.5) -> tuple[S
     return out, max(n_merged, 0)
 
 
-def _polyline_at(points: np.ndarray, arc: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Points at arc lengths ``s`` (clamped to the ends) of a polyline with arc lengths ``arc``."""
-    s = np.clip(s, 0.0, arc[-1])
-    k = np.clip(np.searchsorted(arc, s, side="right") - 1, 0, len(arc) - 2)
-    t = ((s - arc[k]) / np.maximum(arc[k + 1] - arc[k], 1e-300))[:, None]
-    return (1 - t) * points[k] + t * points[k + 1]
-
-
 def _pair_angle(m: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angle (radians) at ``m`` between the directions to ``a`` and to ``b`` (row-wise)."""
     u, v = a - m, b - m
@@ -114,7 +106,7 @@ def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead
             continue
         rc = scale[c]
         arcs = [arc_length(skel.points[p]) for p in out]
-        tips = np.stack([_polyline_at(skel.points[p], a, np.array([ahead * rc]))[0] for p, a in zip(out, arcs)])
+        tips = np.stack([polyline_at(skel.points[p], a, np.array([ahead * rc]))[0] for p, a in zip(out, arcs)])
         i, j = np.triu_indices(len(out), 1)
         ang = _pair_angle(skel.points[c], tips[i], tips[j])
         for k in np.argsort(ang).tolist():
@@ -130,9 +122,9 @@ def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead
             # candidate junctions: midpoints of the two branches, every twentieth of a radius
             s = np.arange(0.05 * rc, top + 1e-12, 0.05 * rc)
             Pi, Pj, Ri, Rj = skel.points[pi], skel.points[pj], scale[pi], scale[pj]
-            mid = 0.5 * (_polyline_at(Pi, ai, s) + _polyline_at(Pj, aj, s))
+            mid = 0.5 * (polyline_at(Pi, ai, s) + polyline_at(Pj, aj, s))
             r = np.maximum(np.interp(s, ai, Ri), np.interp(s, aj, Rj))
-            spread = _pair_angle(mid, _polyline_at(Pi, ai, s + ahead * r), _polyline_at(Pj, aj, s + ahead * r))
+            spread = _pair_angle(mid, polyline_at(Pi, ai, s + ahead * r), polyline_at(Pj, aj, s + ahead * r))
             wide = np.flatnonzero(spread >= target)
             if len(wide):
                 return (c, pi, ai, pj, aj, s[wide[0]], mid[wide[0]], r[wide[0]], eps)
@@ -154,7 +146,7 @@ def _join_parallel(skel: Skeleton, job: tuple, distance=None) -> tuple[Skeleton,
     pts = np.r_[skel.points, at[None]]
     rad = np.r_[skel.radii, r_at]
     inner = pi[1:ki]
-    pts[inner] = 0.5 * (skel.points[inner] + _polyline_at(skel.points[pj], aj, ai[1:ki]))
+    pts[inner] = 0.5 * (skel.points[inner] + polyline_at(skel.points[pj], aj, ai[1:ki]))
     rad[inner] = np.maximum(scale[inner], np.interp(ai[1:ki], aj, scale[pj]))
     if distance is not None:
         ids = np.r_[inner, n]

@@ -40,6 +40,25 @@ def arc_length(points: np.ndarray) -> np.ndarray:
     return np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]
 
 
+
+def polyline_at(points: np.ndarray, arc: np.ndarray, s: np.ndarray, values: np.ndarray | None = None):
+    """Points at arc lengths ``s`` (clamped to the ends) of a polyline with node arc lengths
+    ``arc``; with per-node ``values``, also those values interpolated linearly there.
+
+    Returns
+    -------
+    points : (n, 3) ndarray, or ``(points, values)`` when ``values`` is given.
+    """
+    s = np.clip(s, arc[0], arc[-1])
+    k = np.clip(np.searchsorted(arc, s, side="right") - 1, 0, len(arc) - 2)
+    t = ((s - arc[k]) / np.maximum(arc[k + 1] - arc[k], 1e-300))[:, None]
+    pos = points[k] * (1 - t) + points[k + 1] * t
+    if values is None:
+        return pos
+    w = t.reshape((-1,) + (1,) * (values.ndim - 1))
+    return pos, values[k] * (1 - w) + values[k + 1] * w
+
+
 def simplify_edges(edges: np.ndarray, edge_tags=None) -> tuple[np.ndarray, list]:
     """Drop self-loops and duplicate edges; tags of duplicates are united.
 
