@@ -258,6 +258,7 @@ def _score(q: np.ndarray, threshold: float) -> tuple:
 
 
 def untangle(
+    # duplicates: a keyword signature like optimize.optimise_linear's (the same constraints, two optimisers)
     points: np.ndarray,
     cells: np.ndarray,
     order: int = 1,

@@ -11,8 +11,8 @@ from ...blocks import FACE_INTERIOR, FACE_WALL, HEX_FACES, BlockStructure
 from ...errors import MeshingError
 
 
-# duplicates: its docstring's parameter list reads like transfinite.mesh_blocks'; no shared logic
 def projected_wall_quality(blocks: BlockStructure, project, samples: int = 4) -> np.ndarray:
+    # duplicates: its docstring's parameter list reads like transfinite.mesh_blocks'; no shared logic
     """Scaled Jacobian of boundary-layer blocks once their wall faces are projected onto the wall.
 
     The wall face of every block with a wall face is sampled bilinearly on a

@@ -237,7 +237,6 @@ def follow_corners(points: np.ndarray, cells: np.ndarray, order: int, corner_poi
     return X
 
 
-# duplicates: a keyword signature like untangle.untangle's (the same constraints, two optimisers)
 def optimise_linear(
     points: np.ndarray,
     cells: np.ndarray,
