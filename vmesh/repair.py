@@ -384,7 +384,7 @@ def nonmanifold_fins(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 HOLE_ALIGNMENT = 0.7
 HOLE_AREA_ALIGNMENT = 0.5
 HOLE_REACH = 1.5
-#: a boundary loop of fewer edges is a hole (a few missing triangles), never a vessel's open end
+#: a boundary loop of at most this many edges is a hole (a few missing triangles), never a vessel's open end
 HOLE_MAX_EDGES = 5
 
 

@@ -202,7 +202,7 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair):
 
     # -- entry ------------------------------------------------------------------
     def run(self) -> BlockStructure:
-        from ..skeleton_ops import branch_paths, path_edge_ids
+        from ..skeleton.graph import branch_paths, path_edge_ids
 
         self.check_skeleton()
         self.tick(0.05, "junctions")

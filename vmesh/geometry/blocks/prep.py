@@ -100,7 +100,7 @@ def merge_junction_pair(skeleton: Skeleton, a: int, b: int) -> tuple[Skeleton, i
     node : int
         The merged junction's number in the new skeleton.
     """
-    from ..skeleton_ops import branch_paths, contract_nodes
+    from ..skeleton.graph import branch_paths, contract_nodes
 
     sk = skeleton
     path = next(p for p in branch_paths(sk.n_nodes, sk.edges) if {int(p[0]), int(p[-1])} == {a, b})

@@ -143,7 +143,7 @@ def cut_necks(skeleton: Skeleton, distance, neck: float = 0.25) -> tuple[Skeleto
     n_cut : int
         Number of necks cut.
     """
-    from ..skeleton_ops import component_labels, remove_nodes
+    from .graph import remove_nodes
 
     sk = skeleton.copy()
     n_cut = 0
@@ -164,8 +164,7 @@ def cut_necks(skeleton: Skeleton, distance, neck: float = 0.25) -> tuple[Skeleto
         cut = sk.copy(edges=np.r_[sk.edges[keep], pairs], edge_tags=tags)
         if not (sizes > 2).any():
             cut = remove_nodes(cut, np.arange(cut.n_nodes) == c, bridge=False)
-        pieces = len(np.unique(component_labels(cut.n_nodes, cut.edges)))
-        if pieces > len(np.unique(component_labels(sk.n_nodes, sk.edges))):
+        if cut.n_components > sk.n_components:
             continue  # the bridge is all that holds two parts together
         sk, n_cut = cut, n_cut + 1
     return sk, n_cut
