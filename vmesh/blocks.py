@@ -162,19 +162,19 @@ def hex_corner_jacobians(corners: np.ndarray) -> np.ndarray:
     along +i, +j, +k (sign-adjusted so a right-handed block is positive everywhere).
     """
     c = np.asarray(corners, float)
-    ijk = HEX_CORNERS
-    # neighbour of each corner along each axis and the sign of the step
-    idx = {tuple(v): n for n, v in enumerate(ijk.tolist())}
-    nbr = np.empty((8, 3), np.int64)
-    sgn = np.empty((8, 3))
-    for n, v in enumerate(ijk.tolist()):
-        for a in range(3):
+    ijk = HEX_CORNERS.tolist()
+    out = np.empty(c.shape[:-1])
+    # one corner at a time: (..., 3) temporaries instead of (..., 8, 3, 3) (the block
+    # builder checks every block of a tree once per fix round)
+    for n, v in enumerate(ijk):
+        e = []
+        for a in range(3):  # the edge to the neighbour along axis a, pointing to +a
             w = list(v)
             w[a] = 1 - w[a]
-            nbr[n, a] = idx[tuple(w)]
-            sgn[n, a] = 1.0 if v[a] == 0 else -1.0
-    e = (c[..., nbr, :] - c[..., :, None, :]) * sgn[:, :, None]  # (..., 8, 3 axes, 3)
-    return np.einsum("...i,...i->...", e[..., 0, :], np.cross(e[..., 1, :], e[..., 2, :]))
+            step = c[..., ijk.index(w), :] - c[..., n, :]
+            e.append(step if v[a] == 0 else -step)
+        out[..., n] = np.einsum("...i,...i->...", e[0], np.cross(e[1], e[2]))
+    return out
 
 
 def scaled_corner_jacobians(corners: np.ndarray) -> np.ndarray:

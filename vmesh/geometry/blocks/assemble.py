@@ -14,6 +14,7 @@ from ...blocks import (
     LAYER_CORE,
     LAYER_RING,
     BlockStructure,
+    hex_corner_jacobians,
 )
 from .. import cross_sections as cs
 from .options import CYCLE, JUNCTION, OPEN
@@ -28,6 +29,7 @@ class _Assembly:
     def assemble(self) -> BlockStructure:
         """The block structure of the current state: vertices of every section, half-section
         and dome cap, blocks along every branch and round every dome, mirrored blocks flipped."""
+        self.work.charge()  # the build's budget counts whole assemblies (:mod:`.work`)
         t = self.template
         idx, sec_ids, vertices, on_surface = self._assemble_vertices()
         rows = [[] for _ in range(9)]  # hexes, fb, ak, radius, bnode, bseg, blayer, btags, where
@@ -38,12 +40,14 @@ class _Assembly:
         fb = np.vstack(fb)
         ak = np.vstack(ak)
         # blocks whose every corner is negative are only mirrored: flip them along k
-        J = BlockStructure(vertices, hexes, on_surface, fb, ak, np.concatenate(radius), np.concatenate(bnode),
-                           np.concatenate(bseg), np.concatenate(blayer), btags).corner_jacobians()
+        J = self._corner_jacobians(vertices, hexes)
         flip = np.all(J < 0, axis=1)
         if flip.any():
             hexes[flip] = hexes[flip][:, [4, 5, 6, 7, 0, 1, 2, 3]]
             fb[flip] = fb[flip][:, [0, 1, 2, 3, 5, 4]]
+            # a block flipped along k has the negated Jacobians of its mirrored corners (exactly)
+            J[flip] = -J[flip][:, [4, 5, 6, 7, 0, 1, 2, 3]]
+        self.built.corners = J
         self.built.block_where = np.vstack(where)
         self.built.block_layers = np.concatenate(blayer)
         # duplicates: a keyword construction, like the filters' option objects; no shared logic
@@ -73,6 +77,22 @@ class _Assembly:
             "skeleton": self.topo.sk,
         }
         return blocks
+
+    def _corner_jacobians(self, vertices: np.ndarray, hexes: np.ndarray) -> np.ndarray:
+        """Corner Jacobians of ``hexes`` (before flipping). Where the last assembly had the
+        same blocks (a fix round moves sections, it keeps their numbering), only blocks with a
+        moved corner are computed again: a fix at one junction of a tree of thousands of
+        sections re-checks that junction's blocks, not the tree's."""
+        last = self.built.unflipped
+        if last is not None and last[0].shape == vertices.shape and np.array_equal(last[1], hexes):
+            moved = np.any(vertices != last[0], axis=1)
+            redo = np.flatnonzero(moved[hexes].any(axis=1))
+            J = last[2].copy()
+            J[redo] = hex_corner_jacobians(vertices[hexes[redo]])
+        else:
+            J = hex_corner_jacobians(vertices[hexes])
+        self.built.unflipped = (vertices.copy(), hexes.copy(), J.copy())
+        return J
 
     def _assemble_vertices(self):
         """Vertices of the regular sections, the junctions' spines and half-sections and the
@@ -141,27 +161,29 @@ class _Assembly:
                     ids[k] = self._cycle_close_ids(bi, sec_ids[(bi, 0)])
                 else:
                     ids[k] = sec_ids[(bi, k)]
-            for k in range(K - 1):
-                a, b = ids[k][q], ids[k + 1][q]
-                hexes.append(np.hstack([a, b]))
-                f = np.full((nq, 6), FACE_INTERIOR, np.int64)
-                f[t.quad_wall, 1] = FACE_WALL
-                # open ends lie on their caps; closed ends are shared with their dome's cap blocks
-                if k == 0 and br.kinds[0] == OPEN:
-                    f[:, 4] = br.caps[0]
-                if k == K - 2 and br.kinds[1] == OPEN:
-                    f[:, 5] = br.caps[1]
-                fb.append(f)
-                ak.append(np.c_[t.quad_axes, np.full(nq, AXIS_ALONG)])
-                n0, n1 = int(br.nodes[k]), int(br.nodes[k + 1])
-                e = int(br.edges[k])
-                radius.append(np.full(nq, 0.5 * (self.frames.R_node[bi][k] + self.frames.R_node[bi][k + 1])))
-                bnode.append(np.full(nq, n0))
-                bseg.append(np.full(nq, e))
-                blayer.append(t.quad_layer)
+            # all segments of the branch at once, in the order segment by segment, quad by quad
+            ids = np.stack(ids)  # (K, nv)
+            m = K - 1
+            hexes.append(np.concatenate([ids[:-1][:, q], ids[1:][:, q]], axis=2).reshape(-1, 8))
+            f = np.full((m, nq, 6), FACE_INTERIOR, np.int64)
+            f[:, t.quad_wall, 1] = FACE_WALL
+            # open ends lie on their caps; closed ends are shared with their dome's cap blocks
+            if br.kinds[0] == OPEN:
+                f[0, :, 4] = br.caps[0]
+            if br.kinds[1] == OPEN:
+                f[m - 1, :, 5] = br.caps[1]
+            fb.append(f.reshape(-1, 6))
+            ak.append(np.tile(np.c_[t.quad_axes, np.full(nq, AXIS_ALONG)], (m, 1)))
+            R = np.asarray(self.frames.R_node[bi][:K], float)
+            radius.append(np.repeat(0.5 * (R[:-1] + R[1:]), nq))
+            bnode.append(np.repeat(np.asarray(br.nodes[:-1], np.int64), nq))
+            bseg.append(np.repeat(np.asarray(br.edges, np.int64), nq))
+            blayer.append(np.tile(t.quad_layer, m))
+            for k in range(m):
+                n0, n1, e = int(br.nodes[k]), int(br.nodes[k + 1]), int(br.edges[k])
                 tags = tuple(sorted(set(sk.node_tags[n0]) | set(sk.node_tags[n1]) | set(sk.edge_tags[e])))
                 btags.extend([tags] * nq)
-                where.append(np.c_[np.full(nq, bi), np.full(nq, k)])
+            where.append(np.c_[np.full(m * nq, bi), np.repeat(np.arange(m), nq)])
 
     def _dome_blocks(self, idx: list, sec_ids: dict, rows: list) -> None:
         """Append the cap blocks round every closed end's dome to ``rows``."""

@@ -47,6 +47,7 @@ from .prep import merge_junction_pair, split_nonplanar_junctions
 from .repair import _Repair
 from .sections import _Sections
 from .state import _Assembled, _Ends, _Frames, _Placement, _Topology
+from .work import WorkBudget, _BoundedCasts
 
 
 def build_blocks(
@@ -59,6 +60,7 @@ def build_blocks(
     progress=None,
     project=None,
     intersect_lines=None,
+    work: WorkBudget | None = None,
 ) -> BlockStructure:
     """Build the block structure of a vessel.
 
@@ -86,6 +88,8 @@ def build_blocks(
         (:meth:`~vmesh.geometry.sdf.SignedDistance.intersect_lines`): the section rays
         then find the wall by one cast each instead of bisecting ``distance``
         (:func:`~vmesh.geometry.cross_sections.cast_rays`).
+    work : WorkBudget, optional
+        Assemblies spent and rays cast so far (default: a new ``options.repair.work_budget``).
 
     Returns
     -------
@@ -93,6 +97,7 @@ def build_blocks(
         With ``info`` holding ``max_twist_deg``, ``fixes`` and per-junction details.
     """
     options = options or BlockOptions()
+    work = work or WorkBudget(options.repair.work_budget)
     # Each try either succeeds or fails with what might help: splitting n-furcations
     # (alternative pairings in turn) or merging two junctions too close for their own
     # half-sections. Tries are depth-first and bounded; the first failure is reported.
@@ -104,7 +109,7 @@ def build_blocks(
     first = None
     tries = 0
     seen = set()  # merging two junctions and splitting the result again can give a skeleton back
-    while queue and tries < options.repair.max_retopology_tries:
+    while queue and tries < options.repair.max_retopology_tries and not work.spent:
         sk, notes, opts, made = queue.pop(0)
         key = (_skeleton_key(sk), opts is at_node)
         if key in seen:
@@ -112,16 +117,16 @@ def build_blocks(
         seen.add(key)
         tries += opts is not options or options.junction.junction_centre <= 0  # a skeleton counts once
         try:
-            blocks = _Builder(sk, distance, caps, opts, warn, progress, project, intersect_lines).run()
+            blocks = _Builder(sk, distance, caps, opts, warn, progress, project, intersect_lines, work).run()
         except _Failure as failure:
-            if opts is options and options.junction.junction_centre > 0:
+            if opts is options and options.junction.junction_centre > 0 and not work.spent:
                 queue.insert(0, (sk, notes, at_node, made))
                 continue
             first = first or failure
             queue[:0] = [(s, n, options, m) for s, n, m in _retopology_options(failure, notes, distance, options, made)]
             continue
         except MeshingError:
-            if opts is options and options.junction.junction_centre > 0:
+            if opts is options and options.junction.junction_centre > 0 and not work.spent:
                 queue.insert(0, (sk, notes, at_node, made))
                 continue
             if first is None:
@@ -134,15 +139,16 @@ def build_blocks(
                 warn(note)
         blocks.info["fixes"][:0] = notes
         return blocks
-    if not options.repair.straighten_stuck_ends:
+    if not options.repair.straighten_stuck_ends and not work.spent:
         # every try failed: the skeleton as given once more, now also turning the first
         # sections at junction ends out of other fixes towards their chords (a last resort:
         # builds that succeed without it stay as they are)
         try:
             return build_blocks(skeleton, distance, caps, options.replace(straighten_stuck_ends=True, max_retopology_tries=1),
-                                None, warn, progress, project, intersect_lines)
+                                None, warn, progress, project, intersect_lines, work)
         except MeshingError:
             pass
+    first.hint += work.stop_note()
     raise first.error(bad_blocks_path, tries)
 
 
@@ -181,8 +187,9 @@ def _retopology_options(failure: "_Failure", notes: list, distance, options: Blo
 # ---------------------------------------------------------------------------
 # the builder
 # ---------------------------------------------------------------------------
-class _Builder(_Junctions, _Sections, _Assembly, _Repair):
-    def __init__(self, skeleton: Skeleton, distance, caps, options: BlockOptions, warn, progress, project=None, intersect_lines=None):
+class _Builder(_BoundedCasts, _Junctions, _Sections, _Assembly, _Repair):
+    def __init__(self, skeleton: Skeleton, distance, caps, options: BlockOptions, warn, progress, project=None, intersect_lines=None,
+                 work=None):
         self.opt = options
         self.sdf = distance
         self.intersect_lines = intersect_lines
@@ -198,6 +205,7 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair):
         self.placed = _Placement()
         self.frames = _Frames()
         self.built = _Assembled()
+        self.work = work or WorkBudget(options.repair.work_budget)  # shared by a build's tries
 
 
     # -- entry ------------------------------------------------------------------
@@ -221,11 +229,11 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair):
         for round_ in range(self.opt.repair.max_fix_rounds + 1):
             self.tick(0.4 + 0.5 * round_ / (self.opt.repair.max_fix_rounds + 1), "blocks")
             blocks = self.assemble()
-            J = blocks.corner_jacobians()
+            J = self.built.corners  # blocks.corner_jacobians(), kept by the assembly
             bad = np.flatnonzero(J.min(axis=1) <= 0)
             if len(bad) == 0:
                 break
-            if round_ == self.opt.repair.max_fix_rounds or not self.fix(bad, J):
+            if round_ == self.opt.repair.max_fix_rounds or self.work.spent or not self.fix(bad, J):
                 self.fail(blocks, bad)
         if self.project is not None:
             blocks = self.thicken_layers(blocks)
@@ -235,6 +243,7 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair):
             self.report_wall_folds(blocks)
         blocks.info.update(self.built.info)
         blocks.info["fixes"] = list(self.fixes)
+        blocks.info["work"] = self.work.summary()
         self.tick(1.0, "done")
         return blocks
 

@@ -63,4 +63,6 @@ class _Assembled:
 
     block_where: np.ndarray | None = None  # (nb, 2) branch and segment of each block
     block_layers: np.ndarray | None = None  # (nb,) layer of each block
+    corners: np.ndarray | None = None  # (nb, 8) corner Jacobians (BlockStructure.corner_jacobians)
+    unflipped: tuple | None = None  # (vertices, hexes, corner Jacobians) before mirrored blocks were flipped
     info: dict = field(default_factory=dict)  # what the builder reports in ``BlockStructure.info``
