@@ -98,7 +98,7 @@ def test_a_hopeless_junction_fails_in_assemblies_and_rays_bounded_by_the_tree():
     section's rays about once, not once per assembly."""
     used = []
     for n_side in (2, 6):
-        healthy = WorkBudget(64)
+        healthy = WorkBudget(160)
         blocks = build_blocks(*comb(n_side), None, BlockOptions(), work=healthy)
         assert block_structure_checks(blocks)["invalid_blocks"] == 0
         assert blocks.info["work"]["assemblies"] == healthy.used

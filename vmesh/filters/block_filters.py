@@ -37,6 +37,7 @@ from ..registry import Parameter, register_filter
         Parameter("junction_centre", "float", 1.0, "Where a junction's half cross-sections meet: 0 on the skeleton node, 1 at the centre of the wall points straight out between its branches (each crotch's apex and the outer walls), as vascularmd places a bifurcation's centre; blends in between.", min=0.0, max=1.0),
         Parameter("relieve_wall_folds", "bool", True, "Where a junction's boundary-layer blocks would still fold once projected on the wall, try further first cross-sections and other half-plane rotations, judged by filling the junction's blocks (costs seconds per junction)."),
         Parameter("check_wall_projection", "bool", True, "Also check boundary-layer blocks with their wall faces projected onto the wall, and thicken the layer (up to 0.5) where they would fold."),
+        Parameter("work_budget", "int", 160, "Most assemblies of the whole block structure over all fix rounds and changed skeletons (each costs time in proportion to the tree); a structure still invalid then fails with the usual error (0: no budget).", min=0, max=10000),
     ],
     reads=("skeleton", "sdf"),
     optional_reads=("caps", "surface"),
@@ -46,7 +47,7 @@ from ..registry import Parameter, register_filter
 def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_bias, junction_rotation, rotation_range,
                           max_out_of_plane, min_branch_gap, split_nonplanar, clear_ray_factor, junction_margin, cap_distance,
                           dome_depth, dome_max_retreat, max_fix_rounds, check_wall_projection, junction_centre=1.0,
-                          relieve_wall_folds=True):
+                          relieve_wall_folds=True, work_budget=160):
     """One O-grid cross-section per skeleton node (a core of a x b blocks, a ring and a
     boundary-layer ring whose outer corners are found on the wall by ray casting in the
     section plane), half cross-sections on half-planes through each junction's axis shared
@@ -68,7 +69,8 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
             junction_centre=junction_centre,
         ),
         ends=EndOptions(cap_distance=cap_distance, dome_depth=dome_depth, dome_max_retreat=dome_max_retreat),
-        repair=RepairOptions(split_nonplanar=split_nonplanar, max_fix_rounds=max_fix_rounds, relieve_wall_folds=relieve_wall_folds),
+        repair=RepairOptions(split_nonplanar=split_nonplanar, max_fix_rounds=max_fix_rounds, relieve_wall_folds=relieve_wall_folds,
+                             work_budget=work_budget),
     )
     sdf = ctx.sdf  # a vmesh.geometry.surface_query.SurfaceQuery
     bad_path = ctx.output_path("invalid_blocks.vtu")
@@ -113,6 +115,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         "checks": checks,
         "blocks_folding_on_wall": info.get("blocks_folding_on_wall"),
         "min_projected_wall_quality": info.get("min_projected_wall_quality"),
+        "work": info.get("work"),  # assemblies (and the budget), rays cast and reused
     }
     if checks["boundary_components"] != 1:
         ctx.warn(f"the outer block faces form {checks['boundary_components']} pieces (is the skeleton connected?)")

@@ -235,6 +235,7 @@ class _Builder(_BoundedCasts, _Junctions, _Sections, _Assembly, _Repair):
                 break
             if round_ == self.opt.repair.max_fix_rounds or self.work.spent or not self.fix(bad, J):
                 self.fail(blocks, bad)
+        self.work.valid_after = self.work.used  # the rest (wall folds) is bounded by the options
         if self.project is not None:
             blocks = self.thicken_layers(blocks)
             blocks = self.choose_centres(blocks)

@@ -108,6 +108,7 @@ class WorkBudget:
     def __init__(self, assemblies: int = 0):
         self.limit = int(assemblies)
         self.used = 0
+        self.valid_after = None  # assemblies spent when the blocks were first all valid
         self.rays = RayCache()
 
     @property
@@ -127,8 +128,10 @@ class WorkBudget:
                 f"= {self.limit}: a larger budget lets more fixes and changed skeletons be tried)")
 
     def summary(self) -> dict:
-        """What the build spent: assemblies (and the budget), rays cast and reused."""
-        return {"assemblies": self.used, "work_budget": self.limit, "rays_cast": self.rays.misses, "rays_reused": self.rays.hits}
+        """What the build spent: assemblies (``valid_after``: those until every block was valid;
+        the rest relieve wall folds, bounded by the options), the budget, rays cast and reused."""
+        return {"assemblies": self.used, "valid_after": self.valid_after, "work_budget": self.limit,
+                "rays_cast": self.rays.misses, "rays_reused": self.rays.hits}
 
 
 class _BoundedCasts:
