@@ -91,6 +91,7 @@ def test_corner_jacobians_of_affine_and_flipped_blocks():
 # ---------------------------------------------------------------------------
 # the builder's work
 # ---------------------------------------------------------------------------
+@pytest.mark.slow  # four builds, about 4 s
 def test_a_hopeless_junction_fails_in_assemblies_and_rays_bounded_by_the_tree():
     """A stub that never leaves its parent (no fix makes its blocks valid) on trees of 2
     and 6 further side branches: the build fails with the usual error after the same
