@@ -72,7 +72,7 @@ def test_ray_cache_stays_within_its_limit():
     for k in range(4):
         o = np.c_[np.linspace(1, 9, 30) + 0.01 * k, np.zeros((30, 2))]
         cache.cast(dist, o, np.tile([0.0, 1.0, 0.0], (30, 1)), np.ones(30))
-        assert len(cache._keys) <= 50
+        assert len(cache) <= 50
 
 
 def test_corner_jacobians_of_affine_and_flipped_blocks():

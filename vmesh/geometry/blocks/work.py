@@ -51,9 +51,13 @@ class RayCache:
         self._clear()
 
     def _clear(self):
-        self._keys = np.zeros(0, np.uint64)  # sorted hashes
-        self._rows = np.zeros((0, 8))  # origin, direction, scale, reach per key
-        self._values = np.zeros(0)
+        # two sorted levels: the rays cast since the last merge are kept apart until they
+        # are an eighth of the rest, so that the many small casts of a build (one junction's
+        # half-planes at a time) do not re-sort the whole cache each
+        self._levels = [_Level(), _Level()]
+
+    def __len__(self) -> int:
+        return sum(len(level.keys) for level in self._levels)
 
     def cast(self, distance, origins, directions, scale, reach: float = 12.0, intersect_lines=None) -> np.ndarray:
         """:func:`~vmesh.geometry.cross_sections.cast_rays` with the rays cast before
@@ -70,10 +74,8 @@ class RayCache:
         h = _row_hashes(rows)
         out = np.full(n, np.nan)
         found = np.zeros(n, bool)
-        if len(self._keys):
-            pos = np.minimum(np.searchsorted(self._keys, h), len(self._keys) - 1)
-            found = (self._keys[pos] == h) & np.all(self._rows[pos] == rows, axis=1)
-            out[found] = self._values[pos[found]]
+        for level in self._levels:
+            level.find(h, rows, out, found)
         miss = np.flatnonzero(~found)
         self.hits += n - len(miss)
         self.misses += len(miss)
@@ -83,13 +85,40 @@ class RayCache:
         return out
 
     def _store(self, keys, rows, values):
-        if len(self._keys) + len(keys) > self.limit:
+        if len(self) + len(keys) > self.limit:
             self._clear()
-        keys = np.concatenate([self._keys, keys])
+        main, recent = self._levels
+        recent.add(keys, rows, values)
+        if 8 * len(recent.keys) > len(main.keys):
+            main.add(recent.keys, recent.rows, recent.values)
+            self._levels[1] = _Level()
+
+
+class _Level:
+    """Rays sorted by their hash: ``keys`` (uint64), ``rows`` (origin, direction, scale,
+    reach) and ``values`` (the wall distances)."""
+
+    def __init__(self):
+        self.keys = np.zeros(0, np.uint64)
+        self.rows = np.zeros((0, 8))
+        self.values = np.zeros(0)
+
+    def find(self, h, rows, out, found) -> None:
+        """Fill ``out`` and set ``found`` where a ray not found yet is here."""
+        todo = np.flatnonzero(~found)
+        if len(self.keys) == 0 or len(todo) == 0:
+            return
+        pos = np.minimum(np.searchsorted(self.keys, h[todo]), len(self.keys) - 1)
+        hit = (self.keys[pos] == h[todo]) & np.all(self.rows[pos] == rows[todo], axis=1)
+        out[todo[hit]] = self.values[pos[hit]]
+        found[todo[hit]] = True
+
+    def add(self, keys, rows, values) -> None:
+        keys = np.concatenate([self.keys, keys])
         order = np.argsort(keys, kind="stable")
-        self._keys = keys[order]
-        self._rows = np.concatenate([self._rows, rows])[order]
-        self._values = np.concatenate([self._values, values])[order]
+        self.keys = keys[order]
+        self.rows = np.concatenate([self.rows, rows])[order]
+        self.values = np.concatenate([self.values, values])[order]
 
 
 class WorkBudget:
