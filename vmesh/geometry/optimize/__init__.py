@@ -328,10 +328,7 @@ def optimise_linear(
     run = dict(kind=kind, normal=normal, project=project, wall_normals=wall_normals, stats=stats, height=height, X0=X.copy())
     bad = q < untangle_below
     if bad.any():
-        info["rings"] = _untangle_regions(X, sub, n, fixed, bad, run, untangle_below, max_fraction, sweeps, untangle_mode, grow_below_threshold, untangled)
-        q = hex8_scaled_jacobian(X, sub)
-        if q.min() < untangle_below and (kind == K.OFFSET).any():
-            q = _untangle_free_layer(X, sub, n, fixed, bad, run, untangle_below, max_fraction, sweeps, grow_below_threshold, untangled, q, info)
+        q = _untangle(X, sub, n, fixed, bad, run, untangle_below, max_fraction, sweeps, untangle_mode, grow_below_threshold, untangled, info)
     low = q < smooth_below
     if smooth_below > 0 and low.any():
         _smooth_region(X, sub, n, fixed, low, run, smooth_below, smooth_sweeps, smooth_rings, smoothed, smooth_tol)
@@ -387,6 +384,19 @@ def _untangle_regions(X, sub, n, fixed, bad, run, below, max_fraction, sweeps, m
             break
         active = grown
     return rings
+
+
+def _untangle(X, sub, n, fixed, bad, run, below, max_fraction, sweeps, mode, grow_below_threshold, untangled, info):
+    """Untangle the regions of the ``bad`` elements with the first boundary layer held, then,
+    where that leaves an element below ``below``, try with it free
+    (:func:`_untangle_free_layer`); returns the elements' scaled Jacobians."""
+    from ..quality import hex8_scaled_jacobian
+
+    info["rings"] = _untangle_regions(X, sub, n, fixed, bad, run, below, max_fraction, sweeps, mode, grow_below_threshold, untangled)
+    q = hex8_scaled_jacobian(X, sub)
+    if q.min() < below and (run["kind"] == K.OFFSET).any():
+        q = _untangle_free_layer(X, sub, n, fixed, bad, run, below, max_fraction, sweeps, grow_below_threshold, untangled, q, info)
+    return q
 
 
 def _untangle_free_layer(X, sub, n, fixed, bad, run, below, max_fraction, sweeps, grow_below_threshold, untangled, q, info):
