@@ -93,6 +93,28 @@ def test_sheared_boundary_layer_keeps_its_first_height():
     assert np.abs(height / height0 - 1).max() < 0.05
 
 
+def test_boundary_layer_twisted_over_a_long_band_is_untangled_with_its_top_nodes_free():
+    """kd_lima extracted: a boundary-layer block twisted along a curved wall, all its layers
+    folded. With the first-layer nodes held at their wall distance the local untangler
+    stays below 0.3 (wall and top nodes can only slide); untangling again from the initial
+    mesh with them free, every step judged by its worst element, gets above 0.3 and is
+    kept, with the walls and caps kept and few nodes moved."""
+    sm, kw = cylinder()
+    X0 = sm.points.copy()
+    wall = kw["wall"] & ~kw["cap_nodes"]
+    twist = np.where(wall & (np.abs(X0[:, 2] - 5) < 1.3), 0.6, 0.0)  # radians
+    c, s = np.cos(twist), np.sin(twist)
+    Xt = X0.copy()
+    Xt[:, 0], Xt[:, 1] = c * X0[:, 0] - s * X0[:, 1], s * X0[:, 0] + c * X0[:, 1]
+    assert (hex8_scaled_jacobian(Xt, sm.cells) < 0).sum() > 100
+    X, info = optimise(Xt, sm.cells, 1, untangle_below=0.3, **kw)
+    q = hex8_scaled_jacobian(X, sm.cells)
+    assert info["free_layer"]["held_min"] < 0.3 and info["free_layer"]["kept"]
+    assert q.min() > 0.3
+    check_boundary(sm, kw, Xt, X)
+    assert np.any(X != Xt, axis=1).mean() < 0.1
+
+
 def test_valid_mesh_never_gets_worse():
     sm, kw = cylinder()
     rng = np.random.default_rng(3)

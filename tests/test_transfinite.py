@@ -105,3 +105,35 @@ def test_hex27_order_matches_vtk_triquadratic(tmp_path):
     vol = grid.compute_cell_sizes(length=False, area=False, volume=True).cell_data["Volume"]
     assert (vol > 0).all()
     assert abs(vol.sum() - np.pi * R**2 * 10.0) < 0.01 * np.pi * R**2 * 10.0
+
+
+def test_wall_face_node_keeps_its_side_when_its_ray_passes_a_saddle():
+    """thoracic_aorta extracted with curved along edges: a wall face's interior node a little
+    inside the wall, whose patch normal points across the vessel (the saddle beside a
+    junction), found the far wall along its ray (12 units away, the radius allowed) and
+    folded the boundary layer. A ray much longer than the node's distance to the wall is
+    not trusted (as on wall edges): the node goes to its closest wall point instead."""
+    from types import SimpleNamespace
+
+    from vmesh.geometry.transfinite import _face_to_wall
+
+    H = 10.0  # the wall: the planes z = 0 and z = H, the vessel between them
+
+    def intersect_lines(p, d, reach, side):
+        out, hit = p.copy(), np.zeros(len(p), bool)
+        for i in range(len(p)):
+            ts = [t for t in ((0.0 - p[i, 2]) / d[i, 2], (H - p[i, 2]) / d[i, 2]) if t * side[i] >= 0 and abs(t) <= reach[i]] if d[i, 2] else []
+            if ts:
+                t = min(ts, key=abs)
+                out[i], hit[i] = p[i] + t * d[i], True
+        return out, hit
+
+    fill = SimpleNamespace(
+        signed_distance=lambda p: np.minimum(p[:, 2], H - p[:, 2]),
+        intersect_lines=intersect_lines,
+        project=lambda p: np.c_[p[:, :2], np.where(p[:, 2] < H / 2, 0.0, H)],
+    )
+    s, t = np.meshgrid(np.arange(3.0), np.arange(3.0), indexing="ij")
+    P = np.stack([s, t, np.full_like(s, 1.0)], axis=-1)[None].copy()  # one face at z = 1, its outward side towards z = H
+    _face_to_wall(fill, P, np.array([True]), np.array([[0.0, 0.0, 1.0]]), np.array([2 * H]))
+    assert P[0, 1, 1, 2] == pytest.approx(0.0)  # the near wall, not the far one at z = H

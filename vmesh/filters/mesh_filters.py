@@ -163,9 +163,11 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", 
         # the local optimiser is fast but moves few nodes; where it leaves a fold or an element
         # below restart_below (a junction fold that needs a wider region, or an order-p element
         # folded by the nodes that follow the corners), the global untangler runs too. For
-        # p = 1 the optimiser's own "after" is the mesh's scaled Jacobian.
+        # p = 1 the optimiser's own "after" is the mesh's scaled Jacobian. Its second try with
+        # the first boundary-layer nodes free (``free_layer``) is a fallback like the global
+        # one: both run and the better is kept.
         local_min = info["after"]["min"] if p == 1 else float(scaled_jacobian(X, sm.cells, p, ref_nodes).min())
-        if local_min > max(restart_below or 0.0, 0.0):
+        if local_min > max(restart_below or 0.0, 0.0) and not info.get("free_layer", {}).get("kept"):
             _keep_untangled(ctx, sm, X, info, info["moved"], untangled_nodes=info["untangled_nodes"], smoothed_nodes=info["smoothed_nodes"])
             return
         local = (X, info, local_min)

@@ -342,12 +342,7 @@ def _fill_edges(fill: _Fill) -> None:
                 # the edge normal points out of the vessel: inside nodes move outward, outside ones inward
                 reach = np.minimum(np.repeat(fill.edge_radius[sel[wall]], k), RAY_SEARCH * np.abs(f0))
                 moved, _ = fill.intersect_lines(flat, np.repeat(edge_normal[sel[wall]], k, axis=0), reach, np.where(f0 >= 0, 1, -1))
-                # A ray much longer than the distance to the wall has passed a concave place (the
-                # saddle beside a junction, a vessel mouth) and lands far from where the edge
-                # runs; the closest point is nearer and keeps the edge on its side of the fold.
-                far = np.linalg.norm(moved - flat, axis=1) > RAY_TRUST * np.abs(f0) + 1e-9
-                moved[far] = flat[far]
-                pts[wall, 1:-1] = moved.reshape(-1, k, 3)
+                pts[wall, 1:-1] = _trust_rays(moved, flat, f0).reshape(-1, k, 3)
             pts[wall] = _project_curves(pts[wall], t[wall], fill.project)
         ids = (num.edge_off[sel][:, None] + np.arange(int(n) * p - 1)[None, :]).ravel()
         fill.X[ids] = pts[:, 1:-1].reshape(-1, 3)
@@ -393,6 +388,16 @@ def _fill_faces(fill: _Fill) -> None:
         fill.on_wall[inner_ids.ravel()] = wall_nodes
 
 
+def _trust_rays(moved: np.ndarray, start: np.ndarray, f0: np.ndarray) -> np.ndarray:
+    """Ray hits ``moved`` from ``start`` (signed distances ``f0``), with the start kept where
+    the ray ran much farther than the distance to the wall: it passed a concave place (the
+    saddle beside a junction, a vessel mouth) and landed far from where the edge or face
+    runs; the closest point (the projection that follows) is nearer and keeps the node on
+    its side of the fold."""
+    far = np.linalg.norm(moved - start, axis=1) > RAY_TRUST * np.abs(f0) + 1e-9
+    return np.where(far[:, None], start, moved)
+
+
 def _face_to_wall(fill: _Fill, P: np.ndarray, wall: np.ndarray, out: np.ndarray, radius: np.ndarray) -> np.ndarray:
     """Move the interior nodes of the wall faces ``P[wall]`` onto the wall in place; returns
     which of them found it (the others span an opening and stay on their patch)."""
@@ -407,7 +412,8 @@ def _face_to_wall(fill: _Fill, P: np.ndarray, wall: np.ndarray, out: np.ndarray,
         normal = np.where(flip[..., None], -normal, normal).reshape(-1, 3)
         reach = np.repeat(radius, (Ns - 1) * (Nt - 1))
         f0 = fill.signed_distance(interior)
-        interior, hit = fill.intersect_lines(interior, normal, np.minimum(reach, RAY_SEARCH * np.abs(f0)), np.where(f0 >= 0, 1, -1))
+        moved, hit = fill.intersect_lines(interior, normal, np.minimum(reach, RAY_SEARCH * np.abs(f0)), np.where(f0 >= 0, 1, -1))
+        interior = _trust_rays(moved, interior, f0)
         # no wall along the normal within a radius: the face spans an opening (the mouth
         # of a vessel without skeleton). The closest wall point is then on the opening's
         # rim, far to the side, and would fold the layer: keep the patch point instead.

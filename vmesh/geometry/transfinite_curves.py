@@ -27,9 +27,11 @@ of one section's normal onto the other's), symmetric about its chord, at most
 :data:`MAX_ALONG_TURN` per end: the node lines run on smoothly through the sections and the
 tilt of the sections against the chord is shared by both ends. Wall edges are curved the
 same way before they are projected, so the boundary layer follows. At a junction's spine
-the two half-planes of a branch's end ask for different turns: the turns of a block's
-edges are scaled down until their bulges differ by at most :data:`ALIKE` times the block's
-width, so a thin core block is not sheared between edges bent apart.
+the two half-planes of a branch's end ask for different turns: the bulges of the edges are
+averaged over the blocks they share (:data:`SMOOTH_ROUNDS` times), then the turns of a
+block's edges are scaled down until the bulges of any two of them differ by at most
+:data:`ALIKE` times their distance, so a thin core block is not sheared between edges bent
+apart.
 """
 
 from __future__ import annotations
@@ -47,8 +49,10 @@ MAX_TURN = np.radians(30.0)
 PLANAR_TOL = 0.15
 #: largest turn of an along-skeleton edge's end tangent from its chord (radians); 0 keeps them straight
 MAX_ALONG_TURN = np.radians(30.0)
-#: largest spread of the bulges of a block's along edges, × its shortest edge across the skeleton
-ALIKE = 0.25
+#: largest difference of the bulges of two along edges of a block, × the distance between them
+ALIKE = 0.5
+#: rounds of averaging the along edges' bulges over their blocks before the :data:`ALIKE` bound
+SMOOTH_ROUNDS = 3
 #: end turns below this (radians) leave an along-skeleton edge straight
 MIN_ALONG_TURN = np.radians(0.5)
 #: samples per curve for the arc-length re-spacing of its nodes
@@ -136,8 +140,9 @@ def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray):
     The section normal at each end is the mean unit normal of the cross-section faces (the
     end faces, across the block's one axis along the skeleton) of the blocks sharing the
     edge, oriented along the edge. The tangents are the chord turned by minus and plus half
-    the rotation of the first normal onto the second (at most :data:`MAX_ALONG_TURN`),
-    scaled down where a block's edges would bulge apart (:func:`_alike_in_blocks`).
+    the rotation of the first normal onto the second (at most :data:`MAX_ALONG_TURN`); the
+    edges' bulges are averaged over the blocks they share (:func:`_smooth_bulges`), then
+    scaled down where a block's edges would still bulge apart (:func:`_alike_in_blocks`).
 
     Returns
     -------
@@ -184,34 +189,77 @@ def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray):
     # ends, not pushed into an S-bend in the middle
     w = np.cross(N0, N1)
     sin = np.linalg.norm(w, axis=1)
-    half = 0.5 * np.arctan2(sin, np.einsum("ij,ij->i", N0, N1))
+    half = np.minimum(0.5 * np.arctan2(sin, np.einsum("ij,ij->i", N0, N1)), MAX_ALONG_TURN)
     w /= np.maximum(sin, 1e-300)[:, None]
-    half = np.minimum(half, MAX_ALONG_TURN)
-    for k, sign in ((0, -1.0), (1, 1.0)):
-        acc[:, k] = _rotate(d, w, sign * half)
+    bend = np.cross(d, w)  # the side the symmetric arc bulges to (N0 turned onto N1 about w)
+    bend /= np.maximum(np.linalg.norm(bend, axis=1, keepdims=True), 1e-300)
+    half, bend = _smooth_bulges(topo, V, d, half, bend, curved, edges_of)
+    acc = _symmetric_tangents(d, bend, half)
     scale = _alike_in_blocks(blocks, topo, V, acc, edges_of)
-    for k, sign in ((0, -1.0), (1, 1.0)):
-        acc[:, k] = _rotate(d, w, sign * half * scale)
     half = half * scale
+    acc = _symmetric_tangents(d, bend, half)
     curved &= (half > MIN_ALONG_TURN) & (np.einsum("ij,ij->i", N0, d) > 0) & (np.einsum("ij,ij->i", N1, d) > 0)
     return acc, curved
 
 
+def _symmetric_tangents(d, bend, half):
+    """End tangents (E, 2, 3) of symmetric arcs about the chords ``d``, turned by ``half``
+    towards the unit side ``bend`` (orthogonal to ``d``) at the start and back at the end."""
+    c, s = np.cos(half)[:, None], np.sin(half)[:, None]
+    return np.stack([c * d + s * bend, c * d - s * bend], axis=1)
+
+
+def _smooth_bulges(topo, V, d, half, bend, along, edges_of, rounds: int | None = None):
+    """The along edges' mid-point bulges averaged over the blocks they share, ``rounds``
+    times (:data:`SMOOTH_ROUNDS`): returns the new ``(half, bend)``.
+
+    Next to a junction's spine the edges of one block ask for turns towards different
+    sides (each from its own half-plane to the branch); bounded alone
+    (:func:`_alike_in_blocks`) they would all be scaled down to a few degrees and the
+    crotch elements stay sheared at the half-plane. Averaged, neighbouring edges bend alike
+    and keep most of the turn."""
+    rounds = SMOOTH_ROUNDS if rounds is None else rounds
+    if rounds <= 0 or not along.any():
+        return half, bend
+    L = np.linalg.norm(V[topo.edges[:, 1]] - V[topo.edges[:, 0]], axis=1)
+    bulge = np.where(along[:, None], (0.25 * L * np.sin(half))[:, None] * bend, 0.0)
+    for _ in range(rounds):
+        acc = np.zeros_like(bulge)
+        cnt = np.zeros(len(L))
+        for _, edges, _ in edges_of:
+            mean = bulge[edges].mean(axis=1)  # (nb, 3) per block
+            np.add.at(acc, edges.ravel(), np.repeat(mean, 4, axis=0))
+            np.add.at(cnt, edges.ravel(), 1.0)
+        ok = cnt > 0
+        bulge[ok] = acc[ok] / cnt[ok, None]
+        bulge -= np.einsum("ij,ij->i", bulge, d)[:, None] * d  # across the chord only
+    size = np.linalg.norm(bulge, axis=1)
+    new_half = np.where(along, np.arcsin(np.clip(4.0 * size / np.maximum(L, 1e-300), 0.0, 1.0)), half)
+    new_half = np.minimum(new_half, MAX_ALONG_TURN)
+    new_bend = np.where((along & (size > 0))[:, None], bulge / np.maximum(size, 1e-300)[:, None], bend)
+    return new_half, new_bend
+
+
 def _alike_in_blocks(blocks, topo, V, tangent, edges_of, rounds: int = 3):
     """Per edge, a factor (<= 1) on its turns so that the along edges of every block bulge
-    alike: the spread of their mid-point offsets from the chords stays within
-    :data:`ALIKE` times the block's shortest edge across the skeleton (a thin core block
-    between edges bent apart would be sheared or folded)."""
+    alike: the difference of two edges' mid-point offsets from their chords stays within
+    :data:`ALIKE` times the distance between the edges (a thin core block between edges
+    bent apart would be sheared or folded)."""
     L = np.linalg.norm(V[topo.edges[:, 1]] - V[topo.edges[:, 0]], axis=1)
     bulge = (L / 8.0)[:, None] * (tangent[:, 0] - tangent[:, 1])  # Hermite mid-point offset
     scale = np.ones(len(L))
     for _ in range(rounds):
         changed = False
-        for b, along, other in edges_of:
+        for _, along, _ in edges_of:
             off = scale[along][..., None] * bulge[along]  # (nb, 4, 3)
-            spread = np.linalg.norm(off[:, :, None] - off[:, None, :], axis=3).max(axis=(1, 2))
-            width = L[other].min(axis=1)
-            f = np.minimum(1.0, ALIKE * width / np.maximum(spread, 1e-300))
+            # each pair of edges against its own distance: a thin block's two sides must bend
+            # alike, edges far apart across a wide block may bend apart more
+            M = 0.5 * (V[topo.edges[along, 0]] + V[topo.edges[along, 1]])
+            gap = np.linalg.norm(M[:, :, None] - M[:, None, :], axis=3)
+            diff = np.linalg.norm(off[:, :, None] - off[:, None, :], axis=3)
+            ratio = ALIKE * gap / np.maximum(diff, 1e-300)
+            ratio[:, np.arange(4), np.arange(4)] = np.inf
+            f = np.minimum(1.0, ratio.min(axis=(1, 2)))
             low = f < 1.0 - 1e-9
             if low.any():
                 changed = True
@@ -220,12 +268,6 @@ def _alike_in_blocks(blocks, topo, V, tangent, edges_of, rounds: int = 3):
         if not changed:
             break
     return scale
-
-
-def _rotate(x: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Rotate the vectors ``x`` (m, 3) about the unit ``axis`` (m, 3) by ``angle`` (m,) (Rodrigues)."""
-    c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
-    return c * x + s * np.cross(axis, x) + (1 - c) * np.einsum("ij,ij->i", axis, x)[:, None] * axis
 
 
 def hermite_edges(a: np.ndarray, b: np.ndarray, t: np.ndarray, T0: np.ndarray, T1: np.ndarray) -> np.ndarray:

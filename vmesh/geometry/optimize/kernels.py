@@ -156,8 +156,9 @@ def _mark(hexes, ptr, inc, v, dirty):
 
 @nb.njit(cache=True)
 def _worst_corner_direction(X, hexes, ptr, inc, v, x0, x1, x2):
-    """Gradient, with respect to node ``v``, of the volume of the worst corner around it (the
-    corner of smallest scaled Jacobian that ``v`` belongs to): the max-min ascent direction."""
+    """Gradient, with respect to node ``v``, of the scaled Jacobian of the worst corner around
+    it (the corner of smallest scaled Jacobian that ``v`` belongs to): the max-min ascent
+    direction."""
     unit = np.ones((1, 3))
     best = np.inf
     bx = by = bz = 0.0
@@ -169,13 +170,18 @@ def _worst_corner_direction(X, hexes, ptr, inc, v, x0, x1, x2):
             e00, e01, e02, e10, e11, e12, e20, e21, e22, k0, k1, k2 = _corner_edges(X, hexes, unit, np.int64(0), e, c, v, l, x0, x1, x2)
             C0x, C0y, C0z, C1x, C1y, C1z, C2x, C2y, C2z = _cofactors(e00, e01, e02, e10, e11, e12, e20, e21, e22)
             D = e00 * C0x + e01 * C0y + e02 * C0z
-            ln = np.sqrt((e00 * e00 + e01 * e01 + e02 * e02) * (e10 * e10 + e11 * e11 + e12 * e12) * (e20 * e20 + e21 * e21 + e22 * e22))
-            sj = D / max(ln, 1e-300)
+            n0 = max(e00 * e00 + e01 * e01 + e02 * e02, 1e-300)
+            n1 = max(e10 * e10 + e11 * e11 + e12 * e12, 1e-300)
+            n2 = max(e20 * e20 + e21 * e21 + e22 * e22, 1e-300)
+            ln = np.sqrt(n0 * n1 * n2)
+            sj = D / ln
             if sj < best:
                 best = sj
-                bx = (k0 * C0x + k1 * C1x + k2 * C2x) / max(ln, 1e-300)
-                by = (k0 * C0y + k1 * C1y + k2 * C2y) / max(ln, 1e-300)
-                bz = (k0 * C0z + k1 * C1z + k2 * C2z) / max(ln, 1e-300)
+                # d sj = d D / ln - sj sum_a d|e_a|^2 / (2 |e_a|^2), d e_a = k_a dx: the
+                # volume's gradient alone can lengthen the edges faster than it adds volume
+                bx = (k0 * C0x + k1 * C1x + k2 * C2x) / ln - sj * (k0 * e00 / n0 + k1 * e10 / n1 + k2 * e20 / n2)
+                by = (k0 * C0y + k1 * C1y + k2 * C2y) / ln - sj * (k0 * e01 / n0 + k1 * e11 / n1 + k2 * e21 / n2)
+                bz = (k0 * C0z + k1 * C1z + k2 * C2z) / ln - sj * (k0 * e02 / n0 + k1 * e12 / n1 + k2 * e22 / n2)
     return bx, by, bz
 
 
