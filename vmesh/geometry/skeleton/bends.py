@@ -183,7 +183,7 @@ def _bridgeable(sk: Skeleton, pick: np.ndarray, distance) -> np.ndarray:
 
 
 def thin_stubs(skeleton: Skeleton, depth: float = 1.0) -> tuple[Skeleton, int]:
-    """Drop the inner nodes of short end branches that never leave their junction's lumen.
+    """Drop the inner nodes of short branches that never leave their junctions' lumen.
 
     A side branch cut off one or two radii past the wall (a stub) is resampled with nodes
     whose cross-sections all reach into its (much wider) parent: they find no wall across
@@ -191,6 +191,10 @@ def thin_stubs(skeleton: Skeleton, depth: float = 1.0) -> tuple[Skeleton, int]:
     (from a junction to an endpoint, every inner node narrower than the junction and
     closer to the junction node than ``depth`` × the junction radius plus its own radius) keeps only its junction and end:
     the block builder closes it with the junction's half-sections and the end's section.
+    A branch between two junctions, every inner node narrower than the wider junction and
+    so close to one of them (a thin branch from a wide vessel that forks again before it
+    leaves that vessel's lumen), is one segment likewise: the builder has no room between
+    the two junctions' sections to move its sections out of the lumen.
 
     Returns
     -------
@@ -208,13 +212,24 @@ def thin_stubs(skeleton: Skeleton, depth: float = 1.0) -> tuple[Skeleton, int]:
             continue
         if deg[p[0]] == 1 and deg[p[-1]] >= 3:
             p = p[::-1]
-        if not (deg[p[0]] >= 3 and deg[p[-1]] == 1):
+        if deg[p[0]] < 3 or deg[p[-1]] == 2:
             continue
-        reach = np.linalg.norm(sk.points[p[1:-1]] - sk.points[p[0]], axis=1)
-        inner = sk.radii[p[1:-1]]
-        # narrower than the junction (an aneurysm's sac, wider, keeps its sections)
-        if np.all(inner < sk.radii[p[0]]) and np.all(reach <= depth * sk.radii[p[0]] + inner):
+        held = _near_junction(sk, p[0], p[1:-1], depth)
+        wide = sk.radii[p[0]]
+        if deg[p[-1]] >= 3:  # a node may lie in either junction's lumen
+            held |= _near_junction(sk, p[-1], p[1:-1], depth)
+            wide = max(wide, sk.radii[p[-1]])
+        # narrower than the (wider) junction: an aneurysm's sac, or an aortic arch between
+        # its branches, is wider and keeps its sections
+        if np.all(held & (sk.radii[p[1:-1]] < wide)):
             drop[p[1:-1]] = True
     if not drop.any():
         return sk.copy(), 0
     return remove_nodes(sk, drop, bridge=True), int(drop.sum())
+
+
+def _near_junction(sk: Skeleton, junction: int, nodes, depth: float) -> np.ndarray:
+    """Which of ``nodes`` are closer to ``junction`` than ``depth`` × its radius plus their
+    own (their sections reach into the junction's lumen)."""
+    reach = np.linalg.norm(sk.points[nodes] - sk.points[junction], axis=1)
+    return reach <= depth * sk.radii[junction] + sk.radii[nodes]
