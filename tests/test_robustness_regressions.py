@@ -61,10 +61,15 @@ def side_fork(reach: float, stub: float | None = None, parent_radius: float = 1.
     radii = np.array([parent_radius] * 3 + [radius, radius, radius if stub is None else 0.55 * radius])
     E = np.array([[0, 1], [1, 2], [1, 3], [3, 4], [3, 5]])
     sk = resample_skeleton(Skeleton(P, radii, E), 1.25)
+    # a traced centerline's radii: each branch its own (not blended towards the parent's)
+    side = sk.points[:, 1] > 1e-9
+    sk.radii[side] = radius
+    if stub is not None:
+        sk.radii[side & (sk.points[:, 0] < -1e-9)] = 0.55 * radius
     return sk, capsule_distance(P[E[:, 0]], P[E[:, 1]], radii[E[:, 1]])
 
 
-@pytest.mark.parametrize("reach, stub", [(1.7, None), (1.8, 0.8)])
+@pytest.mark.parametrize("reach, stub", [(1.7, None), (1.7, 0.8)])
 def test_a_thin_branch_that_forks_inside_its_parents_lumen_is_one_segment(reach, stub):
     # generated g0006 (given SWC): a thin branch leaves a twice wider vessel and forks (into
     # a branch and a stub) before it has left that vessel's lumen; the section of its inner
@@ -80,6 +85,8 @@ def test_a_thin_branch_that_forks_inside_its_parents_lumen_is_one_segment(reach,
 
 def test_branches_between_junctions_that_leave_the_lumen_or_are_wider_keep_their_nodes():
     sk, _ = side_fork(4.5)  # the fork well outside the parent
+    assert thin_stubs(sk)[1] == 0
+    sk, _ = side_fork(1.7, radius=0.8)  # a daughter of a bifurcating tree: the builder spreads its sections
     assert thin_stubs(sk)[1] == 0
     # a trunk between two side branches, wider than its junctions (an aortic arch)
     P = np.array([[-12.0, 0, 0], [-3.0, 0, 0], [0.0, 0.3, 0], [3.0, 0, 0], [12.0, 0, 0], [-3.0, 8, 0], [3.0, 8, 0]])

@@ -182,7 +182,7 @@ def _bridgeable(sk: Skeleton, pick: np.ndarray, distance) -> np.ndarray:
     return np.asarray(ok, np.int64)
 
 
-def thin_stubs(skeleton: Skeleton, depth: float = 1.0) -> tuple[Skeleton, int]:
+def thin_stubs(skeleton: Skeleton, depth: float = 1.0, side_ratio: float = 0.6) -> tuple[Skeleton, int]:
     """Drop the inner nodes of short branches that never leave their junctions' lumen.
 
     A side branch cut off one or two radii past the wall (a stub) is resampled with nodes
@@ -191,10 +191,13 @@ def thin_stubs(skeleton: Skeleton, depth: float = 1.0) -> tuple[Skeleton, int]:
     (from a junction to an endpoint, every inner node narrower than the junction and
     closer to the junction node than ``depth`` × the junction radius plus its own radius) keeps only its junction and end:
     the block builder closes it with the junction's half-sections and the end's section.
-    A branch between two junctions, every inner node narrower than the wider junction and
-    so close to one of them (a thin branch from a wide vessel that forks again before it
-    leaves that vessel's lumen), is one segment likewise: the builder has no room between
-    the two junctions' sections to move its sections out of the lumen.
+    A branch between two junctions, every inner node at most ``side_ratio`` × the wider
+    junction's radius and so close to one of them (a thin side branch of a wide vessel that
+    forks again before it leaves that vessel's lumen), is one segment likewise: the builder
+    has no room between the two junctions' sections to move its sections out of the lumen.
+    ``side_ratio`` is the scale of a side branch or stub (0.3-0.6 of its parent's radius);
+    a branch between the junctions of a bifurcating tree is wider (0.8-1 × its junctions'
+    radius, a Murray daughter) and keeps its nodes: the builder spreads its sections.
 
     Returns
     -------
@@ -215,13 +218,12 @@ def thin_stubs(skeleton: Skeleton, depth: float = 1.0) -> tuple[Skeleton, int]:
         if deg[p[0]] < 3 or deg[p[-1]] == 2:
             continue
         held = _near_junction(sk, p[0], p[1:-1], depth)
-        wide = sk.radii[p[0]]
+        # narrower than the junction: an aneurysm's sac, wider, keeps its sections
+        narrow = sk.radii[p[1:-1]] < sk.radii[p[0]]
         if deg[p[-1]] >= 3:  # a node may lie in either junction's lumen
             held |= _near_junction(sk, p[-1], p[1:-1], depth)
-            wide = max(wide, sk.radii[p[-1]])
-        # narrower than the (wider) junction: an aneurysm's sac, or an aortic arch between
-        # its branches, is wider and keeps its sections
-        if np.all(held & (sk.radii[p[1:-1]] < wide)):
+            narrow = sk.radii[p[1:-1]] <= side_ratio * max(sk.radii[p[0]], sk.radii[p[-1]])
+        if np.all(held & narrow):
             drop[p[1:-1]] = True
     if not drop.any():
         return sk.copy(), 0
