@@ -48,6 +48,53 @@ def test_long_side_branches_and_wide_sacs_keep_their_nodes():
     assert thin_stubs(sk)[1] == 0
 
 
+def side_fork(reach: float, stub: float | None = None, parent_radius: float = 1.0, radius: float = 0.5, angle: float = 90.0):
+    """A straight parent tube with a thin side branch from the origin that forks ``reach``
+    from the parent's axis into two arms at ``angle`` degrees to it either side (or one arm
+    and a short, thinner stub of length ``stub``), resampled at 1.25 radii; and its signed
+    distance."""
+    a = np.radians(angle)
+    J = np.array([0.0, reach, 0.0])
+    left = np.array([-np.sin(a), np.cos(a), 0.0])
+    P = np.array([[-12.0, 0, 0], [0, 0, 0], [12.0, 0, 0], J, J + 6.0 * np.array([np.sin(a), np.cos(a), 0.0]),
+                  J + (6.0 if stub is None else stub) * left])
+    radii = np.array([parent_radius] * 3 + [radius, radius, radius if stub is None else 0.55 * radius])
+    E = np.array([[0, 1], [1, 2], [1, 3], [3, 4], [3, 5]])
+    sk = resample_skeleton(Skeleton(P, radii, E), 1.25)
+    # a traced centerline's radii: each branch its own (not blended towards the parent's)
+    side = sk.points[:, 1] > 1e-9
+    sk.radii[side] = radius
+    if stub is not None:
+        sk.radii[side & (sk.points[:, 0] < -1e-9)] = 0.55 * radius
+    return sk, capsule_distance(P[E[:, 0]], P[E[:, 1]], radii[E[:, 1]])
+
+
+@pytest.mark.parametrize("reach, stub", [(1.7, None), (1.7, 0.8)])
+def test_a_thin_branch_that_forks_inside_its_parents_lumen_is_one_segment(reach, stub):
+    # generated g0006 (given SWC): a thin branch leaves a twice wider vessel and forks (into
+    # a branch and a stub) before it has left that vessel's lumen; the section of its inner
+    # node runs along the parent's lumen ("no wall within reach")
+    sk, dist = side_fork(reach, stub)
+    with pytest.raises(MeshingError, match="no wall within reach"):
+        build_blocks(sk, dist, None, BlockOptions())
+    thinned, removed = thin_stubs(sk)
+    assert removed > 0 and len(thinned.junctions) == len(sk.junctions) and len(thinned.endpoints) == len(sk.endpoints)
+    checks = block_structure_checks(build_blocks(thinned, dist, None, BlockOptions()))
+    assert checks["invalid_blocks"] == checks["face_use_errors"] == 0 and checks["boundary_euler"] == 2
+
+
+def test_branches_between_junctions_that_leave_the_lumen_or_are_wider_keep_their_nodes():
+    sk, _ = side_fork(4.5)  # the fork well outside the parent
+    assert thin_stubs(sk)[1] == 0
+    sk, _ = side_fork(1.7, radius=0.8)  # a daughter of a bifurcating tree: the builder spreads its sections
+    assert thin_stubs(sk)[1] == 0
+    # a trunk between two side branches, wider than its junctions (an aortic arch)
+    P = np.array([[-12.0, 0, 0], [-3.0, 0, 0], [0.0, 0.3, 0], [3.0, 0, 0], [12.0, 0, 0], [-3.0, 8, 0], [3.0, 8, 0]])
+    radii = np.array([3.0, 2.8, 3.1, 2.8, 3.0, 1.0, 1.0])
+    sk = Skeleton(P, radii, np.array([[0, 1], [1, 2], [2, 3], [3, 4], [1, 5], [3, 6]]))
+    assert thin_stubs(sk)[1] == 0
+
+
 def test_skeleton_pieces_of_surface_pieces_not_meshed_are_dropped():
     # the SWC of a three-piece vessel (g0005) with only the largest surface piece meshed:
     # the other trees' nodes were pulled into it as junk branches

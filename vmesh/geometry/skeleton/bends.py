@@ -182,8 +182,8 @@ def _bridgeable(sk: Skeleton, pick: np.ndarray, distance) -> np.ndarray:
     return np.asarray(ok, np.int64)
 
 
-def thin_stubs(skeleton: Skeleton, depth: float = 1.0) -> tuple[Skeleton, int]:
-    """Drop the inner nodes of short end branches that never leave their junction's lumen.
+def thin_stubs(skeleton: Skeleton, depth: float = 1.0, side_ratio: float = 0.6) -> tuple[Skeleton, int]:
+    """Drop the inner nodes of short branches that never leave their junctions' lumen.
 
     A side branch cut off one or two radii past the wall (a stub) is resampled with nodes
     whose cross-sections all reach into its (much wider) parent: they find no wall across
@@ -191,6 +191,13 @@ def thin_stubs(skeleton: Skeleton, depth: float = 1.0) -> tuple[Skeleton, int]:
     (from a junction to an endpoint, every inner node narrower than the junction and
     closer to the junction node than ``depth`` × the junction radius plus its own radius) keeps only its junction and end:
     the block builder closes it with the junction's half-sections and the end's section.
+    A branch between two junctions, every inner node at most ``side_ratio`` × the wider
+    junction's radius and so close to one of them (a thin side branch of a wide vessel that
+    forks again before it leaves that vessel's lumen), is one segment likewise: the builder
+    has no room between the two junctions' sections to move its sections out of the lumen.
+    ``side_ratio`` is the scale of a side branch or stub (0.3-0.6 of its parent's radius);
+    a branch between the junctions of a bifurcating tree is wider (0.8-1 × its junctions'
+    radius, a Murray daughter) and keeps its nodes: the builder spreads its sections.
 
     Returns
     -------
@@ -208,13 +215,23 @@ def thin_stubs(skeleton: Skeleton, depth: float = 1.0) -> tuple[Skeleton, int]:
             continue
         if deg[p[0]] == 1 and deg[p[-1]] >= 3:
             p = p[::-1]
-        if not (deg[p[0]] >= 3 and deg[p[-1]] == 1):
+        if deg[p[0]] < 3 or deg[p[-1]] == 2:
             continue
-        reach = np.linalg.norm(sk.points[p[1:-1]] - sk.points[p[0]], axis=1)
-        inner = sk.radii[p[1:-1]]
-        # narrower than the junction (an aneurysm's sac, wider, keeps its sections)
-        if np.all(inner < sk.radii[p[0]]) and np.all(reach <= depth * sk.radii[p[0]] + inner):
+        held = _near_junction(sk, p[0], p[1:-1], depth)
+        # narrower than the junction: an aneurysm's sac, wider, keeps its sections
+        narrow = sk.radii[p[1:-1]] < sk.radii[p[0]]
+        if deg[p[-1]] >= 3:  # a node may lie in either junction's lumen
+            held |= _near_junction(sk, p[-1], p[1:-1], depth)
+            narrow = sk.radii[p[1:-1]] <= side_ratio * max(sk.radii[p[0]], sk.radii[p[-1]])
+        if np.all(held & narrow):
             drop[p[1:-1]] = True
     if not drop.any():
         return sk.copy(), 0
     return remove_nodes(sk, drop, bridge=True), int(drop.sum())
+
+
+def _near_junction(sk: Skeleton, junction: int, nodes, depth: float) -> np.ndarray:
+    """Which of ``nodes`` are closer to ``junction`` than ``depth`` × its radius plus their
+    own (their sections reach into the junction's lumen)."""
+    reach = np.linalg.norm(sk.points[nodes] - sk.points[junction], axis=1)
+    return reach <= depth * sk.radii[junction] + sk.radii[nodes]
