@@ -97,8 +97,12 @@ def furcation(name: str, daughters, parent_radius: float = 1.0, parent_length: f
     return JunctionCase(name, np.asarray(a), np.asarray(b), np.asarray(r), sk, blend)
 
 
-def close_junctions(gap: float, angle: float = 40.0) -> JunctionCase:
-    """A trunk along +x with a side branch at the origin and a bifurcation ``gap`` radii on."""
+def close_junctions(gap: float, angle: float = 40.0, side: tuple = (90.0, 30.0)) -> JunctionCase:
+    """A trunk along +x with a side branch at the origin and a bifurcation ``gap`` radii on.
+
+    ``side`` is the side branch's (azimuth, elevation) in degrees: near the upper
+    daughter's (``angle / 2``, -20) it leaves alongside that daughter, as a small branch
+    that parts from the trunk just before a bifurcation does (sv_rpa's node 2)."""
     r0 = 1.0
     J2 = np.array([gap, 0, 0])
     pts = [np.zeros(3), J2]
@@ -116,14 +120,14 @@ def close_junctions(gap: float, angle: float = 40.0) -> JunctionCase:
         r.append(rd)
 
     add(np.zeros(3), 0, np.array([-1.0, 0, 0]), r0, 8.0)
-    add(np.zeros(3), 0, direction(90, 30), 0.6 * r0, 6.0)
+    add(np.zeros(3), 0, direction(*side), 0.6 * r0, 6.0)
     add(J2, 1, direction(angle / 2, -20), 0.75 * r0, 8.0)
     add(J2, 1, direction(-angle / 2, -20), 0.7 * r0, 8.0)
     a.append(np.zeros(3))
     b.append(J2)
     r.append(0.9 * r0)
     sk = Skeleton(np.asarray(pts), np.asarray(radii, float), np.asarray(edges))
-    return JunctionCase(f"close_junctions_{gap:g}", np.asarray(a), np.asarray(b), np.asarray(r), sk)
+    return JunctionCase(f"close_junctions_{gap:g}_{side[0]:g}_{side[1]:g}", np.asarray(a), np.asarray(b), np.asarray(r), sk)
 
 
 def bifurcation(angle: float, ratio: float, out_of_plane: float = 0.0, asymmetry: float = 0.5) -> JunctionCase:

@@ -1,0 +1,58 @@
+"""Dense and close junctions (issue 17): the failure group "N block(s) stay invalid" of
+sv_rpa (extracted, node 2), hepatic_artery (extracted, node 11) and the generated corpus,
+rebuilt on a small generated vessel.
+
+sv_rpa's node 2: a small branch leaves the trunk alongside a daughter of a bifurcation one
+radius downstream, so the first junction's half cross-section between that branch and the
+segment to the second junction (less than 25 degrees apart around its axis) reaches past
+the second junction. Merging the two gives a 4-junction far out of plane; splitting it
+again (any pairing) gives two crowded 3-junctions. ``docs/junctions.md`` ("Dense and close
+junctions") has the analysis and what was tried.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from junction_cases import close_junctions
+from vmesh.errors import MeshingError
+from vmesh.geometry import cross_sections as cs
+from vmesh.geometry import skeleton_ops as ops
+from vmesh.geometry.block_builder import BlockOptions, build_blocks
+
+#: (gap between the junctions in trunk radii, side branch azimuth and elevation in degrees);
+#: the upper daughter leaves at (20, -20), 30 degrees below the side branch
+DENSE = [(1.0, 20.0, 10.0), (0.6, 20.0, 10.0)]
+
+
+def _skeleton(case):
+    # as clean_skeleton does in the default chain (and test_junctions.build)
+    sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
+    return sk
+
+
+@pytest.mark.parametrize("gap,azimuth,elevation", DENSE)
+def test_generated_vessel_has_a_dense_junction(gap, azimuth, elevation):
+    """The regression vessel keeps what makes sv_rpa's node 2 fail: two junctions closer
+    than two radii, joined by one segment, and at the first one the side branch less than
+    25 degrees from that segment around the junction axis."""
+    case = close_junctions(gap, side=(azimuth, elevation))
+    sk = _skeleton(case)
+    assert len(sk.junctions) == 2
+    a, b = (int(x) for x in sk.junctions)
+    assert np.linalg.norm(sk.points[a] - sk.points[b]) < 2.0 * sk.radii[a]
+    assert sorted(map(int, sk.edges[np.any(sk.edges == a, axis=1) & np.any(sk.edges == b, axis=1)][0])) == [a, b]
+    _, least_gap, _ = cs.junction_axis(cs.unit(sk.points[sk.neighbors(a)] - sk.points[a]))
+    assert np.degrees(least_gap) < 25.0
+    # the field is the vessel: every skeleton node inside it
+    assert np.all(case.distance(sk.points) > 0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("gap,azimuth,elevation", DENSE)
+@pytest.mark.xfail(strict=True, raises=MeshingError, reason="dense junction: blocks stay invalid (issue 17)")
+def test_dense_junction_blocks_valid(gap, azimuth, elevation):
+    case = close_junctions(gap, side=(azimuth, elevation))
+    blocks = build_blocks(_skeleton(case), case.distance, None, BlockOptions(), project=case.project)
+    assert blocks.corner_jacobians().min() > 0
