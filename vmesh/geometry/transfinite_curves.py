@@ -157,7 +157,7 @@ def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray):
     curved = np.zeros(E, bool)
     if MAX_ALONG_TURN <= 0:
         return acc, curved
-    edges_of = []  # per axis: blocks, their along edges, their other edges
+    edges_of = []  # per axis: the along edges (nb, 4) of its blocks
     along = blocks.axis_kind == AXIS_ALONG
     bsel = np.flatnonzero(along.sum(axis=1) == 1)
     axis = np.argmax(along[bsel], axis=1)
@@ -173,7 +173,7 @@ def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray):
             n = np.cross(F[:, 2] - F[:, 0], F[:, 3] - F[:, 1])
             n *= np.sign(np.einsum("ij,ij->i", n, forward))[:, None]
             normals.append(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300))
-        edges_of.append((b, topo.block_edge[b, 4 * a: 4 * a + 4], topo.block_edge[b][:, [j for j in range(12) if j // 4 != a]]))
+        edges_of.append(topo.block_edge[b, 4 * a: 4 * a + 4])
         for i in range(4 * a, 4 * a + 4):
             e = topo.block_edge[b, i]
             lo, hi = H[:, HEX_EDGES[i, 0]], H[:, HEX_EDGES[i, 1]]  # at the end faces 0 and 1
@@ -195,7 +195,7 @@ def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray):
     bend /= np.maximum(np.linalg.norm(bend, axis=1, keepdims=True), 1e-300)
     half, bend = _smooth_bulges(topo, V, d, half, bend, curved, edges_of)
     acc = _symmetric_tangents(d, bend, half)
-    scale = _alike_in_blocks(blocks, topo, V, acc, edges_of)
+    scale = _alike_in_blocks(topo, V, acc, edges_of)
     half = half * scale
     acc = _symmetric_tangents(d, bend, half)
     curved &= (half > MIN_ALONG_TURN) & (np.einsum("ij,ij->i", N0, d) > 0) & (np.einsum("ij,ij->i", N1, d) > 0)
@@ -226,7 +226,7 @@ def _smooth_bulges(topo, V, d, half, bend, along, edges_of, rounds: int | None =
     for _ in range(rounds):
         acc = np.zeros_like(bulge)
         cnt = np.zeros(len(L))
-        for _, edges, _ in edges_of:
+        for edges in edges_of:
             mean = bulge[edges].mean(axis=1)  # (nb, 3) per block
             np.add.at(acc, edges.ravel(), np.repeat(mean, 4, axis=0))
             np.add.at(cnt, edges.ravel(), 1.0)
@@ -240,7 +240,7 @@ def _smooth_bulges(topo, V, d, half, bend, along, edges_of, rounds: int | None =
     return new_half, new_bend
 
 
-def _alike_in_blocks(blocks, topo, V, tangent, edges_of, rounds: int = 3):
+def _alike_in_blocks(topo, V, tangent, edges_of, rounds: int = 3):
     """Per edge, a factor (<= 1) on its turns so that the along edges of every block bulge
     alike: the difference of two edges' mid-point offsets from their chords stays within
     :data:`ALIKE` times the distance between the edges (a thin core block between edges
@@ -248,14 +248,17 @@ def _alike_in_blocks(blocks, topo, V, tangent, edges_of, rounds: int = 3):
     L = np.linalg.norm(V[topo.edges[:, 1]] - V[topo.edges[:, 0]], axis=1)
     bulge = (L / 8.0)[:, None] * (tangent[:, 0] - tangent[:, 1])  # Hermite mid-point offset
     scale = np.ones(len(L))
+    # each pair of edges against its own distance: a thin block's two sides must bend alike,
+    # edges far apart across a wide block may bend apart more (the distances do not change
+    # from round to round)
+    gaps = []
+    for along in edges_of:
+        M = 0.5 * (V[topo.edges[along, 0]] + V[topo.edges[along, 1]])
+        gaps.append(np.linalg.norm(M[:, :, None] - M[:, None, :], axis=3))
     for _ in range(rounds):
         changed = False
-        for _, along, _ in edges_of:
+        for along, gap in zip(edges_of, gaps):
             off = scale[along][..., None] * bulge[along]  # (nb, 4, 3)
-            # each pair of edges against its own distance: a thin block's two sides must bend
-            # alike, edges far apart across a wide block may bend apart more
-            M = 0.5 * (V[topo.edges[along, 0]] + V[topo.edges[along, 1]])
-            gap = np.linalg.norm(M[:, :, None] - M[:, None, :], axis=3)
             diff = np.linalg.norm(off[:, :, None] - off[:, None, :], axis=3)
             ratio = ALIKE * gap / np.maximum(diff, 1e-300)
             ratio[:, np.arange(4), np.arange(4)] = np.inf

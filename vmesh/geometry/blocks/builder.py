@@ -47,7 +47,7 @@ from .prep import merge_junction_pair, split_nonplanar_junctions
 from .repair import _Repair
 from .sections import _Sections
 from .state import _Assembled, _Ends, _Frames, _Placement, _Topology
-from .work import WorkBudget, _BoundedCasts
+from .work import WorkBudget
 
 
 def build_blocks(
@@ -187,7 +187,7 @@ def _retopology_options(failure: "_Failure", notes: list, distance, options: Blo
 # ---------------------------------------------------------------------------
 # the builder
 # ---------------------------------------------------------------------------
-class _Builder(_BoundedCasts, _Junctions, _Sections, _Assembly, _Repair):
+class _Builder(_Junctions, _Sections, _Assembly, _Repair):
     def __init__(self, skeleton: Skeleton, distance, caps, options: BlockOptions, warn, progress, project=None, intersect_lines=None,
                  work=None):
         self.opt = options

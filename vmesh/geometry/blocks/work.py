@@ -162,10 +162,3 @@ class WorkBudget:
         return {"assemblies": self.used, "valid_after": self.valid_after, "work_budget": self.limit,
                 "rays_cast": self.rays.misses, "rays_reused": self.rays.hits}
 
-
-class _BoundedCasts:
-    """The builder's ray casts through its build's :class:`RayCache` (``self.work.rays``).
-    Mixed into :class:`~vmesh.geometry.blocks.builder._Builder` ahead of the section steps."""
-
-    def cast(self, origins, directions, scale, reach: float = 12.0) -> np.ndarray:
-        return self.work.rays.cast(self.sdf, origins, directions, scale, reach=reach, intersect_lines=self.intersect_lines)
