@@ -300,7 +300,10 @@ def compute_quality(ctx, histogram, fail_on_invalid, bins):
     if fail_on_invalid and summary["n_invalid"]:
         bad = np.flatnonzero(sj <= 0)
         blocks = np.unique(mesh.cell_data["block_id"][bad])[:10]
-        raise MeshingError(f"{summary['n_invalid']} elements have a scaled Jacobian <= 0 (blocks {blocks.tolist()})")
+        nodes = np.unique(mesh.cell_data["node_id"][bad])[:10] if "node_id" in mesh.cell_data else []
+        raise MeshingError(f"{summary['n_invalid']} elements have a scaled Jacobian <= 0 next to skeleton node(s) {list(map(int, nodes))} "
+                           f"(blocks {blocks.tolist()}): mesh_transfinite's untangling could not unfold them (report.json: untangle); "
+                           f"compute_quality.fail_on_invalid=false writes the mesh to inspect them")
 
 
 def boundary_distance(mesh, surface, blocks, projector) -> dict:

@@ -124,43 +124,53 @@ def _objective(points: np.ndarray, prob: _Problem, want_grad: bool = True):
     return float(f.sum()), grad
 
 
-def lbfgs(fun, x0: np.ndarray, iterations: int = 200, memory: int = 8, first_step: float = 1.0, rtol: float = 1e-7) -> np.ndarray:
+def _dot(a: np.ndarray, b: np.ndarray) -> float:
+    """Dot product of two vectors without BLAS: OpenBLAS splits a dot product longer than
+    10,000 entries over threads, which on a loaded machine costs 20-100 times the product
+    (the untangler's vectors are 3 entries a free node)."""
+    return float(np.einsum("i,i->", a, b))
+
+
+def lbfgs(fun, x0: np.ndarray, iterations: int = 200, memory: int = 8, first_step: float = 1.0, rtol: float = 1e-7, spent=None) -> np.ndarray:
     """Minimise ``fun(x) -> (f, grad)`` by limited-memory BFGS with a backtracking (Armijo)
     line search. Plain numpy: for these problems scipy's L-BFGS-B spends more time in its
-    bound handling than in the objective."""
+    bound handling than in the objective. ``spent() -> bool``, when given, stops the
+    minimisation (at its last accepted point) once the caller's work budget is spent."""
     x = np.array(x0, float)
     f, g = fun(x)
     S, Y = [], []
     for _ in range(iterations):
+        if spent is not None and spent():
+            break
         q = g.copy()
         alphas = []
         for s_, y_ in zip(reversed(S), reversed(Y)):
-            rho = 1.0 / float(y_ @ s_)
-            a = rho * float(s_ @ q)
+            rho = 1.0 / _dot(y_, s_)
+            a = rho * _dot(s_, q)
             q -= a * y_
             alphas.append((rho, a))
         if S:
-            q *= float(S[-1] @ Y[-1]) / max(float(Y[-1] @ Y[-1]), 1e-300)
+            q *= _dot(S[-1], Y[-1]) / max(_dot(Y[-1], Y[-1]), 1e-300)
         else:
             q *= first_step / max(float(np.abs(g).max()), 1e-300)
         for (s_, y_), (rho, a) in zip(zip(S, Y), reversed(alphas)):
-            q += s_ * (a - rho * float(y_ @ q))
+            q += s_ * (a - rho * _dot(y_, q))
         d = -q
-        slope = float(g @ d)
+        slope = _dot(g, d)
         if slope >= 0:  # not a descent direction: restart from steepest descent
             S, Y = [], []
             d = -g * (first_step / max(float(np.abs(g).max()), 1e-300))
-            slope = float(g @ d)
+            slope = _dot(g, d)
         t = 1.0
         while True:
             fn, gn = fun(x + t * d)
-            if fn <= f + 1e-4 * t * slope or t < 1e-8:
+            if fn <= f + 1e-4 * t * slope or t < 1e-8 or (spent is not None and spent()):
                 break
             t *= 0.5
         if fn > f:
             break
         step, dg = t * d, gn - g
-        if float(dg @ step) > 1e-300:
+        if _dot(dg, step) > 1e-300:
             S.append(step)
             Y.append(dg)
             if len(S) > memory:
@@ -174,18 +184,35 @@ def lbfgs(fun, x0: np.ndarray, iterations: int = 200, memory: int = 8, first_ste
     return x
 
 
-def _minimise(points: np.ndarray, prob: _Problem, iterations: int) -> np.ndarray:
+class _Work:
+    """Work of one :func:`untangle` call in *node updates*: every evaluation of the objective
+    counts the free nodes it moves. ``limit`` (None: unbounded) stops the minimisations."""
+
+    def __init__(self, limit: float | None = None):
+        self.limit, self.updates, self.evaluations = limit, 0, 0
+
+    def spend(self, nodes: int) -> None:
+        self.updates += int(nodes)
+        self.evaluations += 1
+
+    def spent(self) -> bool:
+        return self.limit is not None and self.updates >= self.limit
+
+
+def _minimise(points: np.ndarray, prob: _Problem, iterations: int, work: _Work | None = None) -> np.ndarray:
     k = prob.basis.shape[2]
     X = points.copy()
+    work = work or _Work()
 
     def fun(u):
+        work.spend(len(prob.free))
         X[prob.free] = prob.x0 + np.einsum("nik,nk->ni", prob.basis, u.reshape(-1, k))
         f, g = _objective(X, prob)
         return f, np.einsum("nik,ni->nk", prob.basis, g[prob.free]).ravel()
 
     # first step: move the node with the steepest gradient by a tenth of a target edge
     h = 0.1 / float(np.median(prob.scale))
-    u = lbfgs(fun, np.zeros(len(prob.free) * k), iterations, first_step=h)
+    u = lbfgs(fun, np.zeros(len(prob.free) * k), iterations, first_step=h, spent=work.spent)
     X[prob.free] = prob.x0 + np.einsum("nik,nk->ni", prob.basis, u.reshape(-1, k))
     return X
 
@@ -205,7 +232,7 @@ def _grow(inc: sp.csr_matrix, seed: np.ndarray, rings: int) -> np.ndarray:
     return sel
 
 
-def _optimise_nodes(X, sub, target, ids, wall, cap_nodes, wall_normals, cap_normals, project, iterations):
+def _optimise_nodes(X, sub, target, ids, wall, cap_nodes, wall_normals, cap_normals, project, iterations, work=None):
     """One L-BFGS pass over the nodes ``ids``; wall and cap nodes move in their tangent planes."""
     n = len(X)
     B = np.broadcast_to(np.eye(3), (len(ids), 3, 3)).copy()
@@ -232,7 +259,7 @@ def _optimise_nodes(X, sub, target, ids, wall, cap_nodes, wall_normals, cap_norm
     delta = 1e-3 if qmin > 1e-3 else float(np.sqrt(1e-3 * (1e-3 - min(qmin, 0.0)) + 1e-6))
     scale = (1.0 / target(use)).reshape(-1, 2, 2, 2, 3)
     prob = _Problem(sub[use], scale, ids, B, X[ids].copy(), delta)
-    Y = _minimise(X, prob, iterations)
+    Y = _minimise(X, prob, iterations, work)
     if project is not None:
         w = ids[wall[ids]]
         if len(w):
@@ -274,6 +301,7 @@ def untangle(
     rounds: int = 5,
     boundary: np.ndarray | None = None,
     restart_below: float | None = None,
+    budget: float | None = 20000.0,
 ) -> tuple[np.ndarray, dict]:
     """Move the nodes around elements of low scaled Jacobian to make them valid.
 
@@ -306,26 +334,39 @@ def untangle(
         targets taken from the improved mesh, and keep the better of the two. The
         functional is not convex: which local optimum a fold ends in depends on small
         differences of the start, and a restart leaves a poor one.
+    budget : float, optional
+        Work bound in node updates (one free node in one evaluation of the objective) per
+        node of the fold (the nodes of the elements below ``threshold`` at the start): the
+        minimisations stop, keeping their best point so far, once ``budget`` times the fold's
+        node count is spent, so the work grows with the fold and never with the mesh or the
+        number of rounds (the default is about twice what the generated g0002 and g0018
+        folds take to their end, docs/optimiser.md). ``None``: unbounded.
 
     Returns
     -------
     points : (n, 3) float
         The new node positions (a copy).
     info : dict
-        ``moved`` nodes, ``before``/``after`` minimum sub-element scaled Jacobian, rounds.
+        ``moved`` nodes, ``before``/``after`` minimum sub-element scaled Jacobian, rounds,
+        ``work`` (node updates, objective evaluations, the fold's nodes, the limit and
+        whether it stopped the untangler).
     """
-    kw = dict(wall=wall, wall_normals=wall_normals, project=project, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=threshold, rings=rings, iterations=iterations, rounds=rounds, boundary=boundary)
+    sub, _parent = sub_hexahedra(cells, order)
+    fold = np.unique(sub[linear_scaled_jacobian(np.asarray(points, float), sub) < threshold]) if len(sub) else np.zeros(0, np.int64)
+    work = _Work(None if budget is None else float(budget) * len(fold))
+    kw = dict(wall=wall, wall_normals=wall_normals, project=project, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=threshold, rings=rings, iterations=iterations, rounds=rounds, boundary=boundary, work=work)
     X, info, moved = _untangle_pass(points, cells, order, **kw)
-    if restart_below is not None and info["rounds"] and info["after"] < restart_below:
+    if restart_below is not None and info["rounds"] and info["after"] < restart_below and not work.spent():
         X2, info2, moved2 = _untangle_pass(X, cells, order, **kw)
         info["restart"] = {"after": info2["after"], "moved": info2["moved"], "rounds": info2["rounds"]}
         if info2["after"] > info["after"]:
             X = X2
             info = {**info2, "before": info["before"], "moved": int((moved | moved2).sum()), "rounds": info["rounds"] + info2["rounds"], "restart": info["restart"]}
+    info["work"] = {"node_updates": work.updates, "evaluations": work.evaluations, "fold_nodes": int(len(fold)), "limit": work.limit, "exhausted": work.spent()}
     return X, info
 
 
-def _untangle_pass(points, cells, order, *, wall, wall_normals, project, cap_normals, cap_nodes, threshold, rings, iterations, rounds, boundary):
+def _untangle_pass(points, cells, order, *, wall, wall_normals, project, cap_normals, cap_nodes, threshold, rings, iterations, rounds, boundary, work):
     """One run of :func:`untangle` (its rounds) from ``points``: new points, info and the
     mask of the nodes it moved."""
     X = np.array(points, float, copy=True)
@@ -352,7 +393,7 @@ def _untangle_pass(points, cells, order, *, wall, wall_normals, project, cap_nor
     moved = np.zeros(n, bool)
     for rnd in range(rounds):
         bad = q < threshold
-        if not bad.any():
+        if not bad.any() or work.spent():
             break
         info["rounds"] = rnd + 1
         region = _grow(inc, bad, rings + rnd)
@@ -369,9 +410,9 @@ def _untangle_pass(points, cells, order, *, wall, wall_normals, project, cap_nor
             for phase in phases:
                 free = free_all & ~wall if phase == "interior" else free_all
                 ids = np.flatnonzero(free)
-                if len(ids) == 0:
+                if len(ids) == 0 or work.spent():
                     continue
-                Y = _optimise_nodes(Y, sub, target, ids, wall, cap_nodes, wall_normals, cap_normals, project if phase == "with_wall" else None, iterations)
+                Y = _optimise_nodes(Y, sub, target, ids, wall, cap_nodes, wall_normals, cap_normals, project if phase == "with_wall" else None, iterations, work)
                 changed[ids] = True
             qy = linear_scaled_jacobian(Y, sub)
             if best is None or _score(qy, threshold) > _score(best[1], threshold):

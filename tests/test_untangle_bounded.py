@@ -1,0 +1,67 @@
+"""The global L-BFGS untangler's work is bounded by the size of the fold (issue 17 item 8).
+
+Generated g0002 (a 4-furcation with a radius jump) ran past the 240 s timeout in
+``untangle._objective``: its folds cannot be made valid, and the untangler went on through
+all its rounds and a restart over regions of thousands of nodes. Work is counted in node
+updates (free nodes times evaluations of the objective), never in seconds.
+"""
+
+import numpy as np
+
+from vmesh.geometry.untangle import _dot, linear_scaled_jacobian, untangle
+
+
+def _lattice(n):
+    """A unit-spaced n^3 lattice of hexahedra in tensor corner order (i fastest)."""
+    g = np.arange(n + 1, dtype=float)
+    P = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).transpose(2, 1, 0, 3).reshape(-1, 3)
+    idx = np.arange((n + 1) ** 3).reshape(n + 1, n + 1, n + 1)  # [k, j, i]
+    a = np.arange(n)
+    k, j, i = np.meshgrid(a, a, a, indexing="ij")
+    corners = [idx[k + ck, j + cj, i + ci] for ck in (0, 1) for cj in (0, 1) for ci in (0, 1)]
+    return P, np.stack([c.ravel() for c in corners], axis=1)
+
+
+def _hopeless_fold(n):
+    """A lattice whose face x = 0 (fixed boundary nodes) is folded: two neighbouring nodes
+    of that face swap places, and no move of the free nodes can make their elements valid."""
+    P, H = _lattice(n)
+    a = np.flatnonzero((P[:, 0] == 0) & (P[:, 1] == 2) & (P[:, 2] == 2))[0]
+    b = np.flatnonzero((P[:, 0] == 0) & (P[:, 1] == 3) & (P[:, 2] == 2))[0]
+    P[[a, b]] = P[[b, a]]
+    return P, H
+
+
+def test_a_hopeless_fold_costs_the_same_bounded_work_in_a_small_and_a_large_mesh():
+    runs = {}
+    for n in (6, 10):
+        P, H = _hopeless_fold(n)
+        assert (linear_scaled_jacobian(P, H) <= 0).any()
+        X, info = untangle(P, H, 1, threshold=0.3, restart_below=0.3, budget=200.0)
+        w = info["work"]
+        assert w["exhausted"] and (linear_scaled_jacobian(X, H) <= 0).any()  # it cannot: the fold is in the fixed boundary
+        # one evaluation past the limit at most (the check runs before each evaluation)
+        largest_region = len(P)
+        assert w["limit"] == 200.0 * w["fold_nodes"] and w["node_updates"] <= w["limit"] + largest_region
+        runs[n] = w
+    # the fold, and so the limit, is the same in both meshes
+    assert runs[6]["fold_nodes"] == runs[10]["fold_nodes"]
+    # without the bound the same fold costs more (all rounds and the restart)
+    P, H = _hopeless_fold(10)
+    _, free = untangle(P, H, 1, threshold=0.3, restart_below=0.3)
+    assert free["work"]["node_updates"] > 2 * runs[10]["limit"]
+
+
+def test_the_bound_does_not_stop_an_untangling_that_succeeds_within_it():
+    P, H = _lattice(5)
+    centre = np.argmin(np.linalg.norm(P - 2.0, axis=1))
+    P[centre] += [1.4, 1.3, 1.2]  # an interior node pushed through its neighbours
+    X, info = untangle(P, H, 1, threshold=0.5, budget=2000.0)
+    assert not info["work"]["exhausted"] and linear_scaled_jacobian(X, H).min() > 0.5
+    X2, info2 = untangle(P, H, 1, threshold=0.5)
+    assert np.array_equal(X, X2) and info2["work"]["node_updates"] == info["work"]["node_updates"]
+
+
+def test_dot_is_the_dot_product():
+    a, b = np.random.default_rng(0).normal(size=(2, 12345))
+    assert np.isclose(_dot(a, b), float(a @ b))
