@@ -34,12 +34,16 @@ class JunctionCase:
     skeleton: Skeleton
     blend: float = 0.35
 
+    def fields(self, p: np.ndarray) -> np.ndarray:
+        """Each capsule's own field (p, k), positive inside."""
+        ab = self.b - self.a
+        t = np.clip(np.einsum("pkj,kj->pk", p[:, None, :] - self.a[None], ab) / np.sum(ab * ab, axis=1), 0.0, 1.0)
+        return self.r[None] - np.linalg.norm(p[:, None, :] - (self.a[None] + t[:, :, None] * ab[None]), axis=2)
+
     def distance(self, p: np.ndarray) -> np.ndarray:
         """Smooth-union field, positive inside."""
         p = np.asarray(p, float).reshape(-1, 3)
-        ab = self.b - self.a
-        t = np.clip(np.einsum("pkj,kj->pk", p[:, None, :] - self.a[None], ab) / np.sum(ab * ab, axis=1), 0.0, 1.0)
-        f = self.r[None] - np.linalg.norm(p[:, None, :] - (self.a[None] + t[:, :, None] * ab[None]), axis=2)
+        f = self.fields(p)
         order = np.argsort(-self.r)  # thick vessels first: the blend scales with the thinner one
         out = f[:, order[0]]
         for k in order[1:]:
@@ -152,3 +156,45 @@ def trifurcation(spread: float, ratio: float = 1.0) -> JunctionCase:
     s = np.radians(spread)
     ds = [np.array([np.cos(s), np.sin(s) * np.cos(t), np.sin(s) * np.sin(t)]) for t in np.radians([90, 210, 330])]
     return furcation(f"trif_{spread:g}_{ratio:g}", [(ds[0], 0.7), (ds[1], 0.7), (ds[2], 0.7 / ratio)])
+
+
+@dataclass
+class CutCase(JunctionCase):
+    """A :class:`JunctionCase` whose capsules are cut open by planes: ``cuts`` holds
+    ``(capsule, point, outward normal)`` (flat open ends, each of one capsule)."""
+
+    cuts: tuple = ()
+
+    def fields(self, p: np.ndarray) -> np.ndarray:
+        f = JunctionCase.fields(self, p)
+        for k, c, n in self.cuts:
+            f[:, k] = np.minimum(f[:, k], (np.asarray(c) - p) @ np.asarray(n))
+        return f
+
+
+def side_stub(angle: float = 70.0, ratio: float = 0.4, length: float = 1.5, half: float = 8.0) -> tuple:
+    """A straight vessel of radius 1 along x (cut open at +-``half``) with a side branch of
+    radius ``ratio`` leaving the origin at ``angle`` degrees from +x, cut open ``length`` of
+    its radii past the parent's wall, as the generator's ``stub`` feature makes it.
+
+    The stub's skeleton is one segment from the junction to its cap, as ``thin_stubs``
+    leaves it. Returns the case and its caps (inlet at -x, outlet_1 at +x, outlet_2 on the
+    stub)."""
+    from vmesh.caps import Cap
+
+    d = direction(angle)
+    L = 1.0 + length * ratio
+    x = np.arange(-half, half + 1e-9, 0.8)
+    pts = np.r_[np.c_[x, np.zeros((len(x), 2))], (L * d)[None]]
+    j = int(np.argmin(np.abs(x)))
+    pts[j] = 0.0
+    n = len(x)
+    edges = np.r_[np.c_[np.arange(n - 1), np.arange(1, n)], [[j, n]]]
+    radii = np.r_[np.ones(n), ratio]
+    sk = Skeleton(pts, radii, edges)
+    ex = np.array([1.0, 0.0, 0.0])
+    cuts = ((0, -half * ex, -ex), (0, half * ex, ex), (1, L * d, d))
+    case = CutCase(f"stub_{angle:g}_{ratio:g}_{length:g}", np.array([-(half + 2) * ex, np.zeros(3)]),
+                   np.array([(half + 2) * ex, (L + 2 * ratio) * d]), np.array([1.0, ratio]), sk, cuts=cuts)
+    caps = [Cap(1, "inlet", -half * ex, -ex, 1.0), Cap(2, "outlet_1", half * ex, ex, 1.0), Cap(3, "outlet_2", L * d, d, ratio)]
+    return case, caps

@@ -102,6 +102,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         junctions=len(info.get("junctions", {})),
         max_twist_deg=float(info.get("max_twist_deg", 0.0)),
         fixes=len(info.get("fixes", [])),
+        cut_stubs=len(info.get("cut_stubs", [])),
     )
     ctx.report.sections["blocks"] = {
         "blocks": blocks.n_blocks,
@@ -116,9 +117,25 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         "blocks_folding_on_wall": info.get("blocks_folding_on_wall"),
         "min_projected_wall_quality": info.get("min_projected_wall_quality"),
         "work": info.get("work"),  # assemblies (and the budget), rays cast and reused
+        "cut_stubs": _cut_stubs(ctx, info.get("cut_stubs", [])),
     }
     if checks["boundary_components"] != 1:
         ctx.warn(f"the outer block faces form {checks['boundary_components']} pieces (is the skeleton connected?)")
+
+
+def _cut_stubs(ctx, stubs: list) -> list:
+    """The side-branch stubs the builder cut (:mod:`vmesh.geometry.blocks.stubs`), with the wall
+    each leaves unmeshed; a warning gives the total."""
+    if not stubs:
+        return []
+    from ..geometry.blocks.stubs import stub_wall
+
+    if ctx.surface is not None:
+        stubs = stub_wall(ctx.surface.vertices, ctx.surface.faces, stubs)
+        share = sum(s["wall_share"] for s in stubs)
+        ctx.warn(f"{len(stubs)} side-branch stub(s) cut (cap(s) {', '.join(repr(s['cap']) for s in stubs)}): "
+                 f"{100 * share:.2g} % of the wall is not meshed there")
+    return [{k: v for k, v in s.items() if k != "nodes"} for s in stubs]
 
 
 def write_edge_ply(path, vertices: np.ndarray, edges: np.ndarray, edge_data: dict | None = None) -> Path:

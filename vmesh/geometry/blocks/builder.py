@@ -46,6 +46,7 @@ from .options import BlockOptions, _LocalFixes
 from .prep import merge_junction_pair, split_nonplanar_junctions
 from .repair import _Repair
 from .sections import _Sections
+from .stubs import _Stubs, cut_stubs, stub_note
 from .state import _Assembled, _Ends, _Frames, _Placement, _Topology
 from .work import WorkBudget
 
@@ -105,12 +106,12 @@ def build_blocks(
     # then, where its blocks stay invalid, on the skeleton nodes (the wall's centre can crowd
     # junctions whose branches part early); only then is the skeleton changed.
     at_node = options.replace(junction_centre=0.0)
-    queue = [(skeleton, [], options, frozenset())]  # + the junction pairs a split made
+    queue = [(skeleton, [], options, frozenset(), [])]  # + the junction pairs a split made, the stubs cut
     first = None
     tries = 0
     seen = set()  # merging two junctions and splitting the result again can give a skeleton back
     while queue and tries < options.repair.max_retopology_tries and not work.spent:
-        sk, notes, opts, made = queue.pop(0)
+        sk, notes, opts, made, cut = queue.pop(0)
         key = (_skeleton_key(sk), opts is at_node)
         if key in seen:
             continue
@@ -120,14 +121,14 @@ def build_blocks(
             blocks = _Builder(sk, distance, caps, opts, warn, progress, project, intersect_lines, work).run()
         except _Failure as failure:
             if opts is options and options.junction.junction_centre > 0 and not work.spent:
-                queue.insert(0, (sk, notes, at_node, made))
+                queue.insert(0, (sk, notes, at_node, made, cut))
                 continue
             first = first or failure
-            queue[:0] = [(s, n, options, m) for s, n, m in _retopology_options(failure, notes, distance, options, made)]
+            queue[:0] = [(s, n, options, m, cut + c) for s, n, m, c in _retopology_options(failure, notes, distance, options, made)]
             continue
         except MeshingError:
             if opts is options and options.junction.junction_centre > 0 and not work.spent:
-                queue.insert(0, (sk, notes, at_node, made))
+                queue.insert(0, (sk, notes, at_node, made, cut))
                 continue
             if first is None:
                 raise  # the skeleton as given is beyond the scheme: say why
@@ -137,7 +138,7 @@ def build_blocks(
         for note in notes:
             if warn:
                 warn(note)
-        blocks.info["fixes"][:0] = notes
+        blocks.info["fixes"][:0], blocks.info["cut_stubs"] = notes, cut
         return blocks
     if not options.repair.straighten_stuck_ends and not work.spent:
         # every try failed: the skeleton as given once more, now also turning the first
@@ -162,32 +163,36 @@ def _skeleton_key(sk: Skeleton) -> bytes:
 
 
 def _retopology_options(failure: "_Failure", notes: list, distance, options: BlockOptions, made=frozenset()) -> list:
-    """Skeletons to try after ``failure``, most promising first: with two junctions merged
-    (when the branch between them has no room for their half-sections), or with the
-    failing n-furcations split into 3-junctions, one pairing of branches after another.
-    Each comes with the junction pairs its splits made (``made``): those are not merged
-    again, which would only give back the n-furcation just split."""
+    """Skeletons to try after ``failure``, most promising first: without the side-branch
+    stubs too short for a block (:mod:`.stubs`), with two junctions merged (when the branch
+    between them has no room for their half-sections), or with the failing n-furcations
+    split into 3-junctions, one pairing of branches after another. Each comes with the
+    junction pairs its splits made (``made``): those are not merged again, which would only
+    give back the n-furcation just split; and with the stubs it cut."""
     out = []
     sk = failure.skeleton
+    if failure.stubs:
+        # the node numbers change: the pairs a split made are forgotten (a merge may come back)
+        out.append((cut_stubs(sk, failure.stubs), notes + [stub_note(s) for s in failure.stubs], frozenset(), failure.stubs))
     if options.repair.split_nonplanar:
         for a, b in failure.crowded:
             if (a, b) in made:
                 continue
             merged, node = merge_junction_pair(sk, a, b)
-            out.append((merged, notes + [f"merged junction nodes {a} and {b} (their half cross-sections left the branch between them no room) into node {node}"], frozenset()))
+            out.append((merged, notes + [f"merged junction nodes {a} and {b} (their half cross-sections left the branch between them no room) into node {node}"], frozenset(), []))
         if failure.nfurcations:
             degree = int(max(sk.degrees[c] for c in failure.nfurcations))
             for rank in range(degree * (degree - 1) // 2):
                 split = split_nonplanar_junctions(sk, failure.nfurcations, distance=distance, rank=rank)
                 new = frozenset(tuple(sorted(e)) for e in split.edges[sk.n_edges:].tolist())
-                out.append((split, notes + [f"split junction node(s) {failure.nfurcations} into 3-junctions (pairing {rank + 1}) after their blocks stayed invalid"], made | new))
+                out.append((split, notes + [f"split junction node(s) {failure.nfurcations} into 3-junctions (pairing {rank + 1}) after their blocks stayed invalid"], made | new, []))
     return out
 
 
 # ---------------------------------------------------------------------------
 # the builder
 # ---------------------------------------------------------------------------
-class _Builder(_Junctions, _Sections, _Assembly, _Repair):
+class _Builder(_Junctions, _Sections, _Assembly, _Repair, _Stubs):
     def __init__(self, skeleton: Skeleton, distance, caps, options: BlockOptions, warn, progress, project=None, intersect_lines=None,
                  work=None):
         self.opt = options

@@ -219,6 +219,7 @@ class _Failure(Exception):
         super().__init__(message)
         self.message, self.blocks, self.bad = message, blocks, bad
         self.skeleton, self.nfurcations, self.crowded, self.hint = skeleton, nfurcations, crowded, hint
+        self.stubs = []  # side-branch stubs too short for a block (:mod:`.stubs`)
 
     def error(self, path, tries: int = 1) -> MeshingError:
         written = ""

@@ -407,4 +407,6 @@ class _Repair:
             f"{len(bad)} block(s) stay invalid after {len(self.fixes)} fix(es); the worst starts at skeleton node {node}{where} "
             f"with corner Jacobian {J[worst].min():.3g}"
         )
-        raise _Failure(message, blocks, bad, self.topo.sk, nfurc, crowded, hint)
+        failure = _Failure(message, blocks, bad, self.topo.sk, nfurc, crowded, hint)
+        failure.stubs = self.short_stubs(bad)
+        raise failure

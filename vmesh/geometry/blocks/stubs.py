@@ -1,0 +1,112 @@
+"""Side-branch stubs too short for a junction's half-sections: found after the blocks stay
+invalid, and cut back into their parent (a changed skeleton :func:`build_blocks` tries).
+
+A side branch cut open one or two of its radii past its parent's wall (a *stub*) is shorter
+than its junction's half cross-sections reach along it: the half-sections' rays leave through
+the stub's cap, so the blocks between the folded end section and the cap section have no
+thickness, and a one-segment branch has no section to move. No placement of the half-sections
+gives it a block. Such a stub is dropped from the skeleton: its parent is meshed as if the
+stub were not there, the stub's cap is left unmeshed with a warning, and the cut is recorded
+(``BlockStructure.info["cut_stubs"]``) so that the coverage check names the part left out
+instead of passing it silently.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .options import JUNCTION, OPEN
+
+
+class _Stubs:
+    """Stub detection of the block builder. Mixed into
+    :class:`~vmesh.geometry.blocks.builder._Builder`, whose state it shares."""
+
+    def short_stubs(self, bad: np.ndarray) -> list:
+        """Open side branches next to the invalid blocks ``bad`` that cannot hold a block.
+
+        A branch counts when it runs from a junction that the invalid blocks touch (or
+        holds invalid blocks itself) to an open end (a cap), is the narrowest branch of
+        that junction (a side branch, not the vessel's continuation), and ends before the
+        junction's half-sections plus the margin the builder keeps (``junction_margin``)
+        along it: its cap section cannot stand clear of the junction.
+
+        Returns
+        -------
+        list of dict
+            Per stub: ``junction`` and ``end`` node, the ``cap`` name, ``length`` and
+            ``reach`` along the branch, ``radius``, and the ``start`` and ``end_point``
+            positions of the branch (the part that will not be meshed).
+        """
+        sk, opt = self.topo.sk, self.opt
+        touched = {int(n) for bi in np.unique(self.built.block_where[bad, 0]).tolist()
+                   for n in (self.topo.branches[bi].nodes[0], self.topo.branches[bi].nodes[-1])}
+        out = []
+        for bi, br in enumerate(self.topo.branches):
+            if br.kinds != [JUNCTION, OPEN] or int(br.nodes[0]) not in touched:
+                continue
+            j, _, _ = self._junction_end(bi, 0)
+            rb = float(np.median(sk.radii[br.nodes]))
+            widths = [float(np.median(sk.radii[self.topo.branches[b].nodes])) for b, _ in j.ends]
+            if rb > min(widths):
+                continue  # not the junction's side branch
+            reach = self._junction_reach(bi, 0)
+            if br.arc[-1] > reach + opt.junction.junction_margin * rb:
+                continue  # room for a section between the half-sections and the cap
+            end = int(br.nodes[-1])
+            cap = self.ends.cap_of.get(end)
+            out.append({
+                "junction": int(br.nodes[0]), "end": end, "cap": getattr(cap, "name", f"end node {end}"),
+                "length": float(br.arc[-1]), "reach": float(reach), "radius": rb, "junction_radius": float(j.radius),
+                "start": sk.points[br.nodes[0]].tolist(), "end_point": sk.points[end].tolist(),
+                "nodes": [int(n) for n in br.nodes[1:]],
+            })
+        return out
+
+
+def cut_stubs(skeleton, stubs: list):
+    """The skeleton without the stubs' nodes past their junctions (their junctions stay as
+    ordinary nodes of the parent)."""
+    from ..skeleton.graph import remove_nodes
+
+    drop = np.zeros(skeleton.n_nodes, bool)
+    for s in stubs:
+        drop[s["nodes"]] = True
+    return remove_nodes(skeleton, drop, bridge=False)
+
+
+def stub_wall(vertices: np.ndarray, faces: np.ndarray, stubs: list) -> list:
+    """Surface area (wall and cap) of each cut stub past its parent's wall, and its share of
+    the whole surface.
+
+    A triangle belongs to a stub when its centroid lies along the stub's axis beyond the
+    junction's radius (past the parent's wall) and up to its cap, within 1.5 stub radii of
+    the axis. That wall is not meshed: the report names it, so that a cut stub never passes
+    unaccounted.
+
+    Returns
+    -------
+    list of dict
+        Each stub with ``wall_area`` and ``wall_share`` added.
+    """
+    V, F = np.asarray(vertices, float), np.asarray(faces, np.int64)
+    T = V[F]
+    area = 0.5 * np.linalg.norm(np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]), axis=1)
+    C = T.mean(axis=1)
+    out = []
+    for s in stubs:
+        a0, a1 = np.asarray(s["start"]), np.asarray(s["end_point"])
+        ax = (a1 - a0) / max(np.linalg.norm(a1 - a0), 1e-300)
+        t = (C - a0) @ ax
+        lateral = np.linalg.norm(C - a0 - t[:, None] * ax, axis=1)
+        inside = (t > s["junction_radius"]) & (t <= s["length"] + 0.1 * s["radius"]) & (lateral < 1.5 * s["radius"])
+        wall = float(area[inside].sum())
+        out.append({**s, "wall_area": wall, "wall_share": wall / max(float(area.sum()), 1e-300)})
+    return out
+
+
+def stub_note(stub: dict) -> str:
+    """The warning for one cut stub."""
+    return (f"cut the side branch at junction node {stub['junction']} back into its parent: it ends at cap "
+            f"'{stub['cap']}' {stub['length']:.3g} from the junction, within the junction's half cross-sections "
+            f"(they reach {stub['reach']:.3g} along it), so it cannot hold a block; that stub and its cap are not meshed")
