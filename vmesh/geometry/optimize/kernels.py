@@ -415,6 +415,11 @@ def _accept_trials(X, hexes, scale, ptr, inc, cq, nodes, projected, delta, mode,
             _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, np.int64(j), 0.0 if state[j, 0] == np.inf or r[10] > state[j, 1] else tol * step_cap[v])
         else:
             state[j, 3] = 0.0
+            if mode == SMOOTH:
+                # a wall node gets one trial per sweep (its projection is batched): refused,
+                # it tries again next sweep with half the step
+                step_cap[v] *= 0.5
+                dirty[v] = True
 
 
 @nb.njit(cache=True)
