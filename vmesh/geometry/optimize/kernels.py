@@ -366,21 +366,6 @@ def _acceptable(mode, f, qmin, qsum, f0, qmin0, qsum0):
     return qmin >= qmin0 and qsum > qsum0
 
 
-@nb.njit(cache=True)
-def cached_quality(cq, ptr, inc, v):
-    """Minimum and sum of the (cached) scaled Jacobians of the hexahedra around ``v``."""
-    qmin = np.inf
-    qsum = 0.0
-    for t in range(ptr[v], ptr[v + 1]):
-        e = inc[t] >> 3
-        h = cq[e, 0]
-        for c in range(1, 8):
-            h = min(h, cq[e, c])
-        qsum += h
-        qmin = min(qmin, h)
-    return qmin, qsum
-
-
 @nb.njit(parallel=True, cache=True)
 def corner_qualities(X, hexes, scale):
     """Scaled Jacobian of every corner ``(m, 8)``: the cache that :func:`frame` reads and every
@@ -434,10 +419,12 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
     max-min climb; see :func:`_sweep_colour`."""
     frame(X, hexes, scale, ptr, inc, cq, v, L)
     on_wall = kind[v] == WALL or kind[v] == OFFSET
-    qmin0, qsum0 = np.inf, 0.0
-    if mode != ESCOBAR or on_wall:
-        qmin0, qsum0 = cached_quality(cq, ptr, inc, v)
-    f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, _, _ = node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, delta, True, True, False, buf, np.int64(-1))
+    # the start's quality from the frame, as every trial's: the cache's values of the moved
+    # corners (computed in other frames) differ in the last bits, enough to refuse the short
+    # steps that climb the worst element
+    f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin0, qsum0 = node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, delta, True, True, True, buf, np.int64(-1))
+    if mode == ESCOBAR and not on_wall:
+        qmin0, qsum0 = np.inf, 0.0
     state[j, 0], state[j, 1], state[j, 2] = f0, qmin0, qsum0
     d0, d1, d2 = _newton_direction(g0, g1, g2, h00, h01, h02, h11, h12, h22, kind[v], normal[v, 0], normal[v, 1], normal[v, 2])
     length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
