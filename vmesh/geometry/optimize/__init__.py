@@ -131,7 +131,7 @@ def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats
     if len(todo):
         height[todo] = np.linalg.norm(X0[todo] - np.asarray(project(X0[todo]), float), axis=1)
     caps = K.step_caps(X, st.hexes, st.ptr, st.inc, st.nodes, len(X), 0.5)
-    cq = K.corner_qualities(X, st.hexes, st.scale)  # follows every move (kernels.node_eval)
+    cq = K.corner_qualities(X, st.hexes, st.scale)  # follows every move (kernels._moved)
     q = cq.min(axis=1)
     # progress: the worst element, or the total shortfall below the goal
     best = (float(q.min()), float(np.minimum(q - goal, 0.0).sum()))

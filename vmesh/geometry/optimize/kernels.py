@@ -39,6 +39,8 @@ UNTANGLE, SMOOTH, ESCOBAR = 0, 1, 2
 #: (4 and 3 cost the mean quality 1e-4 to 3e-4 on the real cases for ~10 % less time)
 SMOOTH_TRIALS = 8
 CLIMB_TRIALS = 6
+#: frame buffers per colour (parallel chunks of nodes)
+CHUNKS = 64
 
 
 @nb.njit(cache=True)
@@ -154,34 +156,201 @@ def _mark(hexes, ptr, inc, v, dirty):
             dirty[hexes[e, c]] = True
 
 
+#: columns of a node's local frame (:func:`frame`), one row per incident hexahedron: the
+#: moving corner's three neighbours relative to the node (0:9); the determinant of the moving
+#: corner's edge matrix, affine in the node's displacement z (gradient 9:12, value at z = 0
+#: 12); for each other moved corner (the neighbour along axis a, from 13 + 6 a): its
+#: determinant's gradient (3) and value (1), the product of its two fixed edges' squared
+#: lengths (1) and the sum of their scaled squared lengths (1); the squared target scales
+#: (31:34) and their product (34); the minimum of the four corners the node does not move (35)
+NL = 36
+
+
 @nb.njit(cache=True)
-def _worst_corner_direction(X, hexes, ptr, inc, v, x0, x1, x2):
-    """Gradient, with respect to node ``v``, of the scaled Jacobian of the worst corner around
-    it (the corner of smallest scaled Jacobian that ``v`` belongs to): the max-min ascent
-    direction."""
-    unit = np.ones((1, 3))
-    best = np.inf
-    bx = by = bz = 0.0
+def frame(X, hexes, scale, ptr, inc, cq, v, L):
+    """Local frame of node ``v`` at its current position into ``L`` (valence, NL).
+
+    Moving one node changes 4 corners of each incident hexahedron, and each of their edge
+    matrices' determinants is affine in the node's position (a tetrahedron's volume is
+    linear in each vertex); the other edges do not move. So everything a trial needs
+    except the moving edges' lengths is computed once per node update, not once per trial;
+    positions are relative to the node (no cancellation of large coordinates).
+    """
+    x0, x1, x2 = X[v, 0], X[v, 1], X[v, 2]
     for t in range(ptr[v], ptr[v + 1]):
         e = inc[t] >> 3
         l = inc[t] & 7
+        r = t - ptr[v]
+        for a in range(3):
+            w = hexes[e, l ^ (1 << a)]
+            L[r, 3 * a], L[r, 3 * a + 1], L[r, 3 * a + 2] = X[w, 0] - x0, X[w, 1] - x1, X[w, 2] - x2
+            L[r, 31 + a] = scale[e, a] * scale[e, a]
+        L[r, 34] = scale[e, 0] * scale[e, 1] * scale[e, 2]
+        # corner l: det[p0 - z; p1 - z; p2 - z] = det[p] - z . (p1 x p2 + p2 x p0 + p0 x p1),
+        # with the edges' signs (an edge runs towards +a)
+        s = (1.0 if l & 1 == 0 else -1.0) * (1.0 if l & 2 == 0 else -1.0) * (1.0 if l & 4 == 0 else -1.0)
+        det = 0.0
+        for d in range(3):
+            d1, d2 = (d + 1) % 3, (d + 2) % 3
+            c12 = L[r, 3 + d1] * L[r, 6 + d2] - L[r, 3 + d2] * L[r, 6 + d1]
+            c20 = L[r, 6 + d1] * L[r, d2] - L[r, 6 + d2] * L[r, d1]
+            c01 = L[r, d1] * L[r, 3 + d2] - L[r, d2] * L[r, 3 + d1]
+            det += L[r, d] * c12
+            L[r, 9 + d] = -s * (c12 + c20 + c01)
+        L[r, 12] = s * det
+        for a in range(3):
+            # corner c = the neighbour along a: its edge along a ends at the node, its edges
+            # along b and c (cyclic) are fixed; det = e_a . (e_b x e_c)
+            c, b, cc = l ^ (1 << a), (a + 1) % 3, (a + 2) % 3
+            n0, wb, wc = hexes[e, c], hexes[e, c ^ (1 << b)], hexes[e, c ^ (1 << cc)]
+            sa = 1.0 if (c >> a) & 1 == 0 else -1.0
+            sb = 1.0 if (c >> b) & 1 == 0 else -1.0
+            sc = 1.0 if (c >> cc) & 1 == 0 else -1.0
+            bx, by, bz = sb * (X[wb, 0] - X[n0, 0]), sb * (X[wb, 1] - X[n0, 1]), sb * (X[wb, 2] - X[n0, 2])
+            cx, cy, cz = sc * (X[wc, 0] - X[n0, 0]), sc * (X[wc, 1] - X[n0, 1]), sc * (X[wc, 2] - X[n0, 2])
+            k = 13 + 6 * a
+            gx, gy, gz = sa * (by * cz - bz * cy), sa * (bz * cx - bx * cz), sa * (bx * cy - by * cx)
+            L[r, k], L[r, k + 1], L[r, k + 2] = gx, gy, gz
+            L[r, k + 3] = -(gx * L[r, 3 * a] + gy * L[r, 3 * a + 1] + gz * L[r, 3 * a + 2])
+            nb2, nc2 = bx * bx + by * by + bz * bz, cx * cx + cy * cy + cz * cz
+            L[r, k + 4] = nb2 * nc2
+            L[r, k + 5] = L[r, 31 + b] * nb2 + L[r, 31 + cc] * nc2
+        L[r, 35] = min(min(cq[e, l ^ 3], cq[e, l ^ 5]), min(cq[e, l ^ 6], cq[e, l ^ 7]))
+
+
+@nb.njit(cache=True)
+def _escobar(F, D, dFx, dFy, dFz, dDx, dDy, dDz, diag, d2, hessian):
+    """Escobar's corner functional ``F / (3 h(D)^(2/3))`` from the scaled edges' squared
+    norm sum ``F`` and determinant ``D``, with its gradient and (``hessian``) Hessian from
+    theirs (``D`` is affine in the node: no second derivative; ``F``'s Hessian is
+    ``2 diag I``)."""
+    r = np.sqrt(D * D + d2)
+    h = max(0.5 * (D + r), 1e-300)
+    hp = 1.0 / np.cbrt(h * h)  # h^(-2/3), cheaper than pow
+    phi = hp * (1.0 / 3.0)
+    ir = 1.0 / r
+    dphi = -(2.0 / 9.0) * hp * ir
+    g0 = phi * dFx + F * dphi * dDx
+    g1 = phi * dFy + F * dphi * dDy
+    g2 = phi * dFz + F * dphi * dDz
+    h00 = h01 = h02 = h11 = h12 = h22 = 0.0
+    if hessian:
+        ddphi = (2.0 / 9.0) * hp * ir * ir * ((2.0 / 3.0) + D * ir)
+        dg = phi * 2.0 * diag
+        w = F * ddphi
+        h00 = dg + dphi * 2.0 * dFx * dDx + w * dDx * dDx
+        h11 = dg + dphi * 2.0 * dFy * dDy + w * dDy * dDy
+        h22 = dg + dphi * 2.0 * dFz * dDz + w * dDz * dDz
+        h01 = dphi * (dFx * dDy + dDx * dFy) + w * dDx * dDy
+        h02 = dphi * (dFx * dDz + dDx * dFz) + w * dDx * dDz
+        h12 = dphi * (dFy * dDz + dDy * dFz) + w * dDy * dDz
+    return F * phi, g0, g1, g2, h00, h01, h02, h11, h12, h22
+
+
+@nb.njit(cache=True)
+def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, buf, row):
+    """Functional and quality of node ``v`` displaced by ``z`` from where its frame ``L`` was
+    taken (:func:`frame`), over the 4 corners of each incident hexahedron that it moves.
+
+    The functional (``want_f``, with its Hessian when ``hessian``) uses the scaled edges
+    (targets), the scaled Jacobians (``want_q``) the plain ones (a scaled Jacobian does not
+    change when an edge is scaled); each hexahedron's other four corners come from the
+    frame. With ``want_q``, the moved corners' values go to ``buf[row]`` (``row >= 0``; in
+    the order of :func:`_moved`) or straight into ``cq`` (``row == -2``).
+
+    Returns ``(f, g0, g1, g2, H00, H01, H02, H11, H12, H22, qmin, qsum)``: the minimum and
+    sum over the incident hexahedra of their scaled Jacobian (``want_q``).
+    """
+    f = g0 = g1 = g2 = 0.0
+    h00 = h01 = h02 = h11 = h12 = h22 = 0.0
+    qmin = np.inf
+    qsum = 0.0
+    d2 = 4.0 * delta * delta
+    for t in range(ptr[v], ptr[v + 1]):
+        r = t - ptr[v]
+        hmin = L[r, 35]
+        S = L[r, 34]
         for q in range(4):
-            c = l if q == 0 else l ^ (1 << (q - 1))
-            e00, e01, e02, e10, e11, e12, e20, e21, e22, k0, k1, k2 = _corner_edges(X, hexes, unit, np.int64(0), e, c, v, l, x0, x1, x2)
-            C0x, C0y, C0z, C1x, C1y, C1z, C2x, C2y, C2z = _cofactors(e00, e01, e02, e10, e11, e12, e20, e21, e22)
-            D = e00 * C0x + e01 * C0y + e02 * C0z
-            n0 = max(e00 * e00 + e01 * e01 + e02 * e02, 1e-300)
-            n1 = max(e10 * e10 + e11 * e11 + e12 * e12, 1e-300)
-            n2 = max(e20 * e20 + e21 * e21 + e22 * e22, 1e-300)
-            ln = np.sqrt(n0 * n1 * n2)
-            sj = D / ln
-            if sj < best:
-                best = sj
-                # d sj = d D / ln - sj sum_a d|e_a|^2 / (2 |e_a|^2), d e_a = k_a dx: the
-                # volume's gradient alone can lengthen the edges faster than it adds volume
-                bx = (k0 * C0x + k1 * C1x + k2 * C2x) / ln - sj * (k0 * e00 / n0 + k1 * e10 / n1 + k2 * e20 / n2)
-                by = (k0 * C0y + k1 * C1y + k2 * C2y) / ln - sj * (k0 * e01 / n0 + k1 * e11 / n1 + k2 * e21 / n2)
-                bz = (k0 * C0z + k1 * C1z + k2 * C2z) / ln - sj * (k0 * e02 / n0 + k1 * e12 / n1 + k2 * e22 / n2)
+            if q == 0:  # the moving corner: its three edges u_a = p_a - z move
+                u0x, u0y, u0z = L[r, 0] - z0, L[r, 1] - z1, L[r, 2] - z2
+                u1x, u1y, u1z = L[r, 3] - z0, L[r, 4] - z1, L[r, 5] - z2
+                u2x, u2y, u2z = L[r, 6] - z0, L[r, 7] - z1, L[r, 8] - z2
+                m0, m1, m2 = u0x * u0x + u0y * u0y + u0z * u0z, u1x * u1x + u1y * u1y + u1z * u1z, u2x * u2x + u2y * u2y + u2z * u2z
+                gx, gy, gz = L[r, 9], L[r, 10], L[r, 11]
+                D = L[r, 12] + gx * z0 + gy * z1 + gz * z2
+                N = m0 * m1 * m2
+                s0, s1, s2 = L[r, 31], L[r, 32], L[r, 33]
+                F = s0 * m0 + s1 * m1 + s2 * m2
+                dFx = -2.0 * (s0 * u0x + s1 * u1x + s2 * u2x)
+                dFy = -2.0 * (s0 * u0y + s1 * u1y + s2 * u2y)
+                dFz = -2.0 * (s0 * u0z + s1 * u1z + s2 * u2z)
+                diag = s0 + s1 + s2
+            else:  # the neighbour along a: one edge w = z - p_a moves
+                a = q - 1
+                k = 13 + 6 * a
+                wx, wy, wz = z0 - L[r, 3 * a], z1 - L[r, 3 * a + 1], z2 - L[r, 3 * a + 2]
+                m = wx * wx + wy * wy + wz * wz
+                gx, gy, gz = L[r, k], L[r, k + 1], L[r, k + 2]
+                D = L[r, k + 3] + gx * z0 + gy * z1 + gz * z2
+                N = m * L[r, k + 4]
+                diag = L[r, 31 + a]
+                F = diag * m + L[r, k + 5]
+                dFx, dFy, dFz = 2.0 * diag * wx, 2.0 * diag * wy, 2.0 * diag * wz
+            if want_q:
+                sj = D / max(np.sqrt(N), 1e-300)
+                if row >= 0:
+                    buf[row, 4 * r + q] = sj
+                elif row == -2:
+                    e = inc[t] >> 3
+                    l = inc[t] & 7
+                    cq[e, l if q == 0 else l ^ (1 << (q - 1))] = sj
+                hmin = min(hmin, sj)
+            if want_f:
+                cf, c0, c1, c2, c00, c01, c02, c11, c12, c22 = _escobar(F, S * D, dFx, dFy, dFz, S * gx, S * gy, S * gz, diag, d2, hessian)
+                f += cf
+                g0, g1, g2 = g0 + c0, g1 + c1, g2 + c2
+                h00, h01, h02, h11, h12, h22 = h00 + c00, h01 + c01, h02 + c02, h11 + c11, h12 + c12, h22 + c22
+        qsum += hmin
+        qmin = min(qmin, hmin)
+    return f, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin, qsum
+
+
+@nb.njit(cache=True)
+def _worst_corner_direction(L, ptr, v):
+    """Gradient, with respect to node ``v`` (at its frame's position), of the scaled Jacobian
+    of the worst corner around it (the corner of smallest scaled Jacobian that ``v`` belongs
+    to): the max-min ascent direction. With ``sj = D / prod |e_a|``:
+    ``d sj = dD / prod |e_a| - sj sum_a d|e_a| / |e_a|`` (the volume's gradient alone can
+    lengthen the edges faster than it adds volume)."""
+    best = np.inf
+    bx = by = bz = 0.0
+    for t in range(ptr[v], ptr[v + 1]):
+        r = t - ptr[v]
+        for q in range(4):
+            if q == 0:
+                m0 = max(L[r, 0] ** 2 + L[r, 1] ** 2 + L[r, 2] ** 2, 1e-300)
+                m1 = max(L[r, 3] ** 2 + L[r, 4] ** 2 + L[r, 5] ** 2, 1e-300)
+                m2 = max(L[r, 6] ** 2 + L[r, 7] ** 2 + L[r, 8] ** 2, 1e-300)
+                ln = np.sqrt(m0 * m1 * m2)
+                sj = L[r, 12] / ln
+                if sj < best:
+                    best = sj
+                    # the edges u_a = p_a - z shrink as z moves towards p_a
+                    bx = L[r, 9] / ln + sj * (L[r, 0] / m0 + L[r, 3] / m1 + L[r, 6] / m2)
+                    by = L[r, 10] / ln + sj * (L[r, 1] / m0 + L[r, 4] / m1 + L[r, 7] / m2)
+                    bz = L[r, 11] / ln + sj * (L[r, 2] / m0 + L[r, 5] / m1 + L[r, 8] / m2)
+            else:
+                a = q - 1
+                k = 13 + 6 * a
+                m = max(L[r, 3 * a] ** 2 + L[r, 3 * a + 1] ** 2 + L[r, 3 * a + 2] ** 2, 1e-300)
+                ln = max(np.sqrt(m * L[r, k + 4]), 1e-300)
+                sj = L[r, k + 3] / ln
+                if sj < best:
+                    best = sj
+                    # the edge w = z - p_a: d|w| / |w| = w . dz / m, with w = -p_a at z = 0
+                    bx = L[r, k] / ln + sj * L[r, 3 * a] / m
+                    by = L[r, k + 1] / ln + sj * L[r, 3 * a + 1] / m
+                    bz = L[r, k + 2] / ln + sj * L[r, 3 * a + 2] / m
     return bx, by, bz
 
 
@@ -197,99 +366,10 @@ def _acceptable(mode, f, qmin, qsum, f0, qmin0, qsum0):
     return qmin >= qmin0 and qsum > qsum0
 
 
-@nb.njit(cache=True)
-def node_eval(X, hexes, scale, ptr, inc, cq, v, x0, x1, x2, delta, hessian, want_f, want_q, buf, row):
-    """Functional and quality of node ``v`` at (x0, x1, x2), in one pass over the corners it moves.
-
-    Moving ``v`` (local corner ``l`` of a hexahedron) changes that hexahedron's corners
-    ``l, l^1, l^2, l^4`` only: the functional (``want_f``, with its Hessian when
-    ``hessian``) and the scaled Jacobians of those corners come from the same scaled edges
-    (a scaled Jacobian does not change when an edge is scaled), and each hexahedron's
-    other four corners are read from the cache ``cq`` (m, 8) of corner scaled Jacobians.
-    With ``want_q``, the moved corners' values go to ``buf[row]`` (``row >= 0``; in the
-    order of :func:`commit`) or straight into ``cq`` (``row == -2``).
-
-    Returns ``(f, g0, g1, g2, H00, H01, H02, H11, H12, H22, qmin, qsum)``: the minimum and
-    sum over the incident hexahedra of their scaled Jacobian (``want_q``).
-    """
-    f = 0.0
-    g0 = g1 = g2 = 0.0
-    h00 = h01 = h02 = h11 = h12 = h22 = 0.0
-    qmin = np.inf
-    qsum = 0.0
-    d2 = 4.0 * delta * delta
-    for t in range(ptr[v], ptr[v + 1]):
-        e = inc[t] >> 3
-        l = inc[t] & 7
-        hmin = min(min(cq[e, l ^ 3], cq[e, l ^ 5]), min(cq[e, l ^ 6], cq[e, l ^ 7]))
-        for q in range(4):
-            c = l if q == 0 else l ^ (1 << (q - 1))
-            e00, e01, e02, e10, e11, e12, e20, e21, e22, k0, k1, k2 = _corner_edges(X, hexes, scale, e, e, c, v, l, x0, x1, x2)
-            C0x, C0y, C0z, C1x, C1y, C1z, C2x, C2y, C2z = _cofactors(e00, e01, e02, e10, e11, e12, e20, e21, e22)
-            D = e00 * C0x + e01 * C0y + e02 * C0z
-            n0 = e00 * e00 + e01 * e01 + e02 * e02
-            n1 = e10 * e10 + e11 * e11 + e12 * e12
-            n2 = e20 * e20 + e21 * e21 + e22 * e22
-            if want_q:
-                sj = D / max(np.sqrt(n0 * n1 * n2), 1e-300)
-                if row >= 0:
-                    buf[row, 4 * (t - ptr[v]) + q] = sj
-                elif row == -2:
-                    cq[e, c] = sj
-                hmin = min(hmin, sj)
-            if want_f:
-                F = n0 + n1 + n2
-                r = np.sqrt(D * D + d2)
-                h = 0.5 * (D + r)
-                hh = max(h, 1e-300)
-                hp = 1.0 / np.cbrt(hh * hh)  # h^(-2/3), cheaper than pow
-                phi = hp * (1.0 / 3.0)
-                ir = 1.0 / r
-                f += F * phi
-                dDx = k0 * C0x + k1 * C1x + k2 * C2x
-                dDy = k0 * C0y + k1 * C1y + k2 * C2y
-                dDz = k0 * C0z + k1 * C1z + k2 * C2z
-                dFx = 2.0 * (k0 * e00 + k1 * e10 + k2 * e20)
-                dFy = 2.0 * (k0 * e01 + k1 * e11 + k2 * e21)
-                dFz = 2.0 * (k0 * e02 + k1 * e12 + k2 * e22)
-                dphi = -(2.0 / 9.0) * hp * ir
-                g0 += phi * dFx + F * dphi * dDx
-                g1 += phi * dFy + F * dphi * dDy
-                g2 += phi * dFz + F * dphi * dDz
-                if hessian:
-                    ddphi = (2.0 / 9.0) * hp * ir * ir * ((2.0 / 3.0) + D * ir)
-                    diag = phi * 2.0 * (k0 * k0 + k1 * k1 + k2 * k2)
-                    w = F * ddphi
-                    h00 += diag + dphi * 2.0 * dFx * dDx + w * dDx * dDx
-                    h11 += diag + dphi * 2.0 * dFy * dDy + w * dDy * dDy
-                    h22 += diag + dphi * 2.0 * dFz * dDz + w * dDz * dDz
-                    h01 += dphi * (dFx * dDy + dDx * dFy) + w * dDx * dDy
-                    h02 += dphi * (dFx * dDz + dDx * dFz) + w * dDx * dDz
-                    h12 += dphi * (dFy * dDz + dDy * dFz) + w * dDy * dDz
-        qsum += hmin
-        qmin = min(qmin, hmin)
-    return f, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin, qsum
-
-
-@nb.njit(cache=True)
-def cached_quality(cq, ptr, inc, v):
-    """Minimum and sum of the (cached) scaled Jacobians of the hexahedra around ``v``."""
-    qmin = np.inf
-    qsum = 0.0
-    for t in range(ptr[v], ptr[v + 1]):
-        e = inc[t] >> 3
-        h = cq[e, 0]
-        for c in range(1, 8):
-            h = min(h, cq[e, c])
-        qsum += h
-        qmin = min(qmin, h)
-    return qmin, qsum
-
-
 @nb.njit(parallel=True, cache=True)
 def corner_qualities(X, hexes, scale):
-    """Scaled Jacobian of every corner ``(m, 8)``, computed as :func:`node_eval` does (the
-    cache it reads; bit-identical to its values at the same positions)."""
+    """Scaled Jacobian of every corner ``(m, 8)``: the cache that :func:`frame` reads and every
+    accepted move updates."""
     m = hexes.shape[0]
     out = np.empty((m, 8))
     for e in nb.prange(m):
@@ -305,16 +385,18 @@ def corner_qualities(X, hexes, scale):
 
 
 @nb.njit(cache=True)
-def _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, row, least):
-    """Move ``v`` to (y0, y1, y2): its corners' cached qualities follow (from ``buf[row]``,
-    the values :func:`node_eval` left there at this position, or recomputed when ``row < 0``)
-    and its neighbours are dirty when it moved at least ``least`` (a converged node's tiny
-    moves change its neighbours' optimum by less than they gain from another try; callers
-    pass 0 for a move that raised the worst element around the node, which may go on)."""
-    step = np.sqrt((X[v, 0] - y0) ** 2 + (X[v, 1] - y1) ** 2 + (X[v, 2] - y2) ** 2)
+def _moved(X, hexes, ptr, inc, cq, v, L, y0, y1, y2, dirty, buf, row, least):
+    """Move ``v`` (at its frame's position) to ``y``: its corners' cached qualities follow
+    (from ``buf[row]``, the values :func:`node_eval` left there at this position, or
+    recomputed when ``row < 0``) and its neighbours are dirty when it moved at least
+    ``least`` (a converged node's tiny moves change its neighbours' optimum by less than
+    they gain from another try; callers pass 0 for a move that raised the worst element
+    around the node, which may go on)."""
+    z0, z1, z2 = y0 - X[v, 0], y1 - X[v, 1], y2 - X[v, 2]
+    step = np.sqrt(z0 * z0 + z1 * z1 + z2 * z2)
     X[v, 0], X[v, 1], X[v, 2] = y0, y1, y2
     if row < 0:
-        node_eval(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, 0.0, False, False, True, buf, np.int64(-2))
+        node_eval(L, ptr, inc, cq, v, z0, z1, z2, 0.0, False, False, True, buf, np.int64(-2))
     else:
         for t in range(ptr[v], ptr[v + 1]):
             e = inc[t] >> 3
@@ -323,6 +405,82 @@ def _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, row, least)
                 cq[e, l if q == 0 else l ^ (1 << (q - 1))] = buf[row, 4 * (t - ptr[v]) + q]
     if step >= least:
         _mark(hexes, ptr, inc, v, dirty)
+
+
+@nb.njit(cache=True)
+def _chunk(n, chunks, i):
+    """Nodes ``[lo, hi)`` of chunk ``i`` of ``chunks`` (one frame buffer each)."""
+    return i * n // chunks, (i + 1) * n // chunks
+
+
+@nb.njit(cache=True)
+def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol, L):
+    """One Newton step with backtracking for node ``v`` (row ``j`` of its colour), else a
+    max-min climb; see :func:`_sweep_colour`."""
+    frame(X, hexes, scale, ptr, inc, cq, v, L)
+    on_wall = kind[v] == WALL or kind[v] == OFFSET
+    # the start's quality from the frame, as every trial's: the cache's values of the moved
+    # corners (computed in other frames) differ in the last bits, enough to refuse the short
+    # steps that climb the worst element
+    f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin0, qsum0 = node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, delta, True, True, True, buf, np.int64(-1))
+    if mode == ESCOBAR and not on_wall:
+        qmin0, qsum0 = np.inf, 0.0
+    state[j, 0], state[j, 1], state[j, 2] = f0, qmin0, qsum0
+    d0, d1, d2 = _newton_direction(g0, g1, g2, h00, h01, h02, h11, h12, h22, kind[v], normal[v, 0], normal[v, 1], normal[v, 2])
+    length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    # a stationary point of the functional (a symmetric mesh) takes no Newton step but
+    # may still climb below
+    newton = length > 0.0 and np.isfinite(length)
+    if newton and length > step_cap[v]:
+        d0, d1, d2 = d0 * step_cap[v] / length, d1 * step_cap[v] / length, d2 * step_cap[v] / length
+    t = 1.0
+    # smoothing is judged by the quality alone (no functional value needed), untangling
+    # by the functional (and wall nodes again after their projection)
+    smooth = mode == SMOOTH
+    judge = mode != ESCOBAR and not on_wall
+    for _ in range((SMOOTH_TRIALS if smooth else 8) if newton else 0):
+        z0, z1, z2 = t * d0, t * d1, t * d2
+        if on_wall and smooth:  # judged after the projection
+            trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2
+            state[j, 3] = 1.0
+            return
+        r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, False, not smooth, judge or smooth, buf, np.int64(j))
+        if (r[0] < f0) if not smooth else _acceptable(mode, r[0], r[10], r[11], f0, qmin0, qsum0):
+            if on_wall:  # judged again after the projection
+                trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2
+                state[j, 3] = 1.0
+                return
+            if mode != UNTANGLE or _acceptable(mode, r[0], r[10], r[11], f0, qmin0, qsum0):
+                _moved(X, hexes, ptr, inc, cq, v, L, X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2, dirty, buf, np.int64(j) if judge or smooth else np.int64(-1), 0.0 if r[10] > qmin0 else tol * step_cap[v])
+                state[j, 3] = 1.0
+                return
+        t *= 0.5
+    if qmin0 < goal and mode != ESCOBAR:
+        # no Newton step helps: climb the worst corner instead (max-min), judged by the
+        # incident elements' minimum scaled Jacobian alone
+        d0, d1, d2 = _worst_corner_direction(L, ptr, v)
+        if kind[v] != FREE:
+            dn = d0 * normal[v, 0] + d1 * normal[v, 1] + d2 * normal[v, 2]
+            d0, d1, d2 = d0 - dn * normal[v, 0], d1 - dn * normal[v, 1], d2 - dn * normal[v, 2]
+        length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        if length == 0.0 or not np.isfinite(length):
+            return
+        d0, d1, d2 = d0 * step_cap[v] / length, d1 * step_cap[v] / length, d2 * step_cap[v] / length
+        t = 0.25
+        for _ in range(CLIMB_TRIALS):
+            z0, z1, z2 = t * d0, t * d1, t * d2
+            if on_wall:
+                trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2
+                state[j, 0] = np.inf  # the functional is not asked for
+                state[j, 3] = 1.0
+                return
+            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, False, False, True, buf, np.int64(j))
+            if _acceptable(mode, np.inf, r[10], r[11], np.inf, qmin0, qsum0):
+                # a climb raises a worst element: however short, the neighbours try again
+                _moved(X, hexes, ptr, inc, cq, v, L, X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2, dirty, buf, np.int64(j), 0.0)
+                state[j, 3] = 1.0
+                return
+            t *= 0.5
 
 
 def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol):
@@ -335,86 +493,46 @@ def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, 
     times the node's step cap does not make its neighbours dirty. Returns nothing;
     ``state[:, 3]`` is 1 where a node moved (or has a trial), else 0.
     """
-    for j in nb.prange(len(nodes)):
-        v = nodes[j]
-        state[j, 3] = 0.0
-        trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0], X[v, 1], X[v, 2]
-        if not dirty[v]:  # nothing around it moved since it last failed to improve
-            state[j, 0] = -1.0
-            continue
-        dirty[v] = False
-        x0, x1, x2 = X[v, 0], X[v, 1], X[v, 2]
-        on_wall = kind[v] == WALL or kind[v] == OFFSET
-        qmin0, qsum0 = np.inf, 0.0
-        if mode != ESCOBAR or on_wall:
-            qmin0, qsum0 = cached_quality(cq, ptr, inc, v)
-        f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, _, _ = node_eval(X, hexes, scale, ptr, inc, cq, v, x0, x1, x2, delta, True, True, False, buf, np.int64(-1))
-        state[j, 0], state[j, 1], state[j, 2] = f0, qmin0, qsum0
-        d0, d1, d2 = _newton_direction(g0, g1, g2, h00, h01, h02, h11, h12, h22, kind[v], normal[v, 0], normal[v, 1], normal[v, 2])
-        length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        # a stationary point of the functional (a symmetric mesh) takes no Newton step but
-        # may still climb below
-        newton = length > 0.0 and np.isfinite(length)
-        if newton and length > step_cap[v]:
-            d0, d1, d2 = d0 * step_cap[v] / length, d1 * step_cap[v] / length, d2 * step_cap[v] / length
-        t = 1.0
-        # smoothing is judged by the quality alone (no functional value needed), untangling
-        # by the functional (and wall nodes again after their projection)
-        smooth = mode == SMOOTH
-        judge = mode != ESCOBAR and not on_wall
-        for _ in range((SMOOTH_TRIALS if smooth else 8) if newton else 0):
-            y0, y1, y2 = x0 + t * d0, x1 + t * d1, x2 + t * d2
-            r = node_eval(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, delta, False, not smooth, judge or smooth, buf, np.int64(j))
-            if (r[0] < f0) if not smooth else (on_wall or _acceptable(mode, r[0], r[10], r[11], f0, qmin0, qsum0)):
-                if on_wall:  # judged again after the projection
-                    trial[j, 0], trial[j, 1], trial[j, 2] = y0, y1, y2
-                    state[j, 3] = 1.0
-                    break
-                if mode != UNTANGLE or _acceptable(mode, r[0], r[10], r[11], f0, qmin0, qsum0):
-                    _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, np.int64(j) if judge or smooth else np.int64(-1), 0.0 if r[10] > qmin0 else tol * step_cap[v])
-                    state[j, 3] = 1.0
-                    break
-            t *= 0.5
-        if state[j, 3] == 0.0 and qmin0 < goal and mode != ESCOBAR:
-            # no Newton step helps: climb the worst corner instead (max-min), judged by the
-            # incident elements' minimum scaled Jacobian alone
-            d0, d1, d2 = _worst_corner_direction(X, hexes, ptr, inc, v, x0, x1, x2)
-            if kind[v] != FREE:
-                dn = d0 * normal[v, 0] + d1 * normal[v, 1] + d2 * normal[v, 2]
-                d0, d1, d2 = d0 - dn * normal[v, 0], d1 - dn * normal[v, 1], d2 - dn * normal[v, 2]
-            length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-            if length == 0.0 or not np.isfinite(length):
+    n = len(nodes)
+    chunks = min(n, CHUNKS)
+    frames = np.empty((chunks, buf.shape[1] // 4, NL))
+    for i in nb.prange(chunks):
+        lo, hi = _chunk(n, chunks, i)
+        for j in range(lo, hi):
+            v = nodes[j]
+            state[j, 3] = 0.0
+            trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0], X[v, 1], X[v, 2]
+            if not dirty[v]:  # nothing around it moved since it last failed to improve
+                state[j, 0] = -1.0
                 continue
-            d0, d1, d2 = d0 * step_cap[v] / length, d1 * step_cap[v] / length, d2 * step_cap[v] / length
-            t = 0.25
-            for _ in range(CLIMB_TRIALS):
-                y0, y1, y2 = x0 + t * d0, x1 + t * d1, x2 + t * d2
-                if on_wall:
-                    trial[j, 0], trial[j, 1], trial[j, 2] = y0, y1, y2
-                    state[j, 0] = np.inf  # the functional is not asked for
-                    state[j, 3] = 1.0
-                    break
-                r = node_eval(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, delta, False, False, True, buf, np.int64(j))
-                if _acceptable(mode, np.inf, r[10], r[11], np.inf, qmin0, qsum0):
-                    # a climb raises a worst element: however short, the neighbours try again
-                    _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, np.int64(j), 0.0)
-                    state[j, 3] = 1.0
-                    break
-                t *= 0.5
+            dirty[v] = False
+            _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol, frames[i])
 
 
 def _accept_trials(X, hexes, scale, ptr, inc, cq, nodes, projected, delta, mode, state, dirty, buf, step_cap, tol):
     """Move wall nodes to their projected trial positions where that still improves them
     (the functional decreases and, for untangling, no incident element gets worse than
     the worst before; for smoothing, their minimum and sum of scaled Jacobians do not drop)."""
-    for j in nb.prange(len(nodes)):
-        v = nodes[j]
-        y0, y1, y2 = projected[j, 0], projected[j, 1], projected[j, 2]
-        r = node_eval(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, delta, False, mode != SMOOTH, True, buf, np.int64(j))
-        if _acceptable(mode, r[0], r[10], r[11], state[j, 0], state[j, 1], state[j, 2]):
-            _moved(X, hexes, scale, ptr, inc, cq, v, y0, y1, y2, dirty, buf, np.int64(j), 0.0 if state[j, 0] == np.inf or r[10] > state[j, 1] else tol * step_cap[v])
-        else:
-            state[j, 3] = 0.0
+    n = len(nodes)
+    chunks = min(n, CHUNKS)
+    frames = np.empty((chunks, buf.shape[1] // 4, NL))
+    for i in nb.prange(chunks):
+        lo, hi = _chunk(n, chunks, i)
+        L = frames[i]
+        for j in range(lo, hi):
+            v = nodes[j]
+            frame(X, hexes, scale, ptr, inc, cq, v, L)
+            z0, z1, z2 = projected[j, 0] - X[v, 0], projected[j, 1] - X[v, 1], projected[j, 2] - X[v, 2]
+            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, False, mode != SMOOTH, True, buf, np.int64(j))
+            if _acceptable(mode, r[0], r[10], r[11], state[j, 0], state[j, 1], state[j, 2]):
+                _moved(X, hexes, ptr, inc, cq, v, L, projected[j, 0], projected[j, 1], projected[j, 2], dirty, buf, np.int64(j), 0.0 if state[j, 0] == np.inf or r[10] > state[j, 1] else tol * step_cap[v])
+            else:
+                state[j, 3] = 0.0
+                if mode == SMOOTH:
+                    # a wall node gets one trial per sweep (its projection is batched):
+                    # refused, it tries again next sweep with half the step
+                    step_cap[v] *= 0.5
+                    dirty[v] = True
 
 
 @nb.njit(cache=True)

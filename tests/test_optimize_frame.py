@@ -1,0 +1,69 @@
+"""The optimiser's local frame (vmesh.geometry.optimize.kernels.frame): a node's trial
+qualities and functional come from its frame, not from the mesh; they must equal the mesh's."""
+
+import numpy as np
+
+from cylinder_blocks import cylinder_blocks, project_cylinder
+from vmesh.geometry.optimize import kernels as K
+from vmesh.geometry.transfinite import Refinement, mesh_blocks
+
+
+def _jittered_mesh():
+    sm = mesh_blocks(cylinder_blocks(radius=2.0), project_cylinder(2.0), Refinement(around=2, core=2, ring=2, layer=3, element_length=0.5, first_layer=0.05, curved_sections=True))
+    X = sm.points + np.random.default_rng(0).normal(size=sm.points.shape) * 0.02
+    hexes = np.ascontiguousarray(sm.cells, np.int64)
+    scale = K.target_scales(X, hexes, 1e-9)
+    ptr, inc = K.incidence(hexes, len(X))
+    return X, hexes, scale, ptr, inc
+
+
+def test_frame_trials_equal_the_displaced_mesh():
+    """For nodes of every valence and random displacements: the scaled Jacobians a trial
+    computes from the frame equal those of the mesh with the node moved (every corner of
+    every incident hexahedron), and so do their minimum and sum per node."""
+    X, hexes, scale, ptr, inc = _jittered_mesh()
+    cq = K.corner_qualities(X, hexes, scale)
+    valence = np.diff(ptr)
+    rng = np.random.default_rng(1)
+    nodes = np.concatenate([rng.choice(np.flatnonzero(valence == k), 3) for k in np.unique(valence)])
+    L = np.empty((valence.max(), K.NL))
+    buf = np.empty((1, 4 * valence.max()))
+    for v in nodes:
+        z = rng.normal(size=3) * 0.05
+        K.frame(X, hexes, scale, ptr, inc, cq, v, L)
+        r = K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], 1e-3, False, False, True, buf, np.int64(0))
+        Y = X.copy()
+        Y[v] += z
+        moved = K.corner_qualities(Y, hexes, scale)
+        elements = inc[ptr[v] : ptr[v + 1]] >> 3
+        h = moved[elements].min(axis=1)
+        assert np.isclose(r[10], h.min(), rtol=0, atol=1e-12) and np.isclose(r[11], h.sum(), rtol=0, atol=1e-11)
+        for t, e in enumerate(elements):
+            lc = inc[ptr[v] + t] & 7
+            for q in range(4):
+                c = lc if q == 0 else lc ^ (1 << (q - 1))
+                assert abs(buf[0, 4 * t + q] - moved[e, c]) < 1e-12
+
+
+def test_frame_gradient_and_hessian_match_finite_differences():
+    """The functional's gradient and Hessian from the frame match central differences of
+    its value (the determinants are affine in the node, so the frame is exact)."""
+    X, hexes, scale, ptr, inc = _jittered_mesh()
+    cq = K.corner_qualities(X, hexes, scale)
+    L = np.empty((int(np.diff(ptr).max()), K.NL))
+    buf = np.empty((1, L.shape[0] * 4))
+    v = int(np.argmax(np.diff(ptr)))
+    K.frame(X, hexes, scale, ptr, inc, cq, v, L)
+
+    def f(z):
+        return K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], 1e-3, True, True, False, buf, np.int64(-1))
+
+    r = f(np.zeros(3))
+    g, H = np.array(r[1:4]), np.array([[r[4], r[5], r[6]], [r[5], r[7], r[8]], [r[6], r[8], r[9]]])
+    eps = 1e-5
+    for a in range(3):
+        d = np.zeros(3)
+        d[a] = eps
+        fp, fm = f(d), f(-d)
+        assert np.isclose((fp[0] - fm[0]) / (2 * eps), g[a], rtol=1e-5, atol=1e-8)
+        assert np.allclose((np.array(fp[1:4]) - np.array(fm[1:4])) / (2 * eps), H[a], rtol=1e-4, atol=1e-6)
