@@ -35,9 +35,11 @@ def _face_partners(cells: np.ndarray, p: int, members: np.ndarray) -> np.ndarray
     partner = np.full(len(keys), -1, np.int64)
     if len(keys) == 0:
         return partner
-    _, inv = np.unique(keys, axis=0, return_inverse=True)
-    order = np.argsort(inv.ravel(), kind="stable")
-    same = inv.ravel()[order[1:]] == inv.ravel()[order[:-1]]
+    from ..repair import _row_labels  # lexsort labels: np.unique(axis=0) is ~3x slower here
+
+    inv = _row_labels(keys)
+    order = np.argsort(inv, kind="stable")
+    same = inv[order[1:]] == inv[order[:-1]]
     a, b = order[:-1][same], order[1:][same]
     partner[a], partner[b] = b, a
     return partner
