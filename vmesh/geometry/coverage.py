@@ -43,6 +43,9 @@ class MissingPart:
     #: skeleton node nearest to where the part leaves the meshed vessel (its shallowest face)
     skeleton_node: int = -1
     branch: int = -1
+    #: farthest mesh wall node off the input wall over the patch (x local radius): the mesh
+    #: reaches the place, but its wall was moved off the surface there (folded blocks)
+    wall_off: float = 0.0
 
     def describe(self) -> str:
         """Where the patch is: the caps it reaches, the nearest skeleton node and branch, a position."""
@@ -65,7 +68,27 @@ class MissingPart:
             "caps": list(self.caps),
             "skeleton_node": int(self.skeleton_node),
             "branch": int(self.branch),
+            "wall_off_rel": float(self.wall_off),
         }
+
+    def cause(self, depth: float = 0.3) -> str:
+        """Why the mesh misses the part, and a remedy: its wall nodes moved off the wall
+        (``wall_off`` beyond ``depth``), or a vessel the skeleton never entered."""
+        if self.wall_off > depth:
+            return (
+                f"the mesh's wall nodes there lie up to {self.wall_off:.2g} radii off the input wall: its blocks "
+                "reach the place, but their boundary layer folded and was moved off the wall (see compute_quality's "
+                "minimum and the build_block_structure warnings on folding blocks)"
+            )
+        return "the skeleton does not reach into it (give a centerline that does, or keep clean_skeleton.graft_to_caps on)"
+
+    def message(self, depth: float = 0.3) -> str:
+        """The line a failed check prints: size, place and :meth:`cause`."""
+        where = self.describe()
+        return (
+            f"{100 * self.share:.1f} % of the wall ({self.cross_sections:.1f} cross-sections, up to {self.depth:.2g} "
+            f"radii from the mesh) {'at ' if self.caps else ''}{where}; {self.cause(depth)}"
+        )
 
 
 def boundary_triangles(boundary_faces: np.ndarray, order: int) -> np.ndarray:
@@ -241,11 +264,14 @@ def measure_coverage(
     end_cap = far & ((beyond & (rel <= end_depth)) | (past[:, None] & (rel <= min(end_depth, 1.0))))
     uncovered_area = float((area[:, None] * (far & ~end_cap)).sum() / 4.0)
     beyond_area = float((area[:, None] * end_cap).sum() / 4.0)
-    d_n = _wall_node_distances(X, boundary_faces, boundary_ids, TriangleBVH(V, WF) if wall_tree is None else wall_tree, skeleton_points, skeleton_edges, skeleton_radii)
+    d_n, near_face = _wall_node_distances(X, boundary_faces, boundary_ids, TriangleBVH(V, WF) if wall_tree is None else wall_tree, skeleton_points, skeleton_edges, skeleton_radii)
+    # per input wall face: the farthest mesh wall node whose closest wall point is on it
+    face_off = np.zeros(len(WF))
+    np.maximum.at(face_off, near_face, d_n)
     surface_volume, mesh_volume = enclosed_volume(V, F), enclosed_volume(X, tri)
     missing, n_patches, n_missing = _missing_parts(
         V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names,
-        patch_area, depth, end_depth, _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3))),
+        patch_area, depth, end_depth, _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3))), face_off,
     )
     summary = {
         "distance_rel": float(distance),
@@ -289,12 +315,14 @@ def _past_end_faces(X, boundary_faces, boundary_ids, points) -> np.ndarray:
 
 
 def _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, skeleton_points, skeleton_edges, skeleton_radii):
-    """Distance of every mesh wall node to the input wall (``wall_tree``), relative to the local radius."""
+    """Distance of every mesh wall node to the input wall (``wall_tree``), relative to the
+    local radius, and the wall triangle closest to each node."""
     wall_nodes = np.unique(np.asarray(boundary_faces)[np.asarray(boundary_ids) == 0])
     if len(wall_nodes) == 0:
-        return np.zeros(1)
+        return np.zeros(1), np.zeros(1, np.int64)
     r_n = skeleton_radius(X[wall_nodes], skeleton_points, skeleton_edges, skeleton_radii)[0]
-    return np.sqrt(wall_tree.closest(X[wall_nodes])[0]) / r_n
+    sq, face = wall_tree.closest(X[wall_nodes])[:2]
+    return np.sqrt(sq) / r_n, np.asarray(face, np.int64)
 
 
 def _wall_and_caps(F, n_vertices, cap_faces):
@@ -312,9 +340,10 @@ def _wall_and_caps(F, n_vertices, cap_faces):
     return wall, cap_of_vertex
 
 
-def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names, patch_area, depth, end_depth, node_of_branch):
+def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names, patch_area, depth, end_depth, node_of_branch, face_off):
     """Connected uncovered patches of the wall (a face is uncovered when at least two of its
-    four samples are) and the missing parts among them, largest first.
+    four samples are) and the missing parts among them, largest first; ``face_off``: the
+    farthest mesh wall node off each wall face (x local radius), a part's ``wall_off``.
 
     Returns the parts (at most :data:`MAX_PATCHES`), the patch count and the count of
     missing parts."""
@@ -355,6 +384,7 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
                     caps=caps,
                     skeleton_node=node,
                     branch=int(node_of_branch[node]) if node_of_branch is not None else -1,
+                    wall_off=float(face_off[faces_k].max()),
                 )
             )
         n_missing = len(big)
