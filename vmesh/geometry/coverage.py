@@ -264,10 +264,7 @@ def measure_coverage(
     end_cap = far & ((beyond & (rel <= end_depth)) | (past[:, None] & (rel <= min(end_depth, 1.0))))
     uncovered_area = float((area[:, None] * (far & ~end_cap)).sum() / 4.0)
     beyond_area = float((area[:, None] * end_cap).sum() / 4.0)
-    d_n, near_face = _wall_node_distances(X, boundary_faces, boundary_ids, TriangleBVH(V, WF) if wall_tree is None else wall_tree, skeleton_points, skeleton_edges, skeleton_radii)
-    # per input wall face: the farthest mesh wall node whose closest wall point is on it
-    face_off = np.zeros(len(WF))
-    np.maximum.at(face_off, near_face, d_n)
+    d_n, face_off = _wall_node_distances(X, boundary_faces, boundary_ids, TriangleBVH(V, WF) if wall_tree is None else wall_tree, skeleton_points, skeleton_edges, skeleton_radii, len(WF))
     surface_volume, mesh_volume = enclosed_volume(V, F), enclosed_volume(X, tri)
     missing, n_patches, n_missing = _missing_parts(
         V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names,
@@ -314,15 +311,19 @@ def _past_end_faces(X, boundary_faces, boundary_ids, points) -> np.ndarray:
     return out
 
 
-def _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, skeleton_points, skeleton_edges, skeleton_radii):
-    """Distance of every mesh wall node to the input wall (``wall_tree``), relative to the
-    local radius, and the wall triangle closest to each node."""
+def _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, skeleton_points, skeleton_edges, skeleton_radii, n_faces):
+    """Distance of every mesh wall node to the input wall (``wall_tree``, ``n_faces``
+    triangles), relative to the local radius, and per wall triangle the farthest node whose
+    closest wall point is on it."""
+    face_off = np.zeros(n_faces)
     wall_nodes = np.unique(np.asarray(boundary_faces)[np.asarray(boundary_ids) == 0])
     if len(wall_nodes) == 0:
-        return np.zeros(1), np.zeros(1, np.int64)
+        return np.zeros(1), face_off
     r_n = skeleton_radius(X[wall_nodes], skeleton_points, skeleton_edges, skeleton_radii)[0]
     sq, face = wall_tree.closest(X[wall_nodes])[:2]
-    return np.sqrt(sq) / r_n, np.asarray(face, np.int64)
+    d_n = np.sqrt(sq) / r_n
+    np.maximum.at(face_off, np.asarray(face, np.int64), d_n)
+    return d_n, face_off
 
 
 def _wall_and_caps(F, n_vertices, cap_faces):
