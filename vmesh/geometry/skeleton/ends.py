@@ -42,6 +42,11 @@ def _straight(a: np.ndarray, b: np.ndarray, step: float) -> np.ndarray:
     return a + t * (b - a)
 
 
+def _bent(a: np.ndarray, via: np.ndarray, b: np.ndarray, step: float) -> np.ndarray:
+    """Points strictly between ``a`` and ``b`` on the two straight lines through ``via``."""
+    return np.concatenate([_straight(a, via, step), via[None], _straight(via, b, step)])
+
+
 
 def _to_cap(start: np.ndarray, cap, spacing: float, sdf: SdfFunction | None = None) -> np.ndarray:
     """Points strictly between ``start`` and the centre of ``cap``, at most ``spacing``
@@ -63,7 +68,7 @@ def _to_cap(start: np.ndarray, cap, spacing: float, sdf: SdfFunction | None = No
     via = centre - min(float(cap.radius), depth) * normal
     if np.linalg.norm(via - start) < spacing or evaluate_sdf(sdf, via[None])[0] <= 0:
         return _straight(start, centre, spacing)
-    return np.concatenate([_straight(start, via, spacing), via[None], _straight(via, centre, spacing)])
+    return _bent(start, via, centre, spacing)
 
 
 
@@ -363,7 +368,7 @@ def _attach_cap(graph: BranchGraph, cap, index: int, spacing: float, sdf: SdfFun
     if via is None:
         path = _to_cap(start, cap, spacing, sdf)
     else:
-        path = np.concatenate([_straight(start, via, spacing), via[None], _straight(via, centre, spacing)])
+        path = _bent(start, via, centre, spacing)
     graph.add_branch(base, end, path, np.full(len(path), radius))
     return True
 
