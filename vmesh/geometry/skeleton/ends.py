@@ -56,14 +56,14 @@ def _to_cap(start: np.ndarray, cap, spacing: float, sdf: SdfFunction | None = No
     to the cap. A straight line from a start point off the cap's axis (an end traced along
     one side of the vessel, the junction a short stub leaves) meets the cap at a slant, and
     the sections across it cut along the vessel it runs beside: they find no wall within
-    reach. When the line is more than 30 degrees off the axis, the path goes through the
+    reach. When the line is more than 45 degrees off the axis, the path goes through the
     axis point a cap radius inside (no deeper than ``start``), if that is inside the vessel.
     """
     centre, normal = np.asarray(cap.center, float), np.asarray(cap.normal, float)
     rel = np.asarray(start, float) - centre
     depth = -float(rel @ normal)
     lateral = float(np.linalg.norm(rel + depth * normal))
-    if sdf is None or depth <= 0 or lateral <= np.tan(np.radians(30.0)) * depth:
+    if sdf is None or depth <= 0 or lateral <= depth:  # within 45 degrees of the axis
         return _straight(start, centre, spacing)
     via = centre - min(float(cap.radius), depth) * normal
     if np.linalg.norm(via - start) < spacing or evaluate_sdf(sdf, via[None])[0] <= 0:
