@@ -264,11 +264,12 @@ def measure_coverage(
     end_cap = far & ((beyond & (rel <= end_depth)) | (past[:, None] & (rel <= min(end_depth, 1.0))))
     uncovered_area = float((area[:, None] * (far & ~end_cap)).sum() / 4.0)
     beyond_area = float((area[:, None] * end_cap).sum() / 4.0)
-    d_n, face_off = _wall_node_distances(X, boundary_faces, boundary_ids, TriangleBVH(V, WF) if wall_tree is None else wall_tree, skeleton_points, skeleton_edges, skeleton_radii, len(WF))
+    off = _wall_node_distances(X, boundary_faces, boundary_ids, TriangleBVH(V, WF) if wall_tree is None else wall_tree, skeleton_points, skeleton_edges, skeleton_radii)
+    d_n = off[1]
     surface_volume, mesh_volume = enclosed_volume(V, F), enclosed_volume(X, tri)
     missing, n_patches, n_missing = _missing_parts(
         V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names,
-        patch_area, depth, end_depth, _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3))), face_off,
+        patch_area, depth, end_depth, _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3))), off,
     )
     summary = {
         "distance_rel": float(distance),
@@ -311,19 +312,14 @@ def _past_end_faces(X, boundary_faces, boundary_ids, points) -> np.ndarray:
     return out
 
 
-def _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, skeleton_points, skeleton_edges, skeleton_radii, n_faces):
-    """Distance of every mesh wall node to the input wall (``wall_tree``, ``n_faces``
-    triangles), relative to the local radius, and per wall triangle the farthest node whose
-    closest wall point is on it."""
-    face_off = np.zeros(n_faces)
+def _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, skeleton_points, skeleton_edges, skeleton_radii):
+    """The mesh wall nodes' positions and their distances to the input wall (``wall_tree``),
+    relative to the local radius."""
     wall_nodes = np.unique(np.asarray(boundary_faces)[np.asarray(boundary_ids) == 0])
     if len(wall_nodes) == 0:
-        return np.zeros(1), face_off
+        return np.zeros((1, 3)), np.zeros(1)
     r_n = skeleton_radius(X[wall_nodes], skeleton_points, skeleton_edges, skeleton_radii)[0]
-    sq, face = wall_tree.closest(X[wall_nodes])[:2]
-    d_n = np.sqrt(sq) / r_n
-    np.maximum.at(face_off, np.asarray(face, np.int64), d_n)
-    return d_n, face_off
+    return X[wall_nodes], np.sqrt(wall_tree.closest(X[wall_nodes])[0]) / r_n
 
 
 def _wall_and_caps(F, n_vertices, cap_faces):
@@ -341,10 +337,12 @@ def _wall_and_caps(F, n_vertices, cap_faces):
     return wall, cap_of_vertex
 
 
-def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names, patch_area, depth, end_depth, node_of_branch, face_off):
+def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names, patch_area, depth, end_depth, node_of_branch, off):
     """Connected uncovered patches of the wall (a face is uncovered when at least two of its
-    four samples are) and the missing parts among them, largest first; ``face_off``: the
-    farthest mesh wall node off each wall face (x local radius), a part's ``wall_off``.
+    four samples are) and the missing parts among them, largest first; ``off``: the mesh
+    wall nodes and their distances off the wall (x local radius), for a part's ``wall_off``:
+    the farthest node within the part's depth (plus half a radius) of its faces, where the
+    mesh wall that misses it lies.
 
     Returns the parts (at most :data:`MAX_PATCHES`), the patch count and the count of
     missing parts."""
@@ -385,13 +383,22 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
                     caps=caps,
                     skeleton_node=node,
                     branch=int(node_of_branch[node]) if node_of_branch is not None else -1,
-                    wall_off=float(face_off[faces_k].max()),
+                    wall_off=_wall_off(V[WF[faces_k]].mean(axis=1), (patch_depth[k] + 0.5) * patch_r[k], off),
                 )
             )
         n_missing = len(big)
     else:
         n_missing = 0
     return missing, n_patches, n_missing
+
+
+def _wall_off(centres, reach, off) -> float:
+    """The farthest of the mesh wall nodes ``off = (positions, distances)`` within ``reach``
+    of any of ``centres``; 0 when none is."""
+    from scipy.spatial import cKDTree
+
+    near = cKDTree(centres).query(off[0], distance_upper_bound=reach)[0] <= reach
+    return float(off[1][near].max()) if near.any() else 0.0
 
 
 def _branch_of_node(branches, n_nodes):
