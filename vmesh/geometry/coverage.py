@@ -43,7 +43,7 @@ class MissingPart:
     #: skeleton node nearest to where the part leaves the meshed vessel (its shallowest face)
     skeleton_node: int = -1
     branch: int = -1
-    #: farthest mesh wall node off the input wall over the patch (x local radius): the mesh
+    #: farthest mesh wall node off the input wall near the patch (x local radius): the mesh
     #: reaches the place, but its wall was moved off the surface there (folded blocks)
     wall_off: float = 0.0
 
