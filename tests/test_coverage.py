@@ -96,6 +96,31 @@ def test_missing_side_branch_is_named(cylinder_mesh):
     assert 4.0 < part.position[0] < 8.0 and abs(part.position[2] - 5) < 1  # the branch spans x = 1.5 .. 9.5
     assert "cap 'outlet_2'" in part.describe() and f"near skeleton node {part.skeleton_node} (branch 0)" in part.describe()
     assert summary["uncovered_share"] > 0.2
+    # the mesh's wall lies on the tube: nothing was moved off it, the skeleton is to blame
+    assert part.wall_off < 0.05 and "the skeleton does not reach into it" in part.message()
+
+
+def test_wall_moved_off_the_surface_is_missing_and_named_so(cylinder_mesh):
+    """Generated g0000 and g0008 (issue 17): folded boundary-layer blocks, untangled, leave
+    wall nodes up to 0.7 radii inside the wall, and the wall behind them is missing. The
+    check fails (the mesh does not reach the wall) and says why: the mesh's wall was moved
+    off, not a branch the skeleton missed."""
+    sm, skeleton = cylinder_mesh
+    X = sm.points.copy()
+    theta = np.arctan2(X[:, 1], X[:, 0])
+    # a smooth dent, half a radius deep, over a third of the circumference and 6 units along
+    bump = np.clip(1 - ((X[:, 2] - 5.0) / 3.0) ** 2, 0, None) * np.clip(np.cos(1.5 * theta), 0, None)
+    X[:, :2] *= (1.0 - 0.5 * bump)[:, None]
+    V, F, caps = tube([0, 0, 0], [0, 0, 1], RADIUS, LENGTH)
+    summary, missing = measure_coverage(V, F, caps, ["inlet", "outlet_1"], X, sm.boundary_faces, sm.boundary_ids, sm.order, *skeleton, branches=[np.arange(11)])
+    assert summary["missing_parts"] == 1
+    part = missing[0]
+    assert part.caps == [] and 0.3 < part.depth < 0.6
+    assert 0.3 < part.wall_off < 0.6  # the dent's wall nodes, 0.5 radii inside at its deepest
+    assert summary["wall_node_max_rel"] == pytest.approx(part.wall_off)
+    text = part.message()
+    assert "off the input wall" in text and "skeleton does not reach" not in text
+    assert text.startswith(f"{100 * part.share:.1f} % of the wall") and " at " not in text.split(";")[0]
 
 
 def test_rounded_closed_end_is_allowed(cylinder_mesh):

@@ -163,3 +163,60 @@ def test_march_follows_a_bent_vessel_from_its_cap_to_the_skeleton():
     assert (sdf(line) < 0).any()
     # a march into a dead end (no skeleton within reach) fails
     assert march_to_skeleton(sdf, a, np.array([1.0, 0, 0]), r, np.array([[40.0, 40, 40]]), np.array([r]), max_length=30) is None
+
+
+def _acute_branch(angle: float = 10.0, parent_radius: float = 1.2, radius: float = 0.5, step: float = 0.2):
+    """A parent vessel along x and a daughter leaving it at ``angle`` degrees from the
+    junction at the origin (generated g0007's node 2: 10 degrees): the signed distance of
+    the two tubes (positive inside) and their true skeleton."""
+    d = np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle)), 0.0])
+    s_parent, s_daughter = np.arange(-10.0, 20.0 + 1e-9, step), np.arange(step, 20.0 + 1e-9, step)
+    pts = np.r_[s_parent[:, None] * [1.0, 0.0, 0.0], s_daughter[:, None] * d]
+    n_p, j = len(s_parent), int(np.argmin(np.abs(s_parent)))
+    edges = np.r_[np.c_[np.arange(n_p - 1), np.arange(1, n_p)], [[j, n_p]], np.c_[np.arange(n_p, len(pts) - 1), np.arange(n_p + 1, len(pts))]]
+    radii = np.r_[np.full(n_p, parent_radius), np.full(len(s_daughter), radius)]
+
+    def distance(p):
+        p = np.asarray(p, float).reshape(-1, 3)
+        along_p = np.clip(p[:, 0], -10.0, 20.0)
+        in_p = parent_radius - np.linalg.norm(p - along_p[:, None] * [1.0, 0.0, 0.0], axis=1)
+        along_d = np.clip(p @ d, 0.0, 20.0)
+        in_d = radius - np.linalg.norm(p - along_d[:, None] * d, axis=1)
+        return np.maximum(in_p, in_d)
+
+    return Skeleton(pts, radii, edges), distance
+
+
+def test_an_acute_branch_inside_its_parent_starts_where_their_lumens_part():
+    """Generated g0007 (given skeleton), node 2: a daughter leaves its parent 10 degrees
+    apart and runs inside the parent's lumen for several parent radii; the block builder
+    refused the junction (two branches 10 degrees apart around its axis). The junction moves
+    along the two branches to where they part by 60 degrees, farther than ``max_shift`` (4)
+    radii since they share one lumen up to there, and no farther than the lumen they share."""
+    sk, distance = _acute_branch()
+    c = int(sk.junctions[0])
+    moved, n = ops.separate_parallel_branches(sk, 30.0, 60.0, distance=distance)
+    assert n == 1 and len(moved.junctions) == 1
+    j = int(moved.junctions[0])
+    # past four parent radii along the parent, still a quarter radius inside the shared lumen
+    assert moved.points[j][0] > 4.0 * 1.2 and distance(moved.points[j : j + 1])[0] >= 0.25 * 1.2
+    # its branches now leave it at least 30 degrees apart (the block builder's junctions take them)
+    d = moved.points[moved.neighbors(j)] - moved.points[j]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    cos = d @ d.T
+    assert np.degrees(np.arccos(np.clip(cos[np.triu_indices(3, 1)], -1, 1))).min() > 30.0
+    # topology kept: one junction, three ends, every node inside
+    assert len(moved.endpoints) == 3 and np.all(distance(moved.points) > 0)
+    # without the signed distance nothing tells the shared lumen: the junction stays within max_shift
+    same, n0 = ops.separate_parallel_branches(sk, 30.0, 60.0)
+    assert n0 == 0 and np.allclose(same.points[int(same.junctions[0])], sk.points[c])
+
+
+def test_an_acute_branch_that_leaves_its_parent_keeps_its_junction_near_the_carina():
+    """A daughter 25 degrees off its parent leaves the shared lumen early: the junction moves
+    no farther than the lumen the two share (its new place is inside by a quarter radius)."""
+    sk, distance = _acute_branch(angle=25.0)
+    moved, n = ops.separate_parallel_branches(sk, 30.0, 60.0, distance=distance)
+    j = int(moved.junctions[0])
+    assert n == 1 and distance(moved.points[j : j + 1])[0] > 0.25 * 1.2
+    assert moved.points[j][0] < 4.0 * 1.2

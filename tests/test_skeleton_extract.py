@@ -384,3 +384,50 @@ def test_flat_end_of_a_rough_face_sits_on_the_vessel_axis(real_path):
         rel = sk.points[e] - centres[0]
         off_axis = np.linalg.norm(rel - (rel @ axis) * axis)
         assert off_axis < 0.15 * r, (e, off_axis / r)
+
+
+def test_a_branch_added_to_a_slanted_cap_arrives_along_its_axis():
+    """Generated g0012 (extracted), node 113: the branch added to a short side branch's cap
+    ran straight from the nearest skeleton point, at 75 degrees to the cap's axis, and its
+    cross-sections cut along the parent: "finds no wall within reach". A branch to a cap
+    ends with a stretch along the cap's axis, a cap radius long (as deep as the start
+    allows), its sections parallel to the cap; a start on the axis keeps the straight line."""
+    from vmesh.geometry.skeleton.branch_graph import BranchGraph
+    from vmesh.geometry.skeleton.ends import _attach_cap, _to_cap
+
+    class Cap:
+        def __init__(self, center, normal, radius):
+            self.center, self.normal, self.radius = np.asarray(center, float), np.asarray(normal, float), radius
+
+    d = np.array([np.sqrt(3.0), 1.0, 0.0]) / 2.0  # 30 degrees off the parent
+    length, r_side = 2.0, 0.8  # a short, wide side branch: the oblique line stays inside
+    parent = capsule_sdf([-10.0, 0, 0], [10.0, 0, 0], 1.0)
+
+    def sdf(p):
+        p = np.asarray(p, float).reshape(-1, 3)
+        t = p @ d
+        side = np.minimum(r_side - np.linalg.norm(p - np.clip(t, 0.0, length)[:, None] * d, axis=1), length - t)
+        return np.maximum(parent(p), side)
+
+    cap = Cap(length * d, d, r_side)
+    graph = BranchGraph()
+    a, b = graph.add_node([-10.0, 0, 0], 1.0), graph.add_node([10.0, 0, 0], 1.0)
+    graph.add_branch(a, b, np.c_[np.arange(-9.9, 9.95, 0.1), np.zeros((199, 2))], np.ones(199))
+    assert _attach_cap(graph, cap, 0, 0.1, sdf)
+    end = [n for n in graph.graph.nodes if graph.graph.nodes[n].get("end") == ("cap", 0)][0]
+    (u, v, k), = list(graph.graph.edges(end, keys=True))
+    pts, _ = graph.polyline(u, v, k, start=graph.other(u, v, end))
+    rel = pts - cap.center
+    depth = -(rel @ d)
+    lateral = np.linalg.norm(rel + depth[:, None] * d, axis=1)
+    last = depth < depth[0] - 1e-9
+    assert last.sum() >= 4 and lateral[last].max() < 1e-9  # the last stretch on the axis
+    assert np.all(sdf(pts[:-1]) > 0)  # inside the vessel all the way (the end is on the cap)
+    # the straight line from the nearest point (on the parent's axis) is 60 degrees off the axis
+    start = pts[0]
+    assert np.degrees(np.arccos(((cap.center - start) / np.linalg.norm(cap.center - start)) @ d)) > 55
+    # a start on the cap's axis, or without the signed distance: the straight line
+    on_axis = cap.center - 2.0 * d
+    for path in (_to_cap(on_axis, cap, 0.1, sdf), _to_cap(start, cap, 0.1)):
+        q = path - path[0]
+        assert np.allclose(np.cross(q, (cap.center - path[0])), 0.0, atol=1e-9)

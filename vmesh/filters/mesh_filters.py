@@ -362,11 +362,7 @@ def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing)
         return
     worst = missing[0]
     more = f" (and {len(missing) - 1} more part(s))" if len(missing) > 1 else ""
-    message = (
-        f"the mesh leaves out part of the vessel: {100 * worst.share:.1f} % of the wall ({worst.cross_sections:.1f} cross-sections, "
-        f"up to {worst.depth:.2g} radii from the mesh) at {worst.describe()}{more}; the skeleton does not reach into it "
-        "(give a centerline that does, or keep clean_skeleton.graft_to_caps on; check_coverage.fail_on_missing=false only warns)"
-    )
+    message = f"the mesh leaves out part of the vessel: {worst.message(depth)}{more} (check_coverage.fail_on_missing=false only warns)"
     if fail_on_missing:
         raise MeshingError(message)
     ctx.warn(message)

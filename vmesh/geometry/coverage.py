@@ -43,6 +43,9 @@ class MissingPart:
     #: skeleton node nearest to where the part leaves the meshed vessel (its shallowest face)
     skeleton_node: int = -1
     branch: int = -1
+    #: farthest mesh wall node off the input wall near the patch (x local radius): the mesh
+    #: reaches the place, but its wall was moved off the surface there (folded blocks)
+    wall_off: float = 0.0
 
     def describe(self) -> str:
         """Where the patch is: the caps it reaches, the nearest skeleton node and branch, a position."""
@@ -65,7 +68,27 @@ class MissingPart:
             "caps": list(self.caps),
             "skeleton_node": int(self.skeleton_node),
             "branch": int(self.branch),
+            "wall_off_rel": float(self.wall_off),
         }
+
+    def cause(self, depth: float = 0.3) -> str:
+        """Why the mesh misses the part, and a remedy: its wall nodes moved off the wall
+        (``wall_off`` beyond ``depth``), or a vessel the skeleton never entered."""
+        if self.wall_off > depth:
+            return (
+                f"the mesh's wall nodes there lie up to {self.wall_off:.2g} radii off the input wall: its blocks "
+                "reach the place, but their boundary layer folded and was moved off the wall (see compute_quality's "
+                "minimum and the build_block_structure warnings on folding blocks)"
+            )
+        return "the skeleton does not reach into it (give a centerline that does, or keep clean_skeleton.graft_to_caps on)"
+
+    def message(self, depth: float = 0.3) -> str:
+        """The line a failed check prints: size, place and :meth:`cause`."""
+        where = self.describe()
+        return (
+            f"{100 * self.share:.1f} % of the wall ({self.cross_sections:.1f} cross-sections, up to {self.depth:.2g} "
+            f"radii from the mesh) {'at ' if self.caps else ''}{where}; {self.cause(depth)}"
+        )
 
 
 def boundary_triangles(boundary_faces: np.ndarray, order: int) -> np.ndarray:
@@ -241,11 +264,12 @@ def measure_coverage(
     end_cap = far & ((beyond & (rel <= end_depth)) | (past[:, None] & (rel <= min(end_depth, 1.0))))
     uncovered_area = float((area[:, None] * (far & ~end_cap)).sum() / 4.0)
     beyond_area = float((area[:, None] * end_cap).sum() / 4.0)
-    d_n = _wall_node_distances(X, boundary_faces, boundary_ids, TriangleBVH(V, WF) if wall_tree is None else wall_tree, skeleton_points, skeleton_edges, skeleton_radii)
+    off = _wall_node_distances(X, boundary_faces, boundary_ids, TriangleBVH(V, WF) if wall_tree is None else wall_tree, skeleton_points, skeleton_edges, skeleton_radii)
+    d_n = off[1]
     surface_volume, mesh_volume = enclosed_volume(V, F), enclosed_volume(X, tri)
     missing, n_patches, n_missing = _missing_parts(
         V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names,
-        patch_area, depth, end_depth, _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3))),
+        patch_area, depth, end_depth, _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3))), off,
     )
     summary = {
         "distance_rel": float(distance),
@@ -289,12 +313,13 @@ def _past_end_faces(X, boundary_faces, boundary_ids, points) -> np.ndarray:
 
 
 def _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, skeleton_points, skeleton_edges, skeleton_radii):
-    """Distance of every mesh wall node to the input wall (``wall_tree``), relative to the local radius."""
+    """The mesh wall nodes' positions and their distances to the input wall (``wall_tree``),
+    relative to the local radius."""
     wall_nodes = np.unique(np.asarray(boundary_faces)[np.asarray(boundary_ids) == 0])
     if len(wall_nodes) == 0:
-        return np.zeros(1)
+        return np.zeros((1, 3)), np.zeros(1)
     r_n = skeleton_radius(X[wall_nodes], skeleton_points, skeleton_edges, skeleton_radii)[0]
-    return np.sqrt(wall_tree.closest(X[wall_nodes])[0]) / r_n
+    return X[wall_nodes], np.sqrt(wall_tree.closest(X[wall_nodes])[0]) / r_n
 
 
 def _wall_and_caps(F, n_vertices, cap_faces):
@@ -312,9 +337,12 @@ def _wall_and_caps(F, n_vertices, cap_faces):
     return wall, cap_of_vertex
 
 
-def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names, patch_area, depth, end_depth, node_of_branch):
+def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names, patch_area, depth, end_depth, node_of_branch, off):
     """Connected uncovered patches of the wall (a face is uncovered when at least two of its
-    four samples are) and the missing parts among them, largest first.
+    four samples are) and the missing parts among them, largest first; ``off``: the mesh
+    wall nodes and their distances off the wall (x local radius), for a part's ``wall_off``:
+    the farthest node within the part's depth (plus half a radius) of its faces, where the
+    mesh wall that misses it lies.
 
     Returns the parts (at most :data:`MAX_PATCHES`), the patch count and the count of
     missing parts."""
@@ -355,12 +383,22 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
                     caps=caps,
                     skeleton_node=node,
                     branch=int(node_of_branch[node]) if node_of_branch is not None else -1,
+                    wall_off=_wall_off(V[WF[faces_k]].mean(axis=1), (patch_depth[k] + 0.5) * patch_r[k], off),
                 )
             )
         n_missing = len(big)
     else:
         n_missing = 0
     return missing, n_patches, n_missing
+
+
+def _wall_off(centres, reach, off) -> float:
+    """The farthest of the mesh wall nodes ``off = (positions, distances)`` within ``reach``
+    of any of ``centres``; 0 when none is."""
+    from scipy.spatial import cKDTree
+
+    near = cKDTree(centres).query(off[0], distance_upper_bound=reach)[0] <= reach
+    return float(off[1][near].max()) if near.any() else 0.0
 
 
 def _branch_of_node(branches, n_nodes):

@@ -88,13 +88,13 @@ def _pair_angle(m: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.arccos(np.clip(cos, -1.0, 1.0))
 
 
-def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead: float, max_shift: float):
+def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead: float, max_shift: float, distance=None):
     """The first junction of ``skel`` not in ``done`` with two branches less than ``limit``
-    (radians) apart that part by ``target`` within ``max_shift`` x its radius (see
-    :func:`separate_parallel_branches`): ``(c, pi, ai, pj, aj, star, at, r_at, eps)``, the
-    junction, the two branches from it and their arc lengths, the arc length, position and
-    radius of the new junction and the tolerance on arc length; None if there is none.
-    Adds the junctions looked at to ``done``."""
+    (radians) apart that part by ``target`` within ``max_shift`` x its radius, or farther
+    while they share one lumen (with ``distance``; see :func:`separate_parallel_branches`):
+    ``(c, pi, ai, pj, aj, star, at, r_at, eps)``, the junction, the two branches from it and
+    their arc lengths, the arc length, position and radius of the new junction and the
+    tolerance on arc length; None if there is none. Adds the junctions looked at to ``done``."""
     scale = node_scale(skel)
     paths = branch_paths(skel.n_nodes, skel.edges)
     for c in np.flatnonzero(skel.degrees >= 3).tolist():
@@ -116,7 +116,9 @@ def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead
             if pi[-1] == pj[-1]:  # two paths between the same nodes: a loop, not a fork
                 continue
             eps = 0.02 * rc
-            top = min(max_shift * rc, ai[-1] - ahead * rc, aj[-1] - ahead * rc) - eps
+            top = min(ai[-1] - ahead * rc, aj[-1] - ahead * rc) - eps
+            if distance is None:
+                top = min(top, max_shift * rc - eps)
             if top <= 0:
                 continue
             # candidate junctions: midpoints of the two branches, every twentieth of a radius
@@ -124,6 +126,13 @@ def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead
             Pi, Pj, Ri, Rj = skel.points[pi], skel.points[pj], scale[pi], scale[pj]
             mid = 0.5 * (polyline_at(Pi, ai, s) + polyline_at(Pj, aj, s))
             r = np.maximum(np.interp(s, ai, Ri), np.interp(s, aj, Rj))
+            if distance is not None:
+                # past max_shift only while the two still run in one lumen (an acute branch
+                # along its parent): the midpoint a quarter radius inside, up to the first point not
+                shared = np.asarray(distance(mid), float) >= 0.25 * r
+                far = (s > max_shift * rc) & ~shared
+                n_ok = int(np.argmax(far)) if far.any() else len(s)
+                s, mid, r = s[:n_ok], mid[:n_ok], r[:n_ok]
             spread = _pair_angle(mid, polyline_at(Pi, ai, s + ahead * r), polyline_at(Pj, aj, s + ahead * r))
             wide = np.flatnonzero(spread >= target)
             if len(wide):
@@ -197,10 +206,14 @@ def separate_parallel_branches(
         Where the branch directions are measured (x radius along the branches).
     max_shift : float
         Farthest a junction moves along its branches (x its radius); a junction whose
-        branches are not yet ``part_angle`` apart there is left where it is.
+        branches are not yet ``part_angle`` apart there is left where it is. With
+        ``distance``, farther while the two branches still share one lumen (their midpoint
+        a quarter radius or more inside the wall): an acute branch running inside its
+        parent for many radii parts where its own lumen does.
     distance : callable, optional
-        Signed distance (positive inside): radii of the moved nodes. Without it (or where
-        it is not positive), the larger of the two branch radii at each midpoint.
+        Signed distance (positive inside): radii of the moved nodes and the shared lumen.
+        Without it (or where it is not positive), the larger of the two branch radii at
+        each midpoint.
 
     Returns
     -------
@@ -213,7 +226,7 @@ def separate_parallel_branches(
     limit, target = np.radians(min_angle), np.radians(max(part_angle, min_angle))
     skel, moved, done = skeleton, 0, set()
     while True:
-        job = _parallel_pair(skel, done, limit, target, ahead, max_shift)
+        job = _parallel_pair(skel, done, limit, target, ahead, max_shift, distance)
         if job is None:
             break
         c = job[0]

@@ -42,6 +42,35 @@ def _straight(a: np.ndarray, b: np.ndarray, step: float) -> np.ndarray:
     return a + t * (b - a)
 
 
+def _bent(a: np.ndarray, via: np.ndarray, b: np.ndarray, step: float) -> np.ndarray:
+    """Points strictly between ``a`` and ``b`` on the two straight lines through ``via``."""
+    return np.concatenate([_straight(a, via, step), via[None], _straight(via, b, step)])
+
+
+
+def _to_cap(start: np.ndarray, cap, spacing: float, sdf: SdfFunction | None = None) -> np.ndarray:
+    """Points strictly between ``start`` and the centre of ``cap``, at most ``spacing``
+    apart, arriving along the cap's axis.
+
+    A vessel meets its open end square: the last cross-sections of its branch are parallel
+    to the cap. A straight line from a start point off the cap's axis (an end traced along
+    one side of the vessel, the junction a short stub leaves) meets the cap at a slant, and
+    the sections across it cut along the vessel it runs beside: they find no wall within
+    reach. When the line is more than 45 degrees off the axis, the path goes through the
+    axis point a cap radius inside (no deeper than ``start``), if that is inside the vessel.
+    """
+    centre, normal = np.asarray(cap.center, float), np.asarray(cap.normal, float)
+    rel = np.asarray(start, float) - centre
+    depth = -float(rel @ normal)
+    lateral = float(np.linalg.norm(rel + depth * normal))
+    if sdf is None or depth <= 0 or lateral <= depth:  # within 45 degrees of the axis
+        return _straight(start, centre, spacing)
+    via = centre - min(float(cap.radius), depth) * normal
+    if np.linalg.norm(via - start) < spacing or evaluate_sdf(sdf, via[None])[0] <= 0:
+        return _straight(start, centre, spacing)
+    return _bent(start, via, centre, spacing)
+
+
 
 def _match_caps(ends: np.ndarray, end_radii: np.ndarray, caps) -> dict:
     """Greedy one-to-one matching of skeleton ends to caps, nearest first.
@@ -103,7 +132,7 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
     for e, (node, tangent, r_ref) in enumerate(info):
         if e in matched:
             cap = caps[matched[e]]
-            _extend(graph, node, np.asarray(cap.center, float), float(cap.radius), spacing)
+            _extend(graph, node, np.asarray(cap.center, float), float(cap.radius), spacing, cap=cap, sdf=sdf)
             graph.graph.nodes[node]["end"] = ("cap", matched[e])
             counts["cap"] += 1
     free = [i for e, i in enumerate(info) if e not in matched]
@@ -154,13 +183,14 @@ def _trim_end(graph: BranchGraph, node: int, spacing: float) -> tuple[np.ndarray
 
 
 
-def _extend(graph: BranchGraph, node: int, target: np.ndarray, radius: float, spacing: float, direction=None) -> None:
+def _extend(graph: BranchGraph, node: int, target: np.ndarray, radius: float, spacing: float, direction=None, cap=None, sdf=None) -> None:
     """Move end ``node`` to ``target``, keeping its old position as part of the branch.
 
     With ``direction`` (the outward axis at the end), branch points that do not lie
     clearly behind ``target`` along it are cut off first: a target set back from an
     end face may lie behind the traced end, and going there and back would fold the
-    branch."""
+    branch. With ``cap`` (``target`` its centre), the branch arrives along the cap's
+    axis (:func:`_to_cap`)."""
     (u, v, k), = list(graph.graph.edges(node, keys=True))
     data = graph.graph.edges[u, v, k]
     target = np.asarray(target, float)
@@ -176,7 +206,7 @@ def _extend(graph: BranchGraph, node: int, target: np.ndarray, radius: float, sp
         old_r = rad[-1] if keep else old_r
         extra = _straight(old, target, spacing)
     else:
-        extra = np.concatenate([old[None], _straight(old, target, spacing)])
+        extra = np.concatenate([old[None], _to_cap(old, cap, spacing, sdf) if cap is not None else _straight(old, target, spacing)])
     pts = np.concatenate([pts, extra])
     rad = np.concatenate([rad, np.full(len(extra), old_r)])
     data["pts"], data["rad"] = (pts, rad) if towards_end else (pts[::-1].copy(), rad[::-1].copy())
@@ -248,7 +278,7 @@ def _extend_to_wall(graph: BranchGraph, sdf: SdfFunction, free, spacing: float, 
         ]
         if on_cap:
             cap = caps[on_cap[0]]
-            _extend(graph, node, np.asarray(cap.center, float), float(cap.radius), spacing)
+            _extend(graph, node, np.asarray(cap.center, float), float(cap.radius), spacing, cap=cap, sdf=sdf)
             graph.graph.nodes[node]["end"] = ("cap", on_cap[0])
             taken.add(on_cap[0])
             counts["cap"] += 1
@@ -336,9 +366,9 @@ def _attach_cap(graph: BranchGraph, cap, index: int, spacing: float, sdf: SdfFun
     end = graph.add_node(centre, radius, end=("cap", index))
     start = graph.pos(base)
     if via is None:
-        path = _straight(start, centre, spacing)
+        path = _to_cap(start, cap, spacing, sdf)
     else:
-        path = np.concatenate([_straight(start, via, spacing), via[None], _straight(via, centre, spacing)])
+        path = _bent(start, via, centre, spacing)
     graph.add_branch(base, end, path, np.full(len(path), radius))
     return True
 
