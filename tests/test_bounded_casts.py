@@ -71,6 +71,18 @@ def test_march_looks_past_its_first_samples_only_for_rays_still_inside(monkeypat
     assert np.array_equal(split, cast_rays(dist, o, d, scale, reach=30.0), equal_nan=True)
 
 
+def test_rays_of_one_section_ask_about_their_shared_centre_once():
+    dist = capsule_distance(np.array([[0.0, 0, 0]]), np.array([[10.0, 0, 0]]), np.array([1.0]))
+    centres = np.c_[np.linspace(2.0, 8.0, 10), np.zeros((10, 2))]
+    ang = np.linspace(0.0, 2 * np.pi, 8, endpoint=False)
+    d = np.stack([np.zeros(8), np.cos(ang), np.sin(ang)], axis=1)
+    o = np.repeat(centres, 8, axis=0)  # as the block builder repeats a section's centre
+    f, n = counted(dist)
+    walls = cast_rays(f, o, np.tile(d, (10, 1)), np.ones(80), iterations=24)
+    assert np.allclose(walls, 1.0, atol=1e-6)
+    assert n[0] == 10 + 80 * (6 + 24)
+
+
 @pytest.mark.parametrize("corners", [3, 6])
 def test_bend_thinning_casts_only_around_the_nodes_it_drops(corners):
     sk, dist = zigzag(corners)

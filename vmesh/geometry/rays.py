@@ -63,7 +63,7 @@ def cast_rays(
     n = len(o)
     lo = np.zeros(n)
     hi = np.full(n, np.nan)
-    todo = np.flatnonzero(np.asarray(distance(o)) > 0) if n else np.zeros(0, np.int64)
+    todo = np.flatnonzero(_origins_inside(distance, o))
     n_steps = 12
     t0 = np.zeros(n)
     head = _FIRST_SAMPLES  # the first batch in two parts: most walls lie within its first half
@@ -99,6 +99,16 @@ def cast_rays(
         b = np.where(inside, b, mid)
     out[idx] = 0.5 * (a + b)
     return out
+
+
+def _origins_inside(distance, o: np.ndarray) -> np.ndarray:
+    """(n,) bool: ``distance(o) > 0``, asked once per run of equal consecutive origins (the
+    rays of a section share its centre, and callers repeat it)."""
+    if len(o) == 0:
+        return np.zeros(0, bool)
+    start = np.r_[True, np.any(o[1:] != o[:-1], axis=1)]
+    inside = np.asarray(distance(o[start])) > 0
+    return inside[np.cumsum(start) - 1]
 
 
 #: Samples of a ray's first march batch evaluated before the rest of it: sections are
