@@ -112,3 +112,10 @@ def test_bend_thinning_work_grows_with_the_corners_not_faster():
     # twice the corners: twice the rays and dropped nodes, give or take the two end arms
     assert work[8][1] <= 2 * work[4][1] + 2
     assert work[8][0] <= 2 * work[4][0] + 8
+
+
+def test_the_casts_keep_their_old_names():
+    from vmesh.geometry import cross_sections as cs
+    from vmesh.geometry.blocks import work
+
+    assert cs.cast_rays is cast_rays and cs.RayCache is RayCache and work.RayCache is RayCache
