@@ -39,12 +39,40 @@ SURFACE, CENTERLINE = "brava_BG0002_surface.vtp", "brava_BG0002.swc"
 TARGET_S, TARGET_GB = 60.0, 6.0
 
 
+def _count_step_cpu() -> dict:
+    """Record the CPU seconds (all threads of this process) of every chain step, the failed
+    one included, in the returned dict: on the shared machine wall seconds mostly measure the
+    load, CPU seconds the work."""
+    import vmesh.chain as chain_module
+
+    cpu = {}
+    run_step = chain_module._run_step
+
+    def timed(ctx, number, step, *args, **kwargs):
+        t = os.times()
+        try:
+            return run_step(ctx, number, step, *args, **kwargs)
+        finally:
+            u = os.times()
+            cpu[step.filter] = cpu.get(step.filter, 0.0) + (u.user + u.system) - (t.user + t.system)
+
+    chain_module._run_step = timed
+    return cpu
+
+
 def run_child(variant: str) -> dict:
     """One run in this process (the child): the row as :func:`_common.mesh_row` gives it,
-    plus the failed step's seconds, the block builder's work and the peak memory."""
+    plus the failed step's seconds, CPU seconds per step and stage, the block builder's work
+    and the peak memory."""
     surface = realdata.real_file(SURFACE)
     skeleton = realdata.real_file(CENTERLINE) if variant == "given" else None
+    cpu = _count_step_cpu()
     row = C.mesh_row("brava_BG0002", surface, skeleton, exports=True, keep_context=True, label=variant)
+    row["step_cpu_s"] = {k: round(v, 2) for k, v in cpu.items()}
+    stage_cpu = {}
+    for k, v in cpu.items():
+        stage_cpu[C.STAGES.get(k, "export")] = stage_cpu.get(C.STAGES.get(k, "export"), 0.0) + v
+    row["stage_cpu_s"] = {k: round(v, 2) for k, v in stage_cpu.items()}
     ctx = row.pop("_ctx", None)
     row.pop("_sj", None)
     if ctx is not None and ctx.blocks is not None:
@@ -54,6 +82,8 @@ def run_child(variant: str) -> dict:
         row.setdefault("stage_s", {})
         done = sum(row.get("step_s", {}).values())
         row["failed_step_s"] = round(max(0.0, row["wall_s"] - done), 3)
+        ran = [k for k in cpu if k not in row.get("step_s", {})]
+        row["failed_filter"] = ran[-1] if ran else None
     row["peak_rss_gb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20, 3)
     return row
 
@@ -81,14 +111,17 @@ def _gb(row: dict) -> float | None:
 
 def tabulate(rows: list[dict]) -> str:
     stages = list(C.STAGE_ORDER)
-    head = ["run", "status", "wall s", "CPU s"] + [f"{s} s" for s in stages] + ["peak GB", "hexahedra", "inverted", "SJ min", "SJ mean",
-                                                                                   "assemblies", "rays cast / reused"]
+    head = ["run", "status", "wall s", "CPU s"] + [f"{s} s wall / CPU" for s in stages] + ["peak GB", "hexahedra", "inverted", "SJ min",
+                                                                                              "SJ mean", "assemblies", "rays cast / reused"]
     lines = []
     for r in rows:
-        st = r.get("stage_s", {})
+        st, cpu = r.get("stage_s", {}), r.get("stage_cpu_s", {})
+        if r.get("failed_filter"):  # the report has no seconds of the failed step: the wall clock had them
+            stage = C.STAGES.get(r["failed_filter"], "export")
+            st = {**st, stage: st.get(stage, 0.0) + (r.get("failed_step_s") or 0.0)}
         work = r.get("block_work") or {}
         cells = [r["run"], r["status"], C.fmt(r.get("wall_s"), ".1f"), C.fmt(r.get("cpu_s"), ".1f")]
-        cells += [C.fmt(st.get(s), ".2f") for s in stages]
+        cells += [f"{C.fmt(st.get(s), '.1f')} / {C.fmt(cpu.get(s), '.1f')}" for s in stages]
         cells += [C.fmt(_gb(r), ".2f"), C.fmt(r.get("elements")), C.fmt(r.get("invalid")), C.fmt(r.get("sj_min"), ".3f"),
                   C.fmt(r.get("sj_mean"), ".3f"), C.fmt(work.get("assemblies")),
                   f"{C.fmt(work.get('rays_cast'))} / {C.fmt(work.get('rays_reused'))}" if work else "-"]

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..geometry.rays import RayCache
 from ..geometry.skeleton import clean as sk_clean, distance as sk_distance, graft as sk_graft, graph as sk_graph, sample as sk_sample, tags as sk_tags
 from ..geometry.skeleton.bends import thin_sharp_bends, thin_stubs
 from ..geometry.skeleton.defects import cut_necks, drop_outside_components, weld_coincident_nodes
@@ -558,9 +559,12 @@ def resample_skeleton(ctx, spacing, radius_change, smooth_radii, min_segments, m
         ctx.count(thinned_stubs=stubs)
     if min_section_gap > 0:
         distance = _sdf_functions(ctx.sdf)[0] if ctx.sdf is not None else None
-        skel, thinned = thin_sharp_bends(skel, min_section_gap, distance)
+        lines = ctx.sdf.intersect_lines if ctx.sdf is not None else None
+        rays = RayCache()
+        skel, thinned = thin_sharp_bends(skel, min_section_gap, distance, intersect_lines=lines, rays=rays)
         if thinned:
             ctx.count(thinned_at_bends=thinned)
+        ctx.count(bend_rays_cast=rays.misses, bend_rays_reused=rays.hits)
     ctx.skeleton = skel
     ctx.count(nodes_before=before)
     _count_summary(ctx, ctx.skeleton)

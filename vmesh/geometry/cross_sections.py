@@ -49,6 +49,11 @@ from ..blocks import (
     LAYER_RING,
 )
 
+from . import rays as _rays
+
+# their old home: the builder and the skeleton reach them as ``cs.cast_rays``, ``cs.RayCache``
+cast_rays, RayCache = _rays.cast_rays, _rays.RayCache
+
 VERTEX_CORE, VERTEX_RING, VERTEX_OUTER = 0, 1, 2
 _TWO_PI = 2.0 * np.pi
 
@@ -346,95 +351,6 @@ def section_vertices(
     s = (np.abs(x) / w)[None, :, None]
     q = (np.abs(y) / h)[None, :, None]
     out[:, core] = c[:, None, :] + s * (1 - q) * px + (1 - s) * q * py + s * q * pd
-    return out
-
-
-# ---------------------------------------------------------------------------
-# rays to the wall
-# ---------------------------------------------------------------------------
-def cast_rays(
-    distance,
-    origins: np.ndarray,
-    directions: np.ndarray,
-    scale: np.ndarray,
-    reach: float = 12.0,
-    step: float = 0.2,
-    iterations: int = 24,
-    intersect_lines=None,
-) -> np.ndarray:
-    """Distance along each ray to its first crossing of the wall.
-
-    Marches each ray from its origin (inside the vessel) in steps of ``step × scale``
-    until the signed distance turns negative, then finds the crossing in the bracketing
-    step: by one exact line cast where ``intersect_lines`` is given, else by bisection.
-    Either way a wall grazed between two march samples is stepped over (an exact first
-    crossing moved 35 of the real coarctation's 33,249 section rays inward by up to 6
-    radii and changed its mesh; the march keeps the sections the presets were tuned on).
-
-    Parameters
-    ----------
-    distance : callable
-        ``distance(points (n, 3)) -> (n,)`` signed distance, positive inside.
-    origins, directions : (n, 3)
-        Ray origins (inside) and unit directions.
-    scale : (n,)
-        Length scale per ray (the local radius).
-    reach : float
-        Rays are followed up to ``reach × scale``.
-    step : float
-        March step relative to ``scale``.
-    iterations : int
-        Bisection steps.
-    intersect_lines : callable, optional
-        ``intersect_lines(points, directions, reach, side) -> (moved, hit)`` of the same
-        surface (:meth:`~vmesh.geometry.sdf.SignedDistance.intersect_lines`): one tree
-        traversal per ray instead of ``iterations`` distance queries.
-
-    Returns
-    -------
-    (n,) float: the distance to the wall; ``nan`` where a ray does not leave the
-    vessel within its reach or starts outside.
-    """
-    o = np.asarray(origins, float).reshape(-1, 3)
-    d = np.asarray(directions, float).reshape(-1, 3)
-    sc = np.broadcast_to(np.asarray(scale, float), (len(o),)).copy()
-    n = len(o)
-    lo = np.zeros(n)
-    hi = np.full(n, np.nan)
-    todo = np.flatnonzero(np.asarray(distance(o)) > 0) if n else np.zeros(0, np.int64)
-    n_steps = 12
-    t0 = np.zeros(n)
-    while len(todo):
-        ts = t0[todo, None] + sc[todo, None] * step * np.arange(1, n_steps + 1)[None, :]
-        pts = o[todo, None, :] + ts[:, :, None] * d[todo, None, :]
-        f = np.asarray(distance(pts.reshape(-1, 3))).reshape(len(todo), n_steps)
-        outside = f < 0
-        hit = outside.any(axis=1)
-        first = np.argmax(outside, axis=1)
-        r = todo[hit]
-        fi = first[hit]
-        hi[r] = ts[hit, fi]
-        lo[r] = np.where(fi > 0, ts[hit, np.maximum(fi - 1, 0)], t0[r])
-        rest = todo[~hit]
-        t0[rest] = ts[~hit, -1]
-        todo = rest[t0[rest] < reach * sc[rest]]
-    ok = np.isfinite(hi)
-    idx = np.flatnonzero(ok)
-    out = np.full(n, np.nan)
-    if intersect_lines is not None and len(idx):
-        start = o[idx] + lo[idx, None] * d[idx]
-        span = hi[idx] - lo[idx]
-        moved, hit = intersect_lines(start, d[idx], span * (1 + 1e-9), np.ones(len(idx)))
-        along = np.einsum("ij,ij->i", moved - start, d[idx]) / np.einsum("ij,ij->i", d[idx], d[idx])
-        out[idx[hit]] = lo[idx[hit]] + along[hit]
-        idx = idx[~hit]  # a crossing at a sample within rounding: bisect those
-    a, b = lo[idx], hi[idx]
-    for _ in range(iterations):
-        mid = 0.5 * (a + b)
-        inside = np.asarray(distance(o[idx] + mid[:, None] * d[idx])) > 0
-        a = np.where(inside, mid, a)
-        b = np.where(inside, b, mid)
-    out[idx] = 0.5 * (a + b)
     return out
 
 

@@ -85,7 +85,8 @@ def section_gaps(skeleton: Skeleton, bias: float = 1.0) -> tuple[np.ndarray, np.
     return gap, side, turn
 
 
-def thin_sharp_bends(skeleton: Skeleton, min_gap: float = 1.0, distance=None, bias: float = 1.0, reach: float = 6.0, max_rounds: int = 64) -> tuple[Skeleton, int]:
+def thin_sharp_bends(skeleton: Skeleton, min_gap: float = 1.0, distance=None, bias: float = 1.0, reach: float = 6.0, max_rounds: int = 64,
+                     intersect_lines=None, rays: cs.RayCache | None = None) -> tuple[Skeleton, int]:
     """Drop nodes next to sharp bends until no two neighbouring cross-sections cross inside
     the vessel (see the module's docstring).
 
@@ -110,6 +111,13 @@ def thin_sharp_bends(skeleton: Skeleton, min_gap: float = 1.0, distance=None, bi
         Farthest wall distance considered, × radius.
     bias : float
         As the block builder's ``plane_bias``.
+    intersect_lines : callable, optional
+        Line casts on the same surface (:func:`~vmesh.geometry.rays.cast_rays`): one tree
+        traversal per ray where the march found the wall, instead of a bisection.
+    rays : RayCache, optional
+        Where the rays are cast (a new one by default): a segment whose nodes and
+        neighbours did not change casts the same ray in the next round, answered from the
+        cache, so each round casts only around the nodes the last one dropped.
 
     Returns
     -------
@@ -122,6 +130,7 @@ def thin_sharp_bends(skeleton: Skeleton, min_gap: float = 1.0, distance=None, bi
     removed = 0
     if min_gap <= 0 or sk.n_edges == 0:
         return sk.copy(), 0
+    rays = cs.RayCache() if rays is None else rays
     for _ in range(max_rounds):
         gap, side, turn = section_gaps(sk, bias)
         E = sk.edges
@@ -129,7 +138,7 @@ def thin_sharp_bends(skeleton: Skeleton, min_gap: float = 1.0, distance=None, bi
         bad = np.flatnonzero(gap < min_gap * (reach if distance is not None else 1.0) * r)
         if distance is not None and len(bad):
             mid = 0.5 * (sk.points[E[bad, 0]] + sk.points[E[bad, 1]])
-            wall = cs.cast_rays(distance, mid, side[bad], r[bad], reach=reach)
+            wall = rays.cast(distance, mid, side[bad], r[bad], reach=reach, intersect_lines=intersect_lines)
             wall = np.where(np.isfinite(wall), wall, reach * r[bad])
             bad = bad[gap[bad] < min_gap * wall]
         if len(bad) == 0:

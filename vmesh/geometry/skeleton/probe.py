@@ -166,7 +166,7 @@ def maximise_sdf(sdf: SdfFunction, start: np.ndarray, reach: np.ndarray | float,
 
 
 
-# duplicates: a signature shaped like cross_sections.cast_rays (arrays, then numeric options), not the same logic
+# duplicates: a signature shaped like rays.cast_rays (arrays, then numeric options), not the same logic
 def center_in_cross_sections(
     sdf: SdfFunction,
     points: np.ndarray,

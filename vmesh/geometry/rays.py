@@ -1,0 +1,238 @@
+"""Rays from inside a vessel to its wall, and a cache of the rays cast.
+
+:func:`cast_rays` marches rays on a signed distance and finds where they leave the vessel;
+the block builder casts one per section vertex (:mod:`vmesh.geometry.blocks.sections`)
+and the skeleton's bend thinning one per suspect segment
+(:func:`~vmesh.geometry.skeleton.bends.thin_sharp_bends`). Both try the same rays again
+and again (every fix round re-assembles the whole tree; every thinning round looks at the
+segments still suspect), so both cast through a :class:`RayCache`, which answers a ray
+cast before from memory, bit for bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def cast_rays(
+    distance,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    scale: np.ndarray,
+    reach: float = 12.0,
+    step: float = 0.2,
+    iterations: int = 24,
+    intersect_lines=None,
+) -> np.ndarray:
+    """Distance along each ray to its first crossing of the wall.
+
+    Marches each ray from its origin (inside the vessel) in steps of ``step × scale``
+    until the signed distance turns negative, then finds the crossing in the bracketing
+    step: by one exact line cast where ``intersect_lines`` is given, else by bisection.
+    Either way a wall grazed between two march samples is stepped over (an exact first
+    crossing moved 35 of the real coarctation's 33,249 section rays inward by up to 6
+    radii and changed its mesh; the march keeps the sections the presets were tuned on).
+
+    Parameters
+    ----------
+    distance : callable
+        ``distance(points (n, 3)) -> (n,)`` signed distance, positive inside.
+    origins, directions : (n, 3)
+        Ray origins (inside) and unit directions.
+    scale : (n,)
+        Length scale per ray (the local radius).
+    reach : float
+        Rays are followed up to ``reach × scale``.
+    step : float
+        March step relative to ``scale``.
+    iterations : int
+        Bisection steps.
+    intersect_lines : callable, optional
+        ``intersect_lines(points, directions, reach, side) -> (moved, hit)`` of the same
+        surface (:meth:`~vmesh.geometry.sdf.SignedDistance.intersect_lines`): one tree
+        traversal per ray instead of ``iterations`` distance queries.
+
+    Returns
+    -------
+    (n,) float: the distance to the wall; ``nan`` where a ray does not leave the
+    vessel within its reach or starts outside.
+    """
+    o = np.asarray(origins, float).reshape(-1, 3)
+    d = np.asarray(directions, float).reshape(-1, 3)
+    sc = np.broadcast_to(np.asarray(scale, float), (len(o),)).copy()
+    n = len(o)
+    lo = np.zeros(n)
+    hi = np.full(n, np.nan)
+    todo = np.flatnonzero(_origins_inside(distance, o))
+    n_steps = 12
+    t0 = np.zeros(n)
+    head = _FIRST_SAMPLES  # the first batch in two parts: most walls lie within its first half
+    while len(todo):
+        ts = t0[todo, None] + sc[todo, None] * step * np.arange(1, n_steps + 1)[None, :]
+        pts = o[todo, None, :] + ts[:, :, None] * d[todo, None, :]
+        outside = _march_batch(distance, pts, head)
+        head = n_steps
+        hit = outside.any(axis=1)
+        first = np.argmax(outside, axis=1)
+        r = todo[hit]
+        fi = first[hit]
+        hi[r] = ts[hit, fi]
+        lo[r] = np.where(fi > 0, ts[hit, np.maximum(fi - 1, 0)], t0[r])
+        rest = todo[~hit]
+        t0[rest] = ts[~hit, -1]
+        todo = rest[t0[rest] < reach * sc[rest]]
+    ok = np.isfinite(hi)
+    idx = np.flatnonzero(ok)
+    out = np.full(n, np.nan)
+    if intersect_lines is not None and len(idx):
+        start = o[idx] + lo[idx, None] * d[idx]
+        span = hi[idx] - lo[idx]
+        moved, hit = intersect_lines(start, d[idx], span * (1 + 1e-9), np.ones(len(idx)))
+        along = np.einsum("ij,ij->i", moved - start, d[idx]) / np.einsum("ij,ij->i", d[idx], d[idx])
+        out[idx[hit]] = lo[idx[hit]] + along[hit]
+        idx = idx[~hit]  # a crossing at a sample within rounding: bisect those
+    a, b = lo[idx], hi[idx]
+    for _ in range(iterations if len(idx) else 0):
+        mid = 0.5 * (a + b)
+        inside = np.asarray(distance(o[idx] + mid[:, None] * d[idx])) > 0
+        a = np.where(inside, mid, a)
+        b = np.where(inside, b, mid)
+    out[idx] = 0.5 * (a + b)
+    return out
+
+
+def _origins_inside(distance, o: np.ndarray) -> np.ndarray:
+    """(n,) bool: ``distance(o) > 0``, asked once per run of equal consecutive origins (the
+    rays of a section share its centre, and callers repeat it)."""
+    if len(o) == 0:
+        return np.zeros(0, bool)
+    start = np.r_[True, np.any(o[1:] != o[:-1], axis=1)]
+    inside = np.asarray(distance(o[start])) > 0
+    return inside[np.cumsum(start) - 1]
+
+
+#: Samples of a ray's first march batch evaluated before the rest of it: sections are
+#: centred, so the wall lies about a radius (5 steps) from the origin (brava: 90 % of the
+#: builder's rays cross within 5.4 steps); the other samples are evaluated only for rays
+#: that have not left the vessel by then. The samples are the same, so are the results.
+_FIRST_SAMPLES = 6
+
+
+def _march_batch(distance, pts: np.ndarray, head: int) -> np.ndarray:
+    """(m, k) bool: which of the march samples ``pts`` (m, k, 3) lie outside; the first
+    ``head`` samples of every ray first, the rest only for rays not outside by then (left
+    False for the others, after their first outside sample)."""
+    m, k = pts.shape[:2]
+    outside = np.zeros((m, k), bool)
+    rows = np.arange(m)
+    for cols in (slice(0, head), slice(head, k)):
+        if len(rows) == 0 or cols.start >= k:
+            break
+        sub = pts[rows, cols]
+        outside[rows, cols] = np.asarray(distance(sub.reshape(-1, 3))).reshape(sub.shape[:2]) < 0
+        rows = rows[~outside[rows, cols].any(axis=1)]
+    return outside
+
+
+_FNV_OFFSET = np.uint64(0xCBF29CE484222325)
+_FNV_PRIME = np.uint64(0x100000001B3)
+
+
+def _row_hashes(rows: np.ndarray) -> np.ndarray:
+    """(n,) uint64 FNV-1a hash of each row's bytes (one pass per column, not per row)."""
+    words = np.ascontiguousarray(rows, np.float64).view(np.uint64)
+    h = np.full(len(words), _FNV_OFFSET, np.uint64)
+    for c in range(words.shape[1]):
+        h = (h ^ words[:, c]) * _FNV_PRIME
+    return h
+
+
+class RayCache:
+    """Wall distances of rays already cast (:func:`cast_rays`), keyed by the exact ray.
+
+    Parameters
+    ----------
+    limit : int
+        Most rays kept; beyond it the cache starts again empty (memory stays bounded:
+        about 90 bytes a ray).
+
+    Attributes
+    ----------
+    hits, misses : int
+        Rays answered from the cache and rays cast.
+    """
+
+    def __init__(self, limit: int = 4_000_000):
+        self.limit = int(limit)
+        self.hits = self.misses = 0
+        self._clear()
+
+    def _clear(self):
+        # two sorted levels: the rays cast since the last merge are kept apart until they
+        # are an eighth of the rest, so that the many small casts of a build (one junction's
+        # half-planes at a time) do not re-sort the whole cache each
+        self._levels = [_Level(), _Level()]
+
+    def __len__(self) -> int:
+        return sum(len(level.keys) for level in self._levels)
+
+    def cast(self, distance, origins, directions, scale, reach: float = 12.0, intersect_lines=None) -> np.ndarray:
+        """:func:`cast_rays` with the rays cast before answered from the cache (bit for bit
+        the same: each ray is cast on its own)."""
+        o = np.asarray(origins, float).reshape(-1, 3)
+        d = np.asarray(directions, float).reshape(-1, 3)
+        n = len(o)
+        if n == 0:
+            return np.zeros(0)
+        rows = np.empty((n, 8))
+        rows[:, :3], rows[:, 3:6] = o, d
+        rows[:, 6] = np.broadcast_to(np.asarray(scale, float), (n,))
+        rows[:, 7] = reach
+        h = _row_hashes(rows)
+        out = np.full(n, np.nan)
+        found = np.zeros(n, bool)
+        for level in self._levels:
+            level.find(h, rows, out, found)
+        miss = np.flatnonzero(~found)
+        self.hits += n - len(miss)
+        self.misses += len(miss)
+        if len(miss):
+            out[miss] = cast_rays(distance, o[miss], d[miss], rows[miss, 6], reach=reach, intersect_lines=intersect_lines)
+            self._store(h[miss], rows[miss], out[miss])
+        return out
+
+    def _store(self, keys, rows, values):
+        if len(self) + len(keys) > self.limit:
+            self._clear()
+        main, recent = self._levels
+        recent.add(keys, rows, values)
+        if 8 * len(recent.keys) > len(main.keys):
+            main.add(recent.keys, recent.rows, recent.values)
+            self._levels[1] = _Level()
+
+
+class _Level:
+    """Rays sorted by their hash: ``keys`` (uint64), ``rows`` (origin, direction, scale,
+    reach) and ``values`` (the wall distances)."""
+
+    def __init__(self):
+        self.keys = np.zeros(0, np.uint64)
+        self.rows = np.zeros((0, 8))
+        self.values = np.zeros(0)
+
+    def find(self, h, rows, out, found) -> None:
+        """Fill ``out`` and set ``found`` where a ray not found yet is here."""
+        todo = np.flatnonzero(~found)
+        if len(self.keys) == 0 or len(todo) == 0:
+            return
+        pos = np.minimum(np.searchsorted(self.keys, h[todo]), len(self.keys) - 1)
+        hit = (self.keys[pos] == h[todo]) & np.all(self.rows[pos] == rows[todo], axis=1)
+        out[todo[hit]] = self.values[pos[hit]]
+        found[todo[hit]] = True
+
+    def add(self, keys, rows, values) -> None:
+        keys = np.concatenate([self.keys, keys])
+        order = np.argsort(keys, kind="stable")
+        self.keys = keys[order]
+        self.rows = np.concatenate([self.rows, rows])[order]
+        self.values = np.concatenate([self.values, values])[order]
