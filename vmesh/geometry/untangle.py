@@ -352,12 +352,13 @@ def untangle(
         whether it stopped the untangler).
     """
     sub, _parent = sub_hexahedra(cells, order)
-    fold = np.unique(sub[linear_scaled_jacobian(np.asarray(points, float), sub) < threshold]) if len(sub) else np.zeros(0, np.int64)
+    q = linear_scaled_jacobian(np.asarray(points, float), sub)
+    fold = np.unique(sub[q < threshold]) if len(sub) else np.zeros(0, np.int64)
     work = _Work(None if budget is None else float(budget) * len(fold))
     kw = dict(wall=wall, wall_normals=wall_normals, project=project, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=threshold, rings=rings, iterations=iterations, rounds=rounds, boundary=boundary, work=work)
-    X, info, moved = _untangle_pass(points, cells, order, **kw)
+    X, info, moved = _untangle_pass(points, sub, q, **kw)
     if restart_below is not None and info["rounds"] and info["after"] < restart_below and not work.spent():
-        X2, info2, moved2 = _untangle_pass(X, cells, order, **kw)
+        X2, info2, moved2 = _untangle_pass(X, sub, None, **kw)
         info["restart"] = {"after": info2["after"], "moved": info2["moved"], "rounds": info2["rounds"]}
         if info2["after"] > info["after"]:
             X = X2
@@ -366,15 +367,15 @@ def untangle(
     return X, info
 
 
-def _untangle_pass(points, cells, order, *, wall, wall_normals, project, cap_normals, cap_nodes, threshold, rings, iterations, rounds, boundary, work):
-    """One run of :func:`untangle` (its rounds) from ``points``: new points, info and the
-    mask of the nodes it moved."""
+def _untangle_pass(points, sub, q, *, wall, wall_normals, project, cap_normals, cap_nodes, threshold, rings, iterations, rounds, boundary, work):
+    """One run of :func:`untangle` (its rounds) from ``points`` over the sub-hexahedra
+    ``sub`` (their scaled Jacobians ``q`` at ``points``, None: computed here): new points,
+    info and the mask of the nodes it moved."""
     X = np.array(points, float, copy=True)
     n = len(X)
-    sub, _parent = sub_hexahedra(cells, order)
     wall = np.zeros(n, bool) if wall is None else np.asarray(wall, bool)
     cap_nodes = np.zeros(n, bool) if cap_nodes is None else np.asarray(cap_nodes, bool)
-    q = linear_scaled_jacobian(X, sub)
+    q = linear_scaled_jacobian(X, sub) if q is None else q
     info = {"before": float(q.min()) if len(q) else 1.0, "moved": 0, "rounds": 0}
     if not len(q) or q.min() >= threshold:
         info["after"] = info["before"]
