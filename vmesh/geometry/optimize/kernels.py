@@ -44,41 +44,24 @@ CHUNKS = 64
 
 
 @nb.njit(cache=True)
-def _pos(X, v, node, x0, x1, x2, d):
-    """Coordinate ``d`` of ``node``, with ``v`` at the trial position (x0, x1, x2)."""
-    if node == v:
-        return x0 if d == 0 else (x1 if d == 1 else x2)
-    return X[node, d]
+def _edge(X, hexes, scale, e, c, a, cx, cy, cz):
+    """Edge of corner ``c`` (at ``cx, cy, cz``) of hexahedron ``e`` along axis ``a``, towards
+    +a and divided by its target length ``1 / scale[e, a]``."""
+    w = hexes[e, c ^ (1 << a)]
+    s = (1.0 if ((c >> a) & 1) == 0 else -1.0) * scale[e, a]
+    return s * (X[w, 0] - cx), s * (X[w, 1] - cy), s * (X[w, 2] - cz)
 
 
 @nb.njit(cache=True)
-def _edge(X, hexes, scale, se, e, c, a, v, l, x0, x1, x2, cx, cy, cz):
-    """Scaled edge of corner ``c`` of hexahedron ``e`` along axis ``a`` (towards +a) and its
-    coefficient ``k`` in the moving node (local corner ``l``): ``d edge / dx = k I``; the
-    edge is divided by the target length ``1 / scale[se, a]``."""
-    nbr = c ^ (1 << a)
-    w = hexes[e, nbr]
-    s = (1.0 if ((c >> a) & 1) == 0 else -1.0) * scale[se, a]
-    ex = s * (_pos(X, v, w, x0, x1, x2, 0) - cx)
-    ey = s * (_pos(X, v, w, x0, x1, x2, 1) - cy)
-    ez = s * (_pos(X, v, w, x0, x1, x2, 2) - cz)
-    k = -s if c == l else (s if nbr == l else 0.0)
-    return ex, ey, ez, k
-
-
-@nb.njit(cache=True)
-def _corner_edges(X, hexes, scale, se, e, c, v, l, x0, x1, x2):
-    """The three scaled edges of corner ``c`` of hexahedron ``e`` (see :func:`_edge`), row by
-    row, then their coefficients ``k0, k1, k2`` in the moving node."""
+def _corner_edges(X, hexes, scale, e, c):
+    """The three scaled edges of corner ``c`` of hexahedron ``e`` (see :func:`_edge`), row by row."""
     n0 = hexes[e, c]
-    cx = _pos(X, v, n0, x0, x1, x2, 0)
-    cy = _pos(X, v, n0, x0, x1, x2, 1)
-    cz = _pos(X, v, n0, x0, x1, x2, 2)
+    cx, cy, cz = X[n0, 0], X[n0, 1], X[n0, 2]
     # np.int64(...): an int literal argument would compile a specialisation of its own
-    e00, e01, e02, k0 = _edge(X, hexes, scale, se, e, c, np.int64(0), v, l, x0, x1, x2, cx, cy, cz)
-    e10, e11, e12, k1 = _edge(X, hexes, scale, se, e, c, np.int64(1), v, l, x0, x1, x2, cx, cy, cz)
-    e20, e21, e22, k2 = _edge(X, hexes, scale, se, e, c, np.int64(2), v, l, x0, x1, x2, cx, cy, cz)
-    return e00, e01, e02, e10, e11, e12, e20, e21, e22, k0, k1, k2
+    e00, e01, e02 = _edge(X, hexes, scale, e, c, np.int64(0), cx, cy, cz)
+    e10, e11, e12 = _edge(X, hexes, scale, e, c, np.int64(1), cx, cy, cz)
+    e20, e21, e22 = _edge(X, hexes, scale, e, c, np.int64(2), cx, cy, cz)
+    return e00, e01, e02, e10, e11, e12, e20, e21, e22
 
 
 @nb.njit(cache=True)
@@ -374,7 +357,7 @@ def corner_qualities(X, hexes, scale):
     out = np.empty((m, 8))
     for e in nb.prange(m):
         for c in range(8):
-            e00, e01, e02, e10, e11, e12, e20, e21, e22, k0, k1, k2 = _corner_edges(X, hexes, scale, np.int64(e), np.int64(e), c, np.int64(-1), c, 0.0, 0.0, 0.0)
+            e00, e01, e02, e10, e11, e12, e20, e21, e22 = _corner_edges(X, hexes, scale, np.int64(e), c)
             C0x, C0y, C0z, C1x, C1y, C1z, C2x, C2y, C2z = _cofactors(e00, e01, e02, e10, e11, e12, e20, e21, e22)
             D = e00 * C0x + e01 * C0y + e02 * C0z
             n0 = e00 * e00 + e01 * e01 + e02 * e02
