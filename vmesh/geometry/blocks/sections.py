@@ -306,9 +306,9 @@ class _Sections:
 
 
     def cast(self, origins, directions, scale, reach: float = 12.0) -> np.ndarray:
-        """:func:`~vmesh.geometry.cross_sections.cast_rays` through the build's ray cache
-        (:class:`~vmesh.geometry.blocks.work.RayCache`, ``self.work.rays``): a section that
-        did not move is cast once per build."""
+        """:func:`~vmesh.geometry.rays.cast_rays` through the build's ray cache
+        (:class:`~vmesh.geometry.rays.RayCache`, ``self.work.rays``): a section that did not
+        move is cast once per build."""
         return self.work.rays.cast(self.sdf, origins, directions, scale, reach=reach, intersect_lines=self.intersect_lines)
 
 
