@@ -1,9 +1,11 @@
 """``vmesh compile``: compile and cache the numba kernels once, e.g. right after installing.
 
 vmesh's geometry kernels are numba functions compiled on first use and cached on disk
-(``cache=True``; in ``__pycache__`` beside the sources, or ``$NUMBA_CACHE_DIR``). A new
-installation's first ``vmesh run`` therefore spends ~30 s compiling. pip has no
-post-install hook, so ``vmesh compile`` is that step: it runs the default chain, without
+(``cache=True``), keyed on the content of the kernel sources, not on their path
+(:mod:`vmesh.numba_cache`: ``~/.cache/vmesh/numba``, or ``$NUMBA_CACHE_DIR/vmesh``), so
+another clone, worktree or virtual environment of the same sources reuses them. The first
+``vmesh run`` of a new version of the sources on a machine therefore spends ~40 s compiling.
+pip has no post-install hook, so ``vmesh compile`` is that step: it runs the default chain, without
 writing files, on a small generated vessel (a capped tube) sized so that both the serial
 and the parallel variants of the kernels run, and every later run loads them from the cache.
 
@@ -94,7 +96,9 @@ def _compiled_count() -> int:
 def run(args) -> int:
     seconds, n = compile_kernels()
     if not args.quiet:
-        print(f"compiled or loaded {n} kernel specialisations in {seconds:.1f} s (cached for later runs)")
+        from ..numba_cache import cache_folder
+
+        print(f"compiled or loaded {n} kernel specialisations in {seconds:.1f} s (cached for later runs in {cache_folder()})")
     return 0
 
 

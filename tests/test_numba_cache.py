@@ -1,0 +1,77 @@
+"""vmesh's numba cache is keyed on the kernel sources' content, not on where they are installed
+(``vmesh/numba_cache.py``): a second copy of the same sources loads the first one's compiled
+kernels, and an edited kernel module is compiled again."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import vmesh
+
+_PROBE = """
+import numpy as np
+from vmesh.geometry import quality
+quality.hex8_scaled_jacobian(np.array([[x, y, z] for z in (0., 1.) for y in (0., 1.) for x in (0., 1.)]), np.arange(8)[None])
+s = quality._hex8_kernel.stats
+print(sum(s.cache_hits.values()), sum(s.cache_misses.values()))
+"""
+
+
+def _copy(root: Path) -> Path:
+    shutil.copytree(Path(vmesh.__file__).parent, root / "vmesh", ignore=shutil.ignore_patterns("__pycache__"))
+    return root
+
+
+def _hits_misses(root: Path, cache: Path) -> tuple[int, int]:
+    env = dict(os.environ, PYTHONPATH=str(root), NUMBA_CACHE_DIR=str(cache))
+    env.pop("VMESH_NUMBA_CACHE", None)
+    out = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, check=True, cwd=root)
+    hits, misses = map(int, out.stdout.split()[-2:])
+    return hits, misses
+
+
+def test_vmesh_kernels_use_the_content_locator():
+    from numba.core.caching import FunctionCache
+
+    from vmesh import numba_cache
+    from vmesh.geometry import quality
+    from vmesh.geometry.optimize import kernels
+
+    for kernel in (quality._hex8_kernel, kernels.sweep_colour_serial):
+        locator = FunctionCache(kernel.py_func)._impl.locator
+        assert isinstance(locator, numba_cache.ContentCacheLocator)
+        assert locator.get_cache_path() == str(numba_cache.cache_folder())
+
+
+@pytest.mark.slow  # three fresh interpreters and a compile: ~10 s
+def test_kernels_are_cached_by_source_content_not_path(tmp_path):
+    cache = tmp_path / "cache"
+    first, second, edited = (_copy(tmp_path / name) for name in ("first", "second", "edited"))
+    assert _hits_misses(first, cache) == (0, 1)  # compiled and written
+    assert _hits_misses(second, cache) == (1, 0)  # another path, same sources: loaded
+    kernels = edited / "vmesh" / "geometry" / "bvh.py"  # any kernel module: callers may inline its kernels
+    kernels.write_text(kernels.read_text() + "\n# edited\n")
+    assert _hits_misses(edited, cache) == (0, 1)  # stale entries are not loaded
+    versions = list((cache / "vmesh").iterdir())
+    assert len(versions) == 1 and len(list(versions[0].iterdir())) == 2  # one folder per source version
+
+
+def test_prune_keeps_the_newest_source_versions(tmp_path, monkeypatch):
+    from numba.core import config
+
+    from vmesh import numba_cache
+
+    monkeypatch.setattr(config, "CACHE_DIR", str(tmp_path))
+    base = numba_cache.cache_folder().parent
+    for i in range(12):
+        (base / f"old{i:02d}").mkdir(parents=True)
+        os.utime(base / f"old{i:02d}", (i, i))
+    removed = numba_cache.prune(keep=4)
+    assert sorted(p.name for p in base.iterdir()) == ["old09", "old10", "old11"]
+    assert len(removed) == 9
