@@ -46,7 +46,15 @@ def test_vmesh_kernels_use_the_content_locator():
     for kernel in (quality._hex8_kernel, kernels.sweep_colour_serial):
         locator = FunctionCache(kernel.py_func)._impl.locator
         assert isinstance(locator, numba_cache.ContentCacheLocator)
-        assert locator.get_cache_path() == str(numba_cache.cache_folder())
+        assert locator.get_cache_path() == str(numba_cache.cache_folder(kernel.py_func.__code__.co_filename))
+
+
+def test_a_kernel_module_digest_covers_the_kernel_modules_it_imports():
+    from vmesh import numba_cache
+
+    geometry = numba_cache.PACKAGE / "geometry"
+    names = {m: {p.name for p in numba_cache.kernel_closure(str(geometry / m))} for m in ("octree_sdf.py", "transfinite_kernels.py", "quality.py", "bvh.py")}
+    assert names == {"octree_sdf.py": {"octree_sdf.py", "bvh.py"}, "transfinite_kernels.py": {"transfinite_kernels.py", "bvh.py"}, "quality.py": {"quality.py"}, "bvh.py": {"bvh.py"}}
 
 
 @pytest.mark.slow  # three fresh interpreters and a compile: ~10 s
@@ -55,11 +63,14 @@ def test_kernels_are_cached_by_source_content_not_path(tmp_path):
     first, second, edited = (_copy(tmp_path / name) for name in ("first", "second", "edited"))
     assert _hits_misses(first, cache) == (0, 1)  # compiled and written
     assert _hits_misses(second, cache) == (1, 0)  # another path, same sources: loaded
-    kernels = edited / "vmesh" / "geometry" / "bvh.py"  # any kernel module: callers may inline its kernels
-    kernels.write_text(kernels.read_text() + "\n# edited\n")
+    other = edited / "vmesh" / "geometry" / "bvh.py"  # a kernel module the probed one does not import
+    other.write_text(other.read_text() + "\n# edited\n")
+    assert _hits_misses(edited, cache) == (1, 0)
+    mine = edited / "vmesh" / "geometry" / "quality.py"
+    mine.write_text(mine.read_text() + "\n# edited\n")
     assert _hits_misses(edited, cache) == (0, 1)  # stale entries are not loaded
     versions = list((cache / "vmesh").iterdir())
-    assert len(versions) == 1 and len(list(versions[0].iterdir())) == 2  # one folder per source version
+    assert len(versions) == 1 and len(list(versions[0].glob("geometry.quality-*"))) == 2  # one folder per source version
 
 
 def test_prune_keeps_the_newest_source_versions(tmp_path, monkeypatch):
@@ -68,10 +79,12 @@ def test_prune_keeps_the_newest_source_versions(tmp_path, monkeypatch):
     from vmesh import numba_cache
 
     monkeypatch.setattr(config, "CACHE_DIR", str(tmp_path))
-    base = numba_cache.cache_folder().parent
+    module = str(numba_cache.PACKAGE / "geometry" / "quality.py")
+    base = numba_cache.cache_folder(module).parent
     for i in range(12):
-        (base / f"old{i:02d}").mkdir(parents=True)
-        os.utime(base / f"old{i:02d}", (i, i))
-    removed = numba_cache.prune(keep=4)
-    assert sorted(p.name for p in base.iterdir()) == ["old09", "old10", "old11"]
-    assert len(removed) == 9
+        for name in ("geometry.quality", "geometry.bvh"):
+            (base / f"{name}-old{i:02d}").mkdir(parents=True)
+            os.utime(base / f"{name}-old{i:02d}", (i, i))
+    removed = numba_cache.prune(module, keep=4)
+    assert sorted(p.name for p in base.glob("geometry.quality-*")) == ["geometry.quality-old09", "geometry.quality-old10", "geometry.quality-old11"]
+    assert len(removed) == 9 and len(list(base.glob("geometry.bvh-*"))) == 12  # other modules' versions stay
