@@ -88,3 +88,25 @@ def test_prune_keeps_the_newest_source_versions(tmp_path, monkeypatch):
     removed = numba_cache.prune(module, keep=4)
     assert sorted(p.name for p in base.glob("geometry.quality-*")) == ["geometry.quality-old09", "geometry.quality-old10", "geometry.quality-old11"]
     assert len(removed) == 9 and len(list(base.glob("geometry.bvh-*"))) == 12  # other modules' versions stay
+
+
+def test_no_background_compile_when_the_optimiser_is_cached_or_turned_off(monkeypatch):
+    from vmesh.commands import compile as command
+
+    monkeypatch.setattr(command, "optimiser_cached", lambda: True)
+    assert command.compile_in_background() is None
+    monkeypatch.setattr(command, "optimiser_cached", lambda: False)
+    monkeypatch.setenv("VMESH_BACKGROUND_COMPILE", "0")
+    assert command.compile_in_background() is None
+
+
+@pytest.mark.slow  # compiles the optimiser's kernels into an empty cache: ~20 s
+def test_background_compile_fills_the_optimiser_cache(tmp_path):
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    env.pop("VMESH_BACKGROUND_COMPILE", None)
+    probe = "from vmesh.commands.compile import compile_in_background, optimiser_cached; " \
+            "c = compile_in_background(); assert c is not None and c.wait(600) == 0; print(optimiser_cached())"
+    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split()[-1] == "True"
+    again = "from vmesh.commands.compile import _claim_background_compile as c; print(c())"  # the lock is taken
+    assert subprocess.run([sys.executable, "-c", again], env=env, capture_output=True, text=True, check=True).stdout.split()[-1] == "False"

@@ -682,16 +682,21 @@ PARALLEL_FROM = 4096
 
 
 def warm_up() -> None:
-    """Compile (or load) the parallel sweep kernels on a single hexahedron with every node
-    fixed, with the argument types ``optimize`` passes: ``vmesh compile`` calls it, since its
-    small tube only needs the serial variants."""
+    """Compile (or load) the kernels ``optimize`` calls, serial and parallel, on a single
+    hexahedron with every node fixed, with the argument types ``optimize`` passes: ``vmesh
+    compile`` calls it (its small tube only needs the serial variants), and so does the
+    background compile of a first run (``vmesh compile --optimiser``)."""
     X = np.array([[c & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)], np.float64)
     hexes = np.arange(8, dtype=np.int64).reshape(1, 8)
     scale = target_scales(X, hexes, 1e-9)
     ptr, inc = incidence(hexes, 8)
     cq = corner_qualities(X, hexes, scale)
     nodes = np.arange(8, dtype=np.int64)
+    colour_nodes(hexes, ptr, inc, nodes, 8)
+    grow_nodes(hexes, ptr, inc, np.zeros(8, np.bool_))
+    step_caps(X, hexes, ptr, inc, nodes, 8, 0.5)
     kind, normal, caps = np.full(8, FIXED, np.int64), np.zeros((8, 3)), np.zeros(8)
-    trial, state, dirty, buf = np.empty((8, 3)), np.empty((8, 4)), np.zeros(8, np.bool_), np.empty((8, 32))
-    sweep_colour_parallel(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, caps, 1e-3, SMOOTH, 0.5, trial, state, dirty, buf, 0.0)
-    accept_trials_parallel(X, hexes, scale, ptr, inc, cq, nodes, trial, 1e-3, SMOOTH, state, dirty, buf, caps, 0.0)
+    for sweep, accept in ((sweep_colour_serial, accept_trials_serial), (sweep_colour_parallel, accept_trials_parallel)):
+        trial, state, dirty, buf = np.zeros((8, 3)), np.zeros((8, 4)), np.zeros(8, np.bool_), np.zeros((8, 32))
+        sweep(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, caps, 1e-3, SMOOTH, 0.5, trial, state, dirty, buf, 0.0)
+        accept(X, hexes, scale, ptr, inc, cq, nodes, trial, 1e-3, SMOOTH, state, dirty, buf, caps, 0.0)
