@@ -10,6 +10,10 @@ Every stage is a registered filter (:func:`filter_list`,
 
 __version__ = "0.1.0"
 
+from .numba_cache import install as _install_numba_cache  # noqa: E402
+
+_install_numba_cache()  # before any kernel is decorated: kernels cached by source content, not path
+
 from .chain import FilterChain, Step, list_presets  # noqa: E402
 from .context import Context, Report  # noqa: E402
 from .errors import ChainError, InputError, MeshingError, ParameterError, VmeshError  # noqa: E402

@@ -88,6 +88,9 @@ def cmd_run(args) -> int:
     from .context import Context
 
     context = Context(inputs={"units": args.units}) if args.units else None  # the input's length unit, stated in report.json
+    from .commands.compile import compile_in_background
+
+    compile_in_background()  # a first run: the optimiser's kernels compile on the other core meanwhile
     ctx = chain.run(surface=args.input, skeleton=args.skeleton, out_dir=args.out, progress=not args.quiet, context=context)
     if not args.quiet:
         print(ctx.report.summary_table())

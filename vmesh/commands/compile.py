@@ -1,9 +1,11 @@
 """``vmesh compile``: compile and cache the numba kernels once, e.g. right after installing.
 
 vmesh's geometry kernels are numba functions compiled on first use and cached on disk
-(``cache=True``; in ``__pycache__`` beside the sources, or ``$NUMBA_CACHE_DIR``). A new
-installation's first ``vmesh run`` therefore spends ~30 s compiling. pip has no
-post-install hook, so ``vmesh compile`` is that step: it runs the default chain, without
+(``cache=True``), keyed on the content of the kernel sources, not on their path
+(:mod:`vmesh.numba_cache`: ``~/.cache/vmesh/numba``, or ``$NUMBA_CACHE_DIR/vmesh``), so
+another clone, worktree or virtual environment of the same sources reuses them. The first
+``vmesh run`` of a new version of the sources on a machine therefore spends ~40 s compiling.
+pip has no post-install hook, so ``vmesh compile`` is that step: it runs the default chain, without
 writing files, on a small generated vessel (a capped tube) sized so that both the serial
 and the parallel variants of the kernels run, and every later run loads them from the cache.
 
@@ -28,6 +30,57 @@ HELP = "compile and cache the numba kernels of the default chain (run once after
 
 def add_arguments(p) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    p.add_argument("--optimiser", action="store_true", help="only the mesh optimiser's kernels (what a first run compiles in the background)")
+
+
+def optimiser_cached() -> bool:
+    """Whether the optimiser's serial sweep (its largest kernel) is in the kernel cache."""
+    from .. import numba_cache
+
+    module = numba_cache.PACKAGE / "geometry" / "optimize" / "kernels.py"
+    return any(numba_cache.cache_folder(str(module)).glob("kernels.sweep_colour_serial-*.nbi"))
+
+
+def _claim_background_compile(seconds: float = 300.0) -> bool:
+    """One background compile at a time per machine and sources: a lock file in the optimiser's
+    cache folder, taken when absent or older than ``seconds`` (a child that died)."""
+    import os
+
+    from .. import numba_cache
+
+    folder = numba_cache.cache_folder(str(numba_cache.PACKAGE / "geometry" / "optimize" / "kernels.py"))
+    lock = folder / "background-compile.lock"
+    try:
+        if lock.exists() and time.time() - lock.stat().st_mtime < seconds:
+            return False
+        folder.mkdir(parents=True, exist_ok=True)
+        lock.unlink(missing_ok=True)
+        os.close(os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        return True
+    except OSError:  # another process took it first, or no writable folder
+        return False
+
+
+def compile_in_background():
+    """When the optimiser's kernels are not cached yet (a first run of these sources), compile
+    them in a child process (``vmesh compile --optimiser``) while this one runs the chain's
+    earlier steps and compiles their kernels: the optimiser's ~17 s CPU of compiling run on
+    the other core, and the optimiser loads them from the cache when it starts. Should it
+    start first, it compiles them itself, as without the child. ``VMESH_BACKGROUND_COMPILE=0``
+    turns it off. Returns the child process, or None."""
+    import os
+    import subprocess
+    import sys
+
+    if os.environ.get("VMESH_BACKGROUND_COMPILE", "1") == "0" or os.environ.get("VMESH_NUMBA_CACHE") == "path":
+        return None
+    try:
+        if optimiser_cached() or not _claim_background_compile():
+            return None
+        return subprocess.Popen([sys.executable, "-m", "vmesh", "compile", "--optimiser", "-q"], stdin=subprocess.DEVNULL,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    except OSError:
+        return None
 
 
 def capped_tube(radius: float = 2.0, length: float = 24.0, around: int = 64, along: int = 96):
@@ -92,9 +145,18 @@ def _compiled_count() -> int:
 
 
 def run(args) -> int:
-    seconds, n = compile_kernels()
+    if args.optimiser:
+        from ..geometry.optimize.kernels import warm_up
+
+        t0 = time.perf_counter()
+        warm_up()
+        seconds, n = time.perf_counter() - t0, _compiled_count()
+    else:
+        seconds, n = compile_kernels()
     if not args.quiet:
-        print(f"compiled or loaded {n} kernel specialisations in {seconds:.1f} s (cached for later runs)")
+        from ..numba_cache import cache_root
+
+        print(f"compiled or loaded {n} kernel specialisations in {seconds:.1f} s (cached for later runs in {cache_root()})")
     return 0
 
 

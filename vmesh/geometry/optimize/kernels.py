@@ -27,6 +27,9 @@ import types
 
 import numba as nb
 import numpy as np
+from llvmlite import ir
+from numba.core import types as nbtypes
+from numba.extending import intrinsic
 
 #: node kinds: free in 3-D, sliding on the wall (tangent plane, then projection), sliding in a
 #: cap plane, fixed, sliding at a fixed distance from the wall (first boundary layer: tangent
@@ -201,6 +204,36 @@ def frame(X, hexes, scale, ptr, inc, cq, v, L):
         L[r, 35] = min(min(cq[e, l ^ 3], cq[e, l ^ 5]), min(cq[e, l ^ 6], cq[e, l ^ 7]))
 
 
+@intrinsic
+def _bits(typingctx, x):
+    """The IEEE-754 bits of a float64 as an int64 (no conversion)."""
+    return nbtypes.int64(nbtypes.float64), lambda context, builder, sig, args: builder.bitcast(args[0], ir.IntType(64))
+
+
+@intrinsic
+def _from_bits(typingctx, i):
+    """The float64 whose IEEE-754 bits are the int64 ``i``."""
+    return nbtypes.float64(nbtypes.int64), lambda context, builder, sig, args: builder.bitcast(args[0], ir.DoubleType())
+
+
+#: ``bits(x^(-1/3)) ~ _RCBRT - bits(x) / 3``: exact at powers of 8 for 1364 << 52 (the
+#: exponent's bias times 4/3), lowered to halve the worst error over a period (6.8 %)
+_RCBRT = 0x553EED916872B021
+
+
+@nb.njit(cache=True)
+def _inv_cbrt_sq(h):
+    """``h^(-2/3)`` for ``h > 0`` (normal): a guess from the bits, then four Newton steps for
+    ``y = h^(-1/3)`` (relative errors 6.8e-2, 4.7e-3, 2.2e-5, 4.9e-10, 1e-15): no libm call and
+    no division, ~2x cheaper than ``1 / cbrt(h * h)`` and as accurate to a few ulps."""
+    y = _from_bits(_RCBRT - _bits(h) // 3)
+    y = y * (4.0 - h * y * y * y) * (1.0 / 3.0)
+    y = y * (4.0 - h * y * y * y) * (1.0 / 3.0)
+    y = y * (4.0 - h * y * y * y) * (1.0 / 3.0)
+    y = y * (4.0 - h * y * y * y) * (1.0 / 3.0)
+    return y * y
+
+
 @nb.njit(cache=True)
 def _escobar(F, D, dFx, dFy, dFz, dDx, dDy, dDz, diag, d2, hessian):
     """Escobar's corner functional ``F / (3 h(D)^(2/3))`` from the scaled edges' squared
@@ -209,7 +242,7 @@ def _escobar(F, D, dFx, dFy, dFz, dDx, dDy, dDz, diag, d2, hessian):
     ``2 diag I``)."""
     r = np.sqrt(D * D + d2)
     h = max(0.5 * (D + r), 1e-300)
-    hp = 1.0 / np.cbrt(h * h)  # h^(-2/3), cheaper than pow
+    hp = _inv_cbrt_sq(h)  # h^(-2/3)
     phi = hp * (1.0 / 3.0)
     ir = 1.0 / r
     dphi = -(2.0 / 9.0) * hp * ir
@@ -649,16 +682,21 @@ PARALLEL_FROM = 4096
 
 
 def warm_up() -> None:
-    """Compile (or load) the parallel sweep kernels on a single hexahedron with every node
-    fixed, with the argument types ``optimize`` passes: ``vmesh compile`` calls it, since its
-    small tube only needs the serial variants."""
+    """Compile (or load) the kernels ``optimize`` calls, serial and parallel, on a single
+    hexahedron with every node fixed, with the argument types ``optimize`` passes: ``vmesh
+    compile`` calls it (its small tube only needs the serial variants), and so does the
+    background compile of a first run (``vmesh compile --optimiser``)."""
     X = np.array([[c & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)], np.float64)
     hexes = np.arange(8, dtype=np.int64).reshape(1, 8)
     scale = target_scales(X, hexes, 1e-9)
     ptr, inc = incidence(hexes, 8)
     cq = corner_qualities(X, hexes, scale)
     nodes = np.arange(8, dtype=np.int64)
+    colour_nodes(hexes, ptr, inc, nodes, 8)
+    grow_nodes(hexes, ptr, inc, np.zeros(8, np.bool_))
+    step_caps(X, hexes, ptr, inc, nodes, 8, 0.5)
     kind, normal, caps = np.full(8, FIXED, np.int64), np.zeros((8, 3)), np.zeros(8)
-    trial, state, dirty, buf = np.empty((8, 3)), np.empty((8, 4)), np.zeros(8, np.bool_), np.empty((8, 32))
-    sweep_colour_parallel(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, caps, 1e-3, SMOOTH, 0.5, trial, state, dirty, buf, 0.0)
-    accept_trials_parallel(X, hexes, scale, ptr, inc, cq, nodes, trial, 1e-3, SMOOTH, state, dirty, buf, caps, 0.0)
+    for sweep, accept in ((sweep_colour_serial, accept_trials_serial), (sweep_colour_parallel, accept_trials_parallel)):
+        trial, state, dirty, buf = np.zeros((8, 3)), np.zeros((8, 4)), np.zeros(8, np.bool_), np.zeros((8, 32))
+        sweep(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, caps, 1e-3, SMOOTH, 0.5, trial, state, dirty, buf, 0.0)
+        accept(X, hexes, scale, ptr, inc, cq, nodes, trial, 1e-3, SMOOTH, state, dirty, buf, caps, 0.0)
