@@ -303,9 +303,7 @@ def optimise_linear(
     smooth_tol : float
         Light pass: moves shorter than this fraction of the step cap leave the neighbours clean.
     keep_partial_free_layer : bool
-        On a valid mesh, the try with the first boundary layer free is kept whenever it
-        lifts the minimum above the held try's, not only when it reaches ``untangle_below``
-        (see :func:`polish`).
+        On a valid mesh, keep the free-layer try whenever it beats the held one (:func:`polish`).
 
     Returns
     -------
@@ -320,18 +318,15 @@ def optimise_linear(
 
     t0 = time.perf_counter()
     X = np.array(points, dtype=np.float64, copy=True, order="C")
-    n = len(X)
-    sub = np.ascontiguousarray(cells, dtype=np.int64).reshape(-1, 8)
+    n, sub = len(X), np.ascontiguousarray(cells, dtype=np.int64).reshape(-1, 8)
     q = hex8_scaled_jacobian(X, sub)
     info = {"before": {"min": float(q.min()), "mean": float(q.mean())} if len(q) else None, "untangled_nodes": 0, "smoothed_nodes": 0, "moved": 0, "rings": 0, "updates": 0}
     if not len(q) or q.min() >= max(untangle_below, smooth_below):
         return X, {**info, "after": info["before"], "seconds": time.perf_counter() - t0}
     kind, normal, height = _node_kinds(sub, n, wall, project, wall_normals, cap_nodes, cap_normals, boundary, keep_first_layer)
-    fixed = kind == K.FIXED
-    stats = {"updates": 0}
+    fixed, stats = kind == K.FIXED, {"updates": 0}
     untangled, smoothed = np.zeros(n, bool), np.zeros(n, bool)
-    run = dict(kind=kind, normal=normal, project=project, wall_normals=wall_normals, stats=stats, height=height, X0=X.copy(),
-               keep_partial=keep_partial_free_layer and q.min() > 0)
+    run = dict(kind=kind, normal=normal, project=project, wall_normals=wall_normals, stats=stats, height=height, X0=X.copy(), keep_partial=keep_partial_free_layer and q.min() > 0)
     bad = q < untangle_below
     if bad.any():
         q = _untangle(X, sub, n, fixed, bad, run, untangle_below, max_fraction, sweeps, untangle_mode, grow_below_threshold, untangled, info)
