@@ -178,13 +178,31 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", 
         sm.points, sm.cells, p, wall=wall, wall_normals=sdf.gradient, project=projector, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=below,
         boundary=boundary, restart_below=restart_below or None,
     )
+    constraints = dict(wall=wall, wall_normals=sdf.gradient, project=projector, cap_nodes=cap_nodes, cap_normals=cap_normals, boundary=boundary)
     if local is not None and scaled_jacobian(X, sm.cells, p, ref_nodes).min() < local[2]:
         X, info = local[0], {**local[1], "lbfgs_tried": True}
+        X = _polish(X, sm, info, (below, smooth_below), constraints)
         _keep_untangled(ctx, sm, X, info, info["moved"], untangled_nodes=info["untangled_nodes"], smoothed_nodes=info["smoothed_nodes"])
         return
     if local is not None:
         info["after_local_min"] = local[2]
+    X = _polish(X, sm, info, (below, smooth_below), constraints)
     _keep_untangled(ctx, sm, X, info, info["rounds"], untangled_nodes=info["moved"])
+
+
+def _polish(X, sm, info, goals, constraints):
+    """Where the untanglers leave a valid linear mesh below the untangling goal, climb its
+    worst elements with :func:`vmesh.geometry.optimize.polish` (kept only where the minimum
+    rises); its report goes to ``info["polish"]`` and ``info["after"]`` follows it."""
+    from ..geometry.optimize import polish
+
+    if sm.order != 1:
+        return X
+    Y, report = polish(X, sm.cells, [g for g in goals if g > 0], **constraints)
+    if report["tries"]:
+        info["polish"] = report
+        info["after"] = report["after"]
+    return Y
 
 
 def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol=0.0):
