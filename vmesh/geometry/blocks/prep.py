@@ -175,3 +175,43 @@ def redistribute_sections(arc: np.ndarray, lo: float, hi: float, min_spacing: fl
         n = K - 1
         s[1:-1] = (lo + hi) / 2 if n == 1 else np.linspace(lo, hi, n)
     return s, True
+
+
+def branch_tubes(branches, pos: np.ndarray, radii: np.ndarray, spacing: float = 0.25) -> tuple:
+    """Samples along every branch's axis, ``spacing`` times the local radius apart.
+
+    Returns
+    -------
+    points (m, 3), radii (m,), branch (m,) and arc length along its branch (m,) of each
+    sample.
+    """
+    P, R, B, A = [], [], [], []
+    for bi, br in enumerate(branches):
+        x, r = pos[br.nodes], radii[br.nodes]
+        seg = np.linalg.norm(np.diff(x, axis=0), axis=1)
+        n = np.maximum(1, np.ceil(seg / (spacing * np.maximum(np.minimum(r[:-1], r[1:]), 1e-12)))).astype(int)
+        f = np.concatenate([np.arange(k) / k for k in n] + [[1.0]])
+        e = np.r_[np.repeat(np.arange(len(seg)), n), len(seg) - 1]
+        P.append(x[e] + f[:, None] * (x[e + 1] - x[e]))
+        R.append(r[e] + f * (r[e + 1] - r[e]))
+        B.append(np.full(len(f), bi))
+        A.append(np.r_[0.0, np.cumsum(seg)][e] + f * seg[e])
+    return tuple(map(np.concatenate, (P, R, B, A)))
+
+
+def along_skeleton(branches, junction_kind, b1, s1, b2, s2) -> np.ndarray:
+    """Distance along the skeleton between points at arc lengths ``s1`` on branches ``b1``
+    and ``s2`` on ``b2`` (arrays): along the branch when they share it, through a junction
+    both branches end at, else ``inf`` (further apart in the tree).
+    """
+    ends = np.array([[br.nodes[0] if br.kinds[0] == junction_kind else -1,
+                      br.nodes[-1] if br.kinds[1] == junction_kind else -2] for br in branches])
+    length = np.array([br.arc[-1] for br in branches])
+    out = np.where(b1 == b2, np.abs(s1 - s2), np.inf)
+    for e1 in (0, 1):
+        d1 = s1 if e1 == 0 else length[b1] - s1
+        for e2 in (0, 1):
+            d2 = s2 if e2 == 0 else length[b2] - s2
+            meet = (ends[b1, e1] == ends[b2, e2]) & (ends[b1, e1] >= 0) & (b1 != b2)
+            out = np.where(meet, np.minimum(out, d1 + d2), out)
+    return out
