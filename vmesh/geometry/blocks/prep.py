@@ -182,11 +182,11 @@ def branch_tubes(branches, pos: np.ndarray, radii: np.ndarray, spacing: float = 
 
     Returns
     -------
-    points (m, 3), radii (m,), branch (m,) and arc length along its branch (m,) of each
-    sample.
+    points (m, 3), radii (m,), the skeleton node nearest each sample along its branch (m,)
+    and the distance to it (m,).
     """
-    P, R, B, A = [], [], [], []
-    for bi, br in enumerate(branches):
+    P, R, N, D = [], [], [], []
+    for br in branches:
         x, r = pos[br.nodes], radii[br.nodes]
         seg = np.linalg.norm(np.diff(x, axis=0), axis=1)
         n = np.maximum(1, np.ceil(seg / (spacing * np.maximum(np.minimum(r[:-1], r[1:]), 1e-12)))).astype(int)
@@ -194,24 +194,43 @@ def branch_tubes(branches, pos: np.ndarray, radii: np.ndarray, spacing: float = 
         e = np.r_[np.repeat(np.arange(len(seg)), n), len(seg) - 1]
         P.append(x[e] + f[:, None] * (x[e + 1] - x[e]))
         R.append(r[e] + f * (r[e + 1] - r[e]))
-        B.append(np.full(len(f), bi))
-        A.append(np.r_[0.0, np.cumsum(seg)][e] + f * seg[e])
-    return tuple(map(np.concatenate, (P, R, B, A)))
+        far = f > 0.5
+        N.append(np.asarray(br.nodes)[e + far])
+        D.append(np.where(far, 1.0 - f, f) * seg[e])
+    return tuple(map(np.concatenate, (P, R, N, D)))
 
 
-def along_skeleton(branches, junction_kind, b1, s1, b2, s2) -> np.ndarray:
-    """Distance along the skeleton between points at arc lengths ``s1`` on branches ``b1``
-    and ``s2`` on ``b2`` (arrays): along the branch when they share it, through a junction
-    both branches end at, else ``inf`` (further apart in the tree).
+class SkeletonWays:
+    """Distances along the skeleton between its nodes (shortest paths over its segments),
+    found from each source node once, out to ``limit``.
+
+    Parameters
+    ----------
+    edges : (e, 2) int
+    pos : (n, 3) node positions.
+    limit : float
+        Ways longer than this are ``inf``.
     """
-    ends = np.array([[br.nodes[0] if br.kinds[0] == junction_kind else -1,
-                      br.nodes[-1] if br.kinds[1] == junction_kind else -2] for br in branches])
-    length = np.array([br.arc[-1] for br in branches])
-    out = np.where(b1 == b2, np.abs(s1 - s2), np.inf)
-    for e1 in (0, 1):
-        d1 = s1 if e1 == 0 else length[b1] - s1
-        for e2 in (0, 1):
-            d2 = s2 if e2 == 0 else length[b2] - s2
-            meet = (ends[b1, e1] == ends[b2, e2]) & (ends[b1, e1] >= 0) & (b1 != b2)
-            out = np.where(meet, np.minimum(out, d1 + d2), out)
-    return out
+
+    def __init__(self, edges: np.ndarray, pos: np.ndarray, limit: float):
+        from scipy.sparse import coo_matrix
+
+        w = np.linalg.norm(pos[edges[:, 0]] - pos[edges[:, 1]], axis=1)
+        n = len(pos)
+        self.graph = coo_matrix((np.maximum(w, 1e-12), (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
+        self.limit = float(limit)
+        self.rows = {}
+
+    def __call__(self, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+        """(k,) way from node ``src[i]`` to node ``dst[i]``."""
+        from scipy.sparse.csgraph import dijkstra
+
+        new = np.setdiff1d(np.unique(src), np.fromiter(self.rows, np.int64, len(self.rows)))
+        if len(new):
+            for node, row in zip(new.tolist(), dijkstra(self.graph, directed=False, indices=new, limit=self.limit)):
+                self.rows[node] = row
+        out = np.empty(len(src))
+        for node in np.unique(src).tolist():
+            sel = src == node
+            out[sel] = self.rows[node][dst[sel]]
+        return out

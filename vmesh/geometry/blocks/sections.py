@@ -9,7 +9,7 @@ from ...errors import MeshingError
 from .. import cross_sections as cs
 from .options import CLOSED, CYCLE, JUNCTION, OPEN, _Branch
 from ..skeleton.graph import polyline_at
-from .prep import along_skeleton, branch_tubes, endpoint_caps, redistribute_sections
+from .prep import SkeletonWays, branch_tubes, endpoint_caps, redistribute_sections
 from ..rays import clip_to_territory
 
 
@@ -373,22 +373,26 @@ class _Sections:
         (:func:`~vmesh.geometry.rays.clip_to_territory`): a skeleton point is foreign to a
         section when the way to it along the skeleton is longer than the straight way by
         more than twice both radii (another vessel that touches this one, or this one
-        curled back onto itself), not a neighbour at a junction."""
+        curled back onto itself), not a neighbour along the tree."""
         if not self.opt.section.own_territory:
             return R
         na = R.shape[1]
-        Q, rq, qb, qs = branch_tubes(self.topo.branches, self.topo.pos, self.topo.sk.radii)
-        sec_b = np.array([b for b, _ in idx])
-        sec_s = np.array([self.topo.branches[b].s[k] for b, k in idx])
+        Q, rq, q_node, q_off = branch_tubes(self.topo.branches, self.topo.pos, self.topo.sk.radii)
+        node = np.array([self.topo.branches[b].nodes[k] for b, k in idx])
         o = np.repeat(origin, na, axis=0)
         r = np.repeat(rad, na)
+        lengths = R.ravel()
+        # a way longer than any ray's straight way plus both radii is foreign anyway
+        ways = SkeletonWays(self.topo.sk.edges, self.topo.pos, np.nanmax(lengths, initial=0.0) + 3.0 * (rad.max() + rq.max()))
+        start = np.linalg.norm(origin - self.topo.pos[node], axis=1)
 
         def foreign(rays, samples):
             sec = rays // na
-            way = along_skeleton(self.topo.branches, JUNCTION, sec_b[sec], sec_s[sec], qb[samples], qs[samples])
+            # the least the way from the section's centre to the sample can be
+            way = ways(node[sec], q_node[samples]) - q_off[samples] - start[sec]
             return way > np.linalg.norm(o[rays] - Q[samples], axis=1) + 2.0 * (r[rays] + rq[samples])
 
-        return clip_to_territory(o, dirs.reshape(-1, 3), R.ravel(), r, foreign, (Q, rq)).reshape(R.shape)
+        return clip_to_territory(o, dirs.reshape(-1, 3), lengths, r, foreign, (Q, rq)).reshape(R.shape)
 
 
     def _dome_cap(self, n: int, node: int, c: np.ndarray, V: np.ndarray, d: np.ndarray, rad: float, layer: float, core: float) -> dict:
