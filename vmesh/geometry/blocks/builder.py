@@ -138,8 +138,7 @@ def build_blocks(
         for note in notes:
             if warn:
                 warn(note)
-        blocks.info["fixes"][:0], blocks.info["cut_stubs"] = notes, cut
-        label_ostia(blocks, cut)
+        blocks.info["fixes"][:0], blocks.info["cut_stubs"] = notes, label_ostia(blocks, cut)
         return blocks
     if not options.repair.straighten_stuck_ends and not work.spent:
         # every try failed: the skeleton as given once more, now also turning the first

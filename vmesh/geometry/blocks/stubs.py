@@ -112,8 +112,9 @@ def stub_note(stub: dict) -> str:
             f"(they reach {stub['reach']:.3g} along it), so it cannot hold a block; that stub and its cap are not meshed")
 
 
-def label_ostia(blocks, stubs: list) -> None:
-    """Name the wall faces over each cut stub's ostium as a cap of their own (in place).
+def label_ostia(blocks, stubs: list) -> list:
+    """Name the wall faces over each cut stub's ostium as a cap of their own (in place);
+    returns ``stubs``.
 
     The parent of a cut stub is meshed as if the stub were not there, so its wall faces
     span the stub's mouth: labelled ``wall``, the mesh would state a wall where a branch
@@ -125,7 +126,7 @@ def label_ostia(blocks, stubs: list) -> None:
     from ...blocks import FACE_WALL, HEX_FACES
 
     if not stubs:
-        return
+        return stubs
     b, f = np.nonzero(blocks.face_boundary == FACE_WALL)
     centre = blocks.vertices[blocks.hexes[b[:, None], HEX_FACES[f]]].mean(axis=1)
     for k, s in enumerate(stubs, 1):
@@ -140,3 +141,4 @@ def label_ostia(blocks, stubs: list) -> None:
         blocks.face_boundary[b[mouth], f[mouth]] = fid
         blocks.boundary_names[fid] = f"stub_{k}"
         s["boundary"] = f"stub_{k}"
+    return stubs
