@@ -10,6 +10,7 @@ records the cut; a stub with room for its blocks keeps them.
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from junction_cases import side_stub
@@ -45,6 +46,24 @@ def test_short_stub_is_cut_back_into_its_parent(args):
     assert len(sk.junctions) == 0 and sk.n_nodes == case.skeleton.n_nodes - 1
     # the parent keeps both its open ends
     assert {"inlet", "outlet_1"} <= set(blocks.boundary_names.values())
+
+
+def test_cut_stub_mouth_is_named_not_wall():
+    """The parent's wall faces over a cut stub's mouth are a cap ``stub_1`` of their own (a
+    missing branch never shows as wall): only faces over the mouth, all of them within the
+    stub's radius of its axis, and the wall elsewhere keeps its label."""
+    case, blocks, _ = _build(55, 0.3, 1.0)
+    stub = blocks.info["cut_stubs"][0]
+    assert stub["boundary"] == "stub_1"
+    fid = [k for k, v in blocks.boundary_names.items() if v == "stub_1"]
+    assert len(fid) == 1
+    quads, ids = blocks.boundary_quads()
+    mouth = blocks.vertices[quads[ids == fid[0]]].mean(axis=1)
+    a0, a1 = np.asarray(stub["start"]), np.asarray(stub["end_point"])
+    ax = (a1 - a0) / np.linalg.norm(a1 - a0)
+    t = (mouth - a0) @ ax
+    assert len(mouth) >= 1 and np.all(np.linalg.norm(mouth - a0 - t[:, None] * ax, axis=1) < stub["radius"])
+    assert np.count_nonzero(ids == 0) > 10 * len(mouth)
 
 
 def test_cut_stub_fills_valid_at_every_refinement():

@@ -46,7 +46,7 @@ from .options import BlockOptions, _LocalFixes
 from .prep import merge_junction_pair, split_nonplanar_junctions
 from .repair import _Repair
 from .sections import _Sections
-from .stubs import _Stubs, cut_stubs, stub_note
+from .stubs import _Stubs, cut_stubs, label_ostia, stub_note
 from .state import _Assembled, _Ends, _Frames, _Placement, _Topology
 from .work import WorkBudget
 
@@ -138,7 +138,7 @@ def build_blocks(
         for note in notes:
             if warn:
                 warn(note)
-        blocks.info["fixes"][:0], blocks.info["cut_stubs"] = notes, cut
+        blocks.info["fixes"][:0], blocks.info["cut_stubs"] = notes, label_ostia(blocks, cut)
         return blocks
     if not options.repair.straighten_stuck_ends and not work.spent:
         # every try failed: the skeleton as given once more, now also turning the first

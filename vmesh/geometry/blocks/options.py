@@ -18,6 +18,7 @@ class SectionOptions:
     core_size: float = 0.3
     layer_thickness: float = 0.3
     plane_bias: float = 1.0
+    own_territory: bool = True  # cut section rays where they cross into a touching vessel
 
 
 @dataclass

@@ -175,3 +175,62 @@ def redistribute_sections(arc: np.ndarray, lo: float, hi: float, min_spacing: fl
         n = K - 1
         s[1:-1] = (lo + hi) / 2 if n == 1 else np.linspace(lo, hi, n)
     return s, True
+
+
+def branch_tubes(branches, pos: np.ndarray, radii: np.ndarray, spacing: float = 0.25) -> tuple:
+    """Samples along every branch's axis, ``spacing`` times the local radius apart.
+
+    Returns
+    -------
+    points (m, 3), radii (m,), the skeleton node nearest each sample along its branch (m,)
+    and the distance to it (m,).
+    """
+    P, R, N, D = [], [], [], []
+    for br in branches:
+        x, r = pos[br.nodes], radii[br.nodes]
+        seg = np.linalg.norm(np.diff(x, axis=0), axis=1)
+        n = np.maximum(1, np.ceil(seg / (spacing * np.maximum(np.minimum(r[:-1], r[1:]), 1e-12)))).astype(int)
+        f = np.concatenate([np.arange(k) / k for k in n] + [[1.0]])
+        e = np.r_[np.repeat(np.arange(len(seg)), n), len(seg) - 1]
+        P.append(x[e] + f[:, None] * (x[e + 1] - x[e]))
+        R.append(r[e] + f * (r[e + 1] - r[e]))
+        far = f > 0.5
+        N.append(np.asarray(br.nodes)[e + far])
+        D.append(np.where(far, 1.0 - f, f) * seg[e])
+    return tuple(map(np.concatenate, (P, R, N, D)))
+
+
+class SkeletonWays:
+    """Distances along the skeleton between its nodes (shortest paths over its segments),
+    found from each source node once, out to ``limit``.
+
+    Parameters
+    ----------
+    edges : (e, 2) int
+    pos : (n, 3) node positions.
+    limit : float
+        Ways longer than this are ``inf``.
+    """
+
+    def __init__(self, edges: np.ndarray, pos: np.ndarray, limit: float):
+        from scipy.sparse import coo_matrix
+
+        w = np.linalg.norm(pos[edges[:, 0]] - pos[edges[:, 1]], axis=1)
+        n = len(pos)
+        self.graph = coo_matrix((np.maximum(w, 1e-12), (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
+        self.limit = float(limit)
+        self.rows = {}
+
+    def __call__(self, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+        """(k,) way from node ``src[i]`` to node ``dst[i]``."""
+        from scipy.sparse.csgraph import dijkstra
+
+        new = np.setdiff1d(np.unique(src), np.fromiter(self.rows, np.int64, len(self.rows)))
+        if len(new):
+            for node, row in zip(new.tolist(), dijkstra(self.graph, directed=False, indices=new, limit=self.limit)):
+                self.rows[node] = row
+        out = np.empty(len(src))
+        for node in np.unique(src).tolist():
+            sel = src == node
+            out[sel] = self.rows[node][dst[sel]]
+        return out

@@ -9,7 +9,8 @@ from ...errors import MeshingError
 from .. import cross_sections as cs
 from .options import CLOSED, CYCLE, JUNCTION, OPEN, _Branch
 from ..skeleton.graph import polyline_at
-from .prep import endpoint_caps, redistribute_sections
+from .prep import SkeletonWays, branch_tubes, endpoint_caps, redistribute_sections
+from ..rays import clip_to_territory
 
 
 class _Sections:
@@ -348,6 +349,7 @@ class _Sections:
         ang = t.ray_angles
         dirs = cs.ray_directions(E1, E2, ang)
         R = self.cast(np.repeat(origin, len(ang), axis=0), dirs.reshape(-1, 3), np.repeat(rad, len(ang))).reshape(len(idx), -1)
+        R = self._own_territory(idx, origin, dirs, R, rad)
         if np.any(~np.isfinite(R)):
             n = int(np.flatnonzero(~np.all(np.isfinite(R), axis=1))[0])
             b, k = idx[n]
@@ -364,6 +366,33 @@ class _Sections:
             if (k == 0 and br.kinds[0] == CLOSED) or (k == len(br.nodes) - 1 and br.kinds[1] == CLOSED):
                 self.frames.domes.append(self._dome_cap(n, int(br.nodes[k]), C[n], V[n], Nn[n] * outward[n], rad[n], lc[n, 0], lc[n, 1]))
         return idx, V, on_surface, R
+
+
+    def _own_territory(self, idx, origin, dirs, R, rad) -> np.ndarray:
+        """Section rays cut where they cross into a touching vessel
+        (:func:`~vmesh.geometry.rays.clip_to_territory`): a skeleton point is foreign to a
+        section when the way to it along the skeleton is longer than the straight way by
+        more than twice both radii (another vessel that touches this one, or this one
+        curled back onto itself), not a neighbour along the tree."""
+        if not self.opt.section.own_territory:
+            return R
+        na = R.shape[1]
+        Q, rq, q_node, q_off = branch_tubes(self.topo.branches, self.topo.pos, self.topo.sk.radii)
+        node = np.array([self.topo.branches[b].nodes[k] for b, k in idx])
+        o = np.repeat(origin, na, axis=0)
+        r = np.repeat(rad, na)
+        lengths = R.ravel()
+        # a way longer than any ray's straight way plus both radii is foreign anyway
+        ways = SkeletonWays(self.topo.sk.edges, self.topo.pos, np.nanmax(lengths, initial=0.0) + 3.0 * (rad.max() + rq.max()))
+        start = np.linalg.norm(origin - self.topo.pos[node], axis=1)
+
+        def foreign(rays, samples):
+            sec = rays // na
+            # the least the way from the section's centre to the sample can be
+            way = ways(node[sec], q_node[samples]) - q_off[samples] - start[sec]
+            return way > np.linalg.norm(o[rays] - Q[samples], axis=1) + 2.0 * (r[rays] + rq[samples])
+
+        return clip_to_territory(o, dirs.reshape(-1, 3), lengths, r, foreign, (Q, rq)).reshape(R.shape)
 
 
     def _dome_cap(self, n: int, node: int, c: np.ndarray, V: np.ndarray, d: np.ndarray, rad: float, layer: float, core: float) -> dict:

@@ -110,3 +110,35 @@ def stub_note(stub: dict) -> str:
     return (f"cut the side branch at junction node {stub['junction']} back into its parent: it ends at cap "
             f"'{stub['cap']}' {stub['length']:.3g} from the junction, within the junction's half cross-sections "
             f"(they reach {stub['reach']:.3g} along it), so it cannot hold a block; that stub and its cap are not meshed")
+
+
+def label_ostia(blocks, stubs: list) -> list:
+    """Name the wall faces over each cut stub's ostium as a cap of their own (in place);
+    returns ``stubs``.
+
+    The parent of a cut stub is meshed as if the stub were not there, so its wall faces
+    span the stub's mouth: labelled ``wall``, the mesh would state a wall where a branch
+    leaves. A wall face whose centre lies along the stub's axis past half the junction's
+    radius and within the stub's radius of the axis gets a new boundary id named
+    ``stub_k`` (``k`` counting the cut stubs, ``stub["boundary"]`` records it), so that
+    the missing branch shows as an open end of its own, never as wall.
+    """
+    from ...blocks import FACE_WALL, HEX_FACES
+
+    if not stubs:
+        return stubs
+    b, f = np.nonzero(blocks.face_boundary == FACE_WALL)
+    centre = blocks.vertices[blocks.hexes[b[:, None], HEX_FACES[f]]].mean(axis=1)
+    for k, s in enumerate(stubs, 1):
+        a0, a1 = np.asarray(s["start"], float), np.asarray(s["end_point"], float)
+        ax = (a1 - a0) / max(np.linalg.norm(a1 - a0), 1e-300)
+        t = (centre - a0) @ ax
+        lateral = np.linalg.norm(centre - a0 - t[:, None] * ax, axis=1)
+        mouth = (t > 0.5 * s["junction_radius"]) & (lateral < s["radius"]) & (blocks.face_boundary[b, f] == FACE_WALL)
+        if not mouth.any():
+            continue
+        fid = max(blocks.boundary_names) + 1
+        blocks.face_boundary[b[mouth], f[mouth]] = fid
+        blocks.boundary_names[fid] = f"stub_{k}"
+        s["boundary"] = f"stub_{k}"
+    return stubs

@@ -1,0 +1,102 @@
+"""Touching (kissing) vessels (issue 17).
+
+The generator's ``kissing`` feature runs a branch past another vessel at touching distance:
+the surfaces meet and the lumens fuse over a small contact, while the skeletons stay apart
+and meet only far away along the tree. A section ray cast across the contact ran on
+through the other vessel to its far wall (2.9 radii instead of one), so each vessel's
+blocks reached into the other's lumen. Section rays are now cut where they enter another
+vessel's territory (:func:`vmesh.geometry.rays.clip_to_territory`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from junction_cases import JunctionCase
+from vmesh.geometry.block_builder import BlockOptions, block_structure_checks, build_blocks
+from vmesh.geometry.rays import clip_to_territory
+from vmesh.skeleton import Skeleton
+
+
+def touching(gap: float, spacing: float = 0.9) -> tuple[JunctionCase, int, int]:
+    """A parent tube along x (radius 1.2) with a side branch ``S`` up +y from x = 6 (radius 1)
+    and a branch ``K`` from the origin (radius 0.7) that passes ``S`` with their axes ``gap``
+    apart (touching at 1.7, fused below); the capsule indices of ``K`` and ``S``."""
+    passing = np.array([6.0, 8.0, gap])
+    d = passing / np.linalg.norm(passing)
+    segs = [((-12, 0, 0), (0, 0, 0), 1.2), ((0, 0, 0), (6, 0, 0), 1.2), ((6, 0, 0), (14, 0, 0), 1.2),
+            ((6, 0, 0), (6, 12, 0), 1.0), ((0, 0, 0), tuple(passing + 3.0 * d), 0.7)]
+    pts, radii, edges, ids = [], [], [], {}
+
+    def node(p, r):
+        key = tuple(np.round(p, 9))
+        if key not in ids:
+            ids[key] = len(pts)
+            pts.append(np.asarray(p, float))
+            radii.append(r)
+        return ids[key]
+
+    for a, b, r in segs:
+        a, b = np.asarray(a, float), np.asarray(b, float)
+        n = int(np.ceil(np.linalg.norm(b - a) / spacing))
+        prev = node(a, r)
+        for t in np.arange(1, n + 1) / n:
+            cur = node(a + t * (b - a), r)
+            edges.append((prev, cur))
+            prev = cur
+    sk = Skeleton(np.array(pts), np.array(radii), np.array(edges))
+    case = JunctionCase("touching", np.array([s[0] for s in segs], float), np.array([s[1] for s in segs], float),
+                        np.array([s[2] for s in segs]), sk)
+    return case, 4, 3
+
+
+def _foreign_depth(case: JunctionCase, blocks, k: int, s: int) -> float:
+    """How far any corner of a block of ``K`` or ``S`` lies inside the other vessel's tube,
+    beyond where it lies inside its own (× K's radius; 0 when every corner is outside the
+    other tube or deeper in its own); a block's vessel is the one its section node is on."""
+    sk = blocks.info.get("skeleton")
+    nodes = (sk.points if sk is not None else case.skeleton.points)[blocks.block_node]
+    on_axis = -case.fields(nodes)[:, [k, s]] + case.r[[k, s]]  # distance of each node to K's and S's axes
+    own = np.argmin(on_axis, axis=1)
+    mine = on_axis.min(axis=1) < 1e-6
+    worst = 0.0
+    for which, (me, other) in enumerate(((k, s), (s, k))):
+        sel = mine & (own == which)
+        f = case.fields(blocks.vertices[blocks.hexes[sel]].reshape(-1, 3))
+        worst = max(worst, float(np.max(f[:, other] - np.maximum(f[:, me], 0.0))) / case.r[k])
+    return worst
+
+
+def test_rays_are_cut_where_they_enter_another_vessel():
+    """Two parallel tubes (radius 1) with axes 1.8 apart, fused over their contact: a ray from
+    one axis straight at the other ends on the contact plane (0.9 out, both equally deep), a
+    slanted one where it enters the other tube, past the plane; rays that end at their own
+    wall keep their length, and nothing is cut towards a vessel that is not foreign."""
+    ang = np.radians([0.0, 30.0, 90.0, 180.0])
+    dirs = np.c_[np.cos(ang), np.sin(ang), np.zeros(4)]
+    lengths = np.array([2.8, 2.0, 1.0, 1.0])  # two crossings, two walls
+    x = np.linspace(-5, 5, 41)
+    Q = np.c_[np.full(41, 1.8), np.zeros(41), x]  # the other tube's axis samples
+    rq = np.ones(len(Q))
+    out = clip_to_territory(np.zeros((4, 3)), dirs, lengths, np.ones(4), lambda r, q: np.ones(len(r), bool), (Q, rq))
+    assert out[0] == pytest.approx(0.9, abs=1e-3)
+    c = np.cos(ang[1])  # |t d - (1.8, 0)| = 1
+    assert out[1] == pytest.approx(1.8 * c - np.sqrt((1.8 * c) ** 2 - 2.24), abs=1e-3)
+    assert np.array_equal(out[2:], lengths[2:])
+    kept = clip_to_territory(np.zeros((4, 3)), dirs, lengths, np.ones(4), lambda r, q: np.zeros(len(r), bool), (Q, rq))
+    assert np.array_equal(kept, lengths)
+
+
+@pytest.mark.parametrize("gap", [1.5, 1.65])
+def test_touching_vessels_keep_their_blocks_in_their_own_lumen(gap):
+    """Each vessel's blocks stay on its side of the contact (no corner inside the other
+    vessel's tube and deeper there than in its own), every block valid; without the cut the passing branch's
+    section corners sit on the far wall of the vessel it touches."""
+    case, k, s = touching(gap)
+    blocks = build_blocks(case.skeleton, case.distance, None, BlockOptions())
+    checks = block_structure_checks(blocks)
+    assert checks["invalid_blocks"] == checks["face_use_errors"] == 0 and checks["boundary_euler"] == 2
+    assert _foreign_depth(case, blocks, k, s) < 0.05
+    through = build_blocks(case.skeleton, case.distance, None, BlockOptions(own_territory=False))
+    assert _foreign_depth(case, through, k, s) > 0.5
