@@ -244,6 +244,7 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _Stubs):
         if self.project is not None:
             blocks = self.thicken_layers(blocks)
             blocks = self.choose_centres(blocks)
+            blocks = self.choose_planes(blocks)
             if self.opt.repair.relieve_wall_folds:
                 blocks = self.relieve_wall_folds(blocks)
             self.report_wall_folds(blocks)

@@ -107,6 +107,46 @@ class _Repair:
             self.fixes.append(f"half cross-sections of junction node(s) {switch} meet on the node, not the wall's centre, where their blocks fill better")
         return out
 
+    def choose_planes(self, blocks: BlockStructure) -> BlockStructure:
+        """Per n-furcation (four or more branches) whose branches leave its plane unalike,
+        keep its leaning half-sections (:meth:`_leaned`) or go back to half-planes,
+        whichever fills the blocks of its first segments better.
+
+        A half-plane through the junction axis runs into a branch that dips towards a pole
+        (a trifurcation's daughter out of the plane) and folds the boundary layer there;
+        leaning trades that for narrower blocks next to the spine, which is not always
+        better. As :meth:`choose_centres`: all such junctions get half-planes together in
+        one assembly, and a junction keeps them only where that fills better at one
+        resolution and no worse at any, with every block valid. 3-junctions never lean
+        (their axis is the normal of their branches' tips' plane: nothing to lean for)."""
+        nodes = sorted(c for c, j in self.topo.junctions.items() if self.leans(j))
+        if not nodes:
+            return blocks
+        before = self._centre_scores(blocks, nodes)
+        saved = {c: self.topo.junctions[c] for c in nodes}
+        self.local.planar |= set(nodes)
+        for c in nodes:
+            self._rebuild_junction(c)
+        self._apply_clearance()
+        trial = self.assemble()
+        after = self._centre_scores(trial, nodes) if trial.corner_jacobians().min() > 0 else {c: np.full(len(FILL_CHECKS), -np.inf) for c in nodes}
+        switch = [c for c in nodes if np.all(after[c] >= before[c] - 1e-9) and np.any(after[c] > before[c] + 1e-9)]
+        for c in nodes:
+            if c not in switch:
+                self.topo.junctions[c] = saved[c]
+                self.local.planar.discard(c)
+        self._apply_clearance()
+        out = self.assemble()
+        if switch and out.corner_jacobians().min() <= 0:
+            for c in switch:
+                self.topo.junctions[c] = saved[c]
+                self.local.planar.discard(c)
+            self._apply_clearance()
+            return self.assemble()
+        if switch:
+            self.fixes.append(f"half cross-sections of junction node(s) {switch} keep to half-planes, where their blocks fill better than leaning")
+        return out
+
     def _centre_scores(self, blocks: BlockStructure, nodes) -> dict:
         """:func:`fill_score` per fill resolution of each junction's first-segment blocks."""
         near = {c: self._junction_blocks([c]) for c in nodes}
