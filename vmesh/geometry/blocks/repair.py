@@ -437,4 +437,5 @@ class _Repair:
         )
         failure = _Failure(message, blocks, bad, self.topo.sk, nfurc, crowded, hint)
         failure.stubs = self.short_stubs(bad)
+        failure.leaned = any(self.leans(j) for j in self.topo.junctions.values())
         raise failure
