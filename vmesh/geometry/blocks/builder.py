@@ -111,13 +111,13 @@ def build_blocks(
     first = None
     tries = 0
     seen = set()  # merging two junctions and splitting the result again can give a skeleton back
-    while queue and tries < options.repair.max_retopology_tries and not work.spent:
+    while queue and (tries < options.repair.max_retopology_tries or queue[0][2] is not options) and not work.spent:
         sk, notes, opts, made, cut = queue.pop(0)
         key = (_skeleton_key(sk), opts.junction.junction_centre, opts.junction.junction_lean)
         if key in seen:
             continue
         seen.add(key)
-        tries += opts is at_node or (opts is options and options.junction.junction_centre <= 0)  # a skeleton counts once
+        tries += opts is options  # a skeleton counts once; its :func:`_fallback` placements always follow
         try:
             blocks = _Builder(sk, distance, caps, opts, warn, progress, project, intersect_lines, work).run()
         except _Failure as failure:
