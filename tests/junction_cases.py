@@ -158,6 +158,16 @@ def trifurcation(spread: float, ratio: float = 1.0) -> JunctionCase:
     return furcation(f"trif_{spread:g}_{ratio:g}", [(ds[0], 0.7), (ds[1], 0.7), (ds[2], 0.7 / ratio)])
 
 
+def trifurcation_out_of_plane(side: float = 50.0, tilt: float = 33.0, ratio: float = 0.76) -> JunctionCase:
+    """A trifurcation as the vessel generator grows one: two daughters ``side`` degrees
+    either side of +x in the xy-plane (the thinner one at -``side``, radius 0.7 of the
+    others'), the middle one along +x tilted ``tilt`` degrees out of that plane, radii
+    ``ratio`` of the parent's (g0018's node 1: 50, 2 and -40 degrees, the middle 33
+    degrees out of the plane)."""
+    ds = [direction(side), direction(2.0, tilt), direction(-0.8 * side, 3.0)]
+    return furcation(f"trif_out_{side:g}_{tilt:g}", [(ds[0], ratio), (ds[1], ratio), (ds[2], 0.7 * ratio)])
+
+
 @dataclass
 class CutCase(JunctionCase):
     """A :class:`JunctionCase` whose capsules are cut open by planes: ``cuts`` holds

@@ -104,37 +104,37 @@ def build_blocks(
     # half-sections. Tries are depth-first and bounded; the first failure is reported.
     # Each skeleton is tried with the half-sections at the junction walls' centres first,
     # then, where its blocks stay invalid, on the skeleton nodes (the wall's centre can crowd
-    # junctions whose branches part early); only then is the skeleton changed.
+    # junctions whose branches part early); only then is the skeleton changed (:func:`_fallback`).
     at_node = options.replace(junction_centre=0.0)
+    flat = {id(options): options.replace(junction_lean=0.0), id(at_node): at_node.replace(junction_lean=0.0)}  # :func:`_fallback`
     queue = [(skeleton, [], options, frozenset(), [])]  # + the junction pairs a split made, the stubs cut
     first = None
     tries = 0
     seen = set()  # merging two junctions and splitting the result again can give a skeleton back
-    while queue and tries < options.repair.max_retopology_tries and not work.spent:
+    while queue and (tries < options.repair.max_retopology_tries or queue[0][2] is not options) and not work.spent:
         sk, notes, opts, made, cut = queue.pop(0)
-        key = (_skeleton_key(sk), opts is at_node)
+        key = (_skeleton_key(sk), opts.junction.junction_centre, opts.junction.junction_lean)
         if key in seen:
             continue
         seen.add(key)
-        tries += opts is not options or options.junction.junction_centre <= 0  # a skeleton counts once
+        tries += opts is options  # a skeleton counts once; its :func:`_fallback` placements always follow
         try:
             blocks = _Builder(sk, distance, caps, opts, warn, progress, project, intersect_lines, work).run()
         except _Failure as failure:
-            if opts is options and options.junction.junction_centre > 0 and not work.spent:
-                queue.insert(0, (sk, notes, at_node, made, cut))
+            if (nxt := _fallback(opts, options, at_node, flat, failure.leaned, work)) is not None:
+                queue.insert(0, (sk, notes, nxt, made, cut))
                 continue
             first = first or failure
             queue[:0] = [(s, n, options, m, cut + c) for s, n, m, c in _retopology_options(failure, notes, distance, options, made)]
             continue
         except MeshingError:
-            if opts is options and options.junction.junction_centre > 0 and not work.spent:
-                queue.insert(0, (sk, notes, at_node, made, cut))
+            if (nxt := _fallback(opts, options, at_node, flat, False, work)) is not None:
+                queue.insert(0, (sk, notes, nxt, made, cut))
                 continue
             if first is None:
                 raise  # the skeleton as given is beyond the scheme: say why
             continue  # a changed skeleton that does not work either
-        if opts is at_node:
-            notes = notes + ["half cross-sections on the junction nodes: at the junction walls' centres the blocks stayed invalid"]
+        notes = notes + _fallback_notes(opts, options)
         for note in notes:
             if warn:
                 warn(note)
@@ -151,6 +151,28 @@ def build_blocks(
             pass
     first.hint += work.stop_note()
     raise first.error(bad_blocks_path, tries)
+
+
+def _fallback(opts, options, at_node, flat: dict, leaned: bool, work) -> BlockOptions | None:
+    """The placement to try the same skeleton with after ``opts`` failed, or None.
+
+    Where some n-furcation's half-sections leaned (:meth:`_Junctions._leaned`), the same
+    placement with half-planes (as before leaning existed): a skeleton whose blocks were
+    valid with half-planes stays buildable. Then, from the walls' centres, on the nodes."""
+    if work.spent:
+        return None
+    if leaned and id(opts) in flat:
+        return flat[id(opts)]
+    if opts in (options, flat[id(options)]) and options.junction.junction_centre > 0:
+        return at_node
+    return None
+
+
+def _fallback_notes(opts, options) -> list:
+    """What a build that succeeded with a :func:`_fallback` placement gave up."""
+    return [note for note, used in (
+        ("half cross-sections on the junction nodes: at the junction walls' centres the blocks stayed invalid", opts.junction.junction_centre < options.junction.junction_centre),
+        ("half-planes at the n-furcations: with leaning half cross-sections the blocks stayed invalid", opts.junction.junction_lean < options.junction.junction_lean)) if used]
 
 
 def _skeleton_key(sk: Skeleton) -> bytes:
@@ -244,6 +266,7 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _Stubs):
         if self.project is not None:
             blocks = self.thicken_layers(blocks)
             blocks = self.choose_centres(blocks)
+            blocks = self.choose_planes(blocks)
             if self.opt.repair.relieve_wall_folds:
                 blocks = self.relieve_wall_folds(blocks)
             self.report_wall_folds(blocks)

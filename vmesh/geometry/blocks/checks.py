@@ -220,6 +220,7 @@ class _Failure(Exception):
         self.message, self.blocks, self.bad = message, blocks, bad
         self.skeleton, self.nfurcations, self.crowded, self.hint = skeleton, nfurcations, crowded, hint
         self.stubs = []  # side-branch stubs too short for a block (:mod:`.stubs`)
+        self.leaned = False  # some n-furcation's half-sections leaned (:meth:`_Junctions._leaned`)
 
     def error(self, path, tries: int = 1) -> MeshingError:
         written = ""

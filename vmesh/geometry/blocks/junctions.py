@@ -216,15 +216,17 @@ class _Junctions:
         return room
 
 
-    def _half_rays(self, j: _Junction, sdirs: np.ndarray) -> np.ndarray:
-        """Ray lengths (k, nr) of half-sections with in-plane directions ``sdirs`` (k, 3);
-        angles in (π, 2π) mirror the upper half, 0 and π are the spine."""
+    def _half_rays(self, j: _Junction, sdirs: np.ndarray, seps=None) -> np.ndarray:
+        """Ray lengths (k, nr) of half-sections with in-plane directions ``sdirs`` (k, 3) at
+        separators ``seps`` (k,; default: separator ``i`` for ``sdirs[i]``), leaning as
+        :meth:`_leaned` says; angles in (π, 2π) mirror the
+        upper half, 0 and π are the spine."""
         t = self.template
         ang = t.ray_angles
         up = (ang > 1e-9) & (ang < np.pi - 1e-9)
         k = len(sdirs)
-        e1 = np.repeat(j.u[None, :], k, axis=0)
-        dirs = cs.ray_directions(e1, sdirs, ang[up])
+        s = self._leaned(j, sdirs, seps, np.broadcast_to(ang[up], (k, int(up.sum()))))
+        dirs = np.cos(ang[up])[None, :, None] * j.u + np.sin(ang[up])[None, :, None] * s
         o = np.repeat(j.center[None, :], dirs.shape[0] * dirs.shape[1], axis=0)
         R_up = self.cast(o, dirs.reshape(-1, 3), np.full(len(o), j.radius)).reshape(k, -1)
         R = np.empty((k, len(ang)))
@@ -240,18 +242,69 @@ class _Junctions:
         return R
 
 
+    def leans(self, j: _Junction) -> bool:
+        """Whether the half-sections of ``j`` lean (:meth:`_leaned`): an n-furcation whose
+        branches leave its plane unalike, with ``junction_lean`` on and not in ``local.planar``."""
+        return (self.opt.junction.junction_lean > 0 and len(j.neighbors) >= 4 and j.node not in self.local.planar
+                and float(np.ptp(j.dirs @ j.u)) > 1e-6)
+
+
+    def _leaned(self, j: _Junction, sdirs: np.ndarray, seps: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """In-plane directions (k, n, 3) of half-sections ``sdirs`` (k, 3) at separators
+        ``seps`` at the polar angles ``theta`` (k, n) from ``u``, turned about ``u``.
+
+        A half-plane through ``u`` bisects two branches only where they leave the junction
+        plane alike (every 3-junction: ``u`` is the normal of its branches' tips' plane).
+        Where one of the two dips towards a pole (a trifurcation's branch out of the plane),
+        the half-plane's part towards that pole runs into that branch, and its boundary
+        layer folds. The half-section therefore leans: at polar angle θ it turns about ``u``
+        by δ(θ), towards the angle bisector of the two branches (``v · (d_a - d_b) = 0``,
+        ``sin δ ≈ κ cot θ``), smoothly bounded by half the room left to either branch
+        (``δ = δ_max tanh(κ cot θ / δ_max)``). At the equator (θ = π/2) and on the spine it
+        is the half-plane as before; ``junction_lean`` scales it. The junctions in
+        ``local.planar`` keep their half-planes (:meth:`choose_planes`)."""
+        seps = np.arange(len(sdirs)) if seps is None else np.asarray(seps)
+        if not self.leans(j):
+            return np.broadcast_to(sdirs[:, None, :], theta.shape + (3,))
+        w = float(self.opt.junction.junction_lean)
+        m = len(j.neighbors)
+        a, b = j.dirs[seps], j.dirs[(seps + 1) % m]
+        t0 = np.cross(j.u, sdirs)
+        tw = np.sum(t0 * (a - b), axis=1)
+        kappa = np.where(np.abs(tw) > 1e-9, -((a - b) @ j.u) / np.where(np.abs(tw) > 1e-9, tw, 1.0), 0.0)
+
+        def az(d):
+            return np.arctan2(d @ j.q, d @ j.p)
+
+        room = np.minimum(np.mod(az(sdirs) - az(a), cs._TWO_PI), np.mod(az(b) - az(sdirs), cs._TWO_PI))
+        dmax = np.maximum(0.5 * w * room, 1e-9)[:, None]
+        cot = np.cos(theta) / np.maximum(np.sin(theta), 1e-6)
+        delta = dmax * np.tanh(kappa[:, None] * cot / dmax)
+        return np.cos(delta)[..., None] * sdirs[:, None, :] + np.sin(delta)[..., None] * t0[:, None, :]
+
+
     def spine_rays(self, j: _Junction) -> np.ndarray:
         o = np.repeat(j.center[None, :], 2, axis=0)
         return self.cast(o, np.stack([j.u, -j.u]), np.full(2, j.radius))
 
 
-    def _half_vertices(self, j: _Junction, sdirs: np.ndarray, R: np.ndarray, core=None, layer=None) -> np.ndarray:
+    def _half_vertices(self, j: _Junction, sdirs: np.ndarray, R: np.ndarray, core=None, layer=None, seps=None) -> np.ndarray:
+        """Vertices (k, nv, 3) of half-sections: the template in each half-plane, each vertex
+        then turned about ``u`` as its polar angle's ray leans (:meth:`_leaned`), so that the
+        wall vertices land where the leaning rays hit the wall."""
         k = len(sdirs)
         e1 = np.repeat(j.u[None, :], k, axis=0)
         c = np.repeat(j.center[None, :], k, axis=0)
         core = self.opt.section.core_size if core is None else core
         layer = self.opt.section.layer_thickness if layer is None else layer
-        return cs.section_vertices(self.template, c, e1, sdirs, R, core, layer)
+        V = cs.section_vertices(self.template, c, e1, sdirs, R, core, layer)
+        if not self.leans(j):
+            return V
+        rel = V - j.center
+        h_u = rel @ j.u
+        h_s = np.einsum("knj,kj->kn", rel, sdirs)
+        s = self._leaned(j, sdirs, seps, np.arctan2(np.abs(h_s), h_u))
+        return j.center + h_u[..., None] * j.u + h_s[..., None] * s
 
 
     def choose_rotations(self, nodes=None):
@@ -269,12 +322,13 @@ class _Junctions:
             psi = (opt.junction.rotation_range * 0.5 * j.gap)[:, None] * frac[None, :]  # (m, ncand)
             ang = j.separator[:, None] + psi
             sdirs = np.cos(ang)[..., None] * j.p + np.sin(ang)[..., None] * j.q  # (m, ncand, 3)
-            R = self._half_rays(j, sdirs.reshape(-1, 3))
+            seps = np.repeat(np.arange(m), ncand)
+            R = self._half_rays(j, sdirs.reshape(-1, 3), seps)
             if np.any(~np.isfinite(R)):
                 bad = ~np.all(np.isfinite(R), axis=1).reshape(m, ncand)
                 if bad.all(axis=1).any():
                     raise MeshingError(f"junction at skeleton node {c}: a half cross-section finds no wall within reach")
-            V = self._half_vertices(j, sdirs.reshape(-1, 3), np.nan_to_num(R, nan=1e6)).reshape(m, ncand, -1, 3)
+            V = self._half_vertices(j, sdirs.reshape(-1, 3), np.nan_to_num(R, nan=1e6), seps=seps).reshape(m, ncand, -1, 3)
             upper = self.template.upper
             rel = V[:, :, upper] - j.center
             mean_dist = np.linalg.norm(rel, axis=3).mean(axis=2)  # (m, ncand)

@@ -32,6 +32,7 @@ class JunctionOptions:
     min_branch_gap: float = 12.0  # degrees
     clear_ray_factor: float = 1.8
     junction_margin: float = 0.3  # × branch radius, between half-sections and the first section
+    junction_lean: float = 1.0  # how far n-furcations' half-sections may lean towards the bisector of branches leaving the plane unalike (0: planar)
     junction_centre: float = 1.0  # how far half-sections' common line moves from the node to the wall's centre (0: at the node)
 
 
@@ -148,3 +149,4 @@ class _LocalFixes:
     layer_scale: dict = field(default_factory=dict)  # section key -> boundary-layer thickness factor
     lookahead: dict = field(default_factory=dict)  # junction node -> radii along its branches for their directions
     at_node: set = field(default_factory=set)  # junctions whose half-sections meet on their node, not the wall's centre
+    planar: set = field(default_factory=set)  # n-furcations whose half-sections keep to half-planes (:meth:`_Junctions._leaned`)

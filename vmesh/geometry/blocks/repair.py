@@ -79,11 +79,22 @@ class _Repair:
         if self.opt.junction.junction_centre <= 0 or not self.topo.junctions:
             return blocks
         nodes = sorted(c for c in self.topo.junctions if c not in self.local.at_node)
+        out, switch = self._switch_where_better(blocks, nodes, self.local.at_node)
+        if switch:
+            self.fixes.append(f"half cross-sections of junction node(s) {switch} meet on the node, not the wall's centre, where their blocks fill better")
+        return out
+
+    def _switch_where_better(self, blocks: BlockStructure, nodes: list, flag: set) -> tuple:
+        """Add the junctions ``nodes`` to ``flag`` (a set of ``local`` the junction steps read)
+        and rebuild them, all in one assembly (they are independent); each keeps the switch
+        only where its first segments' blocks fill better at one resolution and no worse at
+        any (:meth:`_centre_scores`), with every block valid. Returns the assembly and the
+        switched nodes."""
         if not nodes:
-            return blocks
+            return blocks, []
         before = self._centre_scores(blocks, nodes)
         saved = {c: self.topo.junctions[c] for c in nodes}  # with the rotations the fixes chose
-        self.local.at_node |= set(nodes)
+        flag |= set(nodes)
         for c in nodes:
             self._rebuild_junction(c)
         self._apply_clearance()
@@ -93,18 +104,35 @@ class _Repair:
         for c in nodes:
             if c not in switch:
                 self.topo.junctions[c] = saved[c]
-                self.local.at_node.discard(c)
+                flag.discard(c)
         self._apply_clearance()
         out = self.assemble()
         if switch and out.corner_jacobians().min() <= 0:
-            # the junctions' choices interact: back to the centres everywhere
+            # the junctions' choices interact: back to where they were everywhere
             for c in switch:
                 self.topo.junctions[c] = saved[c]
-                self.local.at_node.discard(c)
+                flag.discard(c)
             self._apply_clearance()
-            return self.assemble()
+            return self.assemble(), []
+        return out, switch
+
+    def choose_planes(self, blocks: BlockStructure) -> BlockStructure:
+        """Per n-furcation (four or more branches) whose branches leave its plane unalike,
+        keep its leaning half-sections (:meth:`_leaned`) or go back to half-planes,
+        whichever fills the blocks of its first segments better.
+
+        A half-plane through the junction axis runs into a branch that dips towards a pole
+        (a trifurcation's daughter out of the plane) and folds the boundary layer there;
+        leaning trades that for narrower blocks next to the spine, which is not always
+        better. As :meth:`choose_centres`: all such junctions get half-planes together in
+        one assembly, and a junction keeps them only where that fills better at one
+        resolution and no worse at any, with every block valid
+        (:meth:`_switch_where_better`). 3-junctions never lean
+        (their axis is the normal of their branches' tips' plane: nothing to lean for)."""
+        nodes = sorted(c for c, j in self.topo.junctions.items() if self.leans(j))
+        out, switch = self._switch_where_better(blocks, nodes, self.local.planar)
         if switch:
-            self.fixes.append(f"half cross-sections of junction node(s) {switch} meet on the node, not the wall's centre, where their blocks fill better")
+            self.fixes.append(f"half cross-sections of junction node(s) {switch} keep to half-planes, where their blocks fill better than leaning")
         return out
 
     def _centre_scores(self, blocks: BlockStructure, nodes) -> dict:
@@ -409,4 +437,5 @@ class _Repair:
         )
         failure = _Failure(message, blocks, bad, self.topo.sk, nfurc, crowded, hint)
         failure.stubs = self.short_stubs(bad)
+        failure.leaned = any(self.leans(j) for j in self.topo.junctions.values())
         raise failure
