@@ -239,16 +239,19 @@ def test_refused_wall_step_is_retried_with_half_the_step():
 
 
 def _untangled_trifurcation():
-    """Generated trifurcation (60 degrees, daughters half the parent's radius): its raw fill
-    folds at the crotch, the global L-BFGS untangler leaves it valid but below 0.3."""
+    """Generated trifurcation (60 degrees, daughters half the parent's radius) with planar
+    half cross-sections (``junction_lean=0``; the leaning ones fill it validly): its raw
+    fill folds at the crotch, the global L-BFGS untangler leaves it valid but below 0.3."""
     from junction_cases import trifurcation
-    from test_junctions import DEFAULT, build
+    from test_junctions import DEFAULT
 
     from vmesh.filters.mesh_filters import _constraints
+    from vmesh.geometry.blocks import BlockOptions, build_blocks
     from vmesh.geometry.untangle import untangle
 
     case = trifurcation(60, 2)
-    sm = mesh_blocks(build(case), case.project, DEFAULT, signed_distance=case.distance)
+    blocks = build_blocks(case.skeleton, case.distance, None, BlockOptions(junction_lean=0.0), project=case.project)
+    sm = mesh_blocks(blocks, case.project, DEFAULT, signed_distance=case.distance)
     cap_nodes, cap_normals, wall, boundary = _constraints(sm)
     kw = dict(wall=wall, wall_normals=case.gradient, project=case.project, cap_nodes=cap_nodes, cap_normals=cap_normals, boundary=boundary)
     X, _ = untangle(sm.points, sm.cells, 1, threshold=0.3, restart_below=0.3, **kw)

@@ -219,18 +219,31 @@ class SkeletonWays:
         n = len(pos)
         self.graph = coo_matrix((np.maximum(w, 1e-12), (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
         self.limit = float(limit)
-        self.rows = {}
+        self.n = n
+        self.done = np.zeros(n, bool)
+        # the finite ways found so far, keyed src * n + dst and sorted: a large tree's
+        # sources reach few nodes within the limit, so dense rows would be mostly inf
+        self.keys = np.empty(0, np.int64)
+        self.ways = np.empty(0)
 
     def __call__(self, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
         """(k,) way from node ``src[i]`` to node ``dst[i]``."""
         from scipy.sparse.csgraph import dijkstra
 
-        new = np.setdiff1d(np.unique(src), np.fromiter(self.rows, np.int64, len(self.rows)))
+        src, dst = np.asarray(src, np.int64), np.asarray(dst, np.int64)
+        new = np.unique(src[~self.done[src]])
+        keys, ways = [self.keys], [self.ways]
+        for chunk in np.array_split(new, -(-len(new) // 256)) if len(new) else ():  # bounded (256, n) blocks
+            d = dijkstra(self.graph, directed=False, indices=chunk, limit=self.limit)
+            r, c = np.nonzero(np.isfinite(d))
+            keys.append(chunk[r] * self.n + c)
+            ways.append(d[r, c])
         if len(new):
-            for node, row in zip(new.tolist(), dijkstra(self.graph, directed=False, indices=new, limit=self.limit)):
-                self.rows[node] = row
-        out = np.empty(len(src))
-        for node in np.unique(src).tolist():
-            sel = src == node
-            out[sel] = self.rows[node][dst[sel]]
-        return out
+            self.done[new] = True
+            k, v = np.concatenate(keys), np.concatenate(ways)
+            order = np.argsort(k, kind="stable")
+            self.keys, self.ways = k[order], v[order]
+        q = src * self.n + dst
+        i = np.minimum(np.searchsorted(self.keys, q), max(len(self.keys) - 1, 0))
+        hit = (self.keys[i] == q) if len(self.keys) else np.zeros(len(q), bool)
+        return np.where(hit, self.ways[i] if len(self.keys) else np.inf, np.inf)
