@@ -37,11 +37,13 @@ KEEP = 8  # source versions kept side by side per module (worktrees, branches); 
 _KERNELS = re.compile(rb"\bnjit\b|@intrinsic")
 
 
+@functools.lru_cache(maxsize=None)  # closures overlap: each file is read and parsed once
 def _is_kernel_module(path: pathlib.Path) -> bool:
     return path.suffix == ".py" and path.is_file() and _KERNELS.search(path.read_bytes()) is not None
 
 
-def _imported_modules(path: pathlib.Path) -> set[pathlib.Path]:
+@functools.lru_cache(maxsize=None)
+def _imported_modules(path: pathlib.Path) -> frozenset[pathlib.Path]:
     """The vmesh modules ``path`` imports (relative or ``vmesh.`` imports), as files."""
     found = set()
     for node in ast.walk(ast.parse(path.read_bytes())):
@@ -62,7 +64,7 @@ def _imported_modules(path: pathlib.Path) -> set[pathlib.Path]:
             continue
         for n in names:
             found.update(p for p in (n.with_suffix(".py"), n / "__init__.py") if p.is_file())
-    return found
+    return frozenset(found)
 
 
 def kernel_closure(py_file: str) -> list[pathlib.Path]:
