@@ -182,17 +182,20 @@ class CutCase(JunctionCase):
         return f
 
 
-def side_stub(angle: float = 70.0, ratio: float = 0.4, length: float = 1.5, half: float = 8.0) -> tuple:
+def side_stub(angle: float = 70.0, ratio: float = 0.4, length: float = 1.5, half: float = 8.0, tilt: float = 0.0) -> tuple:
     """A straight vessel of radius 1 along x (cut open at +-``half``) with a side branch of
     radius ``ratio`` leaving the origin at ``angle`` degrees from +x, cut open ``length`` of
     its radii past the parent's wall, as the generator's ``stub`` feature makes it.
 
     The stub's skeleton is one segment from the junction to its cap, as ``thin_stubs``
     leaves it. Returns the case and its caps (inlet at -x, outlet_1 at +x, outlet_2 on the
-    stub)."""
+    stub). ``tilt`` turns the stub's cut (and its cap's normal) that many degrees from the
+    stub's axis towards +x: a slanted cut."""
     from vmesh.caps import Cap
 
     d = direction(angle)
+    n_cut = np.cos(np.radians(tilt)) * d + np.sin(np.radians(tilt)) * np.array([1.0, 0.0, 0.0])
+    n_cut /= np.linalg.norm(n_cut)
     L = 1.0 + length * ratio
     x = np.arange(-half, half + 1e-9, 0.8)
     pts = np.r_[np.c_[x, np.zeros((len(x), 2))], (L * d)[None]]
@@ -203,8 +206,8 @@ def side_stub(angle: float = 70.0, ratio: float = 0.4, length: float = 1.5, half
     radii = np.r_[np.ones(n), ratio]
     sk = Skeleton(pts, radii, edges)
     ex = np.array([1.0, 0.0, 0.0])
-    cuts = ((0, -half * ex, -ex), (0, half * ex, ex), (1, L * d, d))
-    case = CutCase(f"stub_{angle:g}_{ratio:g}_{length:g}", np.array([-(half + 2) * ex, np.zeros(3)]),
+    cuts = ((0, -half * ex, -ex), (0, half * ex, ex), (1, L * d, n_cut))
+    case = CutCase(f"stub_{angle:g}_{ratio:g}_{length:g}" + (f"_{tilt:g}" if tilt else ""), np.array([-(half + 2) * ex, np.zeros(3)]),
                    np.array([(half + 2) * ex, (L + 2 * ratio) * d]), np.array([1.0, ratio]), sk, cuts=cuts)
-    caps = [Cap(1, "inlet", -half * ex, -ex, 1.0), Cap(2, "outlet_1", half * ex, ex, 1.0), Cap(3, "outlet_2", L * d, d, ratio)]
+    caps = [Cap(1, "inlet", -half * ex, -ex, 1.0), Cap(2, "outlet_1", half * ex, ex, 1.0), Cap(3, "outlet_2", L * d, n_cut, ratio)]
     return case, caps

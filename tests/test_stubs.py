@@ -83,3 +83,16 @@ def test_stub_with_room_keeps_its_blocks(args):
     assert blocks.info["cut_stubs"] == []
     assert "outlet_2" in blocks.boundary_names.values()
     assert not any("cut the side branch" in w for w in warnings)
+
+
+def test_stub_cut_slant_at_its_parents_wall_is_cut_not_a_lost_section():
+    """A thin stub (radius 0.12) cut open at its parent's wall by a plane 55 degrees off its
+    axis (generated g0007 extracted: a 0.019 cm opening on a 0.07 vessel): its cap section
+    lies in that plane, half inside the parent, and its rays run 12 stub radii through the
+    parent's lumen without meeting the wall ("finds no wall within reach"). The stub is cut
+    back into its parent instead, as any stub within its junction's half-sections."""
+    case, blocks, warnings = _build(90, 0.12, 0.4, 8.0, 55)
+    assert blocks.corner_jacobians().min() > 0
+    assert [s["cap"] for s in blocks.info["cut_stubs"]] == ["outlet_2"]
+    assert "outlet_2" not in blocks.boundary_names.values()
+    assert any("cut the side branch" in w for w in warnings)

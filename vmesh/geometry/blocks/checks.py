@@ -224,7 +224,7 @@ class _Failure(Exception):
 
     def error(self, path, tries: int = 1) -> MeshingError:
         written = ""
-        if path is not None:
+        if path is not None and self.blocks is not None:
             try:
                 written = f"; the {len(self.bad)} invalid block(s) are in {write_bad_blocks(self.blocks, self.bad, path)}"
             except Exception as exc:  # the error itself matters more than the picture

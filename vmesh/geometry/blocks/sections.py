@@ -7,6 +7,7 @@ import numpy as np
 from ...blocks import FACE_WALL
 from ...errors import MeshingError
 from .. import cross_sections as cs
+from .checks import _Failure
 from .options import CLOSED, CYCLE, JUNCTION, OPEN, _Branch
 from ..skeleton.graph import polyline_at
 from .prep import SkeletonWays, branch_tubes, endpoint_caps, redistribute_sections
@@ -351,10 +352,18 @@ class _Sections:
         R = self.cast(np.repeat(origin, len(ang), axis=0), dirs.reshape(-1, 3), np.repeat(rad, len(ang))).reshape(len(idx), -1)
         R = self._own_territory(idx, origin, dirs, R, rad)
         if np.any(~np.isfinite(R)):
-            n = int(np.flatnonzero(~np.all(np.isfinite(R), axis=1))[0])
-            b, k = idx[n]
+            lost = np.flatnonzero(~np.all(np.isfinite(R), axis=1))
+            b, k = idx[int(lost[0])]
             node = int(self.topo.branches[b].nodes[k])
-            raise MeshingError(f"cross-section at skeleton node {node} finds no wall within reach (is the node inside the vessel?)")
+            message = f"cross-section at skeleton node {node} finds no wall within reach (is the node inside the vessel?)"
+            # a side branch cut open within its junction's half-sections (a stub) has its
+            # cap section in the parent's wall: rays in the cap's plane run along that wall
+            stubs = {bi: self.stub_of(bi) for bi in sorted({idx[n][0] for n in lost.tolist()})}
+            if all(s is not None for s in stubs.values()):
+                failure = _Failure(message, None, np.zeros(0, np.int64), self.topo.sk, [], [], "")
+                failure.stubs = list(stubs.values())
+                raise failure
+            raise MeshingError(message)
         lc = np.array([self._layer_and_core((b, k)) for b, k in idx]).reshape(-1, 2)
         V = cs.section_vertices(t, C, E1, E2, R, lc[:, 1], lc[:, 0])
         on_surface = np.zeros(V.shape[:2], bool)

@@ -38,30 +38,38 @@ class _Stubs:
             ``reach`` along the branch, ``radius``, and the ``start`` and ``end_point``
             positions of the branch (the part that will not be meshed).
         """
-        sk, opt = self.topo.sk, self.opt
         touched = {int(n) for bi in np.unique(self.built.block_where[bad, 0]).tolist()
                    for n in (self.topo.branches[bi].nodes[0], self.topo.branches[bi].nodes[-1])}
         out = []
         for bi, br in enumerate(self.topo.branches):
-            if br.kinds != [JUNCTION, OPEN] or int(br.nodes[0]) not in touched:
-                continue
-            j, _, _ = self._junction_end(bi, 0)
-            rb = float(np.median(sk.radii[br.nodes]))
-            widths = [float(np.median(sk.radii[self.topo.branches[b].nodes])) for b, _ in j.ends]
-            if rb > min(widths):
-                continue  # not the junction's side branch
-            reach = self._junction_reach(bi, 0)
-            if br.arc[-1] > reach + opt.junction.junction_margin * rb:
-                continue  # room for a section between the half-sections and the cap
-            end = int(br.nodes[-1])
-            cap = self.ends.cap_of.get(end)
-            out.append({
-                "junction": int(br.nodes[0]), "end": end, "cap": getattr(cap, "name", f"end node {end}"),
-                "length": float(br.arc[-1]), "reach": float(reach), "radius": rb, "junction_radius": float(j.radius),
-                "start": sk.points[br.nodes[0]].tolist(), "end_point": sk.points[end].tolist(),
-                "nodes": [int(n) for n in br.nodes[1:]],
-            })
+            if int(br.nodes[0]) in touched and (stub := self.stub_of(bi)) is not None:
+                out.append(stub)
         return out
+
+    def stub_of(self, bi: int) -> dict | None:
+        """Branch ``bi`` as a stub (see :meth:`short_stubs`), or None when it is no stub: it
+        does not run from a junction to an open end, is not its junction's narrowest branch,
+        or has room for a section past the junction's half-sections."""
+        sk, opt = self.topo.sk, self.opt
+        br = self.topo.branches[bi]
+        if br.kinds != [JUNCTION, OPEN]:
+            return None
+        j, _, _ = self._junction_end(bi, 0)
+        rb = float(np.median(sk.radii[br.nodes]))
+        widths = [float(np.median(sk.radii[self.topo.branches[b].nodes])) for b, _ in j.ends]
+        if rb > min(widths):
+            return None  # not the junction's side branch
+        reach = self._junction_reach(bi, 0)
+        if br.arc[-1] > reach + opt.junction.junction_margin * rb:
+            return None  # room for a section between the half-sections and the cap
+        end = int(br.nodes[-1])
+        cap = self.ends.cap_of.get(end)
+        return {
+            "junction": int(br.nodes[0]), "end": end, "cap": getattr(cap, "name", f"end node {end}"),
+            "length": float(br.arc[-1]), "reach": float(reach), "radius": rb, "junction_radius": float(j.radius),
+            "start": sk.points[br.nodes[0]].tolist(), "end_point": sk.points[end].tolist(),
+            "nodes": [int(n) for n in br.nodes[1:]],
+        }
 
 
 def cut_stubs(skeleton, stubs: list):
