@@ -49,6 +49,8 @@ def test_store_load_prune_and_off(cache_dir, monkeypatch):
         os.utime(cache_dir / "t" / f"k{i}.npz", (1000 + i, 1000 + i))
     disk_cache.prune("t", keep=2)
     assert sorted(p.stem for p in (cache_dir / "t").glob("*.npz")) == ["abc", "k4"]  # abc: written now
+    (cache_dir / "t" / "broken.npz").write_bytes(b"PK\x03\x04 truncated")
+    assert disk_cache.load("t", "broken") is None  # a damaged entry only means the step runs
     monkeypatch.setenv("VMESH_DISK_CACHE", "0")
     assert disk_cache.load("t", "k4") is None and not disk_cache.store("t", "new", arrays)
 

@@ -64,10 +64,13 @@ def load(kind: str, digest: str) -> dict | None:
     try:
         with np.load(path, allow_pickle=False) as z:
             out = {k: z[k] for k in z.files}
-        os.utime(path)  # recently used: pruned last
-        return out
-    except (OSError, ValueError, KeyError):
+    except Exception:  # missing, truncated or not an npz (zipfile, EOF, value errors): run the step
         return None
+    try:
+        os.utime(path)  # recently used: pruned last
+    except OSError:  # a read-only cache still serves
+        pass
+    return out
 
 
 def store(kind: str, digest: str, arrays: dict) -> bool:
