@@ -59,6 +59,8 @@ def test_run_writes_report_and_resolved_chain(tmp_path):
     assert report["surface"]["closed"] is True
     assert "surface_info" in report["timings"]
     assert ctx.report.steps[0].peak_memory_mb > 0
+    # CPU seconds per step (all threads): the measure that compares runs on a loaded machine
+    assert report["steps"][0]["cpu_seconds"] >= 0 and ctx.report.steps[0].cpu_seconds >= 0
 
 
 def test_append_keywords_and_a_filters_own_params_parameter():

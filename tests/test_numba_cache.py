@@ -110,3 +110,15 @@ def test_background_compile_fills_the_optimiser_cache(tmp_path):
     assert out.stdout.split()[-1] == "True"
     again = "from vmesh.commands.compile import _claim_background_compile as c; print(c())"  # the lock is taken
     assert subprocess.run([sys.executable, "-c", again], env=env, capture_output=True, text=True, check=True).stdout.split()[-1] == "False"
+
+
+def test_openmp_threads_sleep_unless_the_user_chose():
+    """Importing vmesh makes libgomp's idle threads passive (spinning after each of the
+    builder's thousands of short parallel regions doubled its CPU), but keeps a policy
+    the user set."""
+    code = "import os, vmesh; print(os.environ['OMP_WAIT_POLICY'])"
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "PASSIVE"
+    out = subprocess.run([sys.executable, "-c", code], env={**env, "OMP_WAIT_POLICY": "ACTIVE"}, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "ACTIVE"

@@ -10,6 +10,16 @@ Every stage is a registered filter (:func:`filter_list`,
 
 __version__ = "0.1.0"
 
+import os as _os  # noqa: E402
+
+# numba's parallel kernels run on OpenMP (libgomp), whose idle threads by default spin for a
+# while after every parallel region. vmesh launches thousands of short regions (the block
+# builder's trial fills, the optimiser's colours): the spinning doubled the CPU of the
+# builder and took the second core from the main thread and from pymeshlab. Passive
+# threads sleep at once (a wake-up costs microseconds); read when libgomp loads, and only
+# where the user has not chosen a policy.
+_os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 from .numba_cache import install as _install_numba_cache  # noqa: E402
 
 _install_numba_cache()  # before any kernel is decorated: kernels cached by source content, not path

@@ -362,6 +362,7 @@ def _run_step(ctx: Context, number: int, step: Step, say, log: Path | None) -> N
         except Exception as exc:
             raise ChainError(internal_error_text(number, step.filter, log)) from exc
     ctx._step.seconds = mon.seconds
+    ctx._step.cpu_seconds = mon.cpu_seconds
     ctx._step.peak_memory_mb = mon.peak_mb
     ctx._step.extra_memory_mb = mon.extra_mb
     ctx.report.steps.append(ctx._step)

@@ -17,6 +17,8 @@ class StepReport:
     filter: str
     params: dict
     seconds: float = 0.0
+    #: process CPU time (all threads) of the step
+    cpu_seconds: float = 0.0
     peak_memory_mb: float = 0.0
     extra_memory_mb: float = 0.0
     counts: dict = field(default_factory=dict)
@@ -58,6 +60,7 @@ class Report:
             {
                 "filter": s.filter,
                 "seconds": round(s.seconds, 6),
+                "cpu_seconds": round(s.cpu_seconds, 6),
                 "peak_memory_mb": round(s.peak_memory_mb, 1),
                 "extra_memory_mb": round(s.extra_memory_mb, 1),
                 "counts": _plain(s.counts),

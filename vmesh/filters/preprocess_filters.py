@@ -401,11 +401,11 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
     if target_faces is None:
         target_faces = int(round(s.n_faces * target_ratio)) if target_ratio is not None else min(s.n_faces, max(20000, s.n_faces // 10))
     options = dict(backend=backend, preserve_boundary=preserve_boundary, preserve_topology=preserve_topology, quality_threshold=quality_threshold, aggressiveness=aggressiveness)
-    tries = None
+    tries, stored = None, None
     with warnings.catch_warnings(record=True) as caught:  # the backend fallback goes into the report
         warnings.simplefilter("always", RuntimeWarning)
         if max_error is None:
-            v, f = _decimate_and_index(ctx, target_faces, options)
+            v, f, stored = _decimate_and_index(ctx, target_faces, options)
         else:
             labels = s.face_data.get(pre.CAP_LABEL)
             wall = None if labels is None or len(labels) != s.n_faces else np.asarray(labels) == 0
@@ -420,7 +420,12 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
 
     coarse = SurfaceMesh(v, f, name=f"{s.name} (decimated)" if s.name else "decimated")
     # the coarse surface's tree is cached: build_sdf's signed distance reuses it
-    deviation = float(np.sqrt(surface_tree(coarse).closest(s.vertices)[0].max())) if len(f) else 0.0
+    if stored is not None and "max_deviation" in stored.arrays:
+        deviation = float(stored.arrays["max_deviation"])
+    else:
+        deviation = float(np.sqrt(surface_tree(coarse).closest(s.vertices)[0].max())) if len(f) else 0.0
+        if stored is not None:
+            stored.save(vertices=v, faces=f, max_deviation=np.float64(deviation))
     if output == "surface":
         ctx.surface = coarse.copy(name=s.name)
         if ctx.caps:
@@ -449,14 +454,27 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
 def _decimate_and_index(ctx, target_faces, options):
     """``pre.decimate`` of the fine surface; while pymeshlab decimates (it releases the GIL),
     the fine surface's tree and its wall projector, which build_sdf and the mesher query
-    next, are built on the other core (cached per surface: docs/sdf.md)."""
+    next, are built on the other core (cached per surface: docs/sdf.md).
+
+    pymeshlab's result is kept on disk (:mod:`vmesh.disk_cache`, keyed by the surface's bytes
+    and the options): a rerun on the same surface reads it back. Returns the vertices, the
+    faces and the :class:`_Stored` entry (None for other backends), which holds the cached
+    arrays and saves new ones."""
     s = ctx.surface
     if options["backend"] != "pymeshlab" or target_faces >= s.n_faces:
-        return pre.decimate(s.vertices, s.faces, target_faces, **options)
+        return (*pre.decimate(s.vertices, s.faces, target_faces, **options), None)
     import threading
 
+    from .. import disk_cache
     from ..geometry.projection import wall_projector
 
+    # pymeshlab is deterministic: the same surface and options give the same bytes, which a
+    # rerun on this surface (other meshing parameters) reads back instead of ~2 s of collapses
+    digest = disk_cache.key("pymeshlab quadric", _pymeshlab_version(), np.asarray(s.vertices), np.asarray(s.faces), int(target_faces), sorted(options.items()))
+    hit = disk_cache.load("decimated", digest)
+    if hit is not None and {"vertices", "faces"} <= hit.keys():
+        ctx.count(cached=True)
+        return hit["vertices"], hit["faces"], _Stored(digest, hit)
     result = {}
 
     def work():
@@ -475,7 +493,28 @@ def _decimate_and_index(ctx, target_faces, options):
         thread.join()
     if "error" in result:
         raise result["error"]
-    return result["surface"]
+    return (*result["surface"], _Stored(digest, {}))
+
+
+class _Stored:
+    """A decimation's entry in the disk cache: the arrays read back (empty when new)."""
+
+    def __init__(self, digest: str, arrays: dict):
+        self.digest, self.arrays = digest, arrays
+
+    def save(self, **arrays) -> None:
+        from .. import disk_cache
+
+        disk_cache.store("decimated", self.digest, arrays)
+
+
+def _pymeshlab_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("pymeshlab")
+    except PackageNotFoundError:  # pragma: no cover - an unpackaged build
+        return "unknown"
 
 
 @register_filter(
