@@ -264,10 +264,14 @@ class _Sections:
             P = self.topo.pos[br.nodes].copy()
             N = self._node_normals(br)
             pos, nrm = polyline_at(P, br.arc, br.s, N)
-            # positions exactly at unmoved nodes, and end sections on their caps
+            # positions exactly at unmoved nodes, and end sections on their caps (behind a
+            # ragged rim's deepest notch: :func:`cap_recess`)
             for side, k in ((0, 0), (1, len(P) - 1)):
                 if br.kinds[side] == OPEN and br.caps[side] and self.ends.caps:
-                    pos[k] = np.asarray(self.ends.cap_of[int(br.nodes[k])].center, float)
+                    cap = self.ends.cap_of[int(br.nodes[k])]
+                    out = cs.unit(np.asarray(cap.normal, float))
+                    room = 0.5 * abs(float((pos[k] - pos[k - 1 if side else 1]) @ out)) if len(P) > 1 else 0.0
+                    pos[k] = np.asarray(cap.center, float) - min(cap_recess(cap), room) * out
             if br.straighten is not None and br.straighten.any():
                 chord = cs.unit(np.gradient(pos, axis=0))
                 nrm = (1 - br.straighten[:, None]) * nrm + br.straighten[:, None] * chord
@@ -428,3 +432,20 @@ class _Sections:
             raise MeshingError(f"closed end at skeleton node {node}: no wall found round the dome beyond its cross-section")
         return {"section": n, "core": core_v, "lifted": lifted,
                 "inner": c + ((1.0 - layer) * R)[:, None] * dirs, "wall": c + R[:, None] * dirs}
+
+
+def cap_recess(cap) -> float:
+    """How far the rim of an open end dips behind its cap's plane (0 for a planar rim).
+
+    A ragged open end (a hand-cut segmentation) has a rim that wanders along the vessel;
+    its cap (:func:`vmesh.preprocess.cap_loop`) is the cone from that rim to the rim's
+    centroid. In the cap's plane that cone is crossed short of the wall wherever the rim
+    dips behind the plane (a ray from the centre stops at a few tenths of the radius), so
+    the end section sits this far back along the cap's normal, where its rays all reach
+    the wall (the sliver beyond is within the coverage check's end allowance)."""
+    rim = np.asarray(getattr(cap, "rim", None) if getattr(cap, "rim", None) is not None else np.zeros((0, 3)), float)
+    if len(rim) == 0:
+        return 0.0
+    out = cs.unit(np.asarray(cap.normal, float))
+    return float(max(0.0, -np.min((rim - np.asarray(cap.center, float)) @ out)))
+
