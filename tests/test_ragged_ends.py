@@ -5,7 +5,8 @@ A hand-cut segmentation's open end has a rim that wanders along the vessel; its 
 cap's plane that cone cuts the lumen short wherever the rim dips behind the plane, so an
 end section placed on the plane found the "wall" at a few tenths of the radius there and
 the blocks behind it folded. The end section now sits behind the rim's deepest notch
-(:func:`vmesh.geometry.blocks.sections.cap_recess`).
+behind the rim's notches at its rays' azimuths
+(:meth:`vmesh.geometry.blocks.sections._Sections._behind_notches`).
 """
 
 from __future__ import annotations
@@ -17,9 +18,14 @@ from data_synthetic.vessels.surface import ragged_cut
 from vmesh import preprocess as pre
 from vmesh.blocks import HEX_FACES
 from vmesh.geometry.block_builder import BlockOptions, block_structure_checks, build_blocks
-from vmesh.geometry.blocks.sections import cap_recess
 from vmesh.geometry.sdf import SignedDistance
 from vmesh.skeleton import Skeleton
+
+
+def cap_recess(cap) -> float:
+    """How far the rim of a cap dips behind the cap's plane (0 for a planar rim)."""
+    n = np.asarray(cap.normal, float) / np.linalg.norm(cap.normal)
+    return float(max(0.0, -np.min((np.asarray(cap.rim) - cap.center) @ n)))
 
 
 def ragged_tube(seed: int, length: float = 10.0, radius: float = 1.0, depth: float = 0.6):
@@ -59,11 +65,16 @@ def test_end_sections_of_ragged_open_ends_span_the_lumen(seed):
         wall = ids[blocks.vertex_on_surface[ids]]
         radial = np.linalg.norm(blocks.vertices[wall, 1:], axis=1)
         assert radial.min() > 0.9, radial.min()
-        # on a plane parallel to the cap's, behind it by the rim's deepest notch
+        # on a plane parallel to the cap's, behind it, not behind the rim's deepest notch
         along = (blocks.vertices[ids] - cap.center) @ (cap.normal / np.linalg.norm(cap.normal))
-        assert np.ptp(along) < 1e-6 and abs(along[0] + cap_recess(cap)) < 1e-6
+        assert np.ptp(along) < 1e-6 and -cap_recess(cap) - 1e-6 < along[0] <= 0.0
 
 
 def test_planar_rims_keep_their_end_sections_on_the_cap():
     sdf, caps, sk = ragged_tube(0, depth=0.0)
     assert max(cap_recess(c) for c in caps) < 1e-6
+    blocks = build_blocks(sk, sdf.distance, caps, BlockOptions(), intersect_lines=sdf.intersect_lines)
+    for cap in caps:
+        b, f = np.nonzero(blocks.face_boundary == cap.id)
+        ids = np.unique(blocks.hexes[b[:, None], HEX_FACES[f]])
+        assert np.abs((blocks.vertices[ids] - cap.center) @ cap.normal).max() < 1e-9

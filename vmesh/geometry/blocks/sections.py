@@ -13,6 +13,11 @@ from .prep import SkeletonWays, branch_tubes, endpoint_caps, redistribute_sectio
 from ..rays import clip_to_territory
 
 
+#: How far (× radius) inside an open end's section its rays start (a flat cap gives the
+#: signed distance no sign on its plane).
+OPEN_END_SHIFT = 0.05
+
+
 class _Sections:
     """Section steps of the block builder: branches, section positions, frames and ray
     casts. Mixed into :class:`~vmesh.geometry.blocks.builder._Builder`, whose state they
@@ -264,14 +269,10 @@ class _Sections:
             P = self.topo.pos[br.nodes].copy()
             N = self._node_normals(br)
             pos, nrm = polyline_at(P, br.arc, br.s, N)
-            # positions exactly at unmoved nodes, and end sections on their caps (behind a
-            # ragged rim's deepest notch: :func:`cap_recess`)
+            # positions exactly at unmoved nodes, and end sections on their caps
             for side, k in ((0, 0), (1, len(P) - 1)):
                 if br.kinds[side] == OPEN and br.caps[side] and self.ends.caps:
-                    cap = self.ends.cap_of[int(br.nodes[k])]
-                    out = cs.unit(np.asarray(cap.normal, float))
-                    room = 0.5 * abs(float((pos[k] - pos[k - 1 if side else 1]) @ out)) if len(P) > 1 else 0.0
-                    pos[k] = np.asarray(cap.center, float) - min(cap_recess(cap), room) * out
+                    pos[k] = np.asarray(self.ends.cap_of[int(br.nodes[k])].center, float)
             if br.straighten is not None and br.straighten.any():
                 chord = cs.unit(np.gradient(pos, axis=0))
                 nrm = (1 - br.straighten[:, None]) * nrm + br.straighten[:, None] * chord
@@ -348,9 +349,10 @@ class _Sections:
         # flat caps give the signed distance no sign on their plane: cast from just inside
         is_open = np.array([(k == 0 and self.topo.branches[b].kinds[0] == OPEN) or
                             (k == len(self.topo.branches[b].nodes) - 1 and self.topo.branches[b].kinds[1] == OPEN) for b, k in idx])
-        shift = (0.05 * rad * outward * is_open)[:, None] * Nn
-        origin = C - shift
         ang = t.ray_angles
+        C = C - self._behind_notches(idx, C, Nn * outward[:, None], E1, E2, rad, is_open)[:, None] * Nn * outward[:, None]
+        shift = (OPEN_END_SHIFT * rad * outward * is_open)[:, None] * Nn
+        origin = C - shift
         dirs = cs.ray_directions(E1, E2, ang)
         R = self.cast(np.repeat(origin, len(ang), axis=0), dirs.reshape(-1, 3), np.repeat(rad, len(ang))).reshape(len(idx), -1)
         R = self._own_territory(idx, origin, dirs, R, rad)
@@ -370,6 +372,44 @@ class _Sections:
             if (k == 0 and br.kinds[0] == CLOSED) or (k == len(br.nodes) - 1 and br.kinds[1] == CLOSED):
                 self.frames.domes.append(self._dome_cap(n, int(br.nodes[k]), C[n], V[n], Nn[n] * outward[n], rad[n], lc[n, 0], lc[n, 1]))
         return idx, V, on_surface, R
+
+
+    def _behind_notches(self, idx, C, out, E1, E2, rad, is_open) -> np.ndarray:
+        """How far (n,) each open end's section moves back from its cap's plane so that its
+        rays reach the wall, not the cap.
+
+        A hand-cut open end has a rim that wanders along the vessel; its cap
+        (:func:`vmesh.preprocess.cap_loop`) is the cone from that rim to its centroid, which
+        crosses the cap's plane short of the wall at every azimuth where the rim dips behind
+        the plane (a ray there stops at a few tenths of the radius, and the blocks behind the
+        section fold). The ray at azimuth ``a`` meets the cone near the generator from the
+        rim at ``a``; the section moves back (along the cap's normal) behind the deepest of
+        the rim's notches within half a ray spacing of its rays, less the rays' start ``OPEN_END_SHIFT`` radii inside,
+        and at most half way back to the previous section. A planar rim keeps its section
+        on the cap."""
+        back = np.zeros(len(idx))
+        if not self.ends.caps:
+            return back
+        ang = self.template.ray_angles
+        for n in np.flatnonzero(is_open):
+            b, k = idx[n]
+            br = self.topo.branches[b]
+            cap = self.ends.cap_of.get(int(br.nodes[k]))
+            rim = np.asarray(getattr(cap, "rim", None) if cap is not None and getattr(cap, "rim", None) is not None else np.zeros((0, 3)), float)
+            if len(rim) < 3:
+                continue
+            rel = rim - C[n]
+            phi = np.arctan2(rel @ E2[n], rel @ E1[n])
+            # the rim within half a ray spacing of each ray (the cone's apex, the rim's
+            # centroid, is near but not on the section's centre)
+            near = np.abs(np.angle(np.exp(1j * (phi[None, :] - ang[:, None])))) <= np.pi / len(ang)
+            h = np.where(near, (rel @ out[n])[None, :], np.inf).min(axis=1)
+            need = -float(h[np.isfinite(h)].min(initial=0.0)) - OPEN_END_SHIFT * float(rad[n])
+            if need <= 0:
+                continue
+            prev = self.frames.X[b, 1 if k == 0 else k - 1]
+            back[n] = min(need, 0.5 * abs(float((C[n] - prev) @ out[n])))
+        return back
 
 
     def _own_territory(self, idx, origin, dirs, R, rad) -> np.ndarray:
@@ -432,20 +472,3 @@ class _Sections:
             raise MeshingError(f"closed end at skeleton node {node}: no wall found round the dome beyond its cross-section")
         return {"section": n, "core": core_v, "lifted": lifted,
                 "inner": c + ((1.0 - layer) * R)[:, None] * dirs, "wall": c + R[:, None] * dirs}
-
-
-def cap_recess(cap) -> float:
-    """How far the rim of an open end dips behind its cap's plane (0 for a planar rim).
-
-    A ragged open end (a hand-cut segmentation) has a rim that wanders along the vessel;
-    its cap (:func:`vmesh.preprocess.cap_loop`) is the cone from that rim to the rim's
-    centroid. In the cap's plane that cone is crossed short of the wall wherever the rim
-    dips behind the plane (a ray from the centre stops at a few tenths of the radius), so
-    the end section sits this far back along the cap's normal, where its rays all reach
-    the wall (the sliver beyond is within the coverage check's end allowance)."""
-    rim = np.asarray(getattr(cap, "rim", None) if getattr(cap, "rim", None) is not None else np.zeros((0, 3)), float)
-    if len(rim) == 0:
-        return 0.0
-    out = cs.unit(np.asarray(cap.normal, float))
-    return float(max(0.0, -np.min((rim - np.asarray(cap.center, float)) @ out)))
-
