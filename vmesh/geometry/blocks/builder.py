@@ -13,8 +13,9 @@ Method (see :mod:`vmesh.geometry.cross_sections` for the kernels)
 2. **Branches.** The skeleton is cut into branches between junctions and endpoints
    (cycles without junctions are branches that close on themselves). Every other node gets
    a full cross-section: the bisecting plane of its two segments, the cap plane at an open
-   end (moved back behind a ragged rim's deepest notch, where the cap's cone would cut the
-   section's rays short: :meth:`~.sections._Sections._behind_notches`), the plane normal to the segment at a closed end (moved back from the endpoint to
+   end (moved back behind a ragged rim's notches, where the cap's cone would cut the
+   section's rays short: :meth:`~.sections._Sections._behind_notches`), the plane normal
+   to the segment at a closed end (moved back from the endpoint to
    about the dome's centre; the dome beyond it is filled by a half-ball O-grid whose
    boundary layer continues the wall's). Near a junction, sections that would still reach
    into the other branches (rays much longer than the branch radius) or sit behind the
