@@ -384,9 +384,9 @@ class _Sections:
         the plane (a ray there stops at a few tenths of the radius, and the blocks behind the
         section fold). The ray at azimuth ``a`` meets the cone near the generator from the
         rim at ``a``; the section moves back (along the cap's normal) behind the deepest of
-        the rim's notches within half a ray spacing of its rays, less the rays' start ``OPEN_END_SHIFT`` radii inside,
-        and at most half way back to the previous section. A planar rim keeps its section
-        on the cap."""
+        the rim's notches within half a ray spacing of its rays, less the rays' start
+        ``OPEN_END_SHIFT`` radii inside, and at most half way back to the previous section.
+        A planar rim keeps its section on the cap."""
         back = np.zeros(len(idx))
         if not self.ends.caps:
             return back
@@ -395,7 +395,7 @@ class _Sections:
             b, k = idx[n]
             br = self.topo.branches[b]
             cap = self.ends.cap_of.get(int(br.nodes[k]))
-            rim = np.asarray(getattr(cap, "rim", None) if cap is not None and getattr(cap, "rim", None) is not None else np.zeros((0, 3)), float)
+            rim = np.zeros((0, 3)) if cap is None or getattr(cap, "rim", None) is None else np.asarray(cap.rim, float)
             if len(rim) < 3:
                 continue
             rel = rim - C[n]
