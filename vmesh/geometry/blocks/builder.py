@@ -13,7 +13,9 @@ Method (see :mod:`vmesh.geometry.cross_sections` for the kernels)
 2. **Branches.** The skeleton is cut into branches between junctions and endpoints
    (cycles without junctions are branches that close on themselves). Every other node gets
    a full cross-section: the bisecting plane of its two segments, the cap plane at an open
-   end, the plane normal to the segment at a closed end (moved back from the endpoint to
+   end (moved back behind a ragged rim's notches, where the cap's cone would cut the
+   section's rays short: :meth:`~.sections._Sections._behind_notches`), the plane normal
+   to the segment at a closed end (moved back from the endpoint to
    about the dome's centre; the dome beyond it is filled by a half-ball O-grid whose
    boundary layer continues the wall's). Near a junction, sections that would still reach
    into the other branches (rays much longer than the branch radius) or sit behind the
@@ -32,6 +34,8 @@ Method (see :mod:`vmesh.geometry.cross_sections` for the kernels)
 """
 
 from __future__ import annotations
+
+import copy
 
 import numpy as np
 
@@ -264,17 +268,34 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _Stubs):
                 self.fail(blocks, bad)
         self.work.valid_after = self.work.used  # the rest (wall folds) is bounded by the options
         if self.project is not None:
-            blocks = self.thicken_layers(blocks)
-            blocks = self.choose_centres(blocks)
-            blocks = self.choose_planes(blocks)
+            blocks = self._kept_valid(self.thicken_layers, blocks)
+            blocks = self._kept_valid(self.choose_centres, blocks)
+            blocks = self._kept_valid(self.choose_planes, blocks)
             if self.opt.repair.relieve_wall_folds:
-                blocks = self.relieve_wall_folds(blocks)
+                blocks = self._kept_valid(self.relieve_wall_folds, blocks)
             self.report_wall_folds(blocks)
         blocks.info.update(self.built.info)
         blocks.info["fixes"] = list(self.fixes)
         blocks.info["work"] = self.work.summary()
         self.tick(1.0, "done")
         return blocks
+
+
+    def _kept_valid(self, step, blocks: BlockStructure) -> BlockStructure:
+        """``step(blocks)``, one of the steps that only improve a valid structure (wall folds,
+        centres, planes); where one of its trial placements cannot be built (a section
+        that finds no wall, :class:`MeshingError`), the state and ``blocks`` as they were.
+
+        Such a trial (a first section moved further along a branch that runs beside
+        another vessel, say) is a placement not to take, not a reason to fail a structure
+        that is already valid."""
+        saved = copy.deepcopy((self.topo, self.local, self.placed, self.frames, self.built, self.fixes))
+        try:
+            return step(blocks)
+        except MeshingError as exc:
+            self.topo, self.local, self.placed, self.frames, self.built, self.fixes = saved
+            self.fixes.append(f"kept the valid blocks as they were: a trial placement of {step.__name__} could not be built ({exc})")
+            return blocks
 
 
     # -- 1. skeleton -------------------------------------------------------------

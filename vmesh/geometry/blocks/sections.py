@@ -14,6 +14,11 @@ from .prep import SkeletonWays, branch_tubes, endpoint_caps, redistribute_sectio
 from ..rays import clip_to_territory
 
 
+#: How far (× radius) inside an open end's section its rays start (a flat cap gives the
+#: signed distance no sign on its plane).
+OPEN_END_SHIFT = 0.05
+
+
 class _Sections:
     """Section steps of the block builder: branches, section positions, frames and ray
     casts. Mixed into :class:`~vmesh.geometry.blocks.builder._Builder`, whose state they
@@ -345,9 +350,10 @@ class _Sections:
         # flat caps give the signed distance no sign on their plane: cast from just inside
         is_open = np.array([(k == 0 and self.topo.branches[b].kinds[0] == OPEN) or
                             (k == len(self.topo.branches[b].nodes) - 1 and self.topo.branches[b].kinds[1] == OPEN) for b, k in idx])
-        shift = (0.05 * rad * outward * is_open)[:, None] * Nn
-        origin = C - shift
         ang = t.ray_angles
+        C = C - self._behind_notches(idx, C, Nn * outward[:, None], E1, E2, rad, is_open)[:, None] * Nn * outward[:, None]
+        shift = (OPEN_END_SHIFT * rad * outward * is_open)[:, None] * Nn
+        origin = C - shift
         dirs = cs.ray_directions(E1, E2, ang)
         R = self.cast(np.repeat(origin, len(ang), axis=0), dirs.reshape(-1, 3), np.repeat(rad, len(ang))).reshape(len(idx), -1)
         R = self._own_territory(idx, origin, dirs, R, rad)
@@ -375,6 +381,44 @@ class _Sections:
             if (k == 0 and br.kinds[0] == CLOSED) or (k == len(br.nodes) - 1 and br.kinds[1] == CLOSED):
                 self.frames.domes.append(self._dome_cap(n, int(br.nodes[k]), C[n], V[n], Nn[n] * outward[n], rad[n], lc[n, 0], lc[n, 1]))
         return idx, V, on_surface, R
+
+
+    def _behind_notches(self, idx, C, out, E1, E2, rad, is_open) -> np.ndarray:
+        """How far (n,) each open end's section moves back from its cap's plane so that its
+        rays reach the wall, not the cap.
+
+        A hand-cut open end has a rim that wanders along the vessel; its cap
+        (:func:`vmesh.preprocess.cap_loop`) is the cone from that rim to its centroid, which
+        crosses the cap's plane short of the wall at every azimuth where the rim dips behind
+        the plane (a ray there stops at a few tenths of the radius, and the blocks behind the
+        section fold). The ray at azimuth ``a`` meets the cone near the generator from the
+        rim at ``a``; the section moves back (along the cap's normal) behind the deepest of
+        the rim's notches within half a ray spacing of its rays, less the rays' start
+        ``OPEN_END_SHIFT`` radii inside, and at most half way back to the previous section.
+        A planar rim keeps its section on the cap."""
+        back = np.zeros(len(idx))
+        if not self.ends.caps:
+            return back
+        ang = self.template.ray_angles
+        for n in np.flatnonzero(is_open):
+            b, k = idx[n]
+            br = self.topo.branches[b]
+            cap = self.ends.cap_of.get(int(br.nodes[k]))
+            rim = np.zeros((0, 3)) if cap is None or getattr(cap, "rim", None) is None else np.asarray(cap.rim, float)
+            if len(rim) < 3:
+                continue
+            rel = rim - C[n]
+            phi = np.arctan2(rel @ E2[n], rel @ E1[n])
+            # the rim within half a ray spacing of each ray (the cone's apex, the rim's
+            # centroid, is near but not on the section's centre)
+            near = np.abs(np.angle(np.exp(1j * (phi[None, :] - ang[:, None])))) <= np.pi / len(ang)
+            h = np.where(near, (rel @ out[n])[None, :], np.inf).min(axis=1)
+            need = -float(h[np.isfinite(h)].min(initial=0.0)) - OPEN_END_SHIFT * float(rad[n])
+            if need <= 0:
+                continue
+            prev = self.frames.X[b, 1 if k == 0 else k - 1]
+            back[n] = min(need, 0.5 * abs(float((C[n] - prev) @ out[n])))
+        return back
 
 
     def _own_territory(self, idx, origin, dirs, R, rad) -> np.ndarray:
