@@ -65,3 +65,28 @@ def test_the_bound_does_not_stop_an_untangling_that_succeeds_within_it():
 def test_dot_is_the_dot_product():
     a, b = np.random.default_rng(0).normal(size=(2, 12345))
     assert np.isclose(_dot(a, b), float(a @ b))
+
+
+def test_compiled_objective_is_the_numpy_sum_and_its_gradient_the_derivative():
+    """``untangle._objective`` (the compiled ``kernels.escobar_sum``) gives the numpy form's
+    functional and gradient on a folded lattice, and the gradient is the functional's
+    derivative (central differences)."""
+    from vmesh.geometry.untangle import _objective, _objective_numpy, _Problem
+
+    P, H = _lattice(4)
+    rng = np.random.default_rng(3)
+    P = P + rng.normal(scale=0.35, size=P.shape)  # some corners inverted
+    assert (linear_scaled_jacobian(P, H) <= 0).any()
+    scale = rng.uniform(0.5, 2.0, size=(len(H), 2, 2, 2, 3))
+    prob = _Problem(H, scale, np.arange(len(P)), None, None, 0.05)
+    f, g = _objective(P, prob)
+    f_ref, g_ref = _objective_numpy(P, prob)
+    assert abs(f - f_ref) <= 1e-12 * abs(f_ref)
+    assert np.abs(g - g_ref).max() <= 1e-12 * np.abs(g_ref).max()
+    h = 1e-6
+    for v, d in [(31, 0), (62, 1), (70, 2)]:
+        Pp, Pm = P.copy(), P.copy()
+        Pp[v, d] += h
+        Pm[v, d] -= h
+        fd = (_objective(Pp, prob)[0] - _objective(Pm, prob)[0]) / (2 * h)
+        assert abs(fd - g[v, d]) <= 1e-5 * max(1.0, abs(g[v, d]))
