@@ -90,3 +90,35 @@ def test_compiled_objective_is_the_numpy_sum_and_its_gradient_the_derivative():
         Pm[v, d] -= h
         fd = (_objective(Pp, prob)[0] - _objective(Pm, prob)[0]) / (2 * h)
         assert abs(fd - g[v, d]) <= 1e-5 * max(1.0, abs(g[v, d]))
+
+
+def _rings_of(H, seed_elements, rings, n):
+    """Nodes of the elements within ``rings`` node-neighbourhoods of ``seed_elements`` (mask)."""
+    sel = np.zeros(len(H), bool)
+    sel[seed_elements] = True
+    for _ in range(rings):
+        nodes = np.zeros(n, bool)
+        nodes[H[sel].ravel()] = True
+        sel = nodes[H].any(axis=1)
+    out = np.zeros(n, bool)
+    out[H[sel].ravel()] = True
+    return out
+
+
+def test_untangling_a_fold_moves_only_nodes_near_it():
+    """Locality: a fold of a few interior nodes in a large lattice is untangled by moving
+    only nodes of the elements within the untangler's rings of the folded elements (its
+    regions grow by one ring a round), and the far mesh is untouched."""
+    P, H = _lattice(12)
+    rng = np.random.default_rng(5)
+    inner = np.flatnonzero(np.all(np.abs(P - 6.0) <= 1.0, axis=1))
+    X0 = P.copy()
+    X0[inner[rng.choice(len(inner), 4, replace=False)]] += rng.normal(scale=0.9, size=(4, 3))
+    q0 = linear_scaled_jacobian(X0, H)
+    assert (q0 <= 0).sum() >= 4
+    X, info = untangle(X0, H, 1, threshold=0.3, rings=2, restart_below=None)
+    assert linear_scaled_jacobian(X, H).min() > 0.3
+    moved = np.any(X != X0, axis=1)
+    near = _rings_of(H, np.flatnonzero(q0 < 0.3), 2 + info["rounds"] - 1, len(P))
+    assert moved.any() and not (moved & ~near).any()
+    assert near.mean() < 0.3  # the rings are a neighbourhood, not the lattice
