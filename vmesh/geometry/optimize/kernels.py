@@ -766,6 +766,7 @@ def warm_up() -> None:
     colour_nodes(hexes, ptr, inc, nodes, 8)
     grow_nodes(hexes, ptr, inc, np.zeros(8, np.bool_))
     step_caps(X, hexes, ptr, inc, nodes, 8, 0.5)
+    escobar_sum(X, hexes, np.ones((1, 8, 3)), 1e-3, np.zeros((8, 3)))  # the L-BFGS untangler's objective
     kind, normal, caps = np.full(8, FIXED, np.int64), np.zeros((8, 3)), np.zeros(8)
     for sweep, accept in ((sweep_colour_serial, accept_trials_serial), (sweep_colour_parallel, accept_trials_parallel)):
         trial, state, dirty, buf = np.zeros((8, 3)), np.zeros((8, 4)), np.zeros(8, np.bool_), np.zeros((8, 32))
