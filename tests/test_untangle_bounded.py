@@ -65,3 +65,60 @@ def test_the_bound_does_not_stop_an_untangling_that_succeeds_within_it():
 def test_dot_is_the_dot_product():
     a, b = np.random.default_rng(0).normal(size=(2, 12345))
     assert np.isclose(_dot(a, b), float(a @ b))
+
+
+def test_compiled_objective_is_the_numpy_sum_and_its_gradient_the_derivative():
+    """``untangle._objective`` (the compiled ``kernels.escobar_sum``) gives the numpy form's
+    functional and gradient on a folded lattice, and the gradient is the functional's
+    derivative (central differences)."""
+    from vmesh.geometry.untangle import _objective, _objective_numpy, _Problem
+
+    P, H = _lattice(4)
+    rng = np.random.default_rng(3)
+    P = P + rng.normal(scale=0.35, size=P.shape)  # some corners inverted
+    assert (linear_scaled_jacobian(P, H) <= 0).any()
+    scale = rng.uniform(0.5, 2.0, size=(len(H), 2, 2, 2, 3))
+    prob = _Problem(H, scale, np.arange(len(P)), None, None, 0.05)
+    f, g = _objective(P, prob)
+    f_ref, g_ref = _objective_numpy(P, prob)
+    assert abs(f - f_ref) <= 1e-12 * abs(f_ref)
+    assert np.abs(g - g_ref).max() <= 1e-12 * np.abs(g_ref).max()
+    h = 1e-6
+    for v, d in [(31, 0), (62, 1), (70, 2)]:
+        Pp, Pm = P.copy(), P.copy()
+        Pp[v, d] += h
+        Pm[v, d] -= h
+        fd = (_objective(Pp, prob)[0] - _objective(Pm, prob)[0]) / (2 * h)
+        assert abs(fd - g[v, d]) <= 1e-5 * max(1.0, abs(g[v, d]))
+
+
+def _rings_of(H, seed_elements, rings, n):
+    """Nodes of the elements within ``rings`` node-neighbourhoods of ``seed_elements`` (mask)."""
+    sel = np.zeros(len(H), bool)
+    sel[seed_elements] = True
+    for _ in range(rings):
+        nodes = np.zeros(n, bool)
+        nodes[H[sel].ravel()] = True
+        sel = nodes[H].any(axis=1)
+    out = np.zeros(n, bool)
+    out[H[sel].ravel()] = True
+    return out
+
+
+def test_untangling_a_fold_moves_only_nodes_near_it():
+    """Locality: a fold of a few interior nodes in a large lattice is untangled by moving
+    only nodes of the elements within the untangler's rings of the folded elements (its
+    regions grow by one ring a round), and the far mesh is untouched."""
+    P, H = _lattice(12)
+    rng = np.random.default_rng(5)
+    inner = np.flatnonzero(np.all(np.abs(P - 6.0) <= 1.0, axis=1))
+    X0 = P.copy()
+    X0[inner[rng.choice(len(inner), 4, replace=False)]] += rng.normal(scale=0.9, size=(4, 3))
+    q0 = linear_scaled_jacobian(X0, H)
+    assert (q0 <= 0).sum() >= 4
+    X, info = untangle(X0, H, 1, threshold=0.3, rings=2, restart_below=None)
+    assert linear_scaled_jacobian(X, H).min() > 0.3
+    moved = np.any(X != X0, axis=1)
+    near = _rings_of(H, np.flatnonzero(q0 < 0.3), 2 + info["rounds"] - 1, len(P))
+    assert moved.any() and not (moved & ~near).any()
+    assert near.mean() < 0.3  # the rings are a neighbourhood, not the lattice

@@ -193,12 +193,19 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", 
 def _polish(X, sm, info, goals, constraints):
     """Where the untanglers leave a valid linear mesh below the untangling goal, climb its
     worst elements with :func:`vmesh.geometry.optimize.polish` (kept only where the minimum
-    rises); its report goes to ``info["polish"]`` and ``info["after"]`` follows it."""
+    rises); its report goes to ``info["polish"]`` and ``info["after"]`` follows it.
+
+    The climb's region may grow over as many nodes as the untangler moved (``info["moved"]``,
+    at least the optimiser's default 1 % of the nodes): a wide fold leaves its worst elements
+    balanced against each other over the whole region it was untangled in, and 1 % of the
+    mesh is then too small a region to lift them (sv_rpa given: 6,640 nodes untangled, the
+    climb stopped at 0.287 within 1 %, 0.347 within the untangled region's size)."""
     from ..geometry.optimize import polish
 
     if sm.order != 1:
         return X
-    Y, report = polish(X, sm.cells, [g for g in goals if g > 0], **constraints)
+    fraction = max(0.01, int(info.get("moved", 0)) / max(len(X), 1))
+    Y, report = polish(X, sm.cells, [g for g in goals if g > 0], max_fraction=fraction, **constraints)
     if report["tries"]:
         info["polish"] = report
         info["after"] = report["after"]
