@@ -67,3 +67,31 @@ def test_frame_gradient_and_hessian_match_finite_differences():
         fp, fm = f(d), f(-d)
         assert np.isclose((fp[0] - fm[0]) / (2 * eps), g[a], rtol=1e-5, atol=1e-8)
         assert np.allclose((np.array(fp[1:4]) - np.array(fm[1:4])) / (2 * eps), H[a], rtol=1e-4, atol=1e-6)
+
+
+def test_frame_functional_equals_the_displaced_mesh():
+    """The functional's value from the frame (summed in a loop of its own after the
+    qualities) equals Escobar's measure of the displaced mesh's moved corners, computed
+    directly in numpy from their scaled edges: |E|^2 / (3 h(det E)^(2/3))."""
+    X, hexes, scale, ptr, inc = _jittered_mesh()
+    cq = K.corner_qualities(X, hexes, scale)
+    valence = np.diff(ptr)
+    L = np.empty((valence.max(), K.NL))
+    buf = np.empty((1, 4 * valence.max()))
+    rng = np.random.default_rng(2)
+    delta = 1e-3
+    for v in rng.choice(np.flatnonzero(valence == valence.max()), 3, replace=False):
+        z = rng.normal(size=3) * 0.05
+        K.frame(X, hexes, scale, ptr, inc, cq, v, L)
+        f = K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], delta, True, True, True, buf, np.int64(0))[0]
+        Y = X.copy()
+        Y[v] += z
+        want = 0.0
+        for t in range(ptr[v], ptr[v + 1]):
+            e, lc = inc[t] >> 3, inc[t] & 7
+            for c in [lc] + [lc ^ (1 << a) for a in range(3)]:
+                E = np.array([(1.0 if (c >> a) & 1 == 0 else -1.0) * scale[e, a] * (Y[hexes[e, c ^ (1 << a)]] - Y[hexes[e, c]]) for a in range(3)])
+                D = np.linalg.det(E)
+                h = 0.5 * (D + np.sqrt(D * D + 4 * delta * delta))
+                want += (E * E).sum() / (3 * h ** (2 / 3))
+        assert np.isclose(f, want, rtol=1e-12, atol=0)

@@ -148,8 +148,10 @@ def _mark(hexes, ptr, inc, v, dirty):
 #: 12); for each other moved corner (the neighbour along axis a, from 13 + 6 a): its
 #: determinant's gradient (3) and value (1), the product of its two fixed edges' squared
 #: lengths (1) and the sum of their scaled squared lengths (1); the squared target scales
-#: (31:34) and their product (34); the minimum of the four corners the node does not move (35)
-NL = 36
+#: (31:34) and their product (34); the minimum of the four corners the node does not move (35);
+#: then scratch for :func:`node_eval`: per moved corner q its functional's inputs (36 + 9 q:
+#: F, D, dF (3), dD (3), diag)
+NL = 72
 
 
 @nb.njit(cache=True)
@@ -221,7 +223,7 @@ def _from_bits(typingctx, i):
 _RCBRT = 0x553EED916872B021
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _inv_cbrt_sq(h):
     """``h^(-2/3)`` for ``h > 0`` (normal): a guess from the bits, then four Newton steps for
     ``y = h^(-1/3)`` (relative errors 6.8e-2, 4.7e-3, 2.2e-5, 4.9e-10, 1e-15): no libm call and
@@ -234,7 +236,7 @@ def _inv_cbrt_sq(h):
     return y * y
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _escobar(F, D, dFx, dFy, dFz, dDx, dDy, dDz, diag, d2, hessian):
     """Escobar's corner functional ``F / (3 h(D)^(2/3))`` from the scaled edges' squared
     norm sum ``F`` and determinant ``D``, with its gradient and (``hessian``) Hessian from
@@ -321,13 +323,23 @@ def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, bu
                     l = inc[t] & 7
                     cq[e, l if q == 0 else l ^ (1 << (q - 1))] = sj
                 hmin = min(hmin, sj)
-            if want_f:
-                cf, c0, c1, c2, c00, c01, c02, c11, c12, c22 = _escobar(F, S * D, dFx, dFy, dFz, S * gx, S * gy, S * gz, diag, d2, hessian)
+            if want_f:  # the functional's inputs, for the second loop
+                k = 36 + 9 * q
+                L[r, k], L[r, k + 1], L[r, k + 2], L[r, k + 3], L[r, k + 4] = F, S * D, dFx, dFy, dFz
+                L[r, k + 5], L[r, k + 6], L[r, k + 7], L[r, k + 8] = S * gx, S * gy, S * gz, diag
+        qsum += hmin
+        qmin = min(qmin, hmin)
+    if want_f:
+        # a loop of its own (same sums in the same order): each corner's functional is a
+        # long chain of dependent operations (square root, cube root, division) independent
+        # of the other corners', which this short loop lets the processor overlap
+        for r in range(ptr[v + 1] - ptr[v]):
+            for q in range(4):
+                k = 36 + 9 * q
+                cf, c0, c1, c2, c00, c01, c02, c11, c12, c22 = _escobar(L[r, k], L[r, k + 1], L[r, k + 2], L[r, k + 3], L[r, k + 4], L[r, k + 5], L[r, k + 6], L[r, k + 7], L[r, k + 8], d2, hessian)
                 f += cf
                 g0, g1, g2 = g0 + c0, g1 + c1, g2 + c2
                 h00, h01, h02, h11, h12, h22 = h00 + c00, h01 + c01, h02 + c02, h11 + c11, h12 + c12, h22 + c22
-        qsum += hmin
-        qmin = min(qmin, hmin)
     return f, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin, qsum
 
 
