@@ -211,3 +211,46 @@ def side_stub(angle: float = 70.0, ratio: float = 0.4, length: float = 1.5, half
                    np.array([(half + 2) * ex, (L + 2 * ratio) * d]), np.array([1.0, ratio]), sk, cuts=cuts)
     caps = [Cap(1, "inlet", -half * ex, -ex, 1.0), Cap(2, "outlet_1", half * ex, ex, 1.0), Cap(3, "outlet_2", L * d, n_cut, ratio)]
     return case, caps
+
+
+def retrograde_branch(gap: float, back: float = 45.0, phi: float = 160.0, split: float = 40.0, ratio: float = 0.75) -> JunctionCase:
+    """A bifurcation at the origin (parent from -x, radius 1; daughters ``split`` degrees
+    either side of +x, radii 0.8 and 0.75) whose first daughter forks again ``gap`` parent
+    radii on, where a branch (radius ``ratio`` × 0.8) leaves *backwards*: ``back`` degrees
+    from the upstream direction, turned ``phi`` degrees about the daughter from the
+    bifurcation plane's outer side (180: back into the crotch of the first bifurcation).
+
+    As the generator's ``kissing`` feature grows one (g0016 given: 45 degrees from the
+    parent's upstream direction, 2.2 radii from the junction before it, ``phi`` about
+    160). The branch between the two junctions has nodes every 0.8 of its radius."""
+    r0 = 1.0
+    A, B = direction(-split), direction(split)
+    J2 = gap * A
+    n = np.array([0.0, 0.0, 1.0])
+    side = np.cos(np.radians(phi)) * np.cross(A, n) + np.sin(np.radians(phi)) * n
+    R = -np.cos(np.radians(back)) * A + np.sin(np.radians(back)) * side
+    nmid = max(1, int(round(gap / 0.8)) - 1)
+    pts = [np.zeros(3), J2] + [J2 * (k + 1) / (nmid + 1) for k in range(nmid)]
+    radii = [r0, 0.8] + [0.8] * nmid
+    way = [0] + list(range(2, 2 + nmid)) + [1]
+    edges = list(zip(way[:-1], way[1:]))
+    a, b, r = [], [], []
+
+    def add(start, join, d, rd, L):
+        p, e = _chain(start, d, L, 0.8 * rd, len(pts), join)
+        pts.extend(p)
+        edges.extend(e)
+        radii.extend([rd] * len(p))
+        a.append(start)
+        b.append(start + (L + 2 * rd) * d)
+        r.append(rd)
+
+    add(np.zeros(3), 0, np.array([-1.0, 0, 0]), r0, 8.0)
+    add(np.zeros(3), 0, B, 0.75, 8.0)
+    add(J2, 1, A, 0.8, 8.0)
+    add(J2, 1, R, ratio * 0.8, 8.0)
+    a.append(np.zeros(3))
+    b.append(J2)
+    r.append(0.8)
+    sk = Skeleton(np.asarray(pts), np.asarray(radii, float), np.asarray(edges))
+    return JunctionCase(f"retro_{gap:g}_{back:g}_{phi:g}", np.asarray(a), np.asarray(b), np.asarray(r), sk)

@@ -15,7 +15,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from junction_cases import bifurcation, close_junctions, trifurcation, upstream_node
+from junction_cases import bifurcation, close_junctions, direction, furcation, retrograde_branch, trifurcation, upstream_node
 from vmesh.errors import MeshingError
 from vmesh.geometry import skeleton_ops as ops
 from vmesh.geometry import transfinite_curves as curves
@@ -169,3 +169,27 @@ def test_along_edges_alike_in_thin_blocks(built):
     case, blocks = built("bif_15_1", bifurcation, (15, 1))
     sj = fill(case, blocks, CURVED)
     assert sj.min() > 0.05
+
+
+def test_a_branch_leaving_its_parent_backwards_builds_valid_blocks():
+    """A daughter 135 degrees from the parent's downstream direction (45 from upstream, as
+    g0016's kissing branch leaves): the junction scheme takes it on its own."""
+    case = furcation("retro_135", [(direction(0.0), 1.0), (direction(135.0), 0.78)])
+    blocks = build(case)
+    assert blocks.corner_jacobians().min() > 0
+
+
+@pytest.mark.parametrize("gap", [pytest.param(2.2, marks=pytest.mark.xfail(strict=True, raises=MeshingError, reason="issue 17: no room on the short branch")),
+                                 pytest.param(4.0, marks=pytest.mark.slow)])
+def test_a_backwards_branch_next_to_another_junction(gap):
+    """g0016 given's node 50: a branch leaving 45 degrees from upstream, ``gap`` parent
+    radii after the junction before it. At the second junction the separator between the
+    backwards branch and the branch back to the first junction is 22.5 degrees off that
+    branch, so its half-planes run about r / tan(22.5) = 2.4 r along it; with the first
+    junction's half-sections at its other end, 2.2 radii leave no room for the sections
+    between them (blocks at -0.1 to -1.2), 4 radii do. Strict xfail until issue 17 gives
+    such branches a scheme (a merged 4-junction fails too)."""
+    case = retrograde_branch(gap)
+    blocks = build(case)
+    assert blocks.corner_jacobians().min() > 0
+    assert len(blocks.info["junctions"]) == 2

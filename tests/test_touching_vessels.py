@@ -137,3 +137,40 @@ def test_a_bridge_through_the_neck_of_touching_vessels_is_cut():
     assert narrow.degrees[20] == 2
     kept, n = cut_necks(narrow, case.distance)
     assert n == 0 and kept.n_nodes == narrow.n_nodes
+
+
+def _linked(case: JunctionCase, k: int, s: int, shift: float = 0.0) -> tuple[Skeleton, float]:
+    """``case``'s skeleton with one edge from ``K``'s node nearest ``S``'s axis to ``S``'s
+    node nearest that node (``shift`` further along ``S``): the "H" thinning makes where
+    two vessels pass in contact. Returns it and the link's length."""
+    sk = case.skeleton
+    dist = -case.fields(sk.points) + case.r[None]  # each node's distance to each capsule's axis
+    on_k = np.flatnonzero(dist[:, k] < 1e-6)
+    on_s = np.flatnonzero((dist[:, s] < 1e-6) & (sk.degrees == 2))
+    a = on_k[np.argmin(dist[on_k, s])]
+    b = on_s[np.argmin(np.linalg.norm(sk.points[on_s] - sk.points[a] - [0.0, shift, 0.0], axis=1))]
+    return sk.copy(edges=np.r_[sk.edges, [[a, b]]], edge_tags=list(sk.edge_tags) + [()]), float(np.linalg.norm(sk.points[a] - sk.points[b]))
+
+
+def test_a_short_link_between_vessels_passing_in_contact_is_cut():
+    """Generated g0000 extracted: two vessels pass each other in contact and thinning joins
+    them with a short link (an "H": 0.106 between junctions of radius 0.05-0.06, each
+    vessel straight through its junction); the blocks stayed invalid at the two close
+    junctions. The link is cut and the skeleton is the tree again. A link many radii
+    long (an anastomosis) stays, and so does a link whose end is a real bend."""
+    from vmesh.geometry.skeleton.defects import cut_crossing_bridges
+
+    case, k, s = touching(1.2)
+    sk, length = _linked(case, k, s)
+    assert sk.summary()["cycles"] == 1 and length < 1.25 * (0.7 + 1.0)
+    out, n = cut_crossing_bridges(sk)
+    assert n == 1 and out.summary()["cycles"] == 0 and out.n_components == 1
+    np.testing.assert_allclose(out.points, case.skeleton.points)
+    np.testing.assert_array_equal(np.sort(np.sort(out.edges, axis=1), axis=0), np.sort(np.sort(case.skeleton.edges, axis=1), axis=0))
+    # a long link (several radii between the vessels) is a vessel of its own
+    far, length = _linked(case, k, s, shift=5.0)
+    assert length > 1.25 * (0.7 + 1.0)
+    assert cut_crossing_bridges(far)[1] == 0
+    # a link from a vessel's bend is not a crossing: K turns 90 degrees at its end of it
+    bent = sk.copy(points=np.where(np.arange(sk.n_nodes)[:, None] == sk.edges[-1, 0] + 1, sk.points + [0.0, 0.0, 6.0], sk.points))
+    assert cut_crossing_bridges(bent)[1] == 0
