@@ -123,3 +123,30 @@ def test_a_spent_budget_stops_the_build_saying_so():
     sk, dist = tee(2.6)
     with pytest.raises(MeshingError, match="work_budget = 3"):
         build_blocks(sk, dist, None, BlockOptions(work_budget=3))
+
+
+def test_territory_cut_is_kept_across_assemblies_and_gives_the_same_blocks(monkeypatch):
+    """The section rays' territory cut (tubes, ways along the skeleton, each ray's cut) is
+    kept by the builder while its skeleton stays as it is: a build with fix rounds reuses
+    the cuts of the sections that did not move, and its blocks are bit for bit those of a
+    build that clips every ray afresh on every assembly."""
+    from junction_cases import bifurcation
+    from vmesh.geometry import skeleton_ops as ops
+    from vmesh.geometry.blocks.prep import Territory
+    from vmesh.geometry.blocks.sections import _Sections
+
+    case = bifurcation(15, 5)
+    sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
+    kept = build_blocks(sk, case.distance, None, BlockOptions())
+    work = kept.info["work"]
+    assert work["assemblies"] > 1 and work["territory_reused"] > work["territory_cut"] > 0
+
+    def fresh(self):
+        self.topo.territory = Territory(self.topo.branches, self.topo.pos, self.topo.sk.radii, self.topo.sk.edges)
+        return self.topo.territory
+
+    monkeypatch.setattr(_Sections, "_territory", fresh)
+    again = build_blocks(sk, case.distance, None, BlockOptions())
+    assert again.info["work"]["territory_reused"] == 0
+    assert np.array_equal(kept.vertices, again.vertices) and np.array_equal(kept.hexes, again.hexes)
+    assert kept.info["fixes"] == again.info["fixes"]
