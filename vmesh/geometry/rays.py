@@ -243,6 +243,15 @@ class RowCache:
         self.misses += int(len(rows) - found.sum())
         return out, found
 
+    def keep(self, mask_of) -> None:
+        """Drop the rows for which ``mask_of(rows (m, width)) -> (m,) bool`` is False."""
+        rows = np.concatenate([level.rows for level in self._levels])
+        values = np.concatenate([level.values for level in self._levels])
+        keys = np.concatenate([level.keys for level in self._levels])
+        mask = np.asarray(mask_of(rows), bool) if len(rows) else np.zeros(0, bool)
+        self._levels = [_Level(self.width), _Level(self.width)]
+        self._levels[0].add(keys[mask], rows[mask], values[mask])
+
     def add(self, rows: np.ndarray, values: np.ndarray) -> None:
         """Keep ``values`` for ``rows`` (rows not in the cache yet)."""
         rows = np.ascontiguousarray(rows, float)

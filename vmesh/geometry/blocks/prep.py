@@ -305,6 +305,7 @@ class Territory:
         from ..rays import RowCache
 
         self.key = Territory.key_of(branches, pos, radii, edges)
+        self.graph_key = Territory.key_of(branches, np.zeros((0, 3)), radii, edges)  # all but the positions
         self.pos, self.edges = np.array(pos, float), np.array(edges)
         self.Q, self.rq, self.q_node, self.q_off = branch_tubes(branches, self.pos, radii)
         self.tree = cKDTree(self.Q) if len(self.Q) else None
@@ -326,3 +327,40 @@ class Territory:
             h.update(np.ascontiguousarray(br.nodes, np.int64).tobytes())
             h.update(b"|")
         return h.digest()
+
+    def inherit(self, old: "Territory") -> None:
+        """Keep the cuts of ``old`` (the same skeleton with some nodes moved: a junction
+        moved by a fix) that the move cannot change.
+
+        A ray's cut depends on the tube samples within their radius of its points (at most
+        its length from its origin) and on the ways from its section's node out to its
+        reach (length + 2 r + start + 3 r_q + q_off, see :meth:`_Sections._own_territory`);
+        a way through a moved segment is at least as long as the straight way to it. So a
+        ray whose node stayed and whose node lies farther from every moved segment (before
+        and after the move) than its reach plus its start and the largest tube radius cuts
+        as it did."""
+        if old.graph_key != self.graph_key or len(old.cuts) == 0:
+            return
+        moved = np.flatnonzero(np.any(old.pos != self.pos, axis=1))
+        if len(moved) == 0:
+            self.cuts = old.cuts
+            return
+        e = self.edges[np.isin(self.edges, moved).any(axis=1)]
+        a = np.r_[old.pos[e[:, 0]], self.pos[e[:, 0]]]
+        b = np.r_[old.pos[e[:, 1]], self.pos[e[:, 1]]]
+        rq, qo = max(self.rq.max(initial=0.0), old.rq.max(initial=0.0)), max(self.q_off.max(initial=0.0), old.q_off.max(initial=0.0))
+        stayed = np.ones(len(self.pos), bool)
+        stayed[moved] = False
+
+        def unchanged(rows):
+            node = rows[:, 8].astype(np.int64)
+            x = self.pos[node]
+            start = np.linalg.norm(rows[:, :3] - x, axis=1)
+            bound = np.nan_to_num(rows[:, 6]) + 2.0 * rows[:, 7] + 2.0 * start + 4.0 * rq + qo
+            ab = b - a
+            t = np.clip(np.einsum("pkj,kj->pk", x[:, None, :] - a[None], ab) / np.maximum(np.sum(ab * ab, axis=1), 1e-300), 0.0, 1.0)
+            near = np.linalg.norm(x[:, None, :] - (a[None] + t[:, :, None] * ab[None]), axis=2).min(axis=1)
+            return stayed[node] & (near > bound)
+
+        old.cuts.keep(unchanged)
+        self.cuts = old.cuts

@@ -421,12 +421,16 @@ class _Sections:
 
     def _territory(self) -> Territory:
         """The kept :class:`~.prep.Territory` of the current skeleton (a new one when its
-        branches, node positions, radii or segments changed)."""
+        branches, node positions, radii or segments changed; where only some nodes
+        moved, with the cuts of the rays far from them)."""
         sk, branches = self.topo.sk, self.topo.branches
         key = Territory.key_of(branches, self.topo.pos, sk.radii, sk.edges)
         ter = getattr(self.topo, "territory", None)
         if ter is None or ter.key != key:
-            ter = self.topo.territory = Territory(branches, self.topo.pos, sk.radii, sk.edges)
+            new = Territory(branches, self.topo.pos, sk.radii, sk.edges)
+            if ter is not None:
+                new.inherit(ter)  # a junction moved: the cuts far from it stay
+            ter = self.topo.territory = new
         return ter
 
 
