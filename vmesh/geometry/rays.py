@@ -334,12 +334,8 @@ def clip_to_territory(
         Points tested along each ray, bisection steps refining the cut, and tube samples
         asked per point.
     tree : scipy.spatial.cKDTree, optional
-        The tree of the tube samples' points, when the caller keeps one.
-
-    Notes
-    -----
-    Each ray's cut depends on that ray (and the tubes) alone, so the cuts of rays already
-    clipped can be kept and reused (the block builder does, :class:`RowCache`).
+        The tube points' tree, when the caller keeps one (each ray's cut depends on that
+        ray and the tubes alone: the block builder keeps them, :class:`RowCache`).
 
     Returns
     -------
