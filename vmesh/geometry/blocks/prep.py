@@ -353,14 +353,14 @@ class Territory:
         stayed[moved] = False
 
         def unchanged(rows):
-            node = rows[:, 8].astype(np.int64)
+            node, row_of = np.unique(rows[:, 8].astype(np.int64), return_inverse=True)  # per node, not per ray
             x = self.pos[node]
-            start = np.linalg.norm(rows[:, :3] - x, axis=1)
-            bound = np.nan_to_num(rows[:, 6]) + 2.0 * rows[:, 7] + 2.0 * start + 4.0 * rq + qo
             ab = b - a
             t = np.clip(np.einsum("pkj,kj->pk", x[:, None, :] - a[None], ab) / np.maximum(np.sum(ab * ab, axis=1), 1e-300), 0.0, 1.0)
             near = np.linalg.norm(x[:, None, :] - (a[None] + t[:, :, None] * ab[None]), axis=2).min(axis=1)
-            return stayed[node] & (near > bound)
+            start = np.linalg.norm(rows[:, :3] - x[row_of], axis=1)
+            bound = np.nan_to_num(rows[:, 6]) + 2.0 * rows[:, 7] + 2.0 * start + 4.0 * rq + qo
+            return stayed[node][row_of] & (near[row_of] > bound)
 
         old.cuts.keep(unchanged)
         self.cuts = old.cuts

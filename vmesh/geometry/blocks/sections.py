@@ -27,6 +27,10 @@ class _Sections:
         deg = sk.degrees
         old = self.topo.branches or None
         self.topo.branches = []
+        pos, E = self.topo.pos, sk.edges
+        # every segment's length at once: a fix that tries junction moves rebuilds the
+        # branches of the whole tree per try (the same lengths as per branch, bit for bit)
+        length = np.linalg.norm(pos[E[:, 1]] - pos[E[:, 0]], axis=1)
         for n, (nodes, edges) in enumerate(zip(paths, eids)):
             nodes = np.asarray(nodes)
             edges = np.asarray(edges)
@@ -36,8 +40,7 @@ class _Sections:
                 kinds = [JUNCTION if deg[nodes[0]] >= 3 else "end", JUNCTION if deg[nodes[-1]] >= 3 else "end"]
                 if kinds[0] != JUNCTION and kinds[1] == JUNCTION:
                     nodes, edges, kinds = nodes[::-1].copy(), edges[::-1].copy(), kinds[::-1]
-            seg = np.linalg.norm(np.diff(self.topo.pos[nodes], axis=0), axis=1)
-            arc = np.r_[0.0, np.cumsum(seg)]
+            arc = np.r_[0.0, np.cumsum(length[edges])]
             br = _Branch(nodes, edges, kinds, [0, 0], arc, arc.copy(), straighten=np.zeros(len(nodes)))
             if old is not None:
                 br.margin = old[n].margin
