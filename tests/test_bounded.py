@@ -123,3 +123,77 @@ def test_a_spent_budget_stops_the_build_saying_so():
     sk, dist = tee(2.6)
     with pytest.raises(MeshingError, match="work_budget = 3"):
         build_blocks(sk, dist, None, BlockOptions(work_budget=3))
+
+
+def test_territory_cut_is_kept_across_assemblies_and_gives_the_same_blocks(monkeypatch):
+    """The section rays' territory cut (tubes, ways along the skeleton, each ray's cut) is
+    kept by the builder while its skeleton stays as it is: a build with fix rounds reuses
+    the cuts of the sections that did not move, and its blocks are bit for bit those of a
+    build that clips every ray afresh on every assembly."""
+    from junction_cases import bifurcation
+    from vmesh.geometry import skeleton_ops as ops
+    from vmesh.geometry.blocks.prep import Territory
+    from vmesh.geometry.blocks.sections import _Sections
+
+    case = bifurcation(15, 5)
+    sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
+    kept = build_blocks(sk, case.distance, None, BlockOptions())
+    work = kept.info["work"]
+    assert work["assemblies"] > 1 and work["territory_reused"] > work["territory_cut"] > 0
+
+    def fresh(self):
+        self.topo.territory = Territory(self.topo.branches, self.topo.pos, self.topo.sk.radii, self.topo.sk.edges)
+        return self.topo.territory
+
+    monkeypatch.setattr(_Sections, "_territory", fresh)
+    again = build_blocks(sk, case.distance, None, BlockOptions())
+    assert again.info["work"]["territory_reused"] == 0
+    assert np.array_equal(kept.vertices, again.vertices) and np.array_equal(kept.hexes, again.hexes)
+    assert kept.info["fixes"] == again.info["fixes"]
+
+
+def test_territory_cuts_far_from_a_moved_junction_are_kept_and_equal_fresh_ones():
+    """A fix that moves a junction node changes the tubes and ways next to it only: the cuts
+    of rays far from it are kept (:meth:`~vmesh.geometry.blocks.prep.Territory.inherit`),
+    and every cut equals one found afresh on the moved skeleton."""
+    from types import SimpleNamespace
+
+    from test_touching_vessels import touching
+    from vmesh.geometry import cross_sections as cs
+    from vmesh.geometry.blocks.sections import _Sections
+    from vmesh.geometry.blocks.state import _Topology
+    from vmesh.geometry.rays import cast_rays
+    from vmesh.geometry.skeleton.graph import branch_paths
+
+    case, _, _ = touching(1.5)
+    sk = case.skeleton
+
+    class Cut(_Sections):
+        def __init__(self, pos):
+            self.opt = BlockOptions()
+            self.topo = _Topology(sk)
+            self.topo.pos = pos.copy()
+            self.topo.branches = [SimpleNamespace(nodes=np.asarray(p)) for p in branch_paths(sk.n_nodes, sk.edges)]
+
+        def cut(self):
+            idx = [(b, k) for b, br in enumerate(self.topo.branches) for k in range(len(br.nodes))]
+            node = np.array([self.topo.branches[b].nodes[k] for b, k in idx])
+            origin, rad = self.topo.pos[node], sk.radii[node]
+            e1 = cs.any_perpendicular(np.tile([0.3, 0.5, 0.8], (len(node), 1)) / np.linalg.norm([0.3, 0.5, 0.8]))
+            ang = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+            e2 = np.cross(np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8]), e1)
+            dirs = cs.ray_directions(e1, e2, ang)
+            R = cast_rays(case.distance, np.repeat(origin, 8, axis=0), dirs.reshape(-1, 3), np.repeat(rad, 8)).reshape(len(node), 8)
+            return R, self._own_territory(idx, origin, dirs, R, rad)
+
+    kept = Cut(sk.points)
+    R, first = kept.cut()
+    assert np.isfinite(first).all() and np.any(first < R - 0.1)  # rays across the contact are cut
+    moved = sk.points.copy()
+    j = int(sk.junctions[0])
+    moved[j] += 0.3 * sk.radii[j] * np.array([1.0, 0.0, 0.0])
+    kept.topo.pos = moved
+    hits = kept.topo.territory.cuts.hits
+    again = kept.cut()[1]
+    assert kept.topo.territory.cuts.hits > hits  # cuts far from the junction reused
+    assert np.array_equal(again, Cut(moved).cut()[1])

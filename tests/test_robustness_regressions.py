@@ -226,3 +226,45 @@ def test_a_missing_triangle_across_the_wall_is_a_hole_not_an_open_end():
     assert sorted(len(loop) for loop in loops) == [3, n_around, n_around]
     holes = pre.wall_hole_loops(v, f)
     assert [len(h) for h in holes] == [3]  # the two open ends stay open ends
+
+
+def hairpin(turn: float = 141.0, thin: float = 0.87, thick: float = 1.68, lead: float = 15.0, arm: float = 20.0):
+    """BraVa BG0002's inlet (given SWC, node 220): from a junction a thin branch runs ``lead``
+    along +x, widening over its last 6 units to ``thick``, and turns back by ``turn`` degrees
+    into a thick arm to an open end; two thin side branches leave the junction. Resampled,
+    thinned and thinned at sharp bends as ``resample_skeleton`` does; and its signed distance."""
+    from vmesh.geometry.skeleton.bends import thin_sharp_bends
+    from vmesh.geometry.skeleton.sample import resample_skeleton as resample
+
+    t = np.radians(turn)
+    M, C = np.array([lead - 6.0, 0, 0]), np.array([lead, 0, 0.0])
+    P = np.array([[0, 0, 0.0], M, C, C + arm * np.array([np.cos(t), np.sin(t), 0.0]),
+                  10 * np.array([np.cos(np.radians(200)), np.sin(np.radians(200)), 0.0]),
+                  10 * np.array([0.5, 0.0, np.sqrt(0.75)])])
+    sk = Skeleton(P, np.array([thin, thin, thick, thick, thin, thin]), np.array([[0, 1], [1, 2], [2, 3], [0, 4], [0, 5]]))
+    f = np.arange(7) / 6  # the widening as capsules of growing radius
+    a = np.r_[P[[0, 0, 0, 2]], M + f[:-1, None] * (C - M)]
+    b = np.r_[P[[1, 4, 5, 3]], M + f[1:, None] * (C - M)]
+    dist = capsule_distance(a, b, np.r_[thin, thin, thin, thick, thin + f[1:] * (thick - thin)])
+    s, _ = thin_stubs(resample(sk, 1.25, 0.25))
+    return thin_sharp_bends(s, 1.0, dist)[0], dist
+
+
+def test_a_hairpin_corner_is_cut_into_two_nodes():
+    # BraVa given: a corner the bend thinning keeps turns 141 degrees; its mitre section
+    # nearly contains its arms and the blocks to the next section fold (20 stayed invalid
+    # at node 220). Two nodes one radius along the arms turn 70 degrees each.
+    from vmesh.geometry.skeleton.bends import chamfer_hairpins, section_gaps
+
+    sk, dist = hairpin()
+    assert np.degrees(section_gaps(sk)[2].max()) > 135
+    with pytest.raises(MeshingError, match=r"block\(s\) stay invalid"):
+        build_blocks(sk, dist, None, BlockOptions())
+    cut, n = chamfer_hairpins(sk, distance=dist)
+    assert n == 1 and cut.n_nodes == sk.n_nodes + 1 and cut.n_edges == sk.n_edges + 1
+    assert np.degrees(section_gaps(cut)[2].max()) < 90
+    checks = block_structure_checks(build_blocks(cut, dist, None, BlockOptions()))
+    assert checks["invalid_blocks"] == checks["face_use_errors"] == 0 and checks["boundary_euler"] == 2
+    # corners up to a right angle, and corners without room on their arms, stay as they are
+    right, dist = hairpin(85.0)
+    assert chamfer_hairpins(right, distance=dist)[1] == 0

@@ -14,7 +14,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry.rays import RayCache
 from ..geometry.skeleton import clean as sk_clean, distance as sk_distance, graft as sk_graft, graph as sk_graph, sample as sk_sample, tags as sk_tags
-from ..geometry.skeleton.bends import thin_sharp_bends, thin_stubs
+from ..geometry.skeleton.bends import chamfer_hairpins, thin_sharp_bends, thin_stubs
 from ..geometry.skeleton.defects import cut_necks, drop_outside_components, weld_coincident_nodes
 from ..registry import Parameter, register_filter
 
@@ -564,6 +564,10 @@ def resample_skeleton(ctx, spacing, radius_change, smooth_radii, min_segments, m
         skel, thinned = thin_sharp_bends(skel, min_section_gap, distance, intersect_lines=lines, rays=rays)
         if thinned:
             ctx.count(thinned_at_bends=thinned)
+        # a corner left turning past a right angle: its mitre section would lie along its arms
+        skel, chamfered = chamfer_hairpins(skel, distance=distance)
+        if chamfered:
+            ctx.count(chamfered_corners=chamfered)
         ctx.count(bend_rays_cast=rays.misses, bend_rays_reused=rays.hits)
     ctx.skeleton = skel
     ctx.count(nodes_before=before)

@@ -211,13 +211,66 @@ class RayCache:
             self._levels[1] = _Level()
 
 
-class _Level:
-    """Rays sorted by their hash: ``keys`` (uint64), ``rows`` (origin, direction, scale,
-    reach) and ``values`` (the wall distances)."""
+class RowCache:
+    """One float per exact row of floats, found by the rows' hashes (:func:`_row_hashes`):
+    results of a per-ray computation kept across calls whose rays mostly repeat.
 
-    def __init__(self):
+    Parameters
+    ----------
+    width : int
+        Floats per row.
+    limit : int
+        Most rows kept; beyond it the cache starts again empty.
+    """
+
+    def __init__(self, width: int, limit: int = 4_000_000):
+        self.width, self.limit = int(width), int(limit)
+        self.hits = self.misses = 0
+        self._levels = [_Level(self.width), _Level(self.width)]
+
+    def __len__(self) -> int:
+        return sum(len(level.keys) for level in self._levels)
+
+    def find(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(values (n,), found (n,) bool)`` of ``rows`` (n, width); ``nan`` where not found."""
+        rows = np.ascontiguousarray(rows, float)
+        h = _row_hashes(rows)
+        out = np.full(len(rows), np.nan)
+        found = np.zeros(len(rows), bool)
+        for level in self._levels:
+            level.find(h, rows, out, found)
+        self.hits += int(found.sum())
+        self.misses += int(len(rows) - found.sum())
+        return out, found
+
+    def keep(self, mask_of) -> None:
+        """Drop the rows for which ``mask_of(rows (m, width)) -> (m,) bool`` is False."""
+        rows = np.concatenate([level.rows for level in self._levels])
+        values = np.concatenate([level.values for level in self._levels])
+        keys = np.concatenate([level.keys for level in self._levels])
+        mask = np.asarray(mask_of(rows), bool) if len(rows) else np.zeros(0, bool)
+        self._levels = [_Level(self.width), _Level(self.width)]
+        self._levels[0].add(keys[mask], rows[mask], values[mask])
+
+    def add(self, rows: np.ndarray, values: np.ndarray) -> None:
+        """Keep ``values`` for ``rows`` (rows not in the cache yet)."""
+        rows = np.ascontiguousarray(rows, float)
+        if len(self) + len(rows) > self.limit:
+            self._levels = [_Level(self.width), _Level(self.width)]
+        main, recent = self._levels
+        recent.add(_row_hashes(rows), rows, np.asarray(values, float))
+        if 8 * len(recent.keys) > len(main.keys):  # merged rarely: see RayCache._clear
+            main.add(recent.keys, recent.rows, recent.values)
+            self._levels[1] = _Level(self.width)
+
+
+class _Level:
+    """Rays sorted by their hash: ``keys`` (uint64), ``rows`` (the exact key, e.g. origin,
+    direction, scale, reach) and ``values`` (e.g. the wall distances)."""
+
+    def __init__(self, width: int = 8):
         self.keys = np.zeros(0, np.uint64)
-        self.rows = np.zeros((0, 8))
+        self.rows = np.zeros((0, width))
         self.values = np.zeros(0)
 
     def find(self, h, rows, out, found) -> None:
@@ -248,6 +301,7 @@ def clip_to_territory(
     samples: int = 8,
     iterations: int = 10,
     neighbours: int = 12,
+    tree=None,
 ) -> np.ndarray:
     """Shorten wall rays where they cross from their own vessel into another one.
 
@@ -279,6 +333,9 @@ def clip_to_territory(
     samples, iterations, neighbours : int
         Points tested along each ray, bisection steps refining the cut, and tube samples
         asked per point.
+    tree : scipy.spatial.cKDTree, optional
+        The tube points' tree, when the caller keeps one (each ray's cut depends on that
+        ray and the tubes alone: the block builder keeps them, :class:`RowCache`).
 
     Returns
     -------
@@ -292,7 +349,7 @@ def clip_to_territory(
     live = np.flatnonzero(np.isfinite(out) & (out > radius))
     if len(live) == 0 or len(Q) == 0:
         return out
-    tree = cKDTree(Q)
+    tree = cKDTree(Q) if tree is None else tree
     k = min(neighbours, len(Q))
 
     def beyond(rays, t):

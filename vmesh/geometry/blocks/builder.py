@@ -277,6 +277,8 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _Stubs):
         blocks.info.update(self.built.info)
         blocks.info["fixes"] = list(self.fixes)
         blocks.info["work"] = self.work.summary()
+        if self.topo.territory is not None:  # the section rays' territory cut, kept across assemblies
+            blocks.info["work"].update(territory_cut=self.topo.territory.cuts.misses, territory_reused=self.topo.territory.cuts.hits)
         self.tick(1.0, "done")
         return blocks
 

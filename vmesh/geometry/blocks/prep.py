@@ -202,14 +202,19 @@ def branch_tubes(branches, pos: np.ndarray, radii: np.ndarray, spacing: float = 
 
 class SkeletonWays:
     """Distances along the skeleton between its nodes (shortest paths over its segments),
-    found from each source node once, out to ``limit``.
+    found from each source node out to the reach its queries need.
+
+    Each source is searched once (again, further, only when a later query needs more
+    reach), with the sources of one call batched by the reach they need, so that a large
+    tree's sources each explore their own neighbourhood, not the whole tree out to the
+    longest reach any one of them needs.
 
     Parameters
     ----------
     edges : (e, 2) int
     pos : (n, 3) node positions.
     limit : float
-        Ways longer than this are ``inf``.
+        Default reach: ways longer than this are ``inf`` unless a query asks further.
     """
 
     def __init__(self, edges: np.ndarray, pos: np.ndarray, limit: float):
@@ -220,30 +225,142 @@ class SkeletonWays:
         self.graph = coo_matrix((np.maximum(w, 1e-12), (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
         self.limit = float(limit)
         self.n = n
-        self.done = np.zeros(n, bool)
-        # the finite ways found so far, keyed src * n + dst and sorted: a large tree's
-        # sources reach few nodes within the limit, so dense rows would be mostly inf
-        self.keys = np.empty(0, np.int64)
-        self.ways = np.empty(0)
+        self.reach = np.full(n, -1.0)  # how far each source was searched (-1: not yet)
+        # the finite ways found, keyed src * n + dst, in two sorted levels (the recent
+        # searches apart until they are an eighth of the rest, as rays.RayCache): a large
+        # tree's sources reach few nodes, so dense rows would be mostly inf, and re-sorting
+        # every way found on every call was the cost
+        self.levels = [(np.empty(0, np.int64), np.empty(0)), (np.empty(0, np.int64), np.empty(0))]
 
-    def __call__(self, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-        """(k,) way from node ``src[i]`` to node ``dst[i]``."""
+    def _search(self, src: np.ndarray, reach: np.ndarray) -> None:
+        """Search from each ``src`` (unique) out to its ``reach``, in chunks of sources of
+        similar reach."""
         from scipy.sparse.csgraph import dijkstra
 
-        src, dst = np.asarray(src, np.int64), np.asarray(dst, np.int64)
-        new = np.unique(src[~self.done[src]])
-        keys, ways = [self.keys], [self.ways]
-        for chunk in np.array_split(new, -(-len(new) // 256)) if len(new) else ():  # bounded (256, n) blocks
-            d = dijkstra(self.graph, directed=False, indices=chunk, limit=self.limit)
+        order = np.argsort(reach, kind="stable")
+        src, reach = src[order], reach[order]
+        keys, ways = [], []
+        for lo in range(0, len(src), 256):  # bounded (256, n) blocks
+            chunk, lim = src[lo:lo + 256], float(reach[lo:lo + 256].max())
+            d = dijkstra(self.graph, directed=False, indices=chunk, limit=lim)
             r, c = np.nonzero(np.isfinite(d))
             keys.append(chunk[r] * self.n + c)
             ways.append(d[r, c])
-        if len(new):
-            self.done[new] = True
-            k, v = np.concatenate(keys), np.concatenate(ways)
-            order = np.argsort(k, kind="stable")
-            self.keys, self.ways = k[order], v[order]
+            self.reach[chunk] = lim
+        k, v = np.concatenate(keys), np.concatenate(ways)
+        main, recent = self.levels
+        k, v = np.concatenate([recent[0], k]), np.concatenate([recent[1], v])
+        if 8 * len(k) > len(main[0]):
+            k, v = np.concatenate([main[0], k]), np.concatenate([main[1], v])
+            main = (np.empty(0, np.int64), np.empty(0))
+        # a source searched again further: its newer (longer) row last, found first below
+        o = np.argsort(k, kind="stable")
+        self.levels = [main, (k[o], v[o])]
+
+    def __call__(self, src: np.ndarray, dst: np.ndarray, reach=None) -> np.ndarray:
+        """(k,) way from node ``src[i]`` to node ``dst[i]``: exact where it is at most
+        ``reach[i]`` (default: the ``limit``), else exact or ``inf``."""
+        src, dst = np.asarray(src, np.int64), np.asarray(dst, np.int64)
+        need = np.broadcast_to(np.asarray(self.limit if reach is None else reach, float), src.shape)
+        short = need > self.reach[src]
+        if short.any():
+            s, inv = np.unique(src[short], return_inverse=True)
+            most = np.zeros(len(s))
+            np.maximum.at(most, inv, need[short])
+            # a quarter more than asked: a source asked again a little further is not searched again
+            self._search(s, np.maximum(1.25 * most, self.limit))
         q = src * self.n + dst
-        i = np.minimum(np.searchsorted(self.keys, q), max(len(self.keys) - 1, 0))
-        hit = (self.keys[i] == q) if len(self.keys) else np.zeros(len(q), bool)
-        return np.where(hit, self.ways[i] if len(self.keys) else np.inf, np.inf)
+        out = np.full(len(q), np.inf)
+        for keys, ways in reversed(self.levels):  # the recent level first
+            if len(keys) == 0:
+                continue
+            i = np.searchsorted(keys, q, side="right") - 1  # the last of equal keys: the latest search
+            hit = (i >= 0) & np.isinf(out)
+            hit[hit] = keys[i[hit]] == q[hit]
+            out[hit] = ways[i[hit]]
+        return out
+
+
+class Territory:
+    """What the section rays' territory cut (:meth:`_Sections._own_territory`) needs from
+    the skeleton, kept while the skeleton does not change.
+
+    A builder assembles the whole tree on every fix round, but its branches, node
+    positions and radii mostly stay as they were (only junction moves and splits change
+    them): the tube samples (:func:`branch_tubes`) and their tree, the ways along the
+    skeleton (:class:`SkeletonWays`) and the cut of every ray already clipped (each ray's cut
+    depends only on the ray, its section's node and the skeleton) are found once.
+
+    Parameters
+    ----------
+    branches : list of _Branch
+    pos : (n, 3) node positions.
+    radii : (n,) node radii.
+    edges : (e, 2) int
+    """
+
+    def __init__(self, branches, pos: np.ndarray, radii: np.ndarray, edges: np.ndarray):
+        from scipy.spatial import cKDTree
+
+        from ..rays import RowCache
+
+        self.key = Territory.key_of(branches, pos, radii, edges)
+        self.graph_key = Territory.key_of(branches, np.zeros((0, 3)), radii, edges)  # all but the positions
+        self.pos, self.edges = np.array(pos, float), np.array(edges)
+        self.Q, self.rq, self.q_node, self.q_off = branch_tubes(branches, self.pos, radii)
+        self.tree = cKDTree(self.Q) if len(self.Q) else None
+        self.ways = SkeletonWays(self.edges, self.pos, 0.0)  # searched as far as each source's rays need
+        # ray origin (3), direction (3), length, radius, section node -> cut length
+        self.cuts = RowCache(9)
+
+    @staticmethod
+    def key_of(branches, pos: np.ndarray, radii: np.ndarray, edges: np.ndarray) -> bytes:
+        """A digest of everything the territory depends on (exact bytes)."""
+        import hashlib
+
+        h = hashlib.blake2b(digest_size=16)
+        for a in (pos, radii, edges):
+            a = np.ascontiguousarray(a)
+            h.update(str((a.dtype, a.shape)).encode())
+            h.update(a.tobytes())
+        for br in branches:
+            h.update(np.ascontiguousarray(br.nodes, np.int64).tobytes())
+            h.update(b"|")
+        return h.digest()
+
+    def inherit(self, old: "Territory") -> None:
+        """Keep the cuts of ``old`` (the same skeleton with some nodes moved: a junction
+        moved by a fix) that the move cannot change.
+
+        A ray's cut depends on the tube samples within their radius of its points (at most
+        its length from its origin) and on the ways from its section's node out to its
+        reach (length + 2 r + start + 3 r_q + q_off, see :meth:`_Sections._own_territory`);
+        a way through a moved segment is at least as long as the straight way to it. So a
+        ray whose node stayed and whose node lies farther from every moved segment (before
+        and after the move) than its reach plus its start and the largest tube radius cuts
+        as it did."""
+        if old.graph_key != self.graph_key or len(old.cuts) == 0:
+            return
+        moved = np.flatnonzero(np.any(old.pos != self.pos, axis=1))
+        if len(moved) == 0:
+            self.cuts = old.cuts
+            return
+        e = self.edges[np.isin(self.edges, moved).any(axis=1)]
+        a = np.r_[old.pos[e[:, 0]], self.pos[e[:, 0]]]
+        b = np.r_[old.pos[e[:, 1]], self.pos[e[:, 1]]]
+        rq, qo = max(self.rq.max(initial=0.0), old.rq.max(initial=0.0)), max(self.q_off.max(initial=0.0), old.q_off.max(initial=0.0))
+        stayed = np.ones(len(self.pos), bool)
+        stayed[moved] = False
+
+        def unchanged(rows):
+            node, row_of = np.unique(rows[:, 8].astype(np.int64), return_inverse=True)  # per node, not per ray
+            x = self.pos[node]
+            ab = b - a
+            t = np.clip(np.einsum("pkj,kj->pk", x[:, None, :] - a[None], ab) / np.maximum(np.sum(ab * ab, axis=1), 1e-300), 0.0, 1.0)
+            near = np.linalg.norm(x[:, None, :] - (a[None] + t[:, :, None] * ab[None]), axis=2).min(axis=1)
+            start = np.linalg.norm(rows[:, :3] - x[row_of], axis=1)
+            bound = np.nan_to_num(rows[:, 6]) + 2.0 * rows[:, 7] + 2.0 * start + 4.0 * rq + qo
+            return stayed[node][row_of] & (near[row_of] > bound)
+
+        old.cuts.keep(unchanged)
+        self.cuts = old.cuts

@@ -10,7 +10,7 @@ from .. import cross_sections as cs
 from .checks import _Failure
 from .options import CLOSED, CYCLE, JUNCTION, OPEN, _Branch
 from ..skeleton.graph import polyline_at
-from .prep import SkeletonWays, branch_tubes, endpoint_caps, redistribute_sections
+from .prep import Territory, endpoint_caps, redistribute_sections
 from ..rays import clip_to_territory
 
 
@@ -33,6 +33,10 @@ class _Sections:
         deg = sk.degrees
         old = self.topo.branches or None
         self.topo.branches = []
+        pos, E = self.topo.pos, sk.edges
+        # every segment's length at once: a fix that tries junction moves rebuilds the
+        # branches of the whole tree per try (the same lengths as per branch, bit for bit)
+        length = np.linalg.norm(pos[E[:, 1]] - pos[E[:, 0]], axis=1)
         for n, (nodes, edges) in enumerate(zip(paths, eids)):
             nodes = np.asarray(nodes)
             edges = np.asarray(edges)
@@ -42,8 +46,7 @@ class _Sections:
                 kinds = [JUNCTION if deg[nodes[0]] >= 3 else "end", JUNCTION if deg[nodes[-1]] >= 3 else "end"]
                 if kinds[0] != JUNCTION and kinds[1] == JUNCTION:
                     nodes, edges, kinds = nodes[::-1].copy(), edges[::-1].copy(), kinds[::-1]
-            seg = np.linalg.norm(np.diff(self.topo.pos[nodes], axis=0), axis=1)
-            arc = np.r_[0.0, np.cumsum(seg)]
+            arc = np.r_[0.0, np.cumsum(length[edges])]
             br = _Branch(nodes, edges, kinds, [0, 0], arc, arc.copy(), straighten=np.zeros(len(nodes)))
             if old is not None:
                 br.margin = old[n].margin
@@ -426,26 +429,65 @@ class _Sections:
         (:func:`~vmesh.geometry.rays.clip_to_territory`): a skeleton point is foreign to a
         section when the way to it along the skeleton is longer than the straight way by
         more than twice both radii (another vessel that touches this one, or this one
-        curled back onto itself), not a neighbour along the tree."""
+        curled back onto itself), not a neighbour along the tree.
+
+        The skeleton's tubes and ways and the cuts of rays clipped before are kept while
+        the skeleton stays as it is (:class:`~.prep.Territory`): a fix round that moves a
+        few sections clips only their rays."""
         if not self.opt.section.own_territory:
             return R
+        ter = self._territory()
+        if ter.tree is None:
+            return R
         na = R.shape[1]
-        Q, rq, q_node, q_off = branch_tubes(self.topo.branches, self.topo.pos, self.topo.sk.radii)
+        Q, rq, q_node, q_off = ter.Q, ter.rq, ter.q_node, ter.q_off
         node = np.array([self.topo.branches[b].nodes[k] for b, k in idx])
         o = np.repeat(origin, na, axis=0)
+        d = dirs.reshape(-1, 3)
         r = np.repeat(rad, na)
         lengths = R.ravel()
-        # a way longer than any ray's straight way plus both radii is foreign anyway
-        ways = SkeletonWays(self.topo.sk.edges, self.topo.pos, np.nanmax(lengths, initial=0.0) + 3.0 * (rad.max() + rq.max()))
-        start = np.linalg.norm(origin - self.topo.pos[node], axis=1)
+        rows = np.column_stack([o, d, lengths, r, np.repeat(node, na)])
+        out, found = ter.cuts.find(rows)
+        miss = np.flatnonzero(~found)
+        if len(miss) == 0:
+            return out.reshape(R.shape)
+        sec = miss // na
+        start = np.linalg.norm(origin[sec] - self.topo.pos[node[sec]], axis=1)
+        # A way longer than ``need`` is foreign whatever its value: a tested sample lies
+        # within its radius of a point on the ray, so its straight way is at most the ray's
+        # length plus its radius, and the way along the skeleton less the sample's and the
+        # section's offsets would still exceed it by both radii twice. Ways beyond the reach
+        # may read inf, and any longer reach gives the same cuts: each ray's cut depends on
+        # that ray alone (and is kept), and each section's node is searched only as far as
+        # its own rays need.
+        reach = np.nan_to_num(lengths[miss]) + 2.0 * r[miss] + start  # + the sample's 3 rq + q_off
+        ways = ter.ways
 
         def foreign(rays, samples):
-            sec = rays // na
             # the least the way from the section's centre to the sample can be
-            way = ways(node[sec], q_node[samples]) - q_off[samples] - start[sec]
-            return way > np.linalg.norm(o[rays] - Q[samples], axis=1) + 2.0 * (r[rays] + rq[samples])
+            need = reach[rays] + 3.0 * rq[samples] + q_off[samples]
+            way = ways(node[sec[rays]], q_node[samples], need) - q_off[samples] - start[rays]
+            return way > np.linalg.norm(o[miss[rays]] - Q[samples], axis=1) + 2.0 * (r[miss[rays]] + rq[samples])
 
-        return clip_to_territory(o, dirs.reshape(-1, 3), lengths, r, foreign, (Q, rq)).reshape(R.shape)
+        out[miss] = clip_to_territory(o[miss], d[miss], lengths[miss], r[miss], foreign, (Q, rq), tree=ter.tree)
+        keep = miss[np.isfinite(lengths[miss])]  # nan never matches a row: not kept
+        ter.cuts.add(rows[keep], out[keep])
+        return out.reshape(R.shape)
+
+
+    def _territory(self) -> Territory:
+        """The kept :class:`~.prep.Territory` of the current skeleton (a new one when its
+        branches, node positions, radii or segments changed; where only some nodes
+        moved, with the cuts of the rays far from them)."""
+        sk, branches = self.topo.sk, self.topo.branches
+        key = Territory.key_of(branches, self.topo.pos, sk.radii, sk.edges)
+        ter = getattr(self.topo, "territory", None)
+        if ter is None or ter.key != key:
+            new = Territory(branches, self.topo.pos, sk.radii, sk.edges)
+            if ter is not None:
+                new.inherit(ter)  # a junction moved: the cuts far from it stay
+            ter = self.topo.territory = new
+        return ter
 
 
     def _dome_cap(self, n: int, node: int, c: np.ndarray, V: np.ndarray, d: np.ndarray, rad: float, layer: float, core: float) -> dict:

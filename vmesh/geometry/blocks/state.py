@@ -23,6 +23,7 @@ class _Topology:
     branches: list = field(default_factory=list)  # _Branch per path
     junctions: dict = field(default_factory=dict)  # node -> _Junction
     crowded: set = field(default_factory=set)  # branches between two junctions that ever lacked room
+    territory: object = None  # the kept prep.Territory of the section rays' cut (keyed by the skeleton)
 
 
 @dataclass

@@ -159,6 +159,87 @@ def thin_sharp_bends(skeleton: Skeleton, min_gap: float = 1.0, distance=None, bi
     return sk, removed
 
 
+def chamfer_hairpins(skeleton: Skeleton, max_turn: float = 90.0, distance=None, depth: float = 0.2) -> tuple[Skeleton, int]:
+    """Cut the corner of every node that turns by more than ``max_turn`` degrees into two.
+
+    A corner keeps one mitre cross-section (:func:`thin_sharp_bends`), in the plane that
+    bisects its two segments; past a right angle that plane lies closer to each segment
+    than square to it (it tilts by more than 45 degrees, towards containing both arms at a
+    hairpin), and the blocks between it and the next section fold across the arm. The
+    corner ``C`` with neighbours ``A`` and ``B`` is replaced by two nodes, one on each arm,
+    one radius ``r_C`` from ``C``: each turns by half as much, so their planes tilt by at
+    most 45 degrees, and the segment between them crosses the bend's wide lumen. Only where
+    both arms are at least two radii long (room for a block beyond the new nodes), with
+    ``distance`` (signed, positive inside) only where both nodes and the segment between
+    them stay ``depth`` × ``r_C`` inside the wall, and not two neighbours at once. A turn
+    near 180 degrees still leaves two 80-90 degree corners: better, not always valid.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+        Resampled (and thinned at sharp bends), with radii.
+    max_turn : float
+        Largest turn a node keeps, in degrees.
+    distance : callable, optional
+        Signed distance, positive inside.
+    depth : float
+        Least depth of the new nodes and their segment, × the corner's radius.
+
+    Returns
+    -------
+    skeleton : Skeleton
+    n_chamfered : int
+    """
+    sk = skeleton
+    if sk.n_edges == 0:
+        return sk.copy(), 0
+    turn = section_gaps(sk)[2]
+    corner = np.flatnonzero((sk.degrees == 2) & (turn > np.radians(max_turn)))
+    if len(corner) == 0:
+        return sk.copy(), 0
+    E = sk.edges
+    at = np.r_[E[:, 0], E[:, 1]]
+    other = np.r_[E[:, 1], E[:, 0]]
+    seg = np.r_[np.arange(len(E)), np.arange(len(E))]
+    order = np.argsort(at, kind="stable")
+    start = np.searchsorted(at[order], corner)
+    a, b = other[order][start], other[order][start + 1]
+    eb = seg[order][start + 1]  # the segment C-B, which B's new node takes over
+    P, r = sk.points, sk.radii[corner]
+    ua, ub = P[a] - P[corner], P[b] - P[corner]
+    la, lb = np.linalg.norm(ua, axis=1), np.linalg.norm(ub, axis=1)
+    h = r
+    ok = np.minimum(la, lb) >= 2.0 * h  # arms that leave room beyond the new nodes
+    c1 = P[corner] + (h / la)[:, None] * ua
+    c2 = P[corner] + (h / lb)[:, None] * ub
+    if distance is not None:
+        f = np.linspace(0.0, 1.0, 5)
+        probe = c1[:, None] * (1 - f)[None, :, None] + c2[:, None] * f[None, :, None]
+        deep = np.asarray(distance(probe.reshape(-1, 3)), float).reshape(len(corner), -1).min(axis=1)
+        ok &= deep >= depth * r
+    # not two neighbouring corners at once (the second would move a node the first keeps)
+    taken = np.zeros(sk.n_nodes, bool)
+    for i in np.flatnonzero(ok):  # the corners only: a handful per tree
+        if taken[a[i]] or taken[b[i]]:
+            ok[i] = False
+            continue
+        taken[corner[i]] = True
+    corner, b, eb, c1, c2 = corner[ok], b[ok], eb[ok], c1[ok], c2[ok]
+    if len(corner) == 0:
+        return sk.copy(), 0
+    n, m = sk.n_nodes, len(corner)
+    new = n + np.arange(m)
+    points = np.vstack([P, c2])
+    points[corner] = c1
+    edges = E.copy()
+    edges[eb] = np.where(edges[eb] == corner[:, None], new[:, None], edges[eb])
+    edges = np.vstack([edges, np.c_[corner, new]])
+    node_tags = list(sk.node_tags) + [sk.node_tags[c] for c in corner.tolist()] if sk.node_tags else []
+    edge_tags = list(sk.edge_tags) + [sk.edge_tags[k] for k in eb.tolist()] if sk.edge_tags else []
+    out = Skeleton(points, np.r_[sk.radii, sk.radii[corner]], edges, node_tags, edge_tags, name=sk.name)
+    return out, m
+
+
 def _bridgeable(sk: Skeleton, pick: np.ndarray, distance) -> np.ndarray:
     """The nodes of ``pick`` (all with two neighbours) that may go in one round: no two
     neighbours, no bridge that doubles a segment, and (with ``distance``) a bridge that stays
