@@ -70,6 +70,23 @@ class JunctionCase:
         return x
 
 
+def _branch_adder(pts: list, edges: list, radii: list, a: list, b: list, r: list):
+    """``add(start, join, d, rd, L)``: a branch of radius ``rd`` and length ``L`` from
+    ``start`` (joined to node ``join``) along ``d``, appended to the skeleton lists and to
+    the tube lists ``a``, ``b``, ``r`` (axis start, end past the tip, radius)."""
+
+    def add(start, join, d, rd, L):
+        p, e = _chain(start, d, L, 0.8 * rd, len(pts), join)
+        pts.extend(p)
+        edges.extend(e)
+        radii.extend([rd] * len(p))
+        a.append(start)
+        b.append(start + (L + 2 * rd) * d)
+        r.append(rd)
+
+    return add
+
+
 def _chain(start: np.ndarray, d: np.ndarray, length: float, spacing: float, first_id: int, join: int):
     """Skeleton nodes every ``spacing`` from ``start`` along ``d`` (excluding ``start``)."""
     n = max(2, int(round(length / spacing)))
@@ -114,14 +131,7 @@ def close_junctions(gap: float, angle: float = 40.0, side: tuple = (90.0, 30.0))
     radii = [r0, 0.9 * r0]
     a, b, r = [], [], []
 
-    def add(start, join, d, rd, L):
-        p, e = _chain(start, d, L, 0.8 * rd, len(pts), join)
-        pts.extend(p)
-        edges.extend(e)
-        radii.extend([rd] * len(p))
-        a.append(start)
-        b.append(start + (L + 2 * rd) * d)
-        r.append(rd)
+    add = _branch_adder(pts, edges, radii, a, b, r)
 
     add(np.zeros(3), 0, np.array([-1.0, 0, 0]), r0, 8.0)
     add(np.zeros(3), 0, direction(*side), 0.6 * r0, 6.0)
@@ -236,14 +246,7 @@ def retrograde_branch(gap: float, back: float = 45.0, phi: float = 160.0, split:
     edges = list(zip(way[:-1], way[1:]))
     a, b, r = [], [], []
 
-    def add(start, join, d, rd, L):
-        p, e = _chain(start, d, L, 0.8 * rd, len(pts), join)
-        pts.extend(p)
-        edges.extend(e)
-        radii.extend([rd] * len(p))
-        a.append(start)
-        b.append(start + (L + 2 * rd) * d)
-        r.append(rd)
+    add = _branch_adder(pts, edges, radii, a, b, r)
 
     add(np.zeros(3), 0, np.array([-1.0, 0, 0]), r0, 8.0)
     add(np.zeros(3), 0, B, 0.75, 8.0)

@@ -441,6 +441,8 @@ def escobar_sum(X, hexes, scale, delta, grad):
             a = (2.0 / 3.0) * hp
             b = (2.0 / 9.0) * F * hp / r
             # d f / d edge = a e - b (cofactor row of that edge), times the edge's scale
+            # duplicates: the three edges' scatters are unrolled on purpose (scalars in registers; a helper taking
+            # the gradient array per edge costs the inlined kernel its speed)
             gx, gy, gz = (a * e00 - b * C0x) * s0, (a * e01 - b * C0y) * s0, (a * e02 - b * C0z) * s0
             grad[a1, 0] += gx
             grad[a1, 1] += gy
