@@ -291,10 +291,17 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _Stubs):
         Such a trial (a first section moved further along a branch that runs beside
         another vessel, say) is a placement not to take, not a reason to fail a structure
         that is already valid."""
-        saved = copy.deepcopy((self.topo, self.local, self.placed, self.frames, self.built, self.fixes))
+        # the territory cache is keyed by the skeleton it was made for, so the live one serves
+        # the restored state too: not copied (on a large tree it holds a tree of tube samples)
+        territory, self.topo.territory = self.topo.territory, None
+        try:
+            saved = copy.deepcopy((self.topo, self.local, self.placed, self.frames, self.built, self.fixes))
+        finally:
+            self.topo.territory = territory
         try:
             return step(blocks)
         except MeshingError as exc:
+            saved[0].territory = self.topo.territory
             self.topo, self.local, self.placed, self.frames, self.built, self.fixes = saved
             self.fixes.append(f"kept the valid blocks as they were: a trial placement of {step.__name__} could not be built ({exc})")
             return blocks
