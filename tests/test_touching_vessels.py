@@ -174,3 +174,30 @@ def test_a_short_link_between_vessels_passing_in_contact_is_cut():
     # a link from a vessel's bend is not a crossing: K turns 90 degrees at its end of it
     bent = sk.copy(points=np.where(np.arange(sk.n_nodes)[:, None] == sk.edges[-1, 0] + 1, sk.points + [0.0, 0.0, 6.0], sk.points))
     assert cut_crossing_bridges(bent)[1] == 0
+
+
+def test_a_stenosis_on_a_loop_is_not_cut_as_a_neck():
+    """A loop vessel (a circle of Willis) with a 70 % stenosis: its throat node is narrower
+    than half its neighbours and the chord between them runs as shallow as through a
+    contact, but the skeleton follows the vessel's axis through it: the loop stays closed
+    (cutting it would leave the stenosed segment out of the mesh)."""
+    from vmesh.geometry.skeleton.defects import cut_necks
+
+    R, r0, w = 10.0, 1.0, 0.12
+
+    def radius(th):
+        d = np.angle(np.exp(1j * th))
+        return r0 * (1.0 - 0.7 * np.exp(-((d / w) ** 2)))
+
+    def distance(p):
+        p = np.asarray(p, float)
+        th = np.arctan2(p[:, 1], p[:, 0])
+        ring = np.c_[R * np.cos(th), R * np.sin(th), np.zeros(len(th))]
+        return radius(th) - np.linalg.norm(p - ring, axis=1)
+
+    n = int(round(2 * np.pi * R / r0))
+    th = 2 * np.pi * np.arange(n) / n
+    sk = Skeleton(np.c_[R * np.cos(th), R * np.sin(th), np.zeros(n)], radius(th), np.c_[np.arange(n), (np.arange(n) + 1) % n])
+    assert sk.radii[0] < 0.5 * sk.radii[1] and sk.summary()["cycles"] == 1
+    out, cut = cut_necks(sk, distance)
+    assert cut == 0 and out.n_nodes == n and out.summary()["cycles"] == 1

@@ -237,6 +237,30 @@ def cut_crossing_bridges(skeleton: Skeleton, reach: float = 1.25, straight: floa
     return sk, 0
 
 
+def _straightest_turn(sk: Skeleton, c: int, nb) -> float:
+    """The largest turn, in degrees, of the path ``a - c - b`` (``nb = (a, b)``) at ``a``, ``c``
+    and ``b``, each end continuing along its straightest other segment (0 where it has none).
+
+    A skeleton link into a touching vessel leaves each vessel's axis sideways, towards the
+    contact on its wall (turns near a right angle at ``a`` or ``b``); the throat of a
+    stenosis lies on its vessel's axis, which the path follows (small turns): the same
+    narrow node with two lumen groups (:func:`_lumen_groups` sees a throat narrower than
+    half its neighbours as shallow as a contact), told apart by the way the path runs."""
+    P = sk.points
+
+    def angle(u, v):
+        cos = float(u @ v) / max(float(np.linalg.norm(u) * np.linalg.norm(v)), 1e-300)
+        return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+    a, b = int(nb[0]), int(nb[1])
+    turns = [angle(P[c] - P[a], P[b] - P[c])]
+    for end, nxt in ((a, c), (b, c)):
+        others = [int(o) for o in sk.neighbors(end) if int(o) != nxt]
+        if others:
+            turns.append(min(angle(P[end] - P[o], P[nxt] - P[end]) for o in others))
+    return max(turns)
+
+
 def _cut_neck_links(skeleton: Skeleton, distance) -> tuple[Skeleton, int]:
     """Remove the nodes of a skeleton's cycles that sit in the neck where two vessels touch.
 
@@ -261,6 +285,8 @@ def _cut_neck_links(skeleton: Skeleton, distance) -> tuple[Skeleton, int]:
             continue
         if len(np.unique(_lumen_groups(sk.points[nb], sk.radii[nb], distance))) < 2:
             continue  # a narrowing that the lumen runs through
+        if _straightest_turn(sk, c, nb) <= 45.0:
+            continue  # the path runs on along its vessels' axes: a stenosis (on a loop), not a link
         cut = remove_nodes(sk, np.arange(sk.n_nodes) == c, bridge=False)
         if cut.n_components > sk.n_components:
             continue  # the only way between two parts: a stenosis, not a link
