@@ -149,3 +149,24 @@ def test_batch_row_diagnostics_leave_the_staging_folder(tmp_path):
     assert (tmp_path / "row.failed" / "failure.log").is_file() and not left.exists()
     assert error == f"step 9: see {tmp_path / 'row.failed'}/invalid_blocks.vtu"
     assert _keep_row_diagnostics(tmp_path / "other", tmp_path / "other.failed", "x") == "x"
+
+
+def test_a_stop_lost_in_a_finaliser_is_sent_again(monkeypatch):
+    """A signal whose handler runs inside a ``__del__`` (llvmlite's, while numba compiles)
+    raises where Python can only print "Exception ignored" and go on: the command line's
+    unraisable hook sends the signal again (the run then stops at its next step) and prints
+    no traceback; other finaliser errors are silent unless --debug."""
+    import types
+
+    from vmesh import cli
+    from vmesh.errors import Stopped
+
+    sent, printed = [], []
+    monkeypatch.setattr(cli.os, "kill", lambda pid, sig: sent.append(sig))
+    hook = cli._unraisable_hook(printed.append, debug=False)
+    hook(types.SimpleNamespace(exc_value=Stopped("SIGTERM", signal.SIGTERM)))
+    hook(types.SimpleNamespace(exc_value=KeyboardInterrupt()))
+    hook(types.SimpleNamespace(exc_value=ValueError("in a finaliser")))
+    assert sent == [signal.SIGTERM, signal.SIGINT] and printed == []
+    cli._unraisable_hook(printed.append, debug=True)(types.SimpleNamespace(exc_value=ValueError("x")))
+    assert len(printed) == 1

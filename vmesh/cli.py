@@ -147,6 +147,7 @@ def main(argv=None) -> int:
         parser.print_help()
         return EXIT_USAGE
     restore = _stop_on_signals()
+    sys.unraisablehook = _unraisable_hook(sys.unraisablehook, args.debug)
     try:
         with warnings.catch_warnings():
             if not args.debug and not sys.warnoptions:
@@ -175,6 +176,27 @@ def main(argv=None) -> int:
         return EXIT_INTERNAL
     finally:
         restore()
+
+
+def _unraisable_hook(default, debug: bool):
+    """A :data:`sys.unraisablehook` for the command line.
+
+    A signal whose handler runs inside a finaliser (``__del__``, e.g. llvmlite's while numba
+    compiles) raises :class:`Stopped` (or KeyboardInterrupt) where Python can only print it
+    ("Exception ignored in ...", a traceback) and go on: the stop would be lost and the run
+    finish. The signal is sent again, so that it stops the run at the next step as usual.
+    Other errors in finalisers are no message for a user (``--debug`` prints them)."""
+
+    def hook(unraisable):
+        exc = unraisable.exc_value
+        if isinstance(exc, Stopped):
+            os.kill(os.getpid(), exc.signal_number)
+        elif isinstance(exc, KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+        elif debug:
+            default(unraisable)
+
+    return hook
 
 
 def one_line(text: str) -> str:
