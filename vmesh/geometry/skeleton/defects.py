@@ -269,31 +269,25 @@ def _cut_neck_links(skeleton: Skeleton, distance) -> tuple[Skeleton, int]:
     into the end of the kissing branch, radius 0.45, beside it), closing a cycle that the
     vessel tree does not have. Such a node is narrower than half the smaller of its two
     neighbours, and the chord between the neighbours leaves the lumen or runs shallower
-    than half their radius (:func:`_lumen_groups`: they are in two vessels). A stenosis on
-    a tree is never cut (removing its node would split the skeleton), nor one whose lumen
-    still joins its neighbours.
+    than half their radius (:func:`_lumen_groups`: they are in two vessels), and the path
+    through it turns sideways (:func:`_straightest_turn`). A stenosis on a tree is never cut
+    (removing its node would split the skeleton), nor one whose lumen still joins its
+    neighbours, nor one on a loop whose skeleton runs straight through it.
     """
     from .graph import remove_nodes
 
-    sk = skeleton
-    n_cut = 0
-    r = sk.radii
-    cand = [c for c in np.flatnonzero(sk.degrees == 2).tolist() if r[c] < 0.5 * r[sk.neighbors(c)].min()]
+    sk, r = skeleton, skeleton.radii
+    cand = [c for c in np.flatnonzero(sk.degrees == 2).tolist()
+            if len(sk.neighbors(c)) == 2 and r[c] < 0.5 * r[sk.neighbors(c)].min()]
     for c in sorted(cand, key=lambda c: r[c] / r[sk.neighbors(c)].min()):
         nb = sk.neighbors(c)
-        if len(nb) != 2 or not r[c] < 0.5 * sk.radii[nb].min():
-            continue
-        if len(np.unique(_lumen_groups(sk.points[nb], sk.radii[nb], distance))) < 2:
+        if len(np.unique(_lumen_groups(sk.points[nb], r[nb], distance))) < 2:
             continue  # a narrowing that the lumen runs through
         if _straightest_turn(sk, c, nb) <= 45.0:
             continue  # the path runs on along its vessels' axes: a stenosis (on a loop), not a link
         cut = remove_nodes(sk, np.arange(sk.n_nodes) == c, bridge=False)
         if cut.n_components > sk.n_components:
             continue  # the only way between two parts: a stenosis, not a link
-        sk, n_cut = cut, n_cut + 1
-        cand = None  # node numbers changed: look again
-        break
-    if n_cut:
-        more, k = _cut_neck_links(sk, distance)
-        return more, n_cut + k
-    return (sk.copy() if sk is skeleton else sk), 0
+        more, k = _cut_neck_links(cut, distance)  # node numbers changed: look again
+        return more, k + 1
+    return sk.copy(), 0
