@@ -3,10 +3,10 @@
 Re-meshing the same vessel with other meshing parameters is the common case (tuning element
 counts, boundary layers, optimiser settings), and a new process redoes the same
 preprocessing each time: pymeshlab's quadric decimation of a 150,000-triangle surface alone
-is ~2.3 s CPU, the largest step before the mesher. :func:`cached_arrays` stores such a
-step's output arrays under a key that hashes every input array's bytes and every option,
-so a hit returns exactly what the step would compute (same bytes), and any change to the
-surface or an option misses.
+is ~2.3 s CPU, the largest step before the mesher. :func:`store` keeps such a step's
+output arrays (:func:`load` reads them back) under a key that hashes every input array's
+bytes and every option, so a hit returns exactly what the step would compute (same
+bytes), and any change to the surface or an option misses.
 
 The folder is ``$VMESH_CACHE_DIR/<kind>`` when that is set, else
 ``$XDG_CACHE_HOME/vmesh/<kind>`` (``~/.cache/vmesh/<kind>``), beside the compiled kernels
@@ -99,14 +99,3 @@ def prune(kind: str, keep: int = KEEP) -> None:
             p.unlink(missing_ok=True)
     except OSError:
         pass
-
-
-def cached_arrays(kind: str, digest: str, compute) -> tuple[dict, bool]:
-    """``compute()`` (a dict of arrays), or its stored result under ``digest``; returns the
-    arrays and whether they came from the cache."""
-    hit = load(kind, digest)
-    if hit is not None:
-        return hit, True
-    out = compute()
-    store(kind, digest, out)
-    return out, False
