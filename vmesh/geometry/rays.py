@@ -147,70 +147,6 @@ def _row_hashes(rows: np.ndarray) -> np.ndarray:
     return h
 
 
-class RayCache:
-    """Wall distances of rays already cast (:func:`cast_rays`), keyed by the exact ray.
-
-    Parameters
-    ----------
-    limit : int
-        Most rays kept; beyond it the cache starts again empty (memory stays bounded:
-        about 90 bytes a ray).
-
-    Attributes
-    ----------
-    hits, misses : int
-        Rays answered from the cache and rays cast.
-    """
-
-    def __init__(self, limit: int = 4_000_000):
-        self.limit = int(limit)
-        self.hits = self.misses = 0
-        self._clear()
-
-    def _clear(self):
-        # two sorted levels: the rays cast since the last merge are kept apart until they
-        # are an eighth of the rest, so that the many small casts of a build (one junction's
-        # half-planes at a time) do not re-sort the whole cache each
-        self._levels = [_Level(), _Level()]
-
-    def __len__(self) -> int:
-        return sum(len(level.keys) for level in self._levels)
-
-    def cast(self, distance, origins, directions, scale, reach: float = 12.0, intersect_lines=None) -> np.ndarray:
-        """:func:`cast_rays` with the rays cast before answered from the cache (bit for bit
-        the same: each ray is cast on its own)."""
-        o = np.asarray(origins, float).reshape(-1, 3)
-        d = np.asarray(directions, float).reshape(-1, 3)
-        n = len(o)
-        if n == 0:
-            return np.zeros(0)
-        rows = np.empty((n, 8))
-        rows[:, :3], rows[:, 3:6] = o, d
-        rows[:, 6] = np.broadcast_to(np.asarray(scale, float), (n,))
-        rows[:, 7] = reach
-        h = _row_hashes(rows)
-        out = np.full(n, np.nan)
-        found = np.zeros(n, bool)
-        for level in self._levels:
-            level.find(h, rows, out, found)
-        miss = np.flatnonzero(~found)
-        self.hits += n - len(miss)
-        self.misses += len(miss)
-        if len(miss):
-            out[miss] = cast_rays(distance, o[miss], d[miss], rows[miss, 6], reach=reach, intersect_lines=intersect_lines)
-            self._store(h[miss], rows[miss], out[miss])
-        return out
-
-    def _store(self, keys, rows, values):
-        if len(self) + len(keys) > self.limit:
-            self._clear()
-        main, recent = self._levels
-        recent.add(keys, rows, values)
-        if 8 * len(recent.keys) > len(main.keys):
-            main.add(recent.keys, recent.rows, recent.values)
-            self._levels[1] = _Level()
-
-
 class RowCache:
     """One float per exact row of floats, found by the rows' hashes (:func:`_row_hashes`):
     results of a per-ray computation kept across calls whose rays mostly repeat.
@@ -226,6 +162,9 @@ class RowCache:
     def __init__(self, width: int, limit: int = 4_000_000):
         self.width, self.limit = int(width), int(limit)
         self.hits = self.misses = 0
+        # two sorted levels: the rows added since the last merge are kept apart until they
+        # are an eighth of the rest, so that the many small additions of a build (one
+        # junction's half-planes at a time) do not re-sort the whole cache each
         self._levels = [_Level(self.width), _Level(self.width)]
 
     def __len__(self) -> int:
@@ -259,9 +198,48 @@ class RowCache:
             self._levels = [_Level(self.width), _Level(self.width)]
         main, recent = self._levels
         recent.add(_row_hashes(rows), rows, np.asarray(values, float))
-        if 8 * len(recent.keys) > len(main.keys):  # merged rarely: see RayCache._clear
+        if 8 * len(recent.keys) > len(main.keys):  # merged rarely (see __init__)
             main.add(recent.keys, recent.rows, recent.values)
             self._levels[1] = _Level(self.width)
+
+
+class RayCache(RowCache):
+    """Wall distances of rays already cast (:func:`cast_rays`), keyed by the exact ray
+    (origin, direction, scale, reach: a :class:`RowCache` of width 8).
+
+    Parameters
+    ----------
+    limit : int
+        Most rays kept; beyond it the cache starts again empty (memory stays bounded:
+        about 90 bytes a ray).
+
+    Attributes
+    ----------
+    hits, misses : int
+        Rays answered from the cache and rays cast.
+    """
+
+    def __init__(self, limit: int = 4_000_000):
+        super().__init__(8, limit)
+
+    def cast(self, distance, origins, directions, scale, reach: float = 12.0, intersect_lines=None) -> np.ndarray:
+        """:func:`cast_rays` with the rays cast before answered from the cache (bit for bit
+        the same: each ray is cast on its own)."""
+        o = np.asarray(origins, float).reshape(-1, 3)
+        d = np.asarray(directions, float).reshape(-1, 3)
+        n = len(o)
+        if n == 0:
+            return np.zeros(0)
+        rows = np.empty((n, 8))
+        rows[:, :3], rows[:, 3:6] = o, d
+        rows[:, 6] = np.broadcast_to(np.asarray(scale, float), (n,))
+        rows[:, 7] = reach
+        out, found = self.find(rows)
+        miss = np.flatnonzero(~found)
+        if len(miss):
+            out[miss] = cast_rays(distance, o[miss], d[miss], rows[miss, 6], reach=reach, intersect_lines=intersect_lines)
+            self.add(rows[miss], out[miss])
+        return out
 
 
 class _Level:
