@@ -291,6 +291,11 @@ def ray_index(template: OGridTemplate, angles: np.ndarray) -> np.ndarray:
     return np.argmin(d, axis=1).reshape(np.shape(angles))
 
 
+#: least distance of a core quadrant's corner beyond the chord between its axis points
+#: (:func:`section_vertices`), as a multiple of the chord's distance along the diagonal
+CORE_CONVEX = 1.2
+
+
 def section_vertices(
     template: OGridTemplate,
     centers: np.ndarray,
@@ -347,7 +352,13 @@ def section_vertices(
     px = (kappa * w * R[:, ax_x] * sx)[:, :, None] * e1[:, None, :]
     py = (kappa * h * R[:, ax_y] * sy)[:, :, None] * e2[:, None, :]
     dd = np.cos(diag_angle)[None, :, None] * e1[:, None, :] + np.sin(diag_angle)[None, :, None] * e2[:, None, :]
-    pd = (kappa * np.hypot(w, h) * R[:, ax_d])[:, :, None] * dd
+    # a short diagonal ray (a notch in a lumpy section) would put the quadrant's corner
+    # inside the chord between its axis points: a dart whose core block inverts, however
+    # small the core. The corner stays CORE_CONVEX times beyond that chord (every ellipse of
+    # aspect up to 10 is beyond it at 1.21 and more: only notched sections move)
+    rx, ry = R[:, ax_x], R[:, ax_y]
+    rd = np.maximum(R[:, ax_d], CORE_CONVEX * rx * ry / np.maximum(rx + ry, 1e-300))
+    pd = (kappa * np.hypot(w, h) * rd)[:, :, None] * dd
     s = (np.abs(x) / w)[None, :, None]
     q = (np.abs(y) / h)[None, :, None]
     out[:, core] = c[:, None, :] + s * (1 - q) * px + (1 - s) * q * py + s * q * pd
