@@ -185,6 +185,9 @@ def _fill_from_context(row: dict, ctx) -> None:
     if isinstance(unt, dict):
         row["untangle"] = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in unt.items()
                            if isinstance(v, (int, float, str, bool, np.generic))}
+    folds = (ctx.report.sections.get("quality") or {}).get("wall_fold_blocks")
+    if folds:  # is the mesh's worst in the blocks the builder found folding on the wall?
+        row["wall_fold_blocks"] = folds
     if ctx.skeleton is not None:
         row["skeleton_used"] = skeleton_counts(ctx.skeleton)
     if ctx.blocks is not None:

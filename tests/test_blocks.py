@@ -360,6 +360,8 @@ def test_projected_wall_quality(synthetic):
     after = int(np.sum(projected_wall_quality(sac, project) <= 0))
     assert any("thickened the boundary layer" in f for f in sac.info["fixes"])
     assert after == sac.info["blocks_folding_on_wall"] and after < before
+    # listed by id for compute_quality (tests/test_wall_fold_blocks.py)
+    assert sac.info["wall_fold_blocks"] == np.flatnonzero(projected_wall_quality(sac, project) <= 0).tolist()
 
 
 def test_closest_rotation_differs_from_bisector_with_uneven_radii(synthetic):

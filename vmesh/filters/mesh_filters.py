@@ -314,6 +314,9 @@ def compute_quality(ctx, histogram, fail_on_invalid, bins):
     dist = boundary_distance(mesh, ctx.surface, ctx.blocks, wall_projector(ctx.surface))  # the whole surface's cached tree
     ctx.quality = {"scaled_jacobian": sj, "summary": summary, "boundary_distance": dist}
     ctx.report.sections["quality"] = {"scaled_jacobian": summary}
+    folds = wall_fold_share(sj, mesh.cell_data["block_id"], ctx.blocks.info.get("wall_fold_blocks")) if ctx.blocks is not None and "block_id" in mesh.cell_data else None
+    if folds is not None:
+        ctx.report.sections["quality"]["wall_fold_blocks"] = folds
     ctx.report.sections["boundary_distance"] = dist
     ctx.count(sj_min=summary["min"], sj_mean=summary["mean"], invalid=summary["n_invalid"])
     if histogram:
@@ -326,9 +329,32 @@ def compute_quality(ctx, histogram, fail_on_invalid, bins):
         bad = np.flatnonzero(sj <= 0)
         blocks = np.unique(mesh.cell_data["block_id"][bad])[:10]
         nodes = np.unique(mesh.cell_data["node_id"][bad])[:10] if "node_id" in mesh.cell_data else []
+        where = ""
+        if folds is not None and folds["invalid_inside"]:
+            where = (f"; {folds['invalid_inside']} of them lie in the {folds['blocks']} boundary-layer block(s) that the block builder found folding "
+                     f"when their wall faces are projected onto the wall (report.json: quality.wall_fold_blocks): a fold of the block structure")
         raise MeshingError(f"{summary['n_invalid']} elements have a scaled Jacobian <= 0 next to skeleton node(s) {list(map(int, nodes))} "
-                           f"(blocks {blocks.tolist()}): mesh_transfinite's untangling could not unfold them (report.json: untangle); "
+                           f"(blocks {blocks.tolist()}): mesh_transfinite's untangling could not unfold them (report.json: untangle){where}; "
                            f"compute_quality.fail_on_invalid=false writes the mesh to inspect them")
+
+
+def wall_fold_share(sj: np.ndarray, block_id: np.ndarray, fold_blocks) -> dict | None:
+    """Where the worst elements are against the blocks the block builder flagged as folding
+    when their wall faces are projected (``blocks.info["wall_fold_blocks"]``, its
+    ``projected_wall_quality`` <= 0): the flagged blocks, their elements, the minimum scaled
+    Jacobian inside and outside them and the invalid elements inside. None when nothing was
+    flagged (or the blocks predate the list). When the minimum inside is the mesh's, its
+    worst elements come from the block structure, which the optimiser cannot undo
+    (docs/optimiser.md, issue 17)."""
+    if not fold_blocks:
+        return None
+    flagged = np.zeros(int(max(int(np.max(block_id)), max(fold_blocks))) + 1, bool)
+    flagged[np.asarray(fold_blocks, np.int64)] = True
+    inside = flagged[np.asarray(block_id, np.int64)]
+    return {"blocks": len(fold_blocks), "elements": int(inside.sum()),
+            "min_inside": float(sj[inside].min()) if inside.any() else None,
+            "min_elsewhere": float(sj[~inside].min()) if (~inside).any() else None,
+            "invalid_inside": int((sj[inside] <= 0).sum())}
 
 
 def boundary_distance(mesh, surface, blocks, projector) -> dict:

@@ -294,6 +294,8 @@ class _Repair:
         quality = projected_wall_quality(blocks, self.project)
         self.built.info["min_projected_wall_quality"] = round(float(quality.min()), 4)
         self.built.info["blocks_folding_on_wall"] = int(np.sum(quality <= 0))
+        # by id: compute_quality tells whether the mesh's worst elements lie in them
+        self.built.info["wall_fold_blocks"] = np.flatnonzero(quality <= 0).tolist()
         blocks.info.update(self.built.info)
         blocks.info["fixes"] = list(self.fixes)
         if self.built.info["blocks_folding_on_wall"]:
