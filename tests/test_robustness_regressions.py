@@ -282,6 +282,7 @@ def _repair_state(builder) -> bytes:
     return b"".join(parts)
 
 
+@pytest.mark.slow  # a whole failing build: 160 assemblies
 def test_a_half_plane_turned_back_and_forth_ends_the_fix_rounds(monkeypatch):
     # g0007 given's junction 18 (and g0002 extracted's): two short branches with invalid
     # blocks at one junction each turned their shared half-plane away from themselves, so
