@@ -268,3 +268,43 @@ def test_a_hairpin_corner_is_cut_into_two_nodes():
     # corners up to a right angle, and corners without room on their arms, stay as they are
     right, dist = hairpin(85.0)
     assert chamfer_hairpins(right, distance=dist)[1] == 0
+
+
+def _repair_state(builder) -> bytes:
+    """What the fix rounds change: half-plane picks, section margins and straightening,
+    the local fixes (core and layer scales, ...), node positions."""
+    parts = [builder.topo.pos.tobytes()]
+    parts += [j.cand.pick.tobytes() for _, j in sorted(builder.topo.junctions.items())]
+    parts += [np.asarray(br.margin, float).tobytes() + np.asarray(br.straighten, float).tobytes() for br in builder.topo.branches]
+    loc = builder.local
+    parts += [repr((sorted(loc.core_scale.items()), sorted(loc.layer_scale.items()), sorted(loc.lookahead.items()),
+                    sorted(loc.at_node), sorted(loc.planar))).encode()]
+    return b"".join(parts)
+
+
+@pytest.mark.slow  # a whole failing build: 160 assemblies
+def test_a_half_plane_turned_back_and_forth_ends_the_fix_rounds(monkeypatch):
+    # g0007 given's junction 18 (and g0002 extracted's): two short branches with invalid
+    # blocks at one junction each turned their shared half-plane away from themselves, so
+    # every fix round undid itself yet counted as a fix; the tries ran out their rounds
+    # and the work budget before the changed skeleton that builds. A narrow trifurcation
+    # with uneven daughters does the same (33 such rounds); a round that changes nothing
+    # now ends the try.
+    from junction_cases import trifurcation
+    from vmesh.geometry.blocks import builder as B
+
+    futile = []
+    fix = B._Builder.fix
+
+    def checked(self, bad, J):
+        before = _repair_state(self)
+        changed = fix(self, bad, J)
+        if changed and _repair_state(self) == before:
+            futile.append(len(bad))
+        return changed
+
+    monkeypatch.setattr(B._Builder, "fix", checked)
+    case = trifurcation(20, 2)
+    with pytest.raises(MeshingError):  # still beyond the scheme (issue 17)
+        build_blocks(case.skeleton, case.distance, None, BlockOptions(), project=case.project)
+    assert futile == []

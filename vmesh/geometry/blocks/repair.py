@@ -316,6 +316,8 @@ class _Repair:
         layer = self._last_layers(bad)
         changed = moved = False
         stuck = []  # junction ends out of margins, rotations and moves
+        rotated = []  # junction ends whose half-planes were re-rotated this round
+        picks = {c: j.cand.pick.copy() for c, j in self.topo.junctions.items()}
         for bi, k in np.unique(where, axis=0).tolist():
             br = self.topo.branches[bi]
             K = len(br.nodes)
@@ -342,7 +344,7 @@ class _Repair:
                         changed = True
                     elif self._rerotate(bi, side):
                         self.fixes.append(f"re-rotated the half-planes of junction node {node}")
-                        changed = True
+                        rotated.append((bi, side, node))
                     elif self.separate_junctions(bi):
                         changed = moved = True
                         break
@@ -357,6 +359,13 @@ class _Repair:
             if straightened:
                 self.fixes.append(f"straightened the cross-sections at skeleton nodes {int(br.nodes[k])}-{int(br.nodes[k + 1])}")
                 changed = True
+        if rotated and not changed and all(np.array_equal(self.topo.junctions[n].cand.pick, picks[n]) for _, _, n in rotated):
+            # two branches at one junction turned their shared half-plane back and forth:
+            # the state is as it was, so every later round would give the same blocks (the
+            # fix rounds used to run out on it, spending the work budget): out of ideas
+            del self.fixes[len(self.fixes) - len(rotated):]
+            return False
+        changed = changed or bool(rotated)
         if not changed and self.opt.repair.straighten_stuck_ends:
             # out of every other idea: turn the first sections at stuck junction ends
             # towards their chords (:func:`build_blocks`' last resort)
@@ -439,5 +448,7 @@ class _Repair:
         )
         failure = _Failure(message, blocks, bad, self.topo.sk, nfurc, crowded, hint)
         failure.stubs = self.short_stubs(bad)
-        failure.leaned = any(self.leans(j) for j in self.topo.junctions.values())
+        # leaning moves only its junction's half-sections: a try failing away from every
+        # leaning junction fails the same with half-planes (:func:`~.builder._fallback`)
+        failure.leaned = any(self.leans(self.topo.junctions[c]) for c in ends.tolist() if c in self.topo.junctions)
         raise failure

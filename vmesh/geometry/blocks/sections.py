@@ -481,7 +481,7 @@ class _Sections:
         moved, with the cuts of the rays far from them)."""
         sk, branches = self.topo.sk, self.topo.branches
         key = Territory.key_of(branches, self.topo.pos, sk.radii, sk.edges)
-        ter = getattr(self.topo, "territory", None)
+        ter = self.topo.territory
         if ter is None or ter.key != key:
             new = Territory(branches, self.topo.pos, sk.radii, sk.edges)
             if ter is not None:
