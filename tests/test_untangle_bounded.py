@@ -68,7 +68,7 @@ def test_dot_is_the_dot_product():
 
 
 def test_compiled_objective_is_the_numpy_sum_and_its_gradient_the_derivative():
-    """``untangle._objective`` (the compiled ``kernels.escobar_sum``) gives the numpy form's
+    """``untangle._objective`` (the compiled ``objective.escobar_sum``) gives the numpy form's
     functional and gradient on a folded lattice, and the gradient is the functional's
     derivative (central differences)."""
     from vmesh.geometry.untangle import _objective, _objective_numpy, _Problem

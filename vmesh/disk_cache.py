@@ -33,13 +33,17 @@ def enabled() -> bool:
     return os.environ.get("VMESH_DISK_CACHE", "1").strip().lower() not in ("0", "false", "no", "off")
 
 
+def user_cache_home() -> pathlib.Path:
+    """``$XDG_CACHE_HOME/vmesh`` (``~/.cache/vmesh``): the default home of every vmesh cache,
+    these results and the compiled kernels (:func:`vmesh.numba_cache.cache_root`)."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return pathlib.Path(base) / "vmesh"
+
+
 def cache_dir(kind: str) -> pathlib.Path:
     """The folder of the entries of one kind of result."""
     root = os.environ.get("VMESH_CACHE_DIR")
-    if not root:
-        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-        root = os.path.join(base, "vmesh")
-    return pathlib.Path(root) / kind
+    return (pathlib.Path(root) if root else user_cache_home()) / kind
 
 
 def key(*parts) -> str:

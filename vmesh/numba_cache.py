@@ -32,6 +32,8 @@ import shutil
 
 from numba.core import caching, config
 
+from .disk_cache import user_cache_home
+
 PACKAGE = pathlib.Path(__file__).resolve().parent
 KEEP = 8  # source versions kept side by side per module (worktrees, branches); older ones are removed
 _KERNELS = re.compile(rb"\bnjit\b|@intrinsic")
@@ -92,8 +94,7 @@ def cache_root() -> pathlib.Path:
     """The folder holding one subfolder per numba version."""
     if config.CACHE_DIR:
         return pathlib.Path(config.CACHE_DIR) / "vmesh"
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return pathlib.Path(base) / "vmesh" / "numba"
+    return user_cache_home() / "numba"
 
 
 def _module_name(py_file: str) -> str:

@@ -84,9 +84,9 @@ def _cross(a, b):
 
 def _objective(points: np.ndarray, prob: _Problem, want_grad: bool = True):
     """Sum of the corner functional and its gradient with respect to every node (the
-    compiled :func:`vmesh.geometry.optimize.kernels.escobar_sum`; :func:`_objective_numpy`
+    compiled :func:`vmesh.geometry.optimize.objective.escobar_sum`; :func:`_objective_numpy`
     is the same sum in numpy, ~10 times slower)."""
-    from .optimize.kernels import escobar_sum
+    from .optimize.objective import escobar_sum
 
     grad = np.empty_like(points)
     f = escobar_sum(points, prob.hexes, prob.scale.reshape(len(prob.hexes), 8, 3), float(prob.delta), grad)

@@ -46,6 +46,16 @@ CLIMB_TRIALS = 6
 CHUNKS = 64
 
 
+def _variant(func, name):
+    """``func`` under another name: numba's disk cache is keyed on the function's name and
+    signature, not on ``parallel``, so two variants of one function would load each other's
+    code (the serial one then ran the parallel code: a thread launch per small colour)."""
+    f = types.FunctionType(func.__code__, func.__globals__, name, func.__defaults__, func.__closure__)
+    f.__qualname__ = name
+    f.__doc__ = func.__doc__
+    return f
+
+
 @nb.njit(cache=True)
 def _edge(X, hexes, scale, e, c, a, cx, cy, cz):
     """Edge of corner ``c`` (at ``cx, cy, cz``) of hexahedron ``e`` along axis ``a``, towards
@@ -265,8 +275,37 @@ def _escobar(F, D, dFx, dFy, dFz, dDx, dDy, dDz, diag, d2, hessian):
     return F * phi, g0, g1, g2, h00, h01, h02, h11, h12, h22
 
 
+def _escobar_sums_py(L, valence, d2, hessian):
+    """Escobar's functional, gradient and (``hessian``) Hessian summed over the moved corners
+    whose inputs :func:`node_eval` left in the frame's scratch columns.
+
+    A loop of its own: each corner's functional is a long chain of dependent operations
+    (square root, cube root, division) independent of the other corners', which this short
+    loop lets the processor overlap."""
+    f = g0 = g1 = g2 = 0.0
+    h00 = h01 = h02 = h11 = h12 = h22 = 0.0
+    for r in range(valence):
+        for q in range(4):
+            k = 36 + 9 * q
+            cf, c0, c1, c2, c00, c01, c02, c11, c12, c22 = _escobar(L[r, k], L[r, k + 1], L[r, k + 2], L[r, k + 3], L[r, k + 4], L[r, k + 5], L[r, k + 6], L[r, k + 7], L[r, k + 8], d2, hessian)
+            f += cf
+            g0, g1, g2 = g0 + c0, g1 + c1, g2 + c2
+            h00, h01, h02, h11, h12, h22 = h00 + c00, h01 + c01, h02 + c02, h11 + c11, h12 + c12, h22 + c22
+    return f, g0, g1, g2, h00, h01, h02, h11, h12, h22
+
+
+_escobar_sums = nb.njit(cache=True)(_escobar_sums_py)
+#: the same with fused multiply-adds and reordered sums (the only fast-math flags: no NaN or
+#: infinity assumptions): ~30 % less time per Hessian evaluation of a light-pass node
+#: (1.35-1.56 -> 0.92-1.05 us on the ICA). Only the light pass's Newton direction uses it:
+#: untangling ends in a local optimum that rounding decides (a twisted boundary-layer band in
+#: tests/test_optimize.py reached 0.324 exactly, 0.281 fused), while the light pass's steps
+#: are judged by the scaled Jacobians alone, which this does not touch
+_escobar_sums_fused = nb.njit(cache=True, fastmath={"contract", "reassoc"})(_variant(_escobar_sums_py, "_escobar_sums_fused"))
+
+
 @nb.njit(cache=True)
-def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, buf, row):
+def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, buf, row, fused):
     """Functional and quality of node ``v`` displaced by ``z`` from where its frame ``L`` was
     taken (:func:`frame`), over the 4 corners of each incident hexahedron that it moves.
 
@@ -329,17 +368,10 @@ def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, bu
                 L[r, k + 5], L[r, k + 6], L[r, k + 7], L[r, k + 8] = S * gx, S * gy, S * gz, diag
         qsum += hmin
         qmin = min(qmin, hmin)
-    if want_f:
-        # a loop of its own (same sums in the same order): each corner's functional is a
-        # long chain of dependent operations (square root, cube root, division) independent
-        # of the other corners', which this short loop lets the processor overlap
-        for r in range(ptr[v + 1] - ptr[v]):
-            for q in range(4):
-                k = 36 + 9 * q
-                cf, c0, c1, c2, c00, c01, c02, c11, c12, c22 = _escobar(L[r, k], L[r, k + 1], L[r, k + 2], L[r, k + 3], L[r, k + 4], L[r, k + 5], L[r, k + 6], L[r, k + 7], L[r, k + 8], d2, hessian)
-                f += cf
-                g0, g1, g2 = g0 + c0, g1 + c1, g2 + c2
-                h00, h01, h02, h11, h12, h22 = h00 + c00, h01 + c01, h02 + c02, h11 + c11, h12 + c12, h22 + c22
+    if want_f and fused:
+        f, g0, g1, g2, h00, h01, h02, h11, h12, h22 = _escobar_sums_fused(L, ptr[v + 1] - ptr[v], d2, hessian)
+    elif want_f:
+        f, g0, g1, g2, h00, h01, h02, h11, h12, h22 = _escobar_sums(L, ptr[v + 1] - ptr[v], d2, hessian)
     return f, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin, qsum
 
 
@@ -394,79 +426,6 @@ def _acceptable(mode, f, qmin, qsum, f0, qmin0, qsum0):
     return qmin >= qmin0 and qsum > qsum0
 
 
-@nb.njit(cache=True)
-def escobar_sum(X, hexes, scale, delta, grad):
-    """Sum of Escobar's corner functional over every corner of ``hexes`` and its gradient
-    with respect to every node (into ``grad``, zeroed here): the objective of the L-BFGS
-    untangler (:func:`vmesh.geometry.untangle._objective`, whose numpy form it replaces:
-    one pass over the corners instead of some forty temporaries of the region's size).
-
-    Parameters
-    ----------
-    X : (n, 3) float
-    hexes : (m, 8) int, tensor corner order
-    scale : (m, 8, 3) float
-        Per corner and axis, 1 / the target length of the corner's edge along +axis.
-    delta : float
-        Regularisation of the determinant.
-    grad : (n, 3) float
-        Output.
-
-    Returns
-    -------
-    float
-        The functional's sum.
-    """
-    grad[:] = 0.0
-    d2 = 4.0 * delta * delta
-    total = 0.0
-    for e in range(hexes.shape[0]):
-        for c in range(8):
-            # the corner's edges along +i, +j, +k: the hexahedron's edges through it,
-            # oriented from the 0 to the 1 end whatever the corner's own bit is
-            a0, a1 = hexes[e, c & 6], hexes[e, c | 1]
-            b0, b1 = hexes[e, c & 5], hexes[e, c | 2]
-            c0, c1 = hexes[e, c & 3], hexes[e, c | 4]
-            s0, s1, s2 = scale[e, c, 0], scale[e, c, 1], scale[e, c, 2]
-            e00, e01, e02 = (X[a1, 0] - X[a0, 0]) * s0, (X[a1, 1] - X[a0, 1]) * s0, (X[a1, 2] - X[a0, 2]) * s0
-            e10, e11, e12 = (X[b1, 0] - X[b0, 0]) * s1, (X[b1, 1] - X[b0, 1]) * s1, (X[b1, 2] - X[b0, 2]) * s1
-            e20, e21, e22 = (X[c1, 0] - X[c0, 0]) * s2, (X[c1, 1] - X[c0, 1]) * s2, (X[c1, 2] - X[c0, 2]) * s2
-            C0x, C0y, C0z, C1x, C1y, C1z, C2x, C2y, C2z = _cofactors(e00, e01, e02, e10, e11, e12, e20, e21, e22)
-            D = e00 * C0x + e01 * C0y + e02 * C0z
-            F = e00 * e00 + e01 * e01 + e02 * e02 + e10 * e10 + e11 * e11 + e12 * e12 + e20 * e20 + e21 * e21 + e22 * e22
-            r = np.sqrt(D * D + d2)
-            h = max(0.5 * (D + r), 1e-300)
-            hp = h ** (-2.0 / 3.0)
-            total += F * hp * (1.0 / 3.0)
-            a = (2.0 / 3.0) * hp
-            b = (2.0 / 9.0) * F * hp / r
-            # d f / d edge = a e - b (cofactor row of that edge), times the edge's scale
-            # duplicates: the three edges' scatters are unrolled on purpose (scalars in registers; a helper taking
-            # the gradient array per edge costs the inlined kernel its speed)
-            gx, gy, gz = (a * e00 - b * C0x) * s0, (a * e01 - b * C0y) * s0, (a * e02 - b * C0z) * s0
-            grad[a1, 0] += gx
-            grad[a1, 1] += gy
-            grad[a1, 2] += gz
-            grad[a0, 0] -= gx
-            grad[a0, 1] -= gy
-            grad[a0, 2] -= gz
-            gx, gy, gz = (a * e10 - b * C1x) * s1, (a * e11 - b * C1y) * s1, (a * e12 - b * C1z) * s1
-            grad[b1, 0] += gx
-            grad[b1, 1] += gy
-            grad[b1, 2] += gz
-            grad[b0, 0] -= gx
-            grad[b0, 1] -= gy
-            grad[b0, 2] -= gz
-            gx, gy, gz = (a * e20 - b * C2x) * s2, (a * e21 - b * C2y) * s2, (a * e22 - b * C2z) * s2
-            grad[c1, 0] += gx
-            grad[c1, 1] += gy
-            grad[c1, 2] += gz
-            grad[c0, 0] -= gx
-            grad[c0, 1] -= gy
-            grad[c0, 2] -= gz
-    return total
-
-
 @nb.njit(parallel=True, cache=True)
 def corner_qualities(X, hexes, scale):
     """Scaled Jacobian of every corner ``(m, 8)``: the cache that :func:`frame` reads and every
@@ -497,7 +456,7 @@ def _moved(X, hexes, ptr, inc, cq, v, L, y0, y1, y2, dirty, buf, row, least):
     step = np.sqrt(z0 * z0 + z1 * z1 + z2 * z2)
     X[v, 0], X[v, 1], X[v, 2] = y0, y1, y2
     if row < 0:
-        node_eval(L, ptr, inc, cq, v, z0, z1, z2, 0.0, False, False, True, buf, np.int64(-2))
+        node_eval(L, ptr, inc, cq, v, z0, z1, z2, 0.0, False, False, True, buf, np.int64(-2), False)
     else:
         for t in range(ptr[v], ptr[v + 1]):
             e = inc[t] >> 3
@@ -523,7 +482,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
     # the start's quality from the frame, as every trial's: the cache's values of the moved
     # corners (computed in other frames) differ in the last bits, enough to refuse the short
     # steps that climb the worst element
-    f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin0, qsum0 = node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, delta, True, True, True, buf, np.int64(-1))
+    f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin0, qsum0 = node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, delta, True, True, True, buf, np.int64(-1), mode == SMOOTH)
     if mode == ESCOBAR and not on_wall:
         qmin0, qsum0 = np.inf, 0.0
     state[j, 0], state[j, 1], state[j, 2] = f0, qmin0, qsum0
@@ -545,7 +504,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
             trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2
             state[j, 3] = 1.0
             return
-        r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, False, not smooth, judge or smooth, buf, np.int64(j))
+        r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, False, not smooth, judge or smooth, buf, np.int64(j), False)
         if (r[0] < f0) if not smooth else _acceptable(mode, r[0], r[10], r[11], f0, qmin0, qsum0):
             if on_wall:  # judged again after the projection
                 trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2
@@ -575,7 +534,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
                 state[j, 0] = np.inf  # the functional is not asked for
                 state[j, 3] = 1.0
                 return
-            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, False, False, True, buf, np.int64(j))
+            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, False, False, True, buf, np.int64(j), False)
             if _acceptable(mode, np.inf, r[10], r[11], np.inf, qmin0, qsum0):
                 # a climb raises a worst element: however short, the neighbours try again
                 _moved(X, hexes, ptr, inc, cq, v, L, X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2, dirty, buf, np.int64(j), 0.0)
@@ -624,7 +583,7 @@ def _accept_trials(X, hexes, scale, ptr, inc, cq, nodes, projected, delta, mode,
             v = nodes[j]
             frame(X, hexes, scale, ptr, inc, cq, v, L)
             z0, z1, z2 = projected[j, 0] - X[v, 0], projected[j, 1] - X[v, 1], projected[j, 2] - X[v, 2]
-            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, False, mode != SMOOTH, True, buf, np.int64(j))
+            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, False, mode != SMOOTH, True, buf, np.int64(j), False)
             if _acceptable(mode, r[0], r[10], r[11], state[j, 0], state[j, 1], state[j, 2]):
                 _moved(X, hexes, ptr, inc, cq, v, L, projected[j, 0], projected[j, 1], projected[j, 2], dirty, buf, np.int64(j), 0.0 if state[j, 0] == np.inf or r[10] > state[j, 1] else tol * step_cap[v])
             else:
@@ -748,16 +707,6 @@ def grow_nodes(hexes, ptr, inc, mask):
 
 #: parallel versions for large colours and serial ones for small colours (a parallel launch
 #: costs more than a few hundred node updates, and much more on a loaded machine)
-def _variant(func, name):
-    """``func`` under another name: numba's disk cache is keyed on the function's name and
-    signature, not on ``parallel``, so two variants of one function would load each other's
-    code (the serial one then ran the parallel code: a thread launch per small colour)."""
-    f = types.FunctionType(func.__code__, func.__globals__, name, func.__defaults__, func.__closure__)
-    f.__qualname__ = name
-    f.__doc__ = func.__doc__
-    return f
-
-
 sweep_colour_parallel = nb.njit(parallel=True, cache=True)(_variant(_sweep_colour, "sweep_colour_parallel"))
 sweep_colour_serial = nb.njit(cache=True)(_variant(_sweep_colour, "sweep_colour_serial"))
 accept_trials_parallel = nb.njit(parallel=True, cache=True)(_variant(_accept_trials, "accept_trials_parallel"))
@@ -780,6 +729,8 @@ def warm_up() -> None:
     colour_nodes(hexes, ptr, inc, nodes, 8)
     grow_nodes(hexes, ptr, inc, np.zeros(8, np.bool_))
     step_caps(X, hexes, ptr, inc, nodes, 8, 0.5)
+    from .objective import escobar_sum
+
     escobar_sum(X, hexes, np.ones((1, 8, 3)), 1e-3, np.zeros((8, 3)))  # the L-BFGS untangler's objective
     kind, normal, caps = np.full(8, FIXED, np.int64), np.zeros((8, 3)), np.zeros(8)
     for sweep, accept in ((sweep_colour_serial, accept_trials_serial), (sweep_colour_parallel, accept_trials_parallel)):
