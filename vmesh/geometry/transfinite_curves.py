@@ -49,6 +49,11 @@ MAX_TURN = np.radians(30.0)
 PLANAR_TOL = 0.15
 #: largest turn of an along-skeleton edge's end tangent from its chord (radians); 0 keeps them straight
 MAX_ALONG_TURN = np.radians(30.0)
+#: largest bulge of an along-skeleton edge from its chord, × its blocks' radius: what a
+#: segment of the resampler's spacing (1.25 radii) gets at :data:`MAX_ALONG_TURN`. A segment
+#: several radii long with a tilted end section (a corner's mitre at the end of a straight
+#: run) would otherwise bulge by up to L/8 across the wall and fold its boundary layer
+MAX_ALONG_BULGE = 0.16
 #: largest difference of the bulges of two along edges of a block, × the distance between them
 ALIKE = 0.5
 #: rounds of averaging the along edges' bulges over their blocks before the :data:`ALIKE` bound
@@ -194,12 +199,22 @@ def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray):
     bend = np.cross(d, w)  # the side the symmetric arc bulges to (N0 turned onto N1 about w)
     bend /= np.maximum(np.linalg.norm(bend, axis=1, keepdims=True), 1e-300)
     half, bend = _smooth_bulges(topo, V, d, half, bend, curved, edges_of)
+    half = np.minimum(half, _bulge_bound(blocks, topo, V))
     acc = _symmetric_tangents(d, bend, half)
     scale = _alike_in_blocks(topo, V, acc, edges_of)
     half = half * scale
     acc = _symmetric_tangents(d, bend, half)
     curved &= (half > MIN_ALONG_TURN) & (np.einsum("ij,ij->i", N0, d) > 0) & (np.einsum("ij,ij->i", N1, d) > 0)
     return acc, curved
+
+
+def _bulge_bound(blocks, topo, V):
+    """Per edge, the largest end turn (radians) whose symmetric arc bulges at most
+    :data:`MAX_ALONG_BULGE` × the radius of its blocks (the smallest of them) from the chord."""
+    radius = np.full(len(topo.edges), np.inf)
+    np.minimum.at(radius, topo.block_edge.ravel(), np.repeat(blocks.block_radius, 12))
+    L = np.linalg.norm(V[topo.edges[:, 1]] - V[topo.edges[:, 0]], axis=1)
+    return np.arcsin(np.clip(4.0 * MAX_ALONG_BULGE * radius / np.maximum(L, 1e-300), 0.0, 1.0))
 
 
 def _symmetric_tangents(d, bend, half):
