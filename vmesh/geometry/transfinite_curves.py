@@ -49,11 +49,12 @@ MAX_TURN = np.radians(30.0)
 PLANAR_TOL = 0.15
 #: largest turn of an along-skeleton edge's end tangent from its chord (radians); 0 keeps them straight
 MAX_ALONG_TURN = np.radians(30.0)
-#: largest bulge of an along-skeleton edge from its chord, × its blocks' radius: what a
-#: segment of the resampler's spacing (1.25 radii) gets at :data:`MAX_ALONG_TURN`. A segment
+#: largest bulge of an along-skeleton edge from its chord, × its blocks' radius: above what
+#: a segment of the resampler's spacing (1.25 radii) gets at :data:`MAX_ALONG_TURN` (0.16)
+#: and the real corpus's junction segments use (their meshes are unchanged). A segment
 #: several radii long with a tilted end section (a corner's mitre at the end of a straight
 #: run) would otherwise bulge by up to L/8 across the wall and fold its boundary layer
-MAX_ALONG_BULGE = 0.16
+MAX_ALONG_BULGE = 0.25
 #: largest difference of the bulges of two along edges of a block, × the distance between them
 ALIKE = 0.5
 #: rounds of averaging the along edges' bulges over their blocks before the :data:`ALIKE` bound
