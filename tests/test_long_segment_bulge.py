@@ -54,3 +54,17 @@ def test_the_bulge_bound_leaves_regular_segments_alone():
 def _fill(case, blocks):
     sm = mesh_blocks(blocks, case.project, DEFAULT, signed_distance=case.distance)
     return sm.points, sm.cells
+
+
+def test_junction_branches_keep_their_turn(monkeypatch):
+    # next to a junction the along edges turn from its half-plane to the branch (sv_rpa's
+    # bulge up to 0.55 radius): the bound does not apply there
+    from junction_cases import bifurcation
+
+    case = bifurcation(90, 1)  # straight tubes: its only curved along edges are the junction's
+    blocks = build_blocks(case.skeleton, case.distance, None, BlockOptions(), project=case.project)
+    points = _fill(case, blocks)[0]
+    monkeypatch.setattr(curves, "MAX_ALONG_BULGE", 0.0)
+    assert np.array_equal(points, _fill(case, blocks)[0])
+    monkeypatch.setattr(curves, "_near_junctions", lambda blocks, topo: np.zeros(len(topo.edges), bool))
+    assert not np.array_equal(points, _fill(case, blocks)[0])  # bounded there, they would straighten
