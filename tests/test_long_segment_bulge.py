@@ -4,7 +4,7 @@ arms and the hairpin chamfer leaves a mitre section at the end of a straight run
 radii long. The along-skeleton edges of its blocks were symmetric Hermite arcs turning by
 half the sections' rotation, bulging up to L/8 off the chord (0.6-1 radius), so the
 boundary layer's inner edges crossed the wall and the raw fill folded along the whole
-segment (BraVa: 3,547 inverted elements in the raw fill, 1,183 after the bound)."""
+segment (BraVa: 3,547 inverted elements in the raw fill, 1,299 after the bound)."""
 
 import numpy as np
 
