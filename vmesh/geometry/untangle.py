@@ -282,9 +282,10 @@ class _TargetLengths:
     """Initial corner edge lengths of the sub-hexahedra, computed only for those asked for
     (all of them would take 72 floats per element)."""
 
-    def __init__(self, X0: np.ndarray, sub: np.ndarray):
+    def __init__(self, X0: np.ndarray, sub: np.ndarray, extent: float | None = None):
         self.X0, self.sub = X0, sub
-        self.floor = 1e-12 * max(float(np.ptp(X0, axis=0).max()), 1e-300)
+        extent = float(np.ptp(X0, axis=0).max()) if extent is None else extent  # the whole mesh's, for a piece of it
+        self.floor = 1e-12 * max(extent, 1e-300)
 
     def __call__(self, mask: np.ndarray) -> np.ndarray:
         return np.maximum(np.linalg.norm(corner_edges(self.X0, self.sub[mask]), axis=-1), self.floor)
@@ -366,10 +367,12 @@ def untangle(
     q = linear_scaled_jacobian(np.asarray(points, float), sub)
     fold = np.unique(sub[q < threshold]) if len(sub) else np.zeros(0, np.int64)
     work = _Work(None if budget is None else float(budget) * len(fold))
+    if boundary is None:  # the mesh's own boundary: a pass sees only a piece of the mesh
+        boundary = _mesh_boundary(sub, len(points))
     kw = dict(wall=wall, wall_normals=wall_normals, project=project, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=threshold, rings=rings, iterations=iterations, rounds=rounds, boundary=boundary, work=work)
-    X, info, moved = _untangle_pass(points, sub, q, **kw)
+    X, info, moved = _local_pass(points, sub, q, **kw)
     if restart_below is not None and info["rounds"] and info["after"] < restart_below and not work.spent():
-        X2, info2, moved2 = _untangle_pass(X, sub, None, **kw)
+        X2, info2, moved2 = _local_pass(X, sub, linear_scaled_jacobian(X, sub), **kw)
         info["restart"] = {"after": info2["after"], "moved": info2["moved"], "rounds": info2["rounds"]}
         if info2["after"] > info["after"]:
             X = X2
@@ -378,7 +381,54 @@ def untangle(
     return X, info
 
 
-def _untangle_pass(points, sub, q, *, wall, wall_normals, project, cap_normals, cap_nodes, threshold, rings, iterations, rounds, boundary, work):
+def _mesh_boundary(sub: np.ndarray, n: int) -> np.ndarray:
+    """Nodes on faces used by one (sub-)hexahedron only."""
+    faces = np.sort(sub[:, _HEX_FACES].reshape(-1, 4), axis=1)
+    uniq, counts = np.unique(faces, axis=0, return_counts=True)
+    boundary = np.zeros(n, bool)
+    boundary[uniq[counts == 1].ravel()] = True
+    return boundary
+
+
+def _local_pass(points, sub, q, *, wall, cap_normals, cap_nodes, threshold, rings, rounds, boundary, **kw):
+    """:func:`_untangle_pass` on the piece of the mesh it can change. Round ``r`` grows a
+    region ``rings + r`` node rings around the elements then below ``threshold``, which lie
+    in the earlier rounds' regions: all regions lie within ``D = rounds rings + rounds
+    (rounds - 1) / 2`` rings of the first ones, and the piece is ``D + 1`` rings, so every
+    node of a region has all its elements in the piece: the free nodes, the steps and the
+    result are those of the whole mesh, while the per-round work (scaled Jacobians, region
+    growth) scales with the folds, not with a mesh of millions of elements. Elements
+    outside the piece do not move: the minimum reported counts them once."""
+    X = np.array(points, float, copy=True)
+    n = len(X)
+    bad = q < threshold
+    if not bad.any():
+        low = float(q.min()) if len(q) else 1.0
+        return X, {"before": low, "moved": 0, "rounds": 0, "after": low}, np.zeros(n, bool)
+    piece = bad.copy()
+    nodes = np.zeros(n, bool)
+    for _ in range(rounds * rings + rounds * (rounds - 1) // 2 + 1):
+        nodes[sub[piece].ravel()] = True
+        piece = nodes[sub].any(axis=1)
+    ids = np.unique(sub[piece])
+    kw["extent"] = float(np.ptp(X, axis=0).max())
+    local = np.full(n, -1, np.int64)
+    local[ids] = np.arange(len(ids))
+    rest = q[~piece]
+    pick = (lambda a: None if a is None else np.asarray(a)[ids])
+    Y, info, moved = _untangle_pass(
+        X[ids], local[sub[piece]], q[piece], wall=pick(wall), cap_normals=pick(cap_normals), cap_nodes=pick(cap_nodes),
+        threshold=threshold, rings=rings, rounds=rounds, boundary=pick(boundary), **kw,
+    )
+    X[ids] = Y
+    if len(rest):
+        info["after"] = min(info["after"], float(rest.min()))
+    out = np.zeros(n, bool)
+    out[ids] = moved
+    return X, info, out
+
+
+def _untangle_pass(points, sub, q, *, wall, wall_normals, project, cap_normals, cap_nodes, threshold, rings, iterations, rounds, boundary, work, extent=None):
     """One run of :func:`untangle` (its rounds) from ``points`` over the sub-hexahedra
     ``sub`` (their scaled Jacobians ``q`` at ``points``, None: computed here): new points,
     info and the mask of the nodes it moved."""
@@ -394,13 +444,10 @@ def _untangle_pass(points, sub, q, *, wall, wall_normals, project, cap_normals, 
     # nodes on the mesh boundary that are neither wall nor cap nodes never move (without a
     # fixed boundary the regularised functional could shrink the region towards a point)
     if boundary is None:
-        faces = np.sort(sub[:, _HEX_FACES].reshape(-1, 4), axis=1)
-        uniq, counts = np.unique(faces, axis=0, return_counts=True)
-        boundary = np.zeros(n, bool)
-        boundary[uniq[counts == 1].ravel()] = True
+        boundary = _mesh_boundary(sub, n)
     rim = (wall & cap_nodes) | (np.asarray(boundary, bool) & ~wall & ~cap_nodes)
     # targets: initial edge lengths at every corner (keeps graded layers graded)
-    target = _TargetLengths(X.copy(), sub)
+    target = _TargetLengths(X.copy(), sub, extent)
     inc = _incidence(sub, n)  # once: every round grows its region on it
     moved = np.zeros(n, bool)
     for rnd in range(rounds):

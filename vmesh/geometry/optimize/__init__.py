@@ -33,13 +33,9 @@ from . import kernels as K
 
 def _boundary_nodes(sub: np.ndarray, n: int) -> np.ndarray:
     """Nodes on faces used by only one (sub-)hexahedron."""
-    from ..untangle import _HEX_FACES
+    from ..untangle import _mesh_boundary
 
-    faces = np.sort(sub[:, _HEX_FACES].reshape(-1, 4), axis=1)
-    uniq, counts = np.unique(faces, axis=0, return_counts=True)
-    out = np.zeros(n, bool)
-    out[uniq[counts == 1].ravel()] = True
-    return out
+    return _mesh_boundary(sub, n)
 
 
 def _first_layer(sub: np.ndarray, wall: np.ndarray) -> np.ndarray:
