@@ -4,12 +4,13 @@ arms and the hairpin chamfer leaves a mitre section at the end of a straight run
 radii long. The along-skeleton edges of its blocks were symmetric Hermite arcs turning by
 half the sections' rotation, bulging up to L/8 off the chord (0.6-1 radius), so the
 boundary layer's inner edges crossed the wall and the raw fill folded along the whole
-segment (BraVa: 3,547 inverted elements in the raw fill, 1,299 after the bound)."""
+segment (BraVa: 3,547 inverted elements in the raw fill, 1,299 with a bound on the bulge,
+which was reverted: see docs/robustness.md)."""
 
 import numpy as np
+import pytest
 
 from junction_cases import JunctionCase, direction
-from vmesh.geometry import transfinite_curves as curves
 from vmesh.geometry.block_builder import BlockOptions, build_blocks
 from vmesh.geometry.quality import scaled_jacobian
 from vmesh.geometry.skeleton.bends import chamfer_hairpins, thin_sharp_bends
@@ -32,39 +33,17 @@ def corner(turn: float, arm: float = 10.0):
     return case, s, thinned, chamfered
 
 
-def test_a_long_segment_into_a_chamfered_corner_fills_valid(monkeypatch):
+@pytest.mark.xfail(strict=True, reason="issue 17: the along-edge bulge bound that fixed this (h10/brava) "
+                   "cut real curvature on long given segments (g0002 given 0.320 -> 0.199): reverted")
+def test_a_long_segment_into_a_chamfered_corner_fills_valid():
     case, sk, thinned, chamfered = corner(135.0)
     length = np.linalg.norm(sk.points[sk.edges[:, 0]] - sk.points[sk.edges[:, 1]], axis=1)
     assert thinned > 0 and chamfered == 1 and length.max() > 4.0  # a straight run of > 4 radii
     blocks = build_blocks(sk, case.distance, None, BlockOptions(), project=case.project)
     sj = scaled_jacobian(*_fill(case, blocks), 1)
     assert sj.min() > 0.25, f"{int((sj <= 0).sum())} inverted, least scaled Jacobian {sj.min():.3f}"
-    # without the bound the arcs bulge across the wall: the boundary layer folds
-    monkeypatch.setattr(curves, "MAX_ALONG_BULGE", np.inf)
-    sj = scaled_jacobian(*_fill(case, blocks), 1)
-    assert (sj <= 0).sum() > 100
-
-
-def test_the_bulge_bound_leaves_regular_segments_alone():
-    # a segment of the resampler's spacing turning by the largest end turn stays within it
-    spacing = 1.25
-    assert 0.25 * spacing * np.sin(curves.MAX_ALONG_TURN) <= curves.MAX_ALONG_BULGE
 
 
 def _fill(case, blocks):
     sm = mesh_blocks(blocks, case.project, DEFAULT, signed_distance=case.distance)
     return sm.points, sm.cells
-
-
-def test_junction_branches_keep_their_turn(monkeypatch):
-    # next to a junction the along edges turn from its half-plane to the branch (sv_rpa's
-    # bulge up to 0.55 radius): the bound does not apply there
-    from junction_cases import bifurcation
-
-    case = bifurcation(90, 1)  # straight tubes: its only curved along edges are the junction's
-    blocks = build_blocks(case.skeleton, case.distance, None, BlockOptions(), project=case.project)
-    points = _fill(case, blocks)[0]
-    monkeypatch.setattr(curves, "MAX_ALONG_BULGE", 0.0)
-    assert np.array_equal(points, _fill(case, blocks)[0])
-    monkeypatch.setattr(curves, "_near_junctions", lambda blocks, topo: np.zeros(len(topo.edges), bool))
-    assert not np.array_equal(points, _fill(case, blocks)[0])  # bounded there, they would straighten

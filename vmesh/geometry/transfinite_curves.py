@@ -49,12 +49,6 @@ MAX_TURN = np.radians(30.0)
 PLANAR_TOL = 0.15
 #: largest turn of an along-skeleton edge's end tangent from its chord (radians); 0 keeps them straight
 MAX_ALONG_TURN = np.radians(30.0)
-#: largest bulge of an along-skeleton edge away from junctions from its chord, × its
-#: blocks' radius: above what a segment of the resampler's spacing (1.25 radii) gets at
-#: :data:`MAX_ALONG_TURN` (0.16). A segment several radii long with a tilted end section (a
-#: corner's mitre at the end of a straight run) would otherwise bulge by up to L/8 across
-#: the wall and fold its boundary layer
-MAX_ALONG_BULGE = 0.25
 #: largest difference of the bulges of two along edges of a block, × the distance between them
 ALIKE = 0.5
 #: rounds of averaging the along edges' bulges over their blocks before the :data:`ALIKE` bound
@@ -200,38 +194,12 @@ def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray):
     bend = np.cross(d, w)  # the side the symmetric arc bulges to (N0 turned onto N1 about w)
     bend /= np.maximum(np.linalg.norm(bend, axis=1, keepdims=True), 1e-300)
     half, bend = _smooth_bulges(topo, V, d, half, bend, curved, edges_of)
-    half = np.where(_near_junctions(blocks, topo), half, np.minimum(half, _bulge_bound(blocks, topo, V)))
     acc = _symmetric_tangents(d, bend, half)
     scale = _alike_in_blocks(topo, V, acc, edges_of)
     half = half * scale
     acc = _symmetric_tangents(d, bend, half)
     curved &= (half > MIN_ALONG_TURN) & (np.einsum("ij,ij->i", N0, d) > 0) & (np.einsum("ij,ij->i", N1, d) > 0)
     return acc, curved
-
-
-def _near_junctions(blocks, topo):
-    """Edges of the blocks that share a corner with a junction's blocks (those of a skeleton
-    node whose blocks lie along two or more segments): there the along edges turn from a
-    junction's half-plane to its branch, as much as the crotch asks (real corpus: up to 0.55
-    radius), and :data:`MAX_ALONG_BULGE` does not apply."""
-    pairs = np.unique(np.c_[blocks.block_node, blocks.block_segment], axis=0)
-    nodes, count = np.unique(pairs[:, 0], return_counts=True)
-    junction = np.isin(blocks.block_node, nodes[count >= 2])
-    corner = np.zeros(len(blocks.vertices), bool)
-    corner[blocks.hexes[junction].ravel()] = True
-    near = corner[blocks.hexes].any(axis=1)
-    out = np.zeros(len(topo.edges), bool)
-    out[topo.block_edge[near].ravel()] = True
-    return out
-
-
-def _bulge_bound(blocks, topo, V):
-    """Per edge, the largest end turn (radians) whose symmetric arc bulges at most
-    :data:`MAX_ALONG_BULGE` × the radius of its blocks (the smallest of them) from the chord."""
-    radius = np.full(len(topo.edges), np.inf)
-    np.minimum.at(radius, topo.block_edge.ravel(), np.repeat(blocks.block_radius, 12))
-    L = np.linalg.norm(V[topo.edges[:, 1]] - V[topo.edges[:, 0]], axis=1)
-    return np.arcsin(np.clip(4.0 * MAX_ALONG_BULGE * radius / np.maximum(L, 1e-300), 0.0, 1.0))
 
 
 def _symmetric_tangents(d, bend, half):
