@@ -288,7 +288,7 @@ def test_synthetic_block_structure(case, synthetic):
     assert np.all(blocks.face_boundary[blocks.block_layer == LAYER_BOUNDARY, 1] == FACE_WALL)
 
 
-@pytest.mark.parametrize("case", ["curved_tube", "aneurysm", "cerebral_tree", "ring"])
+@pytest.mark.parametrize("case", ["curved_tube", "aneurysm", pytest.param("cerebral_tree", marks=pytest.mark.slow), "ring"])
 def test_twist_below_15_degrees(case, synthetic):
     _, _, _, blocks = synthetic(case)
     assert blocks.info["max_twist_deg"] < 15.0

@@ -179,7 +179,7 @@ def test_a_branch_leaving_its_parent_backwards_builds_valid_blocks():
     assert blocks.corner_jacobians().min() > 0
 
 
-@pytest.mark.parametrize("gap", [pytest.param(2.2, marks=pytest.mark.xfail(strict=True, raises=MeshingError, reason="issue 17: no room on the short branch")),
+@pytest.mark.parametrize("gap", [pytest.param(2.2, marks=[pytest.mark.slow, pytest.mark.xfail(strict=True, raises=MeshingError, reason="issue 17: no room on the short branch")]),
                                  pytest.param(4.0, marks=pytest.mark.slow)])
 def test_a_backwards_branch_next_to_another_junction(gap):
     """g0016 given's node 50: a branch leaving 45 degrees from upstream, ``gap`` parent

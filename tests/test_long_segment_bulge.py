@@ -33,6 +33,7 @@ def corner(turn: float, arm: float = 10.0):
     return case, s, thinned, chamfered
 
 
+@pytest.mark.slow  # an open failure: checked in the full suite, not the daily lane
 @pytest.mark.xfail(strict=True, reason="issue 17: the along-edge bulge bound that fixed this (h10/brava) "
                    "cut real curvature on long given segments (g0002 given 0.320 -> 0.199): reverted")
 def test_a_long_segment_into_a_chamfered_corner_fills_valid():

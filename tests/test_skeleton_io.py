@@ -97,6 +97,7 @@ def test_vmtk_thoracic_aorta(real_path):
     assert inside.mean() > 0.9 and (inside | beyond).all()
 
 
+@pytest.mark.slow
 def test_thoracic_aorta_cleaned_against_its_caps(real_path):
     """clean_skeleton cuts the lines at the caps they run through, ends the branches on
     the caps and merges the two arch junctions 0.4 radii apart (without grafting: the
