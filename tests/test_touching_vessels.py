@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from junction_cases import JunctionCase
+from junction_cases import JunctionCase, bifurcation
 from vmesh.geometry.block_builder import BlockOptions, block_structure_checks, build_blocks
 from vmesh.geometry.rays import clip_to_territory
 from vmesh.skeleton import Skeleton
@@ -201,3 +201,25 @@ def test_a_stenosis_on_a_loop_is_not_cut_as_a_neck():
     assert sk.radii[0] < 0.5 * sk.radii[1] and sk.summary()["cycles"] == 1
     out, cut = cut_necks(sk, distance)
     assert cut == 0 and out.n_nodes == n and out.summary()["cycles"] == 1
+
+
+@pytest.mark.parametrize("gap", [0.3, 1.5])
+def test_vessels_passing_in_contact_are_found(gap):
+    """Two branches far apart along the skeleton whose axes pass closer than their radii
+    together (fused at 0.3, touching at 1.5 < 1.7) are one contact, named by its closest
+    node pair and the (negative) gap between the walls; a branch passing clear of the other
+    (3.0) and the branches of one junction are none (BraVa given's last inverted elements
+    were such a crossing, issue 17)."""
+    from vmesh.geometry.skeleton.contact import vessels_in_contact
+
+    case, k, s = touching(gap)
+    sk = case.skeleton
+    found = vessels_in_contact(sk.points, sk.radii, sk.edges)
+    assert len(found) == 1 and found[0, 2] < 0
+    a, b = found[0, :2].astype(int)
+    dist = -case.fields(sk.points[[a, b]]) + case.r[None]  # each node's distance to each capsule's axis
+    assert {int(np.argmin(dist[0])), int(np.argmin(dist[1]))} == {k, s}  # one node on each vessel
+    clear, _, _ = touching(3.0)
+    assert len(vessels_in_contact(clear.skeleton.points, clear.skeleton.radii, clear.skeleton.edges)) == 0
+    bif = bifurcation(30, 1).skeleton  # acute daughters: close, but near along the skeleton
+    assert len(vessels_in_contact(bif.points, bif.radii, bif.edges)) == 0

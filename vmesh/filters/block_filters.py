@@ -124,6 +124,26 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
     }
     if checks["boundary_components"] != 1:
         ctx.warn(f"the outer block faces form {checks['boundary_components']} pieces (is the skeleton connected?)")
+    _warn_vessels_in_contact(ctx)
+
+
+def _warn_vessels_in_contact(ctx) -> None:
+    """Name the places where two vessels pass in contact with no junction between them
+    (:func:`~vmesh.geometry.skeleton.contact.vessels_in_contact`): their blocks meet the
+    other vessel's wall and the mesh may fold there beyond what untangling can open."""
+    from ..geometry.skeleton.contact import vessels_in_contact
+
+    sk = ctx.skeleton
+    found = vessels_in_contact(sk.points, sk.radii, sk.edges)
+    ctx.report.sections["blocks"]["vessels_in_contact"] = [
+        {"nodes": [int(a), int(b)], "gap": round(float(g), 6)} for a, b, g in found.tolist()
+    ]
+    if len(found):
+        where = ", ".join(f"{int(a)}/{int(b)} ({g:+.3g})" for a, b, g in found[:5].tolist())
+        more = f" and {len(found) - 5} more" if len(found) > 5 else ""
+        ctx.warn(f"{len(found)} place(s) where two vessels pass in contact with no junction between them, at skeleton nodes "
+                 f"{where}{more} (gap between the walls; negative: the lumens overlap): the mesh may fold there "
+                 f"(report.json: blocks.vessels_in_contact)")
 
 
 def _cut_stubs(ctx, stubs: list) -> list:
