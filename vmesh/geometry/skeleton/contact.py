@@ -29,6 +29,13 @@ def vessels_in_contact(points: np.ndarray, radii: np.ndarray, edges: np.ndarray,
         ``detour`` x that sum (inf when unconnected): neighbours along one vessel and the
         branches of one junction are within a few radii of each other along the skeleton.
 
+    Notes
+    -----
+    Meant for the resampled skeleton (nodes about a radius apart): each close pair's way is
+    searched out to its ``detour`` reach, a few nodes on such a skeleton (BraVa's 13,729
+    resampled nodes: 0.9 s) but many on a dense input centerline (the thoracic aorta's
+    7,273 raw nodes: 4 s).
+
     Returns
     -------
     (k, 3) float array: node a, node b (a < b), gap between their walls (negative: the
