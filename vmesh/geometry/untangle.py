@@ -26,7 +26,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 #: corners of a linear hexahedron in tensor order (i fastest) and their neighbours along i, j, k
 _CORNER_BITS = np.array([[c & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)])
@@ -228,18 +227,14 @@ def _minimise(points: np.ndarray, prob: _Problem, iterations: int, work: _Work |
     return X
 
 
-def _incidence(hexes: np.ndarray, n_points: int) -> sp.csr_matrix:
-    """Element-node incidence ``(m, n_points)`` as a boolean sparse matrix."""
-    m = len(hexes)
-    return sp.csr_matrix((np.ones(hexes.size, bool), (np.repeat(np.arange(m), hexes.shape[1]), hexes.ravel())), shape=(m, n_points))
-
-
-def _grow(inc: sp.csr_matrix, seed: np.ndarray, rings: int) -> np.ndarray:
-    """Elements within ``rings`` node-neighbourhoods of the seed elements (mask)."""
+def _grow(sub: np.ndarray, seed: np.ndarray, rings: int, n: int) -> np.ndarray:
+    """Elements of ``sub`` (over ``n`` nodes) within ``rings`` node-neighbourhoods of the
+    seed elements (mask)."""
     sel = seed.copy()
+    nodes = np.zeros(n, bool)
     for _ in range(rings):
-        nodes = np.asarray(inc[sel].sum(axis=0)).ravel() > 0
-        sel = np.asarray(inc[:, nodes].sum(axis=1)).ravel() > 0
+        nodes[sub[sel].ravel()] = True
+        sel = nodes[sub].any(axis=1)
     return sel
 
 
@@ -405,11 +400,7 @@ def _local_pass(points, sub, q, *, wall, cap_normals, cap_nodes, threshold, ring
     if not bad.any():
         low = float(q.min()) if len(q) else 1.0
         return X, {"before": low, "moved": 0, "rounds": 0, "after": low}, np.zeros(n, bool)
-    piece = bad.copy()
-    nodes = np.zeros(n, bool)
-    for _ in range(rounds * rings + rounds * (rounds - 1) // 2 + 1):
-        nodes[sub[piece].ravel()] = True
-        piece = nodes[sub].any(axis=1)
+    piece = _grow(sub, bad, rounds * rings + rounds * (rounds - 1) // 2 + 1, n)
     ids = np.unique(sub[piece])
     kw["extent"] = float(np.ptp(X, axis=0).max())
     local = np.full(n, -1, np.int64)
@@ -448,14 +439,13 @@ def _untangle_pass(points, sub, q, *, wall, wall_normals, project, cap_normals, 
     rim = (wall & cap_nodes) | (np.asarray(boundary, bool) & ~wall & ~cap_nodes)
     # targets: initial edge lengths at every corner (keeps graded layers graded)
     target = _TargetLengths(X.copy(), sub, extent)
-    inc = _incidence(sub, n)  # once: every round grows its region on it
     moved = np.zeros(n, bool)
     for rnd in range(rounds):
         bad = q < threshold
         if not bad.any() or work.spent():
             break
         info["rounds"] = rnd + 1
-        region = _grow(inc, bad, rings + rnd)
+        region = _grow(sub, bad, rings + rnd, n)
         # free nodes: nodes of the region not shared with elements outside it
         inside = np.zeros(n, bool)
         inside[sub[region].ravel()] = True

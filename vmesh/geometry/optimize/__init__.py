@@ -31,13 +31,6 @@ import numpy as np
 from . import kernels as K
 
 
-def _boundary_nodes(sub: np.ndarray, n: int) -> np.ndarray:
-    """Nodes on faces used by only one (sub-)hexahedron."""
-    from ..untangle import _mesh_boundary
-
-    return _mesh_boundary(sub, n)
-
-
 def _first_layer(sub: np.ndarray, wall: np.ndarray) -> np.ndarray:
     """Nodes off the wall joined to a wall node by an edge of a (sub-)hexahedron."""
     out = np.zeros(len(wall), bool)
@@ -341,7 +334,9 @@ def _node_kinds(sub, n, wall, project, wall_normals, cap_nodes, cap_normals, bou
     wall = np.zeros(n, bool) if wall is None else np.asarray(wall, bool)
     caps = np.zeros(n, bool) if cap_nodes is None else np.asarray(cap_nodes, bool)
     if boundary is None:
-        boundary = _boundary_nodes(sub, n)
+        from ..untangle import _mesh_boundary  # (untangle imports this package)
+
+        boundary = _mesh_boundary(sub, n)
     kind = np.full(n, K.FREE, np.int64)
     kind[np.asarray(boundary, bool)] = K.FIXED
     normal = np.zeros((n, 3))
