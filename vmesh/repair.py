@@ -63,16 +63,47 @@ def manifold_face_pairs(faces: np.ndarray):
     return halves // 3, same, halves
 
 
-def _row_labels(rows: np.ndarray) -> np.ndarray:
-    """A label per row ``(n, k)``, equal for equal rows (lexsort: np.unique(axis=0) sorts
-    structured rows an order of magnitude slower)."""
-    if len(rows) == 0:
-        return np.zeros(0, np.int64)
-    order = np.lexsort(rows.T[::-1])
-    r = rows[order]
+def _packed_columns(rows: np.ndarray) -> list[np.ndarray]:
+    """Integer rows ``(n, k)`` as few int64 keys that sort like the rows (consecutive columns
+    packed in mixed radix while the key stays below 2^62): a lexsort over 1-2 keys instead
+    of k, or one argsort."""
+    lo, hi = rows.min(axis=0).astype(np.int64), rows.max(axis=0).astype(np.int64)
+    span = [int(h) - int(l) + 1 for l, h in zip(lo, hi)]
+    keys, key, size = [], None, 1
+    for j in range(rows.shape[1]):
+        col = rows[:, j].astype(np.int64) - lo[j]
+        if key is not None and size * span[j] < 1 << 62:
+            key, size = key * span[j] + col, size * span[j]
+        else:
+            if key is not None:
+                keys.append(key)
+            key, size = col, span[j]
+    keys.append(key)
+    return keys
+
+
+def _row_order(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The stable lexicographic order of rows ``(n, k)`` (as ``np.lexsort`` of the columns)
+    and, along it, where a new distinct row starts."""
+    if rows.dtype.kind in "iu" and rows.shape[1] > 1:
+        keys = _packed_columns(rows)
+        order = np.argsort(keys[0], kind="stable") if len(keys) == 1 else np.lexsort(keys[::-1])
+        r = np.stack([k[order] for k in keys], axis=1)
+    else:
+        order = np.lexsort(rows.T[::-1])
+        r = rows[order]
     new = np.ones(len(r), bool)
     new[1:] = np.any(r[1:] != r[:-1], axis=1)
-    label = np.empty(len(r), np.int64)
+    return order, new
+
+
+def _row_labels(rows: np.ndarray) -> np.ndarray:
+    """A label per row ``(n, k)``, equal for equal rows, numbered in the rows' lexicographic
+    order (np.unique(axis=0) sorts structured rows an order of magnitude slower)."""
+    if len(rows) == 0:
+        return np.zeros(0, np.int64)
+    order, new = _row_order(rows)
+    label = np.empty(len(order), np.int64)
     label[order] = np.cumsum(new) - 1
     return label
 

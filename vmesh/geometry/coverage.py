@@ -300,15 +300,18 @@ def _past_end_faces(X, boundary_faces, boundary_ids, points) -> np.ndarray:
     for k in np.unique(ids[ids > 0]).tolist():
         P = X[np.unique(faces[ids == k])]
         c = P.mean(axis=0)
-        n = np.linalg.svd(P - c)[2][-1]
+        n = np.linalg.svd(P - c, full_matrices=False)[2][-1]  # the full U is (k, k)
         R = float(np.linalg.norm(P - c, axis=1).max())
-        near = np.linalg.norm(X - c, axis=1) < 1.5 * R  # the mesh lies on the inner side
+        # the mesh lies on the inner side; the box test only spares the norms far away
+        box = np.flatnonzero((np.abs(X - c) < 1.5 * R).all(axis=1))
+        near = box[np.linalg.norm(X[box] - c, axis=1) < 1.5 * R]
         if (X[near].mean(axis=0) - c) @ n > 0:
             n = -n
         rel = points - c
         along = rel @ n
-        lateral = np.linalg.norm(rel - along[:, None] * n, axis=1)
-        out |= (along > 0) & (lateral < 1.5 * R)
+        ahead = np.flatnonzero(along > 0)
+        lateral = np.linalg.norm(rel[ahead] - along[ahead, None] * n, axis=1)
+        out[ahead[lateral < 1.5 * R]] = True
     return out
 
 

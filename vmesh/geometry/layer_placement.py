@@ -35,11 +35,10 @@ def _face_partners(cells: np.ndarray, p: int, members: np.ndarray) -> np.ndarray
     partner = np.full(len(keys), -1, np.int64)
     if len(keys) == 0:
         return partner
-    from ..repair import _row_labels  # lexsort labels: np.unique(axis=0) is ~3x slower here
+    from ..repair import _row_order  # packed-key sort: np.unique(axis=0) is ~10x slower here
 
-    inv = _row_labels(keys)
-    order = np.argsort(inv, kind="stable")
-    same = inv[order[1:]] == inv[order[:-1]]
+    order, new = _row_order(keys)
+    same = ~new[1:]
     a, b = order[:-1][same], order[1:][same]
     partner[a], partner[b] = b, a
     return partner
@@ -102,8 +101,11 @@ def layer_lines(cells, p, boundary_faces, boundary_ids, boundary_cells, in_layer
         hit = cells[cell[:, None], tf[face]] == last[:, None]
         at = np.where(active, hit.argmax(axis=1), at)
     lines = np.stack(columns, axis=1)
-    lines, first = np.unique(lines, axis=0, return_index=True)
-    return lines, elements[first]
+    from ..repair import _row_order  # np.unique(lines, axis=0, return_index=True), ~5x faster
+
+    order, new = _row_order(lines)
+    first = order[new]
+    return lines[first], elements[first]
 
 
 def wall_normals(points, boundary_faces, boundary_ids, p) -> np.ndarray:

@@ -34,6 +34,7 @@ from . import kernels as K
 def _first_layer(sub: np.ndarray, wall: np.ndarray) -> np.ndarray:
     """Nodes off the wall joined to a wall node by an edge of a (sub-)hexahedron."""
     out = np.zeros(len(wall), bool)
+    sub = sub[wall[sub].any(axis=1)]  # only hexahedra with a wall node have such an edge
     for a in (1, 2, 4):
         for c in range(8):
             if not c & a:
@@ -50,7 +51,9 @@ class _Stage:
         touching = active_mask[sub].any(axis=1)
         self.elements = np.flatnonzero(touching)
         self.hexes = np.ascontiguousarray(sub[self.elements])
-        floor = 1e-9 * max(float(np.ptp(X0[self.hexes.ravel()], axis=0).max()), 1e-300) if len(self.hexes) else 1.0
+        used = np.zeros(len(X0), bool)
+        used[self.hexes.ravel()] = True  # the extent of the stage's nodes, each taken once
+        floor = 1e-9 * max(float(np.ptp(X0[used], axis=0).max()), 1e-300) if len(self.hexes) else 1.0
         self.scale = K.target_scales(X0, self.hexes, floor)
         self.ptr, self.inc = K.incidence(self.hexes, n)
         nodes = np.flatnonzero(active_mask & ~fixed)
