@@ -31,7 +31,9 @@ the two half-planes of a branch's end ask for different turns: the bulges of the
 averaged over the blocks they share (:data:`SMOOTH_ROUNDS` times), then the turns of a
 block's edges are scaled down until the bulges of any two of them differ by at most
 :data:`ALIKE` times their distance, so a thin core block is not sheared between edges bent
-apart.
+apart. Away from junctions an edge bulges no more than the vessel's own course does between
+its two sections (measured on the wall, :func:`_course_bounds`): a tilted section at the end
+of a straight run (an SWC corner's mitre) does not bend the run.
 """
 
 from __future__ import annotations
