@@ -310,7 +310,7 @@ def _fill_edges(fill: _Fill) -> None:
     wall_face = topo.face_boundary == FACE_WALL
     edge_normal = _wall_edge_normals(blocks, topo, V, wall_face) if signed_distance is not None else None
     turn, bulge = edge_turns(blocks, topo, V) if ref.curved_sections else (np.zeros((len(topo.edges), 2)), None)
-    tangent, along = along_tangents(blocks, topo, V) if ref.curved_sections else (None, np.zeros(len(topo.edges), bool))
+    tangent, along = along_tangents(blocks, topo, V, fill.project) if ref.curved_sections else (None, np.zeros(len(topo.edges), bool))
     for n in np.unique(num.n_edge):
         sel = np.flatnonzero(num.n_edge == n)
         a, b = V[topo.edges[sel, 0]], V[topo.edges[sel, 1]]

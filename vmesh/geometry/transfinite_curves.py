@@ -31,7 +31,9 @@ the two half-planes of a branch's end ask for different turns: the bulges of the
 averaged over the blocks they share (:data:`SMOOTH_ROUNDS` times), then the turns of a
 block's edges are scaled down until the bulges of any two of them differ by at most
 :data:`ALIKE` times their distance, so a thin core block is not sheared between edges bent
-apart.
+apart. Away from junctions an edge bulges no more than the vessel's own course does between
+its two sections (measured on the wall, :func:`_course_bounds`): a tilted section at the end
+of a straight run (an SWC corner's mitre) does not bend the run.
 """
 
 from __future__ import annotations
@@ -53,6 +55,13 @@ MAX_ALONG_TURN = np.radians(30.0)
 ALIKE = 0.5
 #: rounds of averaging the along edges' bulges over their blocks before the :data:`ALIKE` bound
 SMOOTH_ROUNDS = 3
+#: an along edge away from junctions bulges at most this × the bulge of its vessel's own
+#: course (the wall's offset from the segment's wall chords; see :func:`_course_bounds`),
+#: scaled to the edge's length: a curved vessel keeps its arc, a straight run into a tilted
+#: section (a corner's mitre) gets a straight edge
+COURSE_FACTOR = 1.5
+#: ... plus this × the blocks' radius: the wall's facets and the projection's tolerance
+COURSE_FLOOR = 0.1
 #: end turns below this (radians) leave an along-skeleton edge straight
 MIN_ALONG_TURN = np.radians(0.5)
 #: samples per curve for the arc-length re-spacing of its nodes
@@ -134,7 +143,7 @@ def edge_turns(blocks: BlockStructure, topo: Topology, V: np.ndarray):
     return turn, normal
 
 
-def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray):
+def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray, project=None):
     """Unit end tangents of the block edges along the skeleton.
 
     The section normal at each end is the mean unit normal of the cross-section faces (the
@@ -143,6 +152,8 @@ def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray):
     the rotation of the first normal onto the second (at most :data:`MAX_ALONG_TURN`); the
     edges' bulges are averaged over the blocks they share (:func:`_smooth_bulges`), then
     scaled down where a block's edges would still bulge apart (:func:`_alike_in_blocks`).
+    With ``project`` (points -> closest wall points), edges away from junctions bulge no
+    more than the vessel's own course does between the two sections (:func:`_course_bounds`).
 
     Returns
     -------
@@ -194,12 +205,81 @@ def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray):
     bend = np.cross(d, w)  # the side the symmetric arc bulges to (N0 turned onto N1 about w)
     bend /= np.maximum(np.linalg.norm(bend, axis=1, keepdims=True), 1e-300)
     half, bend = _smooth_bulges(topo, V, d, half, bend, curved, edges_of)
+    if project is not None:
+        half = np.where(_near_junctions(blocks, topo), half, np.minimum(half, _course_bounds(blocks, topo, V, project)))
     acc = _symmetric_tangents(d, bend, half)
     scale = _alike_in_blocks(topo, V, acc, edges_of)
     half = half * scale
     acc = _symmetric_tangents(d, bend, half)
     curved &= (half > MIN_ALONG_TURN) & (np.einsum("ij,ij->i", N0, d) > 0) & (np.einsum("ij,ij->i", N1, d) > 0)
     return acc, curved
+
+
+def _near_junctions(blocks, topo):
+    """Along edges of the segments that reach a junction: there the along edges turn from a
+    junction's half-plane to its branch as the crotch asks, not as the vessel's course does.
+    A junction's corners are those of blocks inside it (no segment) or shared by the blocks
+    of three or more segments (a regular section is shared by two); every block of a
+    (node, segment) group touching one is near."""
+    nb = len(blocks.hexes)
+    pairs = np.unique(np.c_[blocks.hexes.ravel(), np.repeat(blocks.block_segment, 8)], axis=0)
+    n_seg = np.bincount(pairs[:, 0], minlength=len(blocks.vertices))
+    corner = n_seg >= 3
+    corner[blocks.hexes[blocks.block_segment < 0].ravel()] = True
+    _, group = np.unique(np.c_[blocks.block_node, blocks.block_segment], axis=0, return_inverse=True)
+    group = group.ravel()
+    touched = np.zeros(group.max() + 1 if nb else 0, bool)
+    touched[group[corner[blocks.hexes].any(axis=1)]] = True
+    out = np.zeros(len(topo.edges), bool)
+    out[topo.block_edge[touched[group]].ravel()] = True
+    return out
+
+
+def _course_bounds(blocks, topo, V, project):
+    """Per edge, the largest end turn (radians) of its symmetric arc that bulges no more
+    than the vessel's own course between its two sections.
+
+    The sections' tilt cannot tell a curved vessel from a straight run into a tilted section
+    (a corner's mitre, a chamfered SWC corner): both rotate the normals. The wall can. The
+    wall corners of both sections lie on the wall, so the wall's offset from the midpoint of
+    each wall chord of a segment (``project(M) - M``) is the sagitta of the wall along it:
+    along a bend the outer and the inner wall both bulge away from the bend's centre, by
+    about the course's own sagitta; along a straight run, twisted or tilted sections alike,
+    the offsets cancel in their mean. Each along edge of the segment may bulge
+    :data:`COURSE_FACTOR` × the mean offset's length (× its length over the wall chords'
+    mean length) plus :data:`COURSE_FLOOR` × its blocks' radius."""
+    E = len(topo.edges)
+    bound = np.full(E, np.inf)
+    along = blocks.axis_kind == AXIS_ALONG
+    bsel = np.flatnonzero((along.sum(axis=1) == 1) & (blocks.block_segment >= 0))
+    if len(bsel) == 0:
+        return bound
+    axis = np.argmax(along[bsel], axis=1)
+    cols = 4 * axis[:, None] + np.arange(4)[None, :]
+    edges = np.take_along_axis(topo.block_edge[bsel], cols, axis=1)  # (nb, 4) along edges
+    _, group = np.unique(np.c_[blocks.block_node[bsel], blocks.block_segment[bsel]], axis=0, return_inverse=True)
+    group = group.ravel()
+    ng = group.max() + 1
+    e_flat, g_flat = edges.ravel(), np.repeat(group, 4)
+    e_flat, first = np.unique(e_flat, return_index=True)
+    g_flat = g_flat[first]
+    a, b = V[topo.edges[e_flat, 0]], V[topo.edges[e_flat, 1]]
+    L = np.linalg.norm(b - a, axis=1)
+    wall = blocks.vertex_on_surface[topo.edges[e_flat, 0]] & blocks.vertex_on_surface[topo.edges[e_flat, 1]]
+    M = 0.5 * (a[wall] + b[wall])
+    offset = np.zeros((ng, 3))
+    np.add.at(offset, g_flat[wall], project(M) - M)
+    n_wall = np.bincount(g_flat[wall], minlength=ng)
+    L_wall = np.bincount(g_flat[wall], weights=L[wall], minlength=ng)
+    has = n_wall > 0
+    sag = np.full(ng, np.inf)
+    sag[has] = np.linalg.norm(offset[has], axis=1) / n_wall[has]
+    L_ref = np.where(has, L_wall / np.maximum(n_wall, 1), 1.0)
+    radius = np.full(E, np.inf)
+    np.minimum.at(radius, topo.block_edge[bsel].ravel(), np.repeat(blocks.block_radius[bsel], 12))
+    allowed = COURSE_FACTOR * sag[g_flat] * L / np.maximum(L_ref[g_flat], 1e-300) + COURSE_FLOOR * radius[e_flat]
+    bound[e_flat] = np.arcsin(np.clip(4.0 * allowed / np.maximum(L, 1e-300), 0.0, 1.0))
+    return bound
 
 
 def _symmetric_tangents(d, bend, half):
