@@ -82,6 +82,11 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         sdf = SignedDistance.from_surface(surface)
     # the mesher queries near the wall only, where the exact fine query is cheaper than a
     # coarse query plus its refinement
+    cuts = blocks.info.get("contact_cuts")
+    if cuts is not None:  # the domain the blocks were built in (vmesh.geometry.contact_cut)
+        from ..geometry.contact_cut import with_cuts
+
+        sdf, projector = with_cuts(sdf, projector, cuts)
     exact = sdf.fine
     sm = mesh_blocks(blocks, projector, ref, progress=ctx.tick, signed_distance=exact.distance, intersect_lines=exact.intersect_lines)
     if exact_first_layer:  # a given layer thickness, from the wall rather than the block corners
@@ -311,7 +316,13 @@ def compute_quality(ctx, histogram, fail_on_invalid, bins):
     sj = scaled_jacobian(mesh.points, mesh.cells, mesh.order, reference_points(mesh.order, mesh.node_distribution))
     mesh.cell_data["scaled_jacobian"] = sj
     summary = quality_summary(sj)
-    dist = boundary_distance(mesh, ctx.surface, ctx.blocks, wall_projector(ctx.surface))  # the whole surface's cached tree
+    projector = wall_projector(ctx.surface)  # the whole surface's cached tree
+    cuts = ctx.blocks.info.get("contact_cuts") if ctx.blocks is not None else None
+    if cuts is not None and ctx.sdf is not None:  # wall nodes on a contact cut are on the domain's boundary
+        from ..geometry.contact_cut import with_cuts
+
+        projector = with_cuts(ctx.sdf, projector, cuts)[1]
+    dist = boundary_distance(mesh, ctx.surface, ctx.blocks, projector)
     ctx.quality = {"scaled_jacobian": sj, "summary": summary, "boundary_distance": dist}
     ctx.report.sections["quality"] = {"scaled_jacobian": summary}
     folds = wall_fold_share(sj, mesh.cell_data["block_id"], ctx.blocks.info.get("wall_fold_blocks")) if ctx.blocks is not None and "block_id" in mesh.cell_data else None
