@@ -289,7 +289,8 @@ def test_vessels_passing_in_contact_are_meshed_apart(tmp_path, gap, cross):
     crossing it 0.8 rad out of plane at 1.75 (0.05 beyond touching, fused by the blend; 37
     inverted elements without the cut). With the cut between them each vessel is meshed in
     its own lumen: valid, conforming and watertight, every boundary face on the wall, a
-    cap or the cut (labelled wall), and the neck left out is a small share of the wall."""
+    cap or the cut (labelled wall, counted in report.json), and the neck left out is a
+    small share of the wall."""
     from contact_vessels import passing_vessels
     from test_mesh_cases import run_default
     from vmesh.blocks import HEX_FACES
@@ -314,3 +315,4 @@ def test_vessels_passing_in_contact_are_meshed_apart(tmp_path, gap, cross):
     on_cut = cut_feet(cuts, mesh.points[wall], ctx.sdf.distance)[0] < 1e-6 * ctx.surface.diagonal
     assert (on_surface | on_cut).all() and on_cut.sum() > 4
     assert ctx.report.sections["coverage"]["uncovered_share"] < 0.01
+    assert ctx.report.sections["boundary_distance"]["contact_cut_faces"] > 0  # the cut's wall, named in report.json

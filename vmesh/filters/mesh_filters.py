@@ -376,7 +376,7 @@ def boundary_distance(mesh, surface, blocks, projector) -> dict:
         return {"max": 0.0, "mean": 0.0, "max_rel": 0.0, "mean_rel": 0.0, "node_max": 0.0, "node_max_rel_diagonal": 0.0}
     radius = blocks.block_radius[mesh.cell_data["block_id"][mesh.boundary_cells[wall]]] if blocks is not None else np.ones(len(faces))
     centres = mesh.points[faces].mean(axis=1)  # bilinear centre of each element face
-    d_c = projector.project(centres)[1]
+    _, d_c, face = projector.project(centres)
     nodes = np.unique(faces)
     d_n = projector.project(mesh.points[nodes])[1]
     rel = d_c / radius
@@ -387,7 +387,20 @@ def boundary_distance(mesh, surface, blocks, projector) -> dict:
         "mean_rel": float(rel.mean()),
         "node_max": float(d_n.max()),
         "node_max_rel_diagonal": float(d_n.max() / surface.diagonal),
+        **_on_cuts(mesh, wall, face),
     }
+
+
+def _on_cuts(mesh, wall, face) -> dict:
+    """Wall faces that lie on a contact cut (the projector answers face -1 there,
+    :class:`~vmesh.geometry.contact_cut.CutProjector`): their count and area, about twice
+    the neck's cross-section that the mesh leaves out; nothing without cuts."""
+    on = np.asarray(face) < 0
+    if not on.any():
+        return {}
+    q = mesh.points[mesh.corner_boundary_faces()[wall][on]]
+    area = 0.5 * np.linalg.norm(np.cross(q[:, 2] - q[:, 0], q[:, 3] - q[:, 1]), axis=1).sum()
+    return {"contact_cut_faces": int(on.sum()), "contact_cut_area": float(area)}
 
 
 @register_filter(
