@@ -18,6 +18,7 @@ as the wrapped queries do.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -41,6 +42,13 @@ class ContactCuts:
 
     def __len__(self) -> int:
         return len(self.centre)
+
+    @cached_property
+    def tree(self):
+        """A k-d tree of the cut centres."""
+        from scipy.spatial import cKDTree
+
+        return cKDTree(self.centre)
 
     def summary(self) -> list[dict]:
         """One dict per cut for report.json."""
@@ -121,17 +129,18 @@ def _segment_distance(y: np.ndarray, seg: np.ndarray) -> np.ndarray:
     return np.linalg.norm(y - (seg[0] + t[:, None] * ab), axis=1)
 
 
-def cut_feet(cuts: ContactCuts, points: np.ndarray, inside) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def cut_feet(cuts: ContactCuts, points: np.ndarray, inside) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Nearest cut foot of each point: the point's foot on a cut's plane where that foot lies
     on the patch and inside the vessel (``inside(feet) > 0``, a signed distance).
 
     Returns (distance (n,), inf where none; foot (n, 3); signed side (n,): +1 on the
-    side the normal points to)."""
+    side the normal points to, 0 where none; the cut's index (n,), -1 where none)."""
     p = np.asarray(points, float).reshape(-1, 3)
     n = len(p)
     dist = np.full(n, np.inf)
     foot = p.copy()
     side = np.zeros(n)
+    which = np.full(n, -1, np.int64)
     for k in range(len(cuts)):
         near = np.flatnonzero(np.sum((p - cuts.centre[k]) ** 2, axis=1) < cuts.reach[k] ** 2)
         if not len(near):
@@ -144,16 +153,25 @@ def cut_feet(cuts: ContactCuts, points: np.ndarray, inside) -> tuple[np.ndarray,
         idx, y, h = near[on], y[on], h[on]
         ok = np.asarray(inside(y), float) > 0
         idx, y, h = idx[ok], y[ok], h[ok]
-        dist[idx], foot[idx], side[idx] = np.abs(h), y, np.where(h >= 0, 1.0, -1.0)
-    return dist, foot, side
+        dist[idx], foot[idx], side[idx], which[idx] = np.abs(h), y, np.where(h >= 0, 1.0, -1.0), k
+    return dist, foot, side, which
 
 
 def _near_any(cuts: ContactCuts, p: np.ndarray) -> np.ndarray:
-    """Indices of the points within some cut's reach."""
-    near = np.zeros(len(p), bool)
+    """Indices of the points within some cut's reach (a point that is has its nearest cut
+    centre within the largest reach: one tree query, then the exact test on those few;
+    the optimisers ask many small batches, a whole-brain tree has dozens of cuts)."""
+    if not len(p):
+        return np.zeros(0, np.int64)
+    d, _ = cuts.tree.query(p, distance_upper_bound=float(cuts.reach.max()))
+    cand = np.flatnonzero(np.isfinite(d))
+    if not len(cand):
+        return cand
+    near = np.zeros(len(cand), bool)
+    q = p[cand]
     for k in range(len(cuts)):
-        near |= np.sum((p - cuts.centre[k]) ** 2, axis=1) < cuts.reach[k] ** 2
-    return np.flatnonzero(near)
+        near |= np.sum((q - cuts.centre[k]) ** 2, axis=1) < cuts.reach[k] ** 2
+    return cand[near]
 
 
 def _points(points) -> np.ndarray:
@@ -169,6 +187,8 @@ class CutSurface:
         self.cuts = cuts
 
     def __getattr__(self, name):
+        if name == "inner":  # not set yet (copy, unpickling): no recursion
+            raise AttributeError(name)
         return getattr(self.inner, name)
 
     @property
@@ -185,7 +205,7 @@ class CutSurface:
         near = _near_any(self.cuts, p)
         if len(near):
             closest, d, face = closest.copy(), d.copy(), face.copy()
-            h, y, _ = cut_feet(self.cuts, p[near], self.inner.distance)
+            h, y, _, _ = cut_feet(self.cuts, p[near], self.inner.distance)
             cut = (h < np.abs(d[near])) & (d[near] > 0)  # outside the vessel the cut is no boundary
             i = near[cut]
             closest[i], d[i], face[i] = y[cut], h[cut], -1
@@ -204,9 +224,9 @@ class CutSurface:
         if len(near):
             g = g.copy()
             d = self.inner.distance(p[near])
-            h, _, side = cut_feet(self.cuts, p[near], self.inner.distance)
+            h, _, side, which = cut_feet(self.cuts, p[near], self.inner.distance)
             cut = (h < np.abs(d)) & (d > 0)
-            g[near[cut]] = side[cut, None] * self.cuts.normal[_which(self.cuts, p[near[cut]])]
+            g[near[cut]] = side[cut, None] * self.cuts.normal[which[cut]]
         return g
 
     def intersect_lines(self, points, directions, reach, side=None):
@@ -239,18 +259,6 @@ class CutSurface:
         return moved, hit
 
 
-def _which(cuts: ContactCuts, p: np.ndarray) -> np.ndarray:
-    """Index of the cut whose plane is nearest each point among those in reach."""
-    best = np.full(len(p), np.inf)
-    out = np.zeros(len(p), np.int64)
-    for k in range(len(cuts)):
-        h = np.abs((p - cuts.centre[k]) @ cuts.normal[k])
-        h[np.sum((p - cuts.centre[k]) ** 2, axis=1) >= cuts.reach[k] ** 2] = np.inf
-        better = h < best
-        best[better], out[better] = h[better], k
-    return out
-
-
 class CutProjector:
     """A wall projector (:class:`~vmesh.geometry.projection.SurfaceProjector`) onto the wall
     and the contact cuts: a point goes to its cut foot where that is nearer than the wall
@@ -272,7 +280,7 @@ class CutProjector:
         near = _near_any(self.cuts, p)
         if len(near):
             closest, d, face = closest.copy(), d.copy(), face.copy()
-            h, y, _ = cut_feet(self.cuts, p[near], self.inside)
+            h, y, _, _ = cut_feet(self.cuts, p[near], self.inside)
             cut = h < d[near]
             i = near[cut]
             closest[i], d[i], face[i] = y[cut], h[cut], -1
