@@ -39,6 +39,7 @@ from ..registry import Parameter, register_filter
         Parameter("check_wall_projection", "bool", True, "Also check boundary-layer blocks with their wall faces projected onto the wall, and thicken the layer (up to 0.5) where they would fold."),
         Parameter("own_territory", "bool", True, "Cut cross-section rays where they cross into a touching vessel (one whose way along the skeleton is much longer than the straight way), so that each vessel's blocks stay in its own lumen."),
         Parameter("junction_lean", "float", 1.0, "How far the half cross-sections of a junction of 4 or more branches that leave its plane unalike may lean about its axis towards the true bisector of their branches (0: half-planes).", min=0.0, max=1.5),
+        Parameter("cut_contacts", "bool", True, "Where two vessels pass in contact with no junction between them, mesh them apart: a planar cut on the radical plane between their axes is part of the wall for every later stage (rays, projection, optimisers); the fused neck's surface is left out (report.json: blocks.contact_cuts)."),
         Parameter("work_budget", "int", 160, "Most assemblies of the whole block structure over all fix rounds and changed skeletons (each costs time in proportion to the tree); a structure still invalid then fails with the usual error (0: no budget).", min=0, max=10000),
     ],
     reads=("skeleton", "sdf"),
@@ -49,7 +50,7 @@ from ..registry import Parameter, register_filter
 def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_bias, junction_rotation, rotation_range,
                           max_out_of_plane, min_branch_gap, split_nonplanar, clear_ray_factor, junction_margin, cap_distance,
                           dome_depth, dome_max_retreat, max_fix_rounds, check_wall_projection, junction_centre=1.0,
-                          relieve_wall_folds=True, work_budget=160, own_territory=True, junction_lean=1.0):
+                          relieve_wall_folds=True, work_budget=160, own_territory=True, junction_lean=1.0, cut_contacts=True):
     """One O-grid cross-section per skeleton node (a core of a x b blocks, a ring and a
     boundary-layer ring whose outer corners are found on the wall by ray casting in the
     section plane), half cross-sections on half-planes through each junction's axis shared
@@ -87,6 +88,11 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
             project = wall_projector(ctx.surface, ctx.caps)  # shared with mesh_transfinite and the checks
         else:
             project = sdf.closest_points
+    cuts = _contact_cuts(ctx) if cut_contacts else None
+    if cuts is not None:
+        from ..geometry.contact_cut import with_cuts
+
+        sdf, project = with_cuts(sdf, project, cuts)
     blocks = build_blocks(
         ctx.skeleton, sdf.distance, ctx.caps, options, bad_blocks_path=bad_path, warn=ctx.warn, progress=ctx.tick, project=project,
         intersect_lines=sdf.intersect_lines,
@@ -121,10 +127,24 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         "min_projected_wall_quality": info.get("min_projected_wall_quality"),
         "work": info.get("work"),  # assemblies (and the budget), rays cast and reused
         "cut_stubs": _cut_stubs(ctx, info.get("cut_stubs", [])),
+        "contact_cuts": cuts.summary() if cuts is not None else [],
     }
+    if cuts is not None and len(cuts):
+        info["contact_cuts"] = cuts  # mesh_transfinite and compute_quality see the same domain
     if checks["boundary_components"] != 1:
         ctx.warn(f"the outer block faces form {checks['boundary_components']} pieces (is the skeleton connected?)")
     _warn_vessels_in_contact(ctx)
+
+
+def _contact_cuts(ctx):
+    """The cuts between vessels in contact on the skeleton the blocks are built on
+    (:mod:`vmesh.geometry.contact_cut`); None when there are none."""
+    from ..geometry.contact_cut import contact_cuts
+    from ..geometry.skeleton.contact import vessels_in_contact
+
+    sk = ctx.skeleton
+    cuts = contact_cuts(sk.points, sk.radii, sk.edges, vessels_in_contact(sk.points, sk.radii, sk.edges))
+    return cuts if len(cuts) else None
 
 
 def _warn_vessels_in_contact(ctx) -> None:

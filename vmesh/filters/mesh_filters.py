@@ -82,6 +82,11 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         sdf = SignedDistance.from_surface(surface)
     # the mesher queries near the wall only, where the exact fine query is cheaper than a
     # coarse query plus its refinement
+    cuts = blocks.info.get("contact_cuts")
+    if cuts is not None:  # the domain the blocks were built in (vmesh.geometry.contact_cut)
+        from ..geometry.contact_cut import with_cuts
+
+        sdf, projector = with_cuts(sdf, projector, cuts)
     exact = sdf.fine
     sm = mesh_blocks(blocks, projector, ref, progress=ctx.tick, signed_distance=exact.distance, intersect_lines=exact.intersect_lines)
     if exact_first_layer:  # a given layer thickness, from the wall rather than the block corners
@@ -311,7 +316,13 @@ def compute_quality(ctx, histogram, fail_on_invalid, bins):
     sj = scaled_jacobian(mesh.points, mesh.cells, mesh.order, reference_points(mesh.order, mesh.node_distribution))
     mesh.cell_data["scaled_jacobian"] = sj
     summary = quality_summary(sj)
-    dist = boundary_distance(mesh, ctx.surface, ctx.blocks, wall_projector(ctx.surface))  # the whole surface's cached tree
+    projector = wall_projector(ctx.surface)  # the whole surface's cached tree
+    cuts = ctx.blocks.info.get("contact_cuts") if ctx.blocks is not None else None
+    if cuts is not None and ctx.sdf is not None:  # wall nodes on a contact cut are on the domain's boundary
+        from ..geometry.contact_cut import with_cuts
+
+        projector = with_cuts(ctx.sdf, projector, cuts)[1]
+    dist = boundary_distance(mesh, ctx.surface, ctx.blocks, projector)
     ctx.quality = {"scaled_jacobian": sj, "summary": summary, "boundary_distance": dist}
     ctx.report.sections["quality"] = {"scaled_jacobian": summary}
     folds = wall_fold_share(sj, mesh.cell_data["block_id"], ctx.blocks.info.get("wall_fold_blocks")) if ctx.blocks is not None and "block_id" in mesh.cell_data else None
@@ -365,7 +376,7 @@ def boundary_distance(mesh, surface, blocks, projector) -> dict:
         return {"max": 0.0, "mean": 0.0, "max_rel": 0.0, "mean_rel": 0.0, "node_max": 0.0, "node_max_rel_diagonal": 0.0}
     radius = blocks.block_radius[mesh.cell_data["block_id"][mesh.boundary_cells[wall]]] if blocks is not None else np.ones(len(faces))
     centres = mesh.points[faces].mean(axis=1)  # bilinear centre of each element face
-    d_c = projector.project(centres)[1]
+    _, d_c, face = projector.project(centres)
     nodes = np.unique(faces)
     d_n = projector.project(mesh.points[nodes])[1]
     rel = d_c / radius
@@ -376,7 +387,20 @@ def boundary_distance(mesh, surface, blocks, projector) -> dict:
         "mean_rel": float(rel.mean()),
         "node_max": float(d_n.max()),
         "node_max_rel_diagonal": float(d_n.max() / surface.diagonal),
+        **_on_cuts(mesh, wall, face),
     }
+
+
+def _on_cuts(mesh, wall, face) -> dict:
+    """Wall faces that lie on a contact cut (the projector answers face -1 there,
+    :class:`~vmesh.geometry.contact_cut.CutProjector`): their count and area, about twice
+    the neck's cross-section that the mesh leaves out; nothing without cuts."""
+    on = np.asarray(face) < 0
+    if not on.any():
+        return {}
+    q = mesh.points[mesh.corner_boundary_faces()[wall][on]]
+    area = 0.5 * np.linalg.norm(np.cross(q[:, 2] - q[:, 0], q[:, 3] - q[:, 1]), axis=1).sum()
+    return {"contact_cut_faces": int(on.sum()), "contact_cut_area": float(area)}
 
 
 @register_filter(

@@ -1,0 +1,46 @@
+"""Small generated vessels whose branches pass each other in contact (issue 18): surfaces
+made as the vessel generator makes them (smooth union of tubes, marching cubes, open ends),
+their true skeleton written beside them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from data_synthetic.vessel_generator import Vessel, write_vessel
+from data_synthetic.vessels import surface as S
+from data_synthetic.vessels import tree as T
+
+
+def passing_vessels(folder, gap: float, cross: float = 0.0, units: str = "mm") -> dict:
+    """A parent tube along x (radius 1.2, from x = -8 to 14) with a side branch ``S`` up +y
+    from x = 6 (radius 1) and a branch ``K`` from the origin (radius 0.7) that passes ``S``
+    with its axis ``gap`` from S's axis (the walls touch at 1.7, fuse into a neck below),
+    leaning ``cross`` radians out of the xy-plane (0: K runs alongside S's side, kissing;
+    more: it crosses S). Writes the vessel's files into ``folder``; returns its manifest."""
+    tree = T.Tree()
+    p, r = T.straight(np.array([-8.0, 0, 0]), np.array([14.0, 0, 0]), 1.2, 1.2)
+    tree.branches.append(T.Branch(p, r))
+    at_s, at_k = int(np.argmin(np.abs(p[:, 0] - 6.0))), int(np.argmin(np.abs(p[:, 0])))
+    p_s, r_s = T.straight(p[at_s], p[at_s] + [0.0, 12.0, 0.0], 1.0, 1.0)
+    tree.branches.append(T.Branch(p_s, r_s, 0, at_s))
+    # K from the origin towards the point at height 8 on S's axis, shifted by ``gap`` off it
+    passing = np.array([6.0 - gap * np.sin(cross), 8.0, gap * np.cos(cross)])
+    d = passing / np.linalg.norm(passing)
+    p_k, r_k = T.straight(p[at_k], p[at_k] + (np.linalg.norm(passing) + 3.0) * d, 0.7, 0.7)
+    tree.branches.append(T.Branch(p_k, r_k, 0, at_k, kind="kissing"))
+    xyz, radius, tags, edges = T.skeleton_of(tree)
+    caps = [(e, n, rr) for _, e, n, rr in S.end_caps(tree)]
+    for e, _, _ in caps:
+        i = int(np.argmin(np.linalg.norm(xyz - e, axis=1)))
+        tags[i] = tags[i] + (["inlet"] if e[0] < -7.9 else ["outlet"])
+    h = 0.7 / 2.6
+    F, grid = S.implicit_field(tree, "open", h)
+    V, Tri = S.contour(F, grid, False, smooth_iters=0)
+    V, Tri = S.remove_faces(V, Tri, S.cap_faces(V, Tri, caps, 1e-3))
+    V = S.smooth(V, Tri)
+    V, Tri = S.decimate(V, Tri, max(10_000, len(Tri) // 4))
+    V = S.snap_to_caps(V, caps, 0.05)
+    manifest = {"name": f"passing_{gap:g}_{cross:g}", "units": units, "surface_format": "ply"}
+    return write_vessel(Vessel(V, Tri, xyz, radius, tags, edges, manifest), Path(folder))
