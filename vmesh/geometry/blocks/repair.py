@@ -50,7 +50,6 @@ class _Repair:
         if np.any(after < 0):
             # still folded: turn the half-planes too, then place the first sections again
             self._rotate_for_wall(ends)
-            self._rotate_one_at_a_time(nodes)
             trial = self._margins_for_wall(ends)
             after = self._checked_score(trial, near)
         if not (np.all(after >= before - 1e-9) and np.any(after > before + 1e-9)):
@@ -231,47 +230,6 @@ class _Repair:
             if np.isfinite(capped.max()) and capped.max() > capped[k] + 1e-3:
                 k = int(np.argmax(capped))
             j.cand.pick[sp], j.psi[sp] = k, j.cand.psi[sp, k]
-        self._apply_clearance()
-
-
-    def _rotate_one_at_a_time(self, nodes: list) -> None:
-        """One pass over the half-planes of the junctions ``nodes``, one half-plane of every
-        junction at a time (junctions are independent: one assembly per candidate serves
-        them all), each trying its candidates with the others kept where they are and
-        keeping the one whose junction's first-segment blocks fill best (ties: the current
-        one), with those blocks valid. :meth:`_rotate_for_wall` turns neighbouring
-        half-planes in step, so it misses pairs that fill well only turned differently
-        (a thin daughter's crotch turned towards it, its outer half-plane away)."""
-        opt = self.opt
-        rounds = max(len(self.topo.junctions[c].neighbors) for c in nodes)
-        for r in range(rounds):
-            now = [c for c in nodes if r < len(self.topo.junctions[c].neighbors)]
-            current = {c: int(self.topo.junctions[c].cand.pick[r]) for c in now}
-            ncand = max(self.topo.junctions[c].cand.psi.shape[1] for c in now)
-            score = {c: np.full(ncand, -np.inf) for c in now}
-            for n in range(ncand):
-                for c in now:
-                    j = self.topo.junctions[c]
-                    k = n if n < j.cand.psi.shape[1] and np.isfinite(j.cand.cost[r, n]) else current[c]
-                    j.cand.pick[r], j.psi[r] = k, j.cand.psi[r, k]
-                self._apply_clearance()
-                trial = self.assemble()
-                J = trial.corner_jacobians().min(axis=1)
-                near = {c: self._junction_blocks([c]) for c in now}
-                sel = np.unique(np.concatenate(list(near.values())))
-                q = np.ones(trial.n_blocks)
-                q[sel] = self._fill_quality(trial, sel)
-                for c in now:
-                    branches = np.unique(self.built.block_where[near[c], 0])
-                    if (n == current[c] or np.isfinite(self.topo.junctions[c].cand.cost[r, n])) and J[np.isin(self.built.block_where[:, 0], branches)].min() > 0:
-                        score[c][n] = fill_score(q[near[c]])
-            for c in now:
-                j = self.topo.junctions[c]
-                capped = np.minimum(score[c], opt.repair.good_wall_quality)
-                k = current[c]
-                if np.isfinite(capped.max()) and capped.max() > capped[k] + 1e-3:
-                    k = int(np.argmax(capped))
-                j.cand.pick[r], j.psi[r] = k, j.cand.psi[r, k]
         self._apply_clearance()
 
 
