@@ -269,10 +269,10 @@ class _Sections:
                 # between stand between the half-sections' reach and the end section or the
                 # other junction's reach (thin blocks), never inside the half-sections, where
                 # their blocks surely invert; they stayed at their nodes before
-                a = self._junction_reach(bi, 0)
-                b = br.arc[-1] - self._junction_reach(bi, 1) if br.kinds[1] == JUNCTION else ends[-1]
+                K = len(br.nodes) - 1
+                a = max(0.0, self._junction_reach(bi, 0))
+                b = min(br.arc[-1], br.arc[-1] - self._junction_reach(bi, 1)) if br.kinds[1] == JUNCTION else ends[-1]
                 if b > a:
-                    K = len(br.nodes) - 1
                     br.s[1:-1] = a + (b - a) * np.arange(1, K) / K
 
 
