@@ -264,16 +264,14 @@ class _Sections:
             if br.kinds[0] in (OPEN, CLOSED):
                 lo = max(lo, ends[0] + 0.3 * rb)
             br.s, room = redistribute_sections(ends, lo, hi)
-            if not room and br.kinds[0] == JUNCTION and br.kinds[1] != CYCLE:
-                # a branch shorter than its junctions need (margins and all): the sections
-                # between stand between the half-sections' reach and the end section or the
-                # other junction's reach (thin blocks), never inside the half-sections, where
-                # their blocks surely invert; they stayed at their nodes before
-                K = len(br.nodes) - 1
-                a = max(0.0, self._junction_reach(bi, 0))
-                b = min(br.arc[-1], br.arc[-1] - self._junction_reach(bi, 1)) if br.kinds[1] == JUNCTION else ends[-1]
-                if b > a:
-                    br.s[1:-1] = a + (b - a) * np.arange(1, K) / K
+            if not room and br.kinds[0] == JUNCTION and br.kinds[1] in (OPEN, CLOSED):
+                # a branch shorter than its junction needs: the sections between stand
+                # between the half-sections' reach and the end section (thin blocks),
+                # never inside the half-sections, where their blocks surely invert
+                reach = self._junction_reach(bi, 0)
+                if ends[-1] > reach:
+                    K = len(br.nodes) - 1
+                    br.s[1:-1] = reach + (ends[-1] - reach) * np.arange(1, K) / K
 
 
     # -- 6. frames and ray casting ------------------------------------------------------
