@@ -264,11 +264,13 @@ class _Sections:
             if br.kinds[0] in (OPEN, CLOSED):
                 lo = max(lo, ends[0] + 0.3 * rb)
             br.s, room = redistribute_sections(ends, lo, hi)
-            if not room and br.kinds[0] == JUNCTION and br.kinds[1] in (OPEN, CLOSED):
-                # a branch shorter than its junction needs: the sections between stand
-                # between the half-sections' reach and the end section (thin blocks),
-                # never inside the half-sections, where their blocks surely invert
-                reach = self._junction_reach(bi, 0)
+            if not room and br.kinds == [JUNCTION, CLOSED]:
+                # a closed branch shorter than its junction needs: the sections between
+                # stand between the half-sections' reach and the end section (thin blocks),
+                # not at their nodes inside the half-sections (g0008 extracted's sac). A
+                # short open branch is left as it was: where its blocks stay invalid it is
+                # a stub, cut back into its parent (:mod:`.stubs`)
+                reach = max(0.0, self._junction_reach(bi, 0))
                 if ends[-1] > reach:
                     K = len(br.nodes) - 1
                     br.s[1:-1] = reach + (ends[-1] - reach) * np.arange(1, K) / K
