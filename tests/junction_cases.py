@@ -263,8 +263,9 @@ def side_sac(angle: float = 62.0, ratio: float = 1.4, length: float = 2.1, spaci
     """A straight vessel of radius 1 along x (cut open at +-``half``) with a short, wide
     closed side branch: a sac of radius ``ratio`` leaving the origin at ``angle`` degrees
     from +x, its skeleton ending ``length`` parent radii from the junction, inside the
-    sac's rounded end (a capsule's dome, ``ratio`` past the tube's axis end one sac radius
-    short of the skeleton's end), with nodes every ``spacing`` parent radii.
+    sac's rounded end (a capsule whose axis ends half a sac radius short of the skeleton's
+    end, so the dome reaches half a sac radius beyond it), with nodes every ``spacing``
+    parent radii.
 
     As the generator's ``aneurysm_side`` with ``radius_jump`` leaves one beside a junction
     (g0008 extracted, junction 17: a closed branch of 2.1 times the junction's radius with
