@@ -257,3 +257,36 @@ def retrograde_branch(gap: float, back: float = 45.0, phi: float = 160.0, split:
     r.append(0.8)
     sk = Skeleton(np.asarray(pts), np.asarray(radii, float), np.asarray(edges))
     return JunctionCase(f"retro_{gap:g}_{back:g}_{phi:g}", np.asarray(a), np.asarray(b), np.asarray(r), sk)
+
+
+def side_sac(angle: float = 62.0, ratio: float = 1.4, length: float = 2.1, spacing: float = 0.75, half: float = 8.0) -> tuple:
+    """A straight vessel of radius 1 along x (cut open at +-``half``) with a short, wide
+    closed side branch: a sac of radius ``ratio`` leaving the origin at ``angle`` degrees
+    from +x, its skeleton ending ``length`` parent radii from the junction, inside the
+    sac's rounded end (a capsule whose axis ends half a sac radius short of the skeleton's
+    end, so the dome reaches half a sac radius beyond it), with nodes every ``spacing``
+    parent radii.
+
+    As the generator's ``aneurysm_side`` with ``radius_jump`` leaves one beside a junction
+    (g0008 extracted, junction 17: a closed branch of 2.1 times the junction's radius with
+    a radius of 1.4 times it, 62 degrees from the trunk). Returns the case and its caps
+    (inlet at -x, outlet_1 at +x); the sac's end is closed (no cap)."""
+    from vmesh.caps import Cap
+
+    d = direction(angle)
+    x = np.arange(-half, half + 1e-9, 0.8)
+    j = int(np.argmin(np.abs(x)))
+    x[j] = 0.0
+    n = len(x)
+    m = max(2, int(round(length / spacing)))
+    sac = np.outer(np.arange(1, m + 1) * (length / m), d)
+    pts = np.r_[np.c_[x, np.zeros((n, 2))], sac]
+    edges = np.r_[np.c_[np.arange(n - 1), np.arange(1, n)], [[j, n]], np.c_[np.arange(n, n + m - 1), np.arange(n + 1, n + m)]]
+    radii = np.r_[np.ones(n), np.full(m, ratio)]
+    sk = Skeleton(pts, radii, edges)
+    ex = np.array([1.0, 0.0, 0.0])
+    cuts = ((0, -half * ex, -ex), (0, half * ex, ex))
+    case = CutCase(f"sac_{angle:g}_{ratio:g}_{length:g}", np.array([-(half + 2) * ex, np.zeros(3)]),
+                   np.array([(half + 2) * ex, (length - 0.5 * ratio) * d]), np.array([1.0, ratio]), sk, cuts=cuts)
+    caps = [Cap(1, "inlet", -half * ex, -ex, 1.0), Cap(2, "outlet_1", half * ex, ex, 1.0)]
+    return case, caps

@@ -18,6 +18,10 @@ from ..rays import clip_to_territory
 #: signed distance no sign on its plane).
 OPEN_END_SHIFT = 0.05
 
+#: Room (× branch radius) kept for the sections between a junction's half-sections and a
+#: closed end whose dome retreat gives way to them (:meth:`_Sections._apply_clearance`).
+DOME_YIELD_ROOM = 0.25
+
 
 class _Sections:
     """Section steps of the block builder: branches, section positions, frames and ray
@@ -249,11 +253,27 @@ class _Sections:
             ends = br.arc.copy()
             ends[0] += self.placed.retreat.get((bi, 0), 0.0)
             ends[-1] -= self.placed.retreat.get((bi, 1), 0.0)
+            if br.kinds == [JUNCTION, CLOSED] and len(br.nodes) > 2 and ends[-1] - 0.3 * rb <= lo:
+                # a short closed branch (an aneurysm sac on its parent): the junction's
+                # half-sections need the room the dome's retreat took; the dome gets flatter
+                # rather than the sections between them standing inside the half-sections
+                ends[-1] = min(br.arc[-1], lo + (0.3 + DOME_YIELD_ROOM) * rb)
+                self.placed.retreat[(bi, 1)] = float(br.arc[-1] - ends[-1])
             if br.kinds[1] in (OPEN, CLOSED):
                 hi = ends[-1] - 0.3 * rb
             if br.kinds[0] in (OPEN, CLOSED):
                 lo = max(lo, ends[0] + 0.3 * rb)
-            br.s, _ = redistribute_sections(ends, lo, hi)
+            br.s, room = redistribute_sections(ends, lo, hi)
+            if not room and br.kinds == [JUNCTION, CLOSED]:
+                # a closed branch shorter than its junction needs: the sections between
+                # stand between the half-sections' reach and the end section (thin blocks),
+                # not at their nodes inside the half-sections (g0008 extracted's sac). A
+                # short open branch is left as it was: where its blocks stay invalid it is
+                # a stub, cut back into its parent (:mod:`.stubs`)
+                reach = max(0.0, self._junction_reach(bi, 0))
+                if ends[-1] > reach:
+                    K = len(br.nodes) - 1
+                    br.s[1:-1] = reach + (ends[-1] - reach) * np.arange(1, K) / K
 
 
     # -- 6. frames and ray casting ------------------------------------------------------

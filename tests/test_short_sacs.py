@@ -1,0 +1,55 @@
+"""Short closed side branches (an aneurysm sac beside a junction, issue 17 group C).
+
+A closed branch that ends about two junction radii from its junction (the generator's
+``aneurysm_side`` next to a ``radius_jump``: g0008 extracted, junction 17) leaves no room
+between the junction's half cross-sections and the closed end's section: the sections
+between them stayed at their nodes, inside the half-sections, and their blocks inverted
+whatever the fixes did. Now the dome's retreat gives way to the junction first, and the
+sections between stand between the half-sections' reach and the end section
+(:meth:`vmesh.geometry.blocks.sections._Sections._apply_clearance`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from junction_cases import side_sac
+from vmesh.geometry.block_builder import BlockOptions, build_blocks
+from vmesh.geometry.quality import scaled_jacobian
+from vmesh.geometry.transfinite import Refinement, mesh_blocks
+
+#: the default chain's resolution (as ``blocks.checks.FILL_CHECKS``)
+DEFAULT_FILL = Refinement(around=2, core=2, ring=2, layer=3, element_length=0.5, first_layer=0.02)
+
+
+def _build(*args):
+    case, caps = side_sac(*args)
+    blocks = build_blocks(case.skeleton, case.distance, caps, BlockOptions(), project=case.project, warn=lambda m: None)
+    return case, blocks
+
+
+@pytest.mark.parametrize("args", [(62, 1.4, 2.1, 0.75), (62, 1.0, 2.1, 0.75), (70, 1.3, 2.0, 0.7), (90, 1.4, 2.1, 0.75), (62, 1.4, 2.6, 0.75)])
+def test_short_closed_side_branch_keeps_its_blocks(args):
+    """Valid blocks with the sac kept (no skeleton change, its end closed by a dome: no
+    boundary beyond the parent's two caps), the sac's sections in order along it."""
+    case, blocks = _build(*args)
+    assert blocks.corner_jacobians().min() > 0
+    assert blocks.info.get("skeleton") is None or blocks.info["skeleton"].n_nodes == case.skeleton.n_nodes
+    assert sorted(set(blocks.boundary_names.values())) == ["inlet", "outlet_1", "wall"]
+    assert not blocks.info["cut_stubs"]
+
+
+def test_short_closed_side_branch_fills_valid():
+    """The raw fill (no untangling) at the default chain's resolution: no inverted element,
+    least scaled Jacobian at least 0.3."""
+    case, blocks = _build(62, 1.4, 2.1, 0.75)
+    sm = mesh_blocks(blocks, case.project, DEFAULT_FILL, signed_distance=case.distance)
+    assert scaled_jacobian(sm.points, sm.cells, DEFAULT_FILL.order).min() >= 0.3
+
+
+def test_long_closed_side_branch_keeps_its_dome_retreat():
+    """A sac with room (6 radii) keeps its end section back from the dome."""
+    case, blocks = _build(62, 1.0, 6.0, 0.75)
+    assert blocks.corner_jacobians().min() > 0
+    assert max(blocks.info["dome_retreat"].values()) > 0
