@@ -178,6 +178,22 @@ def _points(points) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(points, np.float64).reshape(-1, 3))
 
 
+def _nearer_cuts(cuts: ContactCuts, p: np.ndarray, found, inside):
+    """``found`` (closest points, distances, faces of the wall) with the cut foot wherever a
+    cut is nearer than the wall (face -1). The distances may be signed (positive inside) or
+    not: a point outside the vessel (distance <= 0) keeps the wall, the cut is no boundary there."""
+    closest, d, face = found
+    near = _near_any(cuts, p)
+    if not len(near):
+        return closest, d, face
+    closest, d, face = closest.copy(), d.copy(), face.copy()
+    h, y, _, _ = cut_feet(cuts, p[near], inside)
+    cut = (h < np.abs(d[near])) & (d[near] > 0)
+    i = near[cut]
+    closest[i], d[i], face[i] = y[cut], h[cut], -1
+    return closest, d, face
+
+
 class CutSurface:
     """A surface query (:class:`~vmesh.geometry.surface_query.SurfaceQuery`) of the vessel
     interior minus the contact cuts; every other member is the wrapped query's."""
@@ -201,15 +217,7 @@ class CutSurface:
 
     def project(self, points):
         p = _points(points)
-        closest, d, face = self.inner.project(p)
-        near = _near_any(self.cuts, p)
-        if len(near):
-            closest, d, face = closest.copy(), d.copy(), face.copy()
-            h, y, _, _ = cut_feet(self.cuts, p[near], self.inner.distance)
-            cut = (h < np.abs(d[near])) & (d[near] > 0)  # outside the vessel the cut is no boundary
-            i = near[cut]
-            closest[i], d[i], face[i] = y[cut], h[cut], -1
-        return closest, d, face
+        return _nearer_cuts(self.cuts, p, self.inner.project(p), self.inner.distance)
 
     def distance(self, points):
         return self.project(points)[1]
@@ -276,15 +284,7 @@ class CutProjector:
 
     def project(self, points):
         p = _points(points)
-        closest, d, face = self.inner.project(p)
-        near = _near_any(self.cuts, p)
-        if len(near):
-            closest, d, face = closest.copy(), d.copy(), face.copy()
-            h, y, _, _ = cut_feet(self.cuts, p[near], self.inside)
-            cut = h < d[near]
-            i = near[cut]
-            closest[i], d[i], face[i] = y[cut], h[cut], -1
-        return closest, d, face
+        return _nearer_cuts(self.cuts, p, self.inner.project(p), self.inside)
 
     def __call__(self, points):
         return self.project(points)[0]
