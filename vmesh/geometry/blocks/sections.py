@@ -21,9 +21,6 @@ OPEN_END_SHIFT = 0.05
 #: Room (× branch radius) kept for the sections between a junction's half-sections and a
 #: closed end whose dome retreat gives way to them (:meth:`_Sections._apply_clearance`).
 DOME_YIELD_ROOM = 0.25
-#: The most a junction's half-sections are taken to reach along a short branch, in the
-#: branch's radii (:meth:`_Sections._bounded_reach`).
-REACH_RADII = 3.0
 
 
 class _Sections:
@@ -267,30 +264,16 @@ class _Sections:
             if br.kinds[0] in (OPEN, CLOSED):
                 lo = max(lo, ends[0] + 0.3 * rb)
             br.s, room = redistribute_sections(ends, lo, hi)
-            if not room and br.kinds[0] == JUNCTION and br.kinds[1] in (CLOSED, JUNCTION) and br.nodes[0] != br.nodes[-1]:
-                # a closed branch, or a branch between two junctions, shorter than its
-                # junctions need: the sections between stand between the half-sections'
-                # reach and the end section or the other junction's reach (thin blocks), not
-                # at their nodes inside the half-sections (g0008 extracted's sac, g0019
-                # given). A short open branch is left as it was: where its blocks stay
-                # invalid it is a stub, cut back into its parent (:mod:`.stubs`)
-                K = len(br.nodes) - 1
-                a = self._bounded_reach(bi, 0)
-                b = br.arc[-1] - self._bounded_reach(bi, 1) if br.kinds[1] == JUNCTION else ends[-1]
-                if b > a:
-                    br.s[1:-1] = a + (b - a) * np.arange(1, K) / K
-
-    def _bounded_reach(self, bi: int, side: int) -> float:
-        """The junction's reach along a branch, within ``[0, REACH_RADII * the branch's radius]``.
-
-        A half-section bounded by the branch's wall reaches about r / tan(half-angle) along
-        it (2.4 r at 45 degrees between branches); a reach measured much beyond a few of
-        the branch's radii comes from rays that ran along a touching vessel or into a wide
-        junction (g0002 given: 7.2 and 12.4 along branches 8.5 and 13.3 long, 4.1 along
-        one 4.5 long), and sections placed past it would all be packed into the branch's
-        last radius. A reach measured negative (behind its node) counts as none."""
-        rb = float(np.median(self.topo.sk.radii[self.topo.branches[bi].nodes]))
-        return float(np.clip(self._junction_reach(bi, side), 0.0, REACH_RADII * rb))
+            if not room and br.kinds == [JUNCTION, CLOSED]:
+                # a closed branch shorter than its junction needs: the sections between
+                # stand between the half-sections' reach and the end section (thin blocks),
+                # not at their nodes inside the half-sections (g0008 extracted's sac). A
+                # short open branch is left as it was: where its blocks stay invalid it is
+                # a stub, cut back into its parent (:mod:`.stubs`)
+                reach = max(0.0, self._junction_reach(bi, 0))
+                if ends[-1] > reach:
+                    K = len(br.nodes) - 1
+                    br.s[1:-1] = reach + (ends[-1] - reach) * np.arange(1, K) / K
 
 
     # -- 6. frames and ray casting ------------------------------------------------------
