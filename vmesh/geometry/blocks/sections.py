@@ -283,8 +283,9 @@ class _Sections:
                 self.placed.tight.add(bi)
                 if bi in self.placed.spread:
                     # a branch between two junctions without room whose blocks stayed
-                    # invalid with its sections at their nodes (the fix loop's last idea,
-                    # :meth:`fix`): they stand between the two junctions' reaches. Not by
+                    # invalid with its sections at their nodes through an end's margins,
+                    # rotations and moves (:meth:`fix`): they stand between the two
+                    # junctions' reaches. Not by
                     # default: with sections inside the half-sections some of these build
                     # (g0002 extracted's branch between nodes 5 and 25)
                     K = len(br.nodes) - 1
