@@ -311,9 +311,7 @@ class _Repair:
         junction's half-planes; between two ordinary sections, straighten their planes
         towards the segment. Only when nothing of that is left and ``straighten_stuck_ends``
         is set: straighten the first sections next to the junction ends that are out of
-        fixes towards their chords. A junction end of a branch between two junctions without
-        room, out of margins, rotations and moves, first has the branch's sections spread
-        between the two junctions' reaches."""
+        fixes towards their chords."""
         where = self.built.block_where[bad]
         layer = self._last_layers(bad)
         changed = moved = False
@@ -350,13 +348,6 @@ class _Repair:
                     elif self.separate_junctions(bi):
                         changed = moved = True
                         break
-                    elif bi in self.placed.tight and bi not in self.placed.spread:
-                        # out of ideas at an end of a branch between two junctions without
-                        # room: its sections leave their nodes inside the half-sections for
-                        # the gap between the two reaches (thin blocks; :meth:`_apply_clearance`)
-                        self.placed.spread.add(bi)
-                        self.fixes.append(f"spread the cross-sections between junction node {node} and the junction at the branch's other end")
-                        changed = True
                     else:
                         stuck.append((bi, side, node))
                 continue

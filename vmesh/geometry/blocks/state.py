@@ -43,8 +43,6 @@ class _Placement:
 
     clear: dict = field(default_factory=dict)  # (branch, side) -> arc length where sections are clear of the junction
     retreat: dict = field(default_factory=dict)  # (branch, side) -> how far a closed end's section moves back
-    tight: set = field(default_factory=set)  # branches between two junctions without room for their sections now
-    spread: set = field(default_factory=set)  # of those, the ones whose sections stand between the two reaches
 
 
 @dataclass
