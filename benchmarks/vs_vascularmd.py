@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -178,7 +179,13 @@ def run_vmesh(label: str, surface: Path, centerline: Path, out: Path, settings: 
     wall = time.perf_counter() - t0
     if p.returncode:
         tail = (p.stderr or p.stdout).strip().splitlines()[-1:] or ["no output"]
-        return {"tool": label, "status": "failed", "error": f"exit {p.returncode}: {tail[0][:300]}", "wall_s": round(wall, 3)}
+        row = {"tool": label, "status": "failed", "error": f"exit {p.returncode}: {tail[0][:300]}", "wall_s": round(wall, 3)}
+        # the failure log lies in this run's temporary folder: keep its end with the row
+        log = re.search(r"(\S+failure\.log)", p.stderr or "")
+        if log and Path(log.group(1)).is_file():
+            row["failure_log_tail"] = Path(log.group(1)).read_text(errors="replace").splitlines()[-25:]
+            print("\n".join(f"    {ln}" for ln in row["failure_log_tail"]), file=sys.stderr)
+        return row
     report = json.loads((out / "report.json").read_text())
     stages = {"import+start": max(wall - report["total_s"], 0.0)}
     for name, seconds in report["timings"].items():
