@@ -133,7 +133,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         info["contact_cuts"] = cuts  # mesh_transfinite and compute_quality see the same domain
     if checks["boundary_components"] != 1:
         ctx.warn(f"the outer block faces form {checks['boundary_components']} pieces (is the skeleton connected?)")
-    _warn_vessels_in_contact(ctx)
+    _warn_vessels_in_contact(ctx, cut=cuts is not None)
 
 
 def _contact_cuts(ctx):
@@ -147,10 +147,11 @@ def _contact_cuts(ctx):
     return cuts if len(cuts) else None
 
 
-def _warn_vessels_in_contact(ctx) -> None:
+def _warn_vessels_in_contact(ctx, cut: bool = False) -> None:
     """Name the places where two vessels pass in contact with no junction between them
-    (:func:`~vmesh.geometry.skeleton.contact.vessels_in_contact`): their blocks meet the
-    other vessel's wall and the mesh may fold there beyond what untangling can open."""
+    (:func:`~vmesh.geometry.skeleton.contact.vessels_in_contact`): without a cut between them
+    (``cut``) their blocks meet the other vessel's wall and the mesh may fold there beyond
+    what untangling can open; with one, the fused neck's wall is left out."""
     from ..geometry.skeleton.contact import vessels_in_contact
 
     sk = ctx.skeleton
@@ -162,8 +163,9 @@ def _warn_vessels_in_contact(ctx) -> None:
         where = ", ".join(f"{int(a)}/{int(b)} ({g:+.3g})" for a, b, g in found[:5].tolist())
         more = f" and {len(found) - 5} more" if len(found) > 5 else ""
         ctx.warn(f"{len(found)} place(s) where two vessels pass in contact with no junction between them, at skeleton nodes "
-                 f"{where}{more} (gap between the walls; negative: the lumens overlap): the mesh may fold there "
-                 f"(report.json: blocks.vessels_in_contact)")
+                 f"{where}{more} (gap between the walls; negative: the lumens overlap): "
+                 + ("meshed apart by a cut between them, the neck's wall left out (report.json: blocks.contact_cuts)" if cut
+                    else "the mesh may fold there (report.json: blocks.vessels_in_contact)"))
 
 
 def _cut_stubs(ctx, stubs: list) -> list:
