@@ -232,7 +232,7 @@ def generate_vessel(seed=0, preset: str = "clean", rates: dict | None = None, en
     tree = build_tree(rng, morph, wanted)
     xyz, radius, tags, edges = T.skeleton_of(tree)
     caps = [(e, n, r) for _, e, n, r in S.end_caps(tree)]
-    _tag_ends(tree, xyz, tags, caps)
+    tag_ends(tree, xyz, tags, caps)
 
     h = S.grid_spacing(tree, grid_per_radius, max_voxels)
     F, grid = S.implicit_field(tree, end_style, h)
@@ -245,14 +245,7 @@ def generate_vessel(seed=0, preset: str = "clean", rates: dict | None = None, en
     V, Tri = S.contour(F, grid, staircase, smooth_iters=0)
     del F
     feats["staircase"] = int(staircase)
-    if end_style == "open":  # the contour's flat end discs are exact: remove them before smoothing
-        V, Tri = S.remove_faces(V, Tri, S.cap_faces(V, Tri, caps, 1e-3))
-    if not staircase:
-        V = S.smooth(V, Tri)
-    target = int(np.clip(len(Tri) // 4, *target_faces))
-    V, Tri = S.decimate(V, Tri, min(target, len(Tri)))
-    if end_style in ("open", "flat"):
-        V = S.snap_to_caps(V, caps, 0.05)
+    V, Tri = finish_surface(V, Tri, caps, end_style, staircase, target_faces)
     if end_style == "open":
         if "ragged_ends" in wanted:
             V, Tri = S.ragged_cut(V, Tri, caps, rng)
@@ -284,7 +277,22 @@ def generate_vessel(seed=0, preset: str = "clean", rates: dict | None = None, en
     return Vessel(V * scale, Tri, xyz * scale, radius * scale, tags, edges, manifest)
 
 
-def _tag_ends(tree, xyz, tags, caps):
+def finish_surface(V, Tri, caps, end_style: str, staircase: bool = False, target_faces: tuple = (10_000, 100_000)):
+    """A contour of a vessel's implicit field made its surface: open ends' flat discs removed,
+    smoothed (unless a staircase), decimated to a quarter of its faces within
+    ``target_faces``, flat and open ends snapped onto their cap planes."""
+    if end_style == "open":  # the contour's flat end discs are exact: remove them before smoothing
+        V, Tri = S.remove_faces(V, Tri, S.cap_faces(V, Tri, caps, 1e-3))
+    if not staircase:
+        V = S.smooth(V, Tri)
+    target = int(np.clip(len(Tri) // 4, *target_faces))
+    V, Tri = S.decimate(V, Tri, min(target, len(Tri)))
+    if end_style in ("open", "flat"):
+        V = S.snap_to_caps(V, caps, 0.05)
+    return V, Tri
+
+
+def tag_ends(tree, xyz, tags, caps):
     """``inlet`` on each root's start node, ``outlet`` on the other free ends."""
     roots = [b.pts[0] for b in tree.branches if b.parent < 0]
     for e, _, _ in caps:

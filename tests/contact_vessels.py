@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from data_synthetic.vessel_generator import Vessel, write_vessel
+from data_synthetic.vessel_generator import Vessel, finish_surface, tag_ends, write_vessel
 from data_synthetic.vessels import surface as S
 from data_synthetic.vessels import tree as T
 
@@ -32,15 +32,8 @@ def passing_vessels(folder, gap: float, cross: float = 0.0, units: str = "mm") -
     tree.branches.append(T.Branch(p_k, r_k, 0, at_k, kind="kissing"))
     xyz, radius, tags, edges = T.skeleton_of(tree)
     caps = [(e, n, rr) for _, e, n, rr in S.end_caps(tree)]
-    for e, _, _ in caps:
-        i = int(np.argmin(np.linalg.norm(xyz - e, axis=1)))
-        tags[i] = tags[i] + (["inlet"] if e[0] < -7.9 else ["outlet"])
-    h = 0.7 / 2.6
-    F, grid = S.implicit_field(tree, "open", h)
-    V, Tri = S.contour(F, grid, False, smooth_iters=0)
-    V, Tri = S.remove_faces(V, Tri, S.cap_faces(V, Tri, caps, 1e-3))
-    V = S.smooth(V, Tri)
-    V, Tri = S.decimate(V, Tri, max(10_000, len(Tri) // 4))
-    V = S.snap_to_caps(V, caps, 0.05)
+    tag_ends(tree, xyz, tags, caps)
+    F, grid = S.implicit_field(tree, "open", 0.7 / 2.6)
+    V, Tri = finish_surface(*S.contour(F, grid, False, smooth_iters=0), caps, "open", target_faces=(10_000, 10**9))
     manifest = {"name": f"passing_{gap:g}_{cross:g}", "units": units, "surface_format": "ply"}
     return write_vessel(Vessel(V, Tri, xyz, radius, tags, edges, manifest), Path(folder))
