@@ -88,7 +88,9 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
             project = wall_projector(ctx.surface, ctx.caps)  # shared with mesh_transfinite and the checks
         else:
             project = sdf.closest_points
-    cuts = _contact_cuts(ctx) if cut_contacts else None
+    built_on = ctx.skeleton
+    found = _vessels_in_contact(built_on)
+    cuts = _contact_cuts(built_on, found) if cut_contacts else None
     if cuts is not None:
         from ..geometry.contact_cut import with_cuts
 
@@ -133,29 +135,31 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         info["contact_cuts"] = cuts  # mesh_transfinite and compute_quality see the same domain
     if checks["boundary_components"] != 1:
         ctx.warn(f"the outer block faces form {checks['boundary_components']} pieces (is the skeleton connected?)")
-    _warn_vessels_in_contact(ctx, cut=cuts is not None)
+    # named on the skeleton the run goes on with (the builder may have changed it)
+    _warn_vessels_in_contact(ctx, found if ctx.skeleton is built_on else _vessels_in_contact(ctx.skeleton), cut=cuts is not None)
 
 
-def _contact_cuts(ctx):
-    """The cuts between vessels in contact on the skeleton the blocks are built on
-    (:mod:`vmesh.geometry.contact_cut`); None when there are none."""
-    from ..geometry.contact_cut import contact_cuts
+def _vessels_in_contact(sk) -> np.ndarray:
+    """:func:`~vmesh.geometry.skeleton.contact.vessels_in_contact` on a skeleton."""
     from ..geometry.skeleton.contact import vessels_in_contact
 
-    sk = ctx.skeleton
-    cuts = contact_cuts(sk.points, sk.radii, sk.edges, vessels_in_contact(sk.points, sk.radii, sk.edges))
+    return vessels_in_contact(sk.points, sk.radii, sk.edges)
+
+
+def _contact_cuts(sk, found: np.ndarray):
+    """The cuts between the vessels in contact ``found`` on the skeleton ``sk`` the blocks
+    are built on (:mod:`vmesh.geometry.contact_cut`); None when there are none."""
+    from ..geometry.contact_cut import contact_cuts
+
+    cuts = contact_cuts(sk.points, sk.radii, sk.edges, found)
     return cuts if len(cuts) else None
 
 
-def _warn_vessels_in_contact(ctx, cut: bool = False) -> None:
-    """Name the places where two vessels pass in contact with no junction between them
-    (:func:`~vmesh.geometry.skeleton.contact.vessels_in_contact`): without a cut between them
-    (``cut``) their blocks meet the other vessel's wall and the mesh may fold there beyond
-    what untangling can open; with one, the fused neck's wall is left out."""
-    from ..geometry.skeleton.contact import vessels_in_contact
-
-    sk = ctx.skeleton
-    found = vessels_in_contact(sk.points, sk.radii, sk.edges)
+def _warn_vessels_in_contact(ctx, found: np.ndarray, cut: bool = False) -> None:
+    """Name the places ``found`` where two vessels pass in contact with no junction between
+    them (:func:`_vessels_in_contact`): without a cut between them (``cut``) their blocks
+    meet the other vessel's wall and the mesh may fold there beyond what untangling can
+    open; with one, the fused neck's wall is left out."""
     ctx.report.sections["blocks"]["vessels_in_contact"] = [
         {"nodes": [int(a), int(b)], "gap": round(float(g), 6)} for a, b, g in found.tolist()
     ]

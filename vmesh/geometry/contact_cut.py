@@ -113,7 +113,7 @@ def contact_cuts(points: np.ndarray, radii: np.ndarray, edges: np.ndarray, found
             continue
         n = (cb - ca) / d
         s = (d * d + r[a] ** 2 - r[b] ** 2) / (2.0 * d)
-        rows.append((ca + s * n, n, _axis(P, E, a, ta, half), _axis(P, E, b, tb, half),
+        rows.append((ca + s * n, n, sa, sb,
                      inflate * np.array([r[a], r[b]]), half + inflate * max(r[a], r[b]), (a, b)))
     if not rows:
         z = np.zeros((0, 3))
