@@ -102,9 +102,7 @@ def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead
             continue
         done.add(c)  # unless a move below changes it
         out = [p if p[0] == c else p[::-1] for p in paths if (p[0] == c) != (p[-1] == c)]  # loops skipped
-        # at an n-furcation a move splits off a junction a radius or so away instead of
-        # moving it: a close pair the builder cannot block; it splits n-furcations itself
-        if len(out) < 2 or skel.degrees[c] >= 4:
+        if len(out) < 2:
             continue
         rc = scale[c]
         arcs = [arc_length(skel.points[p]) for p in out]
@@ -194,11 +192,7 @@ def separate_parallel_branches(
     two joins the vessel they leave (nodes on the midpoints of the two, matched by arc
     length) and the junction moves to the first midpoint from which the two branches,
     ``ahead`` x radius further on, are ``part_angle`` apart (about where the medial axis
-    of the surface branches). Junctions of four or more branches stay: there a move would
-    not relocate the junction but split a second one off next to it (two daughters of a
-    planar fan 20-30 degrees apart part within a radius or so), a pair too close for the
-    block builder's half cross-sections; the builder splits an n-furcation itself, one
-    pairing after another, where its blocks stay invalid.
+    of the surface branches).
 
     Parameters
     ----------
