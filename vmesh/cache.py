@@ -19,6 +19,9 @@ entries say ``"cached": true``). Rows whose surface-affecting parameters differ 
 The cached signed distance is shared, not copied: filters only query it. Every other
 layer is deep-copied in and out, so a later filter that changes a layer in place
 cannot alter the cache.
+
+:class:`DiskPrefixCache` keeps the same entries on disk between processes (``vmesh run``
+uses it): a rerun on the same surface with other meshing parameters restores the prefix.
 """
 
 from __future__ import annotations
@@ -26,6 +29,9 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
+import os
+import pickle
+import tempfile
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
@@ -229,9 +235,9 @@ class PrefixCache:
                 self._entries.popitem(last=False)
 
 
-#: prefixes kept on disk (each holds the surfaces and the signed distance's trees: ~50 MB for
-#: a 150,000-triangle surface)
-DISK_KEEP = 8
+#: prefixes kept on disk (each holds the surfaces and the signed distance's trees: ~80 MB for
+#: the ICA's 150,000 triangles)
+DISK_KEEP = 4
 
 
 class DiskPrefixCache(PrefixCache):
@@ -261,9 +267,6 @@ class DiskPrefixCache(PrefixCache):
         return disk_cache.cache_dir("prefix") / f"{disk_cache.key('prefix', key, _sources_digest(), _versions())}.pkl"
 
     def _get(self, key: str) -> _Entry | None:
-        import os
-        import pickle
-
         from . import disk_cache
 
         entry = None
@@ -293,10 +296,6 @@ class DiskPrefixCache(PrefixCache):
             adopt_trees(getattr(ctx, layer), trees)
 
     def _put(self, key: str, entry: _Entry) -> None:
-        import os
-        import pickle
-        import tempfile
-
         from . import disk_cache
         from .geometry.projection import cached_trees
         from .surface import SurfaceMesh
