@@ -254,7 +254,8 @@ class DiskPrefixCache(PrefixCache):
 
     Files: ``<cache>/prefix/<digest>.pkl`` (:func:`vmesh.disk_cache.cache_dir`), the newest
     :data:`DISK_KEEP` kept; ``VMESH_DISK_CACHE=0`` turns it off. An unreadable entry only
-    means the steps run.
+    means the steps run. A step patched at run time (a test's monkeypatch) is not in the
+    key: such a test runs ``vmesh run`` with ``VMESH_DISK_CACHE=0``.
     """
 
     def __init__(self):
