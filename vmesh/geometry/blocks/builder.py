@@ -144,17 +144,34 @@ def build_blocks(
                 warn(note)
         blocks.info["fixes"][:0], blocks.info["cut_stubs"] = notes, label_ostia(blocks, cut)
         return blocks
-    if not options.repair.straighten_stuck_ends and not work.spent:
-        # every try failed: the skeleton as given once more, now also turning the first
-        # sections at junction ends out of other fixes towards their chords (a last resort:
-        # builds that succeed without it stay as they are)
+    for last in _last_tries(options):
+        # every try failed: the skeleton as given once more with a last resort (builds that
+        # succeed without it stay as they are)
+        if work.spent:
+            break
         try:
-            return build_blocks(skeleton, distance, caps, options.replace(straighten_stuck_ends=True, max_retopology_tries=1),
-                                None, warn, progress, project, intersect_lines, work)
+            blocks = build_blocks(skeleton, distance, caps, last, None, warn, progress, project, intersect_lines, work)
         except MeshingError:
-            pass
+            continue
+        if last.repair.spread_tight:
+            blocks.info["fixes"].insert(0, "last try: the cross-sections of branches between two junctions without room spread between the junctions' reaches")
+        return blocks
     first.hint += work.stop_note()
     raise first.error(bad_blocks_path, tries)
+
+
+def _last_tries(options: BlockOptions) -> list:
+    """The options of :func:`build_blocks`' last tries after every other try failed: first
+    turning the first sections at junction ends out of other fixes towards their chords;
+    then (with its own tries, that straightening included) the sections of branches between
+    two junctions without room spread between the two junctions' reaches
+    (:meth:`~.sections._Sections._apply_clearance`)."""
+    if options.repair.straighten_stuck_ends:
+        return []
+    out = [options.replace(straighten_stuck_ends=True, max_retopology_tries=1)]
+    if not options.repair.spread_tight:
+        out.append(options.replace(spread_tight=True))
+    return out
 
 
 def _fallback(opts, options, at_node, flat: dict, leaned: bool, work) -> BlockOptions | None:
