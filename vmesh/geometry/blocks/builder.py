@@ -154,7 +154,7 @@ def build_blocks(
         except MeshingError:
             continue
         if last.repair.spread_tight:
-            blocks.info["fixes"].insert(0, "last try: the cross-sections of branches between two junctions without room spread between the junctions' reaches")
+            blocks.info["fixes"].insert(0, "last try: junction clearances end at their own crowded stretch, and the cross-sections of branches between two junctions without room spread between the junctions' reaches")
         return blocks
     first.hint += work.stop_note()
     raise first.error(bad_blocks_path, tries)
@@ -163,14 +163,16 @@ def build_blocks(
 def _last_tries(options: BlockOptions) -> list:
     """The options of :func:`build_blocks`' last tries after every other try failed: first
     turning the first sections at junction ends out of other fixes towards their chords;
-    then (with its own tries, that straightening included) the sections of branches between
-    two junctions without room spread between the two junctions' reaches
-    (:meth:`~.sections._Sections._apply_clearance`)."""
+    then (with its own tries, that straightening included) the last-try placement
+    (:mod:`.sections`): a junction's clearance along a branch ends at its own crowded
+    stretch (a bulge further on is not the junction's), and the sections of branches
+    between two junctions without room stand between the two junctions' reaches. Not by
+    default: both move sections of builds that work (g0008 extracted, g0002 extracted)."""
     if options.repair.straighten_stuck_ends:
         return []
     out = [options.replace(straighten_stuck_ends=True, max_retopology_tries=1)]
     if not options.repair.spread_tight:
-        out.append(options.replace(spread_tight=True))
+        out.append(options.replace(spread_tight=True, clear_own_stretch=True))
     return out
 
 

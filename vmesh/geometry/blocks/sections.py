@@ -27,6 +27,21 @@ DOME_YIELD_ROOM = 0.25
 REACH_RADII = 3.0
 
 
+#: Clean samples in a row (0.25 branch radii apart: one branch radius) that end a
+#: junction's crowded stretch along a branch (:meth:`_Sections._clearance`).
+CLEAR_RUN = 4
+
+
+def _first_run(ok: np.ndarray, n: int):
+    """Index where the first run of ``n`` True values in a row starts, or None."""
+    count = 0
+    for i, v in enumerate(ok.tolist()):
+        count = count + 1 if v else 0
+        if count == n:
+            return i - n + 1
+    return None
+
+
 class _Sections:
     """Section steps of the block builder: branches, section positions, frames and ray
     casts. Mixed into :class:`~vmesh.geometry.blocks.builder._Builder`, whose state they
@@ -167,6 +182,14 @@ class _Sections:
             # first candidate from which on every later one is clean
             bad = np.flatnonzero(~ok)
             first = 0 if len(bad) == 0 else bad[-1] + 1
+            if opt.repair.clear_own_stretch and len(bad):
+                # build_blocks' last try: a branch radius of clean sections ends the
+                # junction's crowded stretch; long rays further on come from the branch's
+                # own bulge (g0016 extracted: 3.6-4.1 radii from 2.5 to 4.7 along a branch
+                # of radius 0.67, whose first section stood at 4.0, past the clean stretch)
+                run = _first_run(ok, CLEAR_RUN)
+                if run is not None:
+                    first = run
             out[(bi, side)] = 0.0 if first == 0 else (s[first] if first < len(s) else s[-1])
         return out
 
