@@ -144,20 +144,29 @@ def build_blocks(
                 warn(note)
         blocks.info["fixes"][:0], blocks.info["cut_stubs"] = notes, label_ostia(blocks, cut)
         return blocks
-    for last in _last_tries(options):
-        # every try failed: the skeleton as given once more with a last resort (builds that
-        # succeed without it stay as they are)
-        if work.spent:
-            break
-        try:
-            blocks = build_blocks(skeleton, distance, caps, last, None, warn, progress, project, intersect_lines, work)
-        except MeshingError:
-            continue
-        if last.repair.spread_tight:
-            blocks.info["fixes"].insert(0, "last try: junction clearances end at their own crowded stretch, and the cross-sections of branches between two junctions without room spread between the junctions' reaches")
+    # every try failed: the skeleton as given once more with a last resort (builds that
+    # succeed without it stay as they are)
+    if (blocks := _last_resort(skeleton, distance, caps, options, (warn, progress, project, intersect_lines), work)) is not None:
         return blocks
     first.hint += work.stop_note()
     raise first.error(bad_blocks_path, tries)
+
+
+def _last_resort(skeleton, distance, caps, options: BlockOptions, hooks: tuple, work) -> BlockStructure | None:
+    """:func:`build_blocks` with each of :func:`_last_tries` in turn; the first structure
+    built, or None."""
+    for last in _last_tries(options):
+        if work.spent:
+            break
+        try:
+            blocks = build_blocks(skeleton, distance, caps, last, None, *hooks, work)
+        except MeshingError:
+            continue
+        if last.repair.spread_tight:
+            blocks.info["fixes"].insert(0, "last try: junction clearances end at their own crowded stretch, and the cross-sections of "
+                                           "branches between two junctions without room spread between the junctions' reaches")
+        return blocks
+    return None
 
 
 def _last_tries(options: BlockOptions) -> list:
