@@ -22,6 +22,25 @@ OPEN_END_SHIFT = 0.05
 #: closed end whose dome retreat gives way to them (:meth:`_Sections._apply_clearance`).
 DOME_YIELD_ROOM = 0.25
 
+#: The most a junction's half-sections are taken to reach along a short branch between two
+#: junctions, in the branch's radii (:meth:`_Sections._bounded_reach`).
+REACH_RADII = 3.0
+
+
+#: Clean samples in a row (0.25 branch radii apart: one branch radius) that end a
+#: junction's crowded stretch along a branch (:meth:`_Sections._clearance`).
+CLEAR_RUN = 4
+
+
+def _first_run(ok: np.ndarray, n: int):
+    """Index where the first run of ``n`` True values in a row starts, or None."""
+    count = 0
+    for i, v in enumerate(ok.tolist()):
+        count = count + 1 if v else 0
+        if count == n:
+            return i - n + 1
+    return None
+
 
 class _Sections:
     """Section steps of the block builder: branches, section positions, frames and ray
@@ -163,6 +182,14 @@ class _Sections:
             # first candidate from which on every later one is clean
             bad = np.flatnonzero(~ok)
             first = 0 if len(bad) == 0 else bad[-1] + 1
+            if opt.repair.clear_own_stretch and len(bad):
+                # build_blocks' last try: a branch radius of clean sections ends the
+                # junction's crowded stretch; long rays further on come from the branch's
+                # own bulge (g0016 extracted: 3.6-4.1 radii from 2.5 to 4.7 along a branch
+                # of radius 0.67, whose first section stood at 4.0, past the clean stretch)
+                run = _first_run(ok, CLEAR_RUN)
+                if run is not None:
+                    first = run
             out[(bi, side)] = 0.0 if first == 0 else (s[first] if first < len(s) else s[-1])
         return out
 
@@ -274,6 +301,30 @@ class _Sections:
                 if ends[-1] > reach:
                     K = len(br.nodes) - 1
                     br.s[1:-1] = reach + (ends[-1] - reach) * np.arange(1, K) / K
+            elif not room and self.opt.repair.spread_tight and br.kinds == [JUNCTION, JUNCTION] and br.nodes[0] != br.nodes[-1]:
+                # build_blocks' last try: a branch between two junctions without room has
+                # its sections between the two junctions' bounded reaches (thin blocks)
+                # instead of at their nodes inside the half-sections. Not by default: some
+                # such branches build with their sections at the nodes (g0002 extracted's
+                # branch between nodes 5 and 25), and in the fix loop it took fixes from
+                # builds that worked (thoracic_aorta_open, h11/gbuild2)
+                K = len(br.nodes) - 1
+                a = self._bounded_reach(bi, 0)
+                b = br.arc[-1] - self._bounded_reach(bi, 1)
+                if b > a:
+                    br.s[1:-1] = a + (b - a) * np.arange(1, K) / K
+
+    def _bounded_reach(self, bi: int, side: int) -> float:
+        """The junction's reach along a branch, within ``[0, REACH_RADII * the branch's radius]``.
+
+        A half-section bounded by the branch's wall reaches about r / tan(half-angle) along
+        it (2.4 r at 45 degrees between branches); a reach measured much further comes from
+        rays that ran along a touching vessel or across a wide junction (g0002 given: 4.1
+        along a branch 4.5 long, 7-15 along branches 8.5-13.3 long), and sections placed
+        past it would all be packed into the branch's last radius. A reach measured
+        negative (behind its node) counts as none."""
+        rb = float(np.median(self.topo.sk.radii[self.topo.branches[bi].nodes]))
+        return float(np.clip(self._junction_reach(bi, side), 0.0, REACH_RADII * rb))
 
 
     # -- 6. frames and ray casting ------------------------------------------------------
