@@ -423,8 +423,9 @@ def wall_hole_loops(vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]
     """The boundary loops of a consistently oriented surface that are holes in its wall
     (the surface around them lies nearly in the loop's plane, or the loop has at most
     ``HOLE_MAX_EDGES`` edges: a missing triangle beside an open end's rim lies in the end's
-    plane, across the wall), not open ends of a vessel."""
-    loops = topology.boundary_loops(faces)
+    plane, across the wall), not open ends of a vessel. A loop through a vertex twice is
+    split there first (a notch touching the rim at one vertex is a hole of its own)."""
+    loops = [c for loop in topology.boundary_loops(faces) for c in topology.split_pinched_loop(loop)]
     if not loops:
         return []
     from scipy.spatial import cKDTree

@@ -79,6 +79,30 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
     return loops
 
 
+def split_pinched_loop(loop: np.ndarray) -> list[np.ndarray]:
+    """The simple loops of a boundary loop that passes a vertex more than once (a rim
+    pinched at a vertex): which of the walks through such a vertex :func:`boundary_loops`
+    takes depends on the face orientation, so a notch beside a rim is its own loop on one
+    orientation and part of the rim on the other; split, it is its own loop on both."""
+    loop = np.asarray(loop, np.int64)
+    if len(np.unique(loop)) == len(loop):
+        return [loop]
+    out, stack, where = [], [], {}
+    for a in loop.tolist():
+        if a in where:  # close the cycle since a's last visit
+            k = where[a]
+            out.append(np.asarray(stack[k:], np.int64))
+            for b in stack[k + 1 :]:
+                where.pop(b, None)
+            del stack[k + 1 :]
+        else:
+            where[a] = len(stack)
+            stack.append(a)
+    if len(stack) >= 3:
+        out.append(np.asarray(stack, np.int64))
+    return [c for c in out if len(c) >= 3]
+
+
 def non_manifold_edges(faces: np.ndarray) -> np.ndarray:
     """Undirected edges shared by more than two faces."""
     edges, counts = edge_face_counts(faces)
