@@ -266,9 +266,7 @@ def detect_flat_caps(
     faces, all its vertices lie within ``planarity`` × its equivalent radius of its
     plane, it is round (``4 π area / perimeter² >= min_roundness``; strips along a
     tube are not), its boundary is a single loop, and the wall meets it at a crease of
-    at least ``min_crease_angle`` degrees on average, and the wall behind it is a tube of
-    about its radius (``CAP_TUBE_DEPTH``, ``CAP_TUBE_SPREAD``: a flat facet of the wall is
-    not an end).
+    at least ``min_crease_angle`` degrees on average.
 
     Returns
     -------
@@ -319,54 +317,13 @@ def detect_flat_caps(
     )
     labels = np.zeros(m, np.int64)
     k = 0
-    adjacency = None
     for r in np.flatnonzero(candidate):
         ids = np.flatnonzero(region == r)
-        loops = topology.boundary_loops(f[ids])
-        if len(loops) != 1:
+        if len(topology.boundary_loops(f[ids])) != 1:
             continue
-        if adjacency is None:
-            adjacency = _vertex_adjacency(len(v), f)
-        if not _tube_behind(v, adjacency, loops[0], centre[r], normal[r], eq_radius[r]):
-            continue  # a flat facet of the wall (a voxel staircase's terrace), not an end
         k += 1
         labels[ids] = k
     return labels
-
-
-#: The wall behind a flat end cap is the vessel's: within ``CAP_TUBE_DEPTH`` cap radii
-#: (and three rim edges) behind its plane, nine tenths of the surface reached from the
-#: cap's rim lie within ``CAP_TUBE_SPREAD`` cap radii of the cap's axis. A tube cut square
-#: keeps about 1, cut at 60 degrees 2 along its long axis; a flat region smaller than the
-#: lumen (a bevelled, decimated rim) 1.5-2 (generated flat ends: at most 1.94). A flat
-#: facet of the wall (a voxel staircase's terrace) is met by the wall spreading along the
-#: vessel and around it: 4.3 or more on the generated staircase vessels.
-CAP_TUBE_DEPTH = 0.5
-CAP_TUBE_SPREAD = 3.0
-
-
-def _vertex_adjacency(n_vertices: int, faces: np.ndarray) -> sp.csr_matrix:
-    a, b = faces.ravel(), np.roll(faces, -1, axis=1).ravel()
-    return sp.coo_matrix((np.ones(2 * len(a)), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n_vertices, n_vertices)).tocsr()
-
-
-def _tube_behind(v, adjacency, rim, centre, normal, radius) -> bool:
-    """Whether the surface reached from ``rim`` within ``CAP_TUBE_DEPTH`` radii behind the
-    plane (``normal`` points out) stays, but for a tenth, within ``CAP_TUBE_SPREAD`` radii
-    of the axis."""
-    rel = v - centre
-    depth = -(rel @ normal)
-    radial = np.linalg.norm(rel + depth[:, None] * normal, axis=1)
-    # at least a few rim edges deep: a staircase's riser (one voxel) must not cut the slab off
-    reach = max(CAP_TUBE_DEPTH * radius, 3.0 * float(np.linalg.norm(v[rim] - v[np.roll(rim, -1)], axis=1).mean()))
-    keep = (depth >= -0.1 * radius) & (depth <= reach) & (radial <= 2.0 * CAP_TUBE_SPREAD * radius)
-    keep[rim] = True
-    ids = np.flatnonzero(keep)
-    _, piece = connected_components(adjacency[ids][:, ids], directed=False)
-    local = np.full(len(v), -1)
-    local[ids] = np.arange(len(ids))
-    reached = np.isin(piece, np.unique(piece[local[rim]]))
-    return bool(np.percentile(radial[ids[reached]], 90) <= CAP_TUBE_SPREAD * radius)
 
 
 # ---------------------------------------------------------------------------
