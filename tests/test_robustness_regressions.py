@@ -342,3 +342,27 @@ def test_the_split_of_a_pinched_loop_is_its_simple_loops():
     assert [c.tolist() for c in split_pinched_loop(np.array([4, 0, 1, 2, 0, 3]))] == [[0, 1, 2], [4, 0, 3]]
     assert [c.tolist() for c in split_pinched_loop(np.array([0, 1, 2, 3]))] == [[0, 1, 2, 3]]
 
+
+
+def test_a_rim_pinched_at_a_vertex_is_one_open_end_on_either_orientation():
+    # g0004 of seed 1 (ragged open ends, inward normals): a 4-edge lobe of a stub's ragged
+    # rim touched the rest at one vertex; after the outward flip it was a loop of its own,
+    # capped as "outlet_11", grafted a 0.14-radius branch ("no wall within reach")
+    from test_preprocess import open_tube
+
+    from vmesh import preprocess as pre
+    from vmesh.geometry import topology
+
+    n = 24
+    v, f = open_tube(n_around=n, n_along=12)
+    # two triangles: one touching the rim at vertex 5, one behind it: a 4-edge lobe
+    # (5, n + 6, 2n + 6, n + 5) meeting the rim at vertex 5 only (as given one loop of
+    # 28 edges, turned over a rim of 24 and a loop of 4)
+    tris = [{5, n + 5, n + 6}, {n + 5, n + 6, 2 * n + 6}]
+    gone = [k for k, t in enumerate(f.tolist()) if set(t) in tris]
+    assert len(gone) == 2
+    f = np.delete(f, gone, axis=0)
+    for faces in (f, f[:, ::-1].copy()):
+        _, _, labels = pre.cap_boundary_loops(v, faces)
+        assert labels.max() == 2  # two caps, the lobe part of its end's
+        assert sorted(len(loop) for loop in topology.join_touching(topology.boundary_loops(faces))) == [n, n + 4]
