@@ -290,3 +290,21 @@ def side_sac(angle: float = 62.0, ratio: float = 1.4, length: float = 2.1, spaci
                    np.array([(half + 2) * ex, (length - 0.5 * ratio) * d]), np.array([1.0, ratio]), sk, cuts=cuts)
     caps = [Cap(1, "inlet", -half * ex, -ex, 1.0), Cap(2, "outlet_1", half * ex, ex, 1.0)]
     return case, caps
+
+
+def blebbed_bifurcation(at: float = 3.5, bleb: float = 0.7, angle: float = 60.0, ratio: float = 0.8) -> JunctionCase:
+    """``bifurcation``'s symmetric Y (daughters ``angle`` degrees apart, radius ``ratio``)
+    with a bleb on the upper daughter's wall: a ball of radius ``bleb`` fused to its side
+    ``at`` parent radii from the junction, without a skeleton branch of its own.
+
+    Sections at the bleb have rays much longer than the daughter's radius, as hepatic_artery
+    extracted's branch 11 -> 576 has where it curls back 3-4 radii from its 4-junction: a
+    wall feature of the branch, past a stretch where its sections are clear of the
+    junction. The lower daughter is the same branch without it."""
+    d1, d2 = direction(angle / 2), direction(-angle / 2)
+    case = furcation(f"bleb_{at:g}_{bleb:g}", [(d1, ratio), (d2, ratio)])
+    side = np.cross(d1, [0.0, 0.0, 1.0])
+    centre = at * d1 + (ratio + 0.5 * bleb) * side
+    a = np.r_[case.a, [centre]]
+    b = np.r_[case.b, [centre + 1e-6 * d1]]  # a ball: a capsule of (almost) no length
+    return JunctionCase(case.name, a, b, np.r_[case.r, bleb], case.skeleton, case.blend)
