@@ -325,3 +325,21 @@ def bent_bulged_branch(turn: float = 75.0, leg: float = 1.2, at: float = 3.5, of
     sk = Skeleton(np.asarray(pts), np.asarray(radii, float), np.asarray(edges))
     case = JunctionCase(f"bent_{turn:g}_{at:g}", np.asarray(a), np.asarray(b), np.asarray(r), sk)
     return case, leg + at * ratio
+
+
+def blebbed_bifurcation(at: float = 3.5, bleb: float = 0.7, angle: float = 60.0, ratio: float = 0.8) -> JunctionCase:
+    """``bifurcation``'s symmetric Y (daughters ``angle`` degrees apart, radius ``ratio``)
+    with a bleb on the upper daughter's wall: a ball of radius ``bleb`` fused to its side
+    ``at`` parent radii from the junction, without a skeleton branch of its own.
+
+    Sections at the bleb have rays much longer than the daughter's radius, as hepatic_artery
+    extracted's branch 11 -> 576 has where it curls back 3-4 radii from its 4-junction: a
+    wall feature of the branch, past a stretch where its sections are clear of the
+    junction. The lower daughter is the same branch without it."""
+    d1, d2 = direction(angle / 2), direction(-angle / 2)
+    case = furcation(f"bleb_{at:g}_{bleb:g}", [(d1, ratio), (d2, ratio)])
+    side = np.cross(d1, [0.0, 0.0, 1.0])
+    centre = at * d1 + (ratio + 0.5 * bleb) * side
+    a = np.r_[case.a, [centre]]
+    b = np.r_[case.b, [centre + 1e-6 * d1]]  # a ball: a capsule of (almost) no length
+    return JunctionCase(case.name, a, b, np.r_[case.r, bleb], case.skeleton, case.blend)

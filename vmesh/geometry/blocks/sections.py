@@ -179,17 +179,14 @@ class _Sections:
         out = {}
         for n_job, (c, h, bi, side, s) in enumerate(jobs):
             ok = clean[owner == n_job]
-            # first candidate from which on every later one is clean
-            bad = np.flatnonzero(~ok)
-            first = 0 if len(bad) == 0 else bad[-1] + 1
-            if opt.repair.clear_own_stretch and len(bad):
-                # build_blocks' last try: a branch radius of clean sections ends the
-                # junction's crowded stretch; long rays further on come from the branch's
-                # own bulge (g0016 extracted: 3.6-4.1 radii from 2.5 to 4.7 along a branch
-                # of radius 0.67, whose first section stood at 4.0, past the clean stretch)
+            first = _clear_from(ok, s, float(np.median(sk.radii[self.topo.branches[bi].nodes])))
+            if opt.repair.clear_own_stretch and first > 0:
+                # build_blocks' last try: CLEAR_RUN clean candidates in a row end the
+                # junction's crowded stretch even when shorter than a branch radius
+                # (g0016 extracted: a bulge 2.5-4.7 along a branch of radius 0.67)
                 run = _first_run(ok, CLEAR_RUN)
                 if run is not None:
-                    first = run
+                    first = min(first, run)
             out[(bi, side)] = 0.0 if first == 0 else (s[first] if first < len(s) else s[-1])
         return out
 
@@ -594,3 +591,21 @@ class _Sections:
             raise MeshingError(f"closed end at skeleton node {node}: no wall found round the dome beyond its cross-section")
         return {"section": n, "core": core_v, "lifted": lifted,
                 "inner": c + ((1.0 - layer) * R)[:, None] * dirs, "wall": c + R[:, None] * dirs}
+
+
+def _clear_from(ok: np.ndarray, s: np.ndarray, rb: float) -> int:
+    """Index of the first candidate (arc lengths ``s`` from a junction, ``ok`` where every
+    ray is short) from which sections are clear of the junction: after the last candidate
+    that is not, unless a clean stretch of at least one branch radius lies between: rays
+    long again beyond it are the branch's own (a bend curling back, a vessel passing),
+    not the junction's, and sections pushed past them would stand in that bend
+    (hepatic_artery extracted, junction 11)."""
+    bad = np.flatnonzero(~ok)
+    if len(bad) == 0:
+        return 0
+    run = np.r_[bad[np.flatnonzero(np.diff(bad) > 1)], bad[-1]]  # last index of each unclean run
+    for end in run[:-1]:
+        nxt = bad[bad > end][0]  # where the next unclean run starts
+        if s[nxt - 1] - s[end + 1] >= rb:
+            return int(end + 1)
+    return int(bad[-1] + 1)
