@@ -290,3 +290,56 @@ def side_sac(angle: float = 62.0, ratio: float = 1.4, length: float = 2.1, spaci
                    np.array([(half + 2) * ex, (length - 0.5 * ratio) * d]), np.array([1.0, ratio]), sk, cuts=cuts)
     caps = [Cap(1, "inlet", -half * ex, -ex, 1.0), Cap(2, "outlet_1", half * ex, ex, 1.0)]
     return case, caps
+
+
+def bent_bulged_branch(turn: float = 75.0, leg: float = 1.2, at: float = 3.5, off: float = 1.0, bulge: float = 1.6,
+                       ratio: float = 0.7, angle: float = 40.0) -> tuple:
+    """A bifurcation at the origin (parent from -x, radius 1; daughters of radius ``ratio``
+    ``angle`` degrees either side of +x) whose first daughter turns ``turn`` degrees
+    ``leg`` from the junction and has a bulge past the bend: a ball of ``bulge`` times its
+    radius, ``at`` of its radii along the second leg and ``off`` of them off its axis.
+
+    As g0016 extracted's branch from junction 0 (radius 0.67: turns of 34 and 44 degrees
+    within 1.4 of the junction, rays 3.6-4.1 radii long 2.5-4.7 along it). Returns the case
+    and the arc length of the bulge's centre along the bent daughter."""
+    A = direction(angle)
+    A2 = direction(angle + turn)
+    pts, edges, radii = [np.zeros(3)], [], [1.0]
+    a, b, r = [], [], []
+    add = _branch_adder(pts, edges, radii, a, b, r)
+    add(np.zeros(3), 0, np.array([-1.0, 0, 0]), 1.0, 8.0)
+    add(np.zeros(3), 0, direction(-angle), ratio, 6.0)
+    K = leg * A
+    p, e = _chain(np.zeros(3), A, leg, 0.8 * ratio, len(pts), 0)  # the first leg ends at the bend, not past it
+    pts.extend(p)
+    edges.extend(e)
+    radii.extend([ratio] * len(p))
+    a.append(np.zeros(3))
+    b.append(K)
+    r.append(ratio)
+    add(K, len(pts) - 1, A2, ratio, 6.0)
+    c = K + at * ratio * A2 + off * ratio * np.cross(A2, [0.0, 0.0, 1.0])
+    a.append(c)
+    b.append(c + 1e-3 * A2)  # a ball: a capsule of (nearly) no length
+    r.append(bulge * ratio)
+    sk = Skeleton(np.asarray(pts), np.asarray(radii, float), np.asarray(edges))
+    case = JunctionCase(f"bent_{turn:g}_{at:g}", np.asarray(a), np.asarray(b), np.asarray(r), sk)
+    return case, leg + at * ratio
+
+
+def blebbed_bifurcation(at: float = 3.5, bleb: float = 0.7, angle: float = 60.0, ratio: float = 0.8) -> JunctionCase:
+    """``bifurcation``'s symmetric Y (daughters ``angle`` degrees apart, radius ``ratio``)
+    with a bleb on the upper daughter's wall: a ball of radius ``bleb`` fused to its side
+    ``at`` parent radii from the junction, without a skeleton branch of its own.
+
+    Sections at the bleb have rays much longer than the daughter's radius, as hepatic_artery
+    extracted's branch 11 -> 576 has where it curls back 3-4 radii from its 4-junction: a
+    wall feature of the branch, past a stretch where its sections are clear of the
+    junction. The lower daughter is the same branch without it."""
+    d1, d2 = direction(angle / 2), direction(-angle / 2)
+    case = furcation(f"bleb_{at:g}_{bleb:g}", [(d1, ratio), (d2, ratio)])
+    side = np.cross(d1, [0.0, 0.0, 1.0])
+    centre = at * d1 + (ratio + 0.5 * bleb) * side
+    a = np.r_[case.a, [centre]]
+    b = np.r_[case.b, [centre + 1e-6 * d1]]  # a ball: a capsule of (almost) no length
+    return JunctionCase(case.name, a, b, np.r_[case.r, bleb], case.skeleton, case.blend)

@@ -123,3 +123,27 @@ def test_offset_layer_gives_the_thickness_from_the_wall(order):
     assert scaled_jacobian(X, mesh.cells, order, ref).min() > 0.4  # unfolded
     core = mesh.cell_data["layer"] == 0
     assert np.array_equal(X[mesh.cells[core]], mesh.points[mesh.cells[core]])  # the core stays
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_first_elements_give_the_whole_lines_heights(order):
+    """record_first_layer's heights come from the lines' first elements only (no tracing
+    across the layer): the same rows, heights and order as from the whole lines."""
+    mesh = bent_tapered_mesh(order)
+    h, lines = first_node_heights(mesh)
+    h1, first = first_node_heights(mesh, whole_lines=False)
+    assert np.array_equal(h, h1) and np.array_equal(first, lines[:, : order + 1])
+
+
+def test_first_elements_at_a_junction():
+    """The same on a meshed Y-bifurcation (junction blocks, cap rims)."""
+    import vmesh
+    from conftest import synthetic_case
+
+    chain = vmesh.FilterChain.load("default").with_overrides({"mesh_transfinite.element_length": 0.75})
+    names = [s.filter for s in chain.steps]
+    chain.steps = chain.steps[: names.index("mesh_transfinite") + 1]
+    mesh = chain.run(*synthetic_case("y_bifurcation")).mesh
+    h, lines = first_node_heights(mesh)
+    h1, first = first_node_heights(mesh, whole_lines=False)
+    assert len(h) > 500 and np.array_equal(h, h1) and np.array_equal(first, lines[:, : mesh.order + 1])

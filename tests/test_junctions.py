@@ -15,7 +15,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from junction_cases import bifurcation, close_junctions, direction, furcation, retrograde_branch, trifurcation, upstream_node
+from junction_cases import bent_bulged_branch, bifurcation, close_junctions, direction, furcation, retrograde_branch, trifurcation, upstream_node
 from vmesh.errors import MeshingError
 from vmesh.geometry import skeleton_ops as ops
 from vmesh.geometry import transfinite_curves as curves
@@ -180,7 +180,7 @@ def test_a_branch_leaving_its_parent_backwards_builds_valid_blocks():
 
 
 @pytest.mark.parametrize("gap", [pytest.param(2.2, marks=[pytest.mark.slow, pytest.mark.xfail(strict=True, raises=MeshingError, reason="issue 17: no room on the short branch")]),
-                                 pytest.param(4.0, marks=pytest.mark.slow)])
+                                 pytest.param(3.0, marks=pytest.mark.slow), pytest.param(4.0, marks=pytest.mark.slow)])
 def test_a_backwards_branch_next_to_another_junction(gap):
     """g0016 given's node 50: a branch leaving 45 degrees from upstream, ``gap`` parent
     radii after the junction before it. At the second junction the separator between the
@@ -188,8 +188,35 @@ def test_a_backwards_branch_next_to_another_junction(gap):
     branch, so its half-planes run about r / tan(22.5) = 2.4 r along it; with the first
     junction's half-sections at its other end, 2.2 radii leave no room for the sections
     between them (blocks at -0.1 to -1.2), 4 radii do. Strict xfail until issue 17 gives
-    such branches a scheme (a merged 4-junction fails too)."""
+    such branches a scheme (a merged 4-junction fails too). At 3 radii the sections between
+    stay at their nodes, inside the half-sections, through every fix and changed skeleton
+    (15 blocks invalid, -0.56); the builder's last try spreads them between the two
+    junctions' reaches (valid blocks; the raw fill still folds there, left to the untangler)."""
     case = retrograde_branch(gap)
     blocks = build(case)
     assert blocks.corner_jacobians().min() > 0
     assert len(blocks.info["junctions"]) == 2
+
+
+@pytest.mark.slow
+def test_the_last_try_ends_a_junctions_clearance_at_its_own_stretch():
+    """g0016 extracted's junction 0: a daughter that bends right after the junction and
+    bulges past the bend. The bulge's long rays kept the junction's clearance scan unclean
+    up to its limit, so the first section stood past the bulge (4.0 along a branch of radius
+    0.67) and one block spanned the bend (invalid in every try). In the builder's last try
+    (``clear_own_stretch``) a branch radius of clean sections ends the junction's stretch;
+    since h12/realbuild the default clearance (``_clear_from``) does the same: in both the
+    first section stands before the bulge."""
+    from vmesh.geometry.blocks.builder import _Builder
+
+    case, bulge_at = bent_bulged_branch()
+    first = {}
+    for own in (False, True):
+        b = _Builder(case.skeleton, case.distance, None, BlockOptions(clear_own_stretch=own), None, None, case.project)
+        blocks = b.run()
+        assert blocks.corner_jacobians().min() > 0
+        bent = [bi for bi, br in enumerate(b.topo.branches) if br.nodes[-1] == case.skeleton.n_nodes - 1]  # its second leg came last
+        assert len(bent) == 1
+        first[own] = float(b.topo.branches[bent[0]].s[1])
+    assert first[False] < bulge_at - 1.6 * 0.7  # before the bulge (was 4.38: the bulge taken for the junction's crowding)
+    assert first[True] <= first[False]

@@ -308,3 +308,61 @@ def test_a_half_plane_turned_back_and_forth_ends_the_fix_rounds(monkeypatch):
     with pytest.raises(MeshingError):  # still beyond the scheme (issue 17)
         build_blocks(case.skeleton, case.distance, None, BlockOptions(), project=case.project)
     assert futile == []
+
+
+@pytest.mark.parametrize("inward", [False, True])
+def test_a_missing_triangle_touching_a_rim_at_one_vertex_is_filled_on_either_orientation(inward):
+    # g0011 of seed 1 (open ends, inward normals): a missing wall triangle touched outlet_4's
+    # rim at one vertex. The walk of the boundary through that vertex depends on the face
+    # orientation: as given it was part of a 23-edge rim loop (not a hole, left open),
+    # after the outward flip a 3-edge loop of its own, capped as a 0.078-radius "outlet_7"
+    # that no skeleton end reached
+    from test_preprocess import open_tube
+
+    from vmesh import repair as rp
+    from vmesh.geometry import topology
+
+    n_around = 24
+    v, f = open_tube(n_around=n_around, n_along=12)
+    gone = np.flatnonzero(np.all(np.isin(f, [0, n_around, n_around + 1]), axis=1))  # rim vertex 0 and two of ring 1
+    assert len(gone) == 1
+    f = np.delete(f, gone, axis=0)
+    if inward:
+        f = f[:, ::-1].copy()
+    holes = rp.wall_hole_loops(v, f)
+    assert [sorted(h.tolist()) for h in holes] == [[0, n_around, n_around + 1]]
+    v2, f2, _, report = rp.repair(v, f)
+    assert len(report.filled_holes) == 1
+    assert sorted(len(loop) for loop in topology.boundary_loops(f2)) == [n_around, n_around]  # the two open ends
+
+
+def test_the_split_of_a_pinched_loop_is_its_simple_loops():
+    from vmesh.geometry.topology import split_pinched_loop
+
+    assert [c.tolist() for c in split_pinched_loop(np.array([4, 0, 1, 2, 0, 3]))] == [[0, 1, 2], [4, 0, 3]]
+    assert [c.tolist() for c in split_pinched_loop(np.array([0, 1, 2, 3]))] == [[0, 1, 2, 3]]
+
+
+
+def test_a_rim_pinched_at_a_vertex_is_one_open_end_on_either_orientation():
+    # g0004 of seed 1 (ragged open ends, inward normals): a 4-edge lobe of a stub's ragged
+    # rim touched the rest at one vertex; after the outward flip it was a loop of its own,
+    # capped as "outlet_11", grafted a 0.14-radius branch ("no wall within reach")
+    from test_preprocess import open_tube
+
+    from vmesh import preprocess as pre
+    from vmesh.geometry import topology
+
+    n = 24
+    v, f = open_tube(n_around=n, n_along=12)
+    # two triangles: one touching the rim at vertex 5, one behind it: a 4-edge lobe
+    # (5, n + 6, 2n + 6, n + 5) meeting the rim at vertex 5 only (as given one loop of
+    # 28 edges, turned over a rim of 24 and a loop of 4)
+    tris = [{5, n + 5, n + 6}, {n + 5, n + 6, 2 * n + 6}]
+    gone = [k for k, t in enumerate(f.tolist()) if set(t) in tris]
+    assert len(gone) == 2
+    f = np.delete(f, gone, axis=0)
+    for faces in (f, f[:, ::-1].copy()):
+        _, _, labels = pre.cap_boundary_loops(v, faces)
+        assert labels.max() == 2  # two caps, the lobe part of its end's
+        assert sorted(len(loop) for loop in topology.join_touching(topology.boundary_loops(faces))) == [n, n + 4]

@@ -19,6 +19,9 @@ entries say ``"cached": true``). Rows whose surface-affecting parameters differ 
 The cached signed distance is shared, not copied: filters only query it. Every other
 layer is deep-copied in and out, so a later filter that changes a layer in place
 cannot alter the cache.
+
+:class:`DiskPrefixCache` keeps the same entries on disk between processes (``vmesh run``
+uses it): a rerun on the same surface with other meshing parameters restores the prefix.
 """
 
 from __future__ import annotations
@@ -26,6 +29,9 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
+import os
+import pickle
+import tempfile
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
@@ -79,6 +85,8 @@ class _Entry:
     steps: list
     sections: dict
     warnings: list
+    #: layer -> the trees built over that surface (:class:`DiskPrefixCache` only)
+    trees: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -102,7 +110,7 @@ class PrefixPlan:
         before = self._sections_before
         sections = {k: v for k, v in ctx.report.sections.items() if before.get(k, _MISSING) is not v}
         entry = _Entry(
-            layers={layer: (getattr(ctx, layer) if layer in SHARED_LAYERS else _copy(getattr(ctx, layer))) for layer in writes},
+            layers={layer: self.cache._keep_layer(layer, getattr(ctx, layer)) for layer in writes},
             steps=[replace(s, counts=dict(s.counts), warnings=list(s.warnings)) for s in ctx.report.steps[-self.store_after :]],
             sections=_copy(sections),
             warnings=list(ctx.report.warnings[self._warnings_before :]),
@@ -190,6 +198,13 @@ class PrefixCache:
         key = self.key(ctx, steps[:n])
         if key is None:
             return PrefixPlan(self)
+        entry = self._get(key)
+        if entry is None:
+            return PrefixPlan(self, key=key, store_after=n, _sections_before=dict(ctx.report.sections), _warnings_before=len(ctx.report.warnings))
+        self._restore(ctx, entry)
+        return PrefixPlan(self, key=key, skip=n, hit=True)
+
+    def _get(self, key: str) -> _Entry | None:
         with self._lock:
             entry = self._entries.get(key)
             if entry is not None:
@@ -197,14 +212,20 @@ class PrefixCache:
                 self.hits += 1
             else:
                 self.misses += 1
-        if entry is None:
-            return PrefixPlan(self, key=key, store_after=n, _sections_before=dict(ctx.report.sections), _warnings_before=len(ctx.report.warnings))
+        return entry
+
+    @staticmethod
+    def _keep_layer(layer: str, value):
+        """What an entry holds of a layer: the object itself (shared layers) or a copy."""
+        return value if layer in SHARED_LAYERS else _copy(value)
+
+    def _restore(self, ctx, entry: _Entry, copy_layers: bool = True) -> None:
+        """Put an entry's layers and report entries into ``ctx``."""
         for layer, value in entry.layers.items():
-            setattr(ctx, layer, value if layer in SHARED_LAYERS else _copy(value))
-        ctx.report.steps += [replace(s, seconds=0.0, extra_memory_mb=0.0, cached=True, counts=dict(s.counts), warnings=list(s.warnings)) for s in entry.steps]
+            setattr(ctx, layer, value if layer in SHARED_LAYERS or not copy_layers else _copy(value))
+        ctx.report.steps += [replace(s, seconds=0.0, cpu_seconds=0.0, extra_memory_mb=0.0, cached=True, counts=dict(s.counts), warnings=list(s.warnings)) for s in entry.steps]
         ctx.report.sections.update(_copy(entry.sections))
         ctx.report.warnings += entry.warnings
-        return PrefixPlan(self, key=key, skip=n, hit=True)
 
     def _put(self, key: str, entry: _Entry) -> None:
         with self._lock:
@@ -212,3 +233,130 @@ class PrefixCache:
             self._entries.move_to_end(key)
             while len(self._entries) > self.max_entries:
                 self._entries.popitem(last=False)
+
+
+#: prefixes kept on disk (each holds the surfaces and the signed distance's trees: ~80 MB for
+#: the ICA's 150,000 triangles)
+DISK_KEEP = 4
+
+
+class DiskPrefixCache(PrefixCache):
+    """The prefix cache kept on disk between processes (``vmesh run``'s default).
+
+    Re-meshing a vessel with other meshing parameters is the common case, and a new process
+    repeated repair, capping and the signed distance's trees each time (~1.5 s CPU for the
+    ICA's 150,000 triangles, with the decimation already read back from
+    :mod:`vmesh.disk_cache`). The entry is the in-memory cache's (layers, step reports,
+    report sections, warnings) pickled with the trees already built over its surfaces
+    (:func:`vmesh.geometry.projection.cached_trees`), under the prefix's key plus a digest
+    of vmesh's sources and the versions of the libraries the prefix calls: an edited module
+    or another library version misses, so a hit is what the steps would compute now.
+
+    Files: ``<cache>/prefix/<digest>.pkl`` (:func:`vmesh.disk_cache.cache_dir`), the newest
+    :data:`DISK_KEEP` kept; ``VMESH_DISK_CACHE=0`` turns it off. An unreadable entry only
+    means the steps run. A step patched at run time (a test's monkeypatch) is not in the
+    key: such a test runs ``vmesh run`` with ``VMESH_DISK_CACHE=0``.
+    """
+
+    def __init__(self):
+        super().__init__(max_entries=1)
+
+    @staticmethod
+    def _path(key: str):
+        from . import disk_cache
+
+        return disk_cache.cache_dir("prefix") / f"{disk_cache.key('prefix', key, _sources_digest(), _versions())}.pkl"
+
+    def _get(self, key: str) -> _Entry | None:
+        from . import disk_cache
+
+        entry = None
+        if disk_cache.enabled():
+            path = self._path(key)
+            try:
+                with open(path, "rb") as f:
+                    entry = pickle.load(f)
+                os.utime(path)  # recently used: pruned last
+            except Exception:  # missing, truncated, written by other code: the steps run
+                entry = None
+        if isinstance(entry, _Entry):
+            self.hits += 1
+            return entry
+        self.misses += 1
+        return None
+
+    @staticmethod
+    def _keep_layer(layer: str, value):
+        return value  # pickled in _put: the copy, with the trees the objects share
+
+    def _restore(self, ctx, entry: _Entry, copy_layers: bool = False) -> None:
+        from .geometry.projection import adopt_trees
+
+        super()._restore(ctx, entry, copy_layers=False)  # fresh from disk: nothing else holds them
+        for layer, trees in entry.trees.items():
+            adopt_trees(getattr(ctx, layer), trees)
+
+    def _put(self, key: str, entry: _Entry) -> None:
+        from . import disk_cache
+        from .geometry.projection import cached_trees
+        from .surface import SurfaceMesh
+
+        if not disk_cache.enabled():
+            return
+        entry.trees = {layer: cached_trees(v) for layer, v in entry.layers.items() if isinstance(v, SurfaceMesh)}
+        path = self._path(key)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".pkl", dir=path.parent)
+            with os.fdopen(fd, "wb") as f:
+                pickle.dump(entry, f, protocol=pickle.HIGHEST_PROTOCOL)
+            os.replace(tmp, path)
+        except Exception:  # a layer that cannot be pickled, a full or read-only disk: not kept
+            try:
+                os.unlink(tmp)
+            except (OSError, UnboundLocalError):
+                pass
+            return
+        finally:
+            entry.trees = {}
+        _prune(path.parent, DISK_KEEP)
+
+
+def _prune(folder, keep: int) -> None:
+    try:
+        entries = sorted(folder.glob("*.pkl"), key=lambda p: p.stat().st_mtime, reverse=True)
+        for p in entries[keep:]:
+            p.unlink(missing_ok=True)
+    except OSError:
+        pass
+
+
+_DIGEST: list = []
+
+
+def _sources_digest() -> str:
+    """Digest of every module of the vmesh package (computed once per process, ~20 ms)."""
+    if not _DIGEST:
+        import pathlib
+
+        root = pathlib.Path(__file__).resolve().parent
+        h = hashlib.blake2b(digest_size=16)
+        for p in sorted(root.rglob("*.py")):
+            h.update(str(p.relative_to(root)).encode())
+            h.update(p.read_bytes())
+        _DIGEST.append(h.hexdigest())
+    return _DIGEST[0]
+
+
+def _versions() -> tuple:
+    """Versions of the libraries whose results a prefix holds."""
+    import sys
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = [sys.version, np.__version__]
+    for dist in ("numba", "pymeshlab", "libigl", "scipy"):
+        try:
+            out.append(version(dist))
+        except PackageNotFoundError:
+            out.append(None)
+    return tuple(out)

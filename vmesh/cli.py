@@ -91,7 +91,15 @@ def cmd_run(args) -> int:
     from .commands.compile import compile_in_background
 
     compile_in_background()  # a first run: the optimiser's kernels compile on the other core meanwhile
-    ctx = chain.run(surface=args.input, skeleton=args.skeleton, out_dir=args.out, progress=not args.quiet, context=context)
+    from . import disk_cache
+
+    # a rerun on the same surface restores repair, caps, decimation and the signed distance from disk
+    cache = None
+    if disk_cache.enabled():
+        from .cache import DiskPrefixCache
+
+        cache = DiskPrefixCache()
+    ctx = chain.run(surface=args.input, skeleton=args.skeleton, out_dir=args.out, progress=not args.quiet, context=context, cache=cache)
     if not args.quiet:
         print(ctx.report.summary_table())
         for w in ctx.report.warnings:

@@ -129,7 +129,7 @@ def cap_boundary_loops(vertices: np.ndarray, faces: np.ndarray, rings: int | Non
     labels : (m',) int64
         0 for the original faces, ``k`` (1-based, in loop order) for cap ``k``'s faces.
     """
-    loops = topology.boundary_loops(faces)
+    loops = topology.join_touching(topology.boundary_loops(faces))  # a pinched rim is one open end
     labels = np.zeros(len(faces), np.int64)
     if not loops:
         return vertices, faces, labels

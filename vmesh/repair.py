@@ -423,7 +423,9 @@ def wall_hole_loops(vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]
     """The boundary loops of a consistently oriented surface that are holes in its wall
     (the surface around them lies nearly in the loop's plane, or the loop has at most
     ``HOLE_MAX_EDGES`` edges: a missing triangle beside an open end's rim lies in the end's
-    plane, across the wall), not open ends of a vessel."""
+    plane, across the wall), not open ends of a vessel. Of a loop through a vertex twice
+    (a rim pinched there) only the 3-edge parts are holes: a triangle missing beside the
+    rim, touching it at one vertex; larger parts may be lobes of the open end."""
     loops = topology.boundary_loops(faces)
     if not loops:
         return []
@@ -449,11 +451,13 @@ def wall_hole_loops(vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]
             continue
         axis = area_vector / norm
         ring = np.unique(face_of_vertex[loop].indices)
-        if np.mean(np.abs(normals[ring] @ axis)) <= HOLE_ALIGNMENT:
-            continue
         ball = np.asarray(tree.query_ball_point(centre, HOLE_REACH * np.linalg.norm(rim - centre, axis=1).mean()), np.int64)
-        if len(ball) and np.sum(areas[ball] * np.abs(normals[ball] @ axis)) > HOLE_AREA_ALIGNMENT * np.sum(areas[ball]):
+        if np.mean(np.abs(normals[ring] @ axis)) > HOLE_ALIGNMENT and len(ball) and (
+            np.sum(areas[ball] * np.abs(normals[ball] @ axis)) > HOLE_AREA_ALIGNMENT * np.sum(areas[ball])
+        ):
             holes.append(loop)
+        else:  # an open end; where its rim is pinched at a vertex, a triangle missing there is a hole
+            holes.extend(c for c in topology.split_pinched_loop(loop) if len(c) == 3 < len(loop))
     return holes
 
 

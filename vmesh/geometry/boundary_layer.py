@@ -381,7 +381,7 @@ def record_first_layer(ctx, mesh, target: float | None = None) -> None:
     section = ctx.report.sections.setdefault("boundary_layer", {})
     section["measured_first_height"] = _stats(h, target)
     section["measured_first_edge"] = _stats(first_edge_lengths(mesh), target)
-    nodes, lines = first_node_heights(mesh)
+    nodes, lines = first_node_heights(mesh, whole_lines=False)  # the heights need the first elements only
     if len(nodes) == 0:
         ctx.count(first_height=float(np.median(h)))
         return
@@ -394,7 +394,7 @@ def record_first_layer(ctx, mesh, target: float | None = None) -> None:
         ctx.count(first_height_within_5=round(float(stats["within_5_percent"]), 4))
 
 
-def first_node_heights(mesh) -> tuple[np.ndarray, np.ndarray]:
+def first_node_heights(mesh, whole_lines: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """The first-layer height at each wall node: the distance, along the wall normal
     (:func:`wall_normals`), from the wall node to the first element corner of its
     boundary-layer node line (:func:`layer_lines`; one value per line).
@@ -403,12 +403,14 @@ def first_node_heights(mesh) -> tuple[np.ndarray, np.ndarray]:
     -------
     heights : (L,) ndarray
     lines : (L, N + 1) ndarray
-        The lines (column 0: the wall node), to say where a height misses.
+        The lines (column 0: the wall node), to say where a height misses; with
+        ``whole_lines=False`` only their first element's p + 1 nodes (the same rows: one
+        line per wall node), without tracing the lines across the layer.
     """
     p = mesh.order
     layer = mesh.cell_data.get("layer")
     in_layer = np.asarray(layer) == LAYER_BOUNDARY if layer is not None else np.ones(mesh.n_cells, bool)
-    lines, _ = layer_lines(mesh.cells, p, mesh.boundary_faces, mesh.boundary_ids, mesh.boundary_cells, in_layer)
+    lines, _ = layer_lines(mesh.cells, p, mesh.boundary_faces, mesh.boundary_ids, mesh.boundary_cells, in_layer, max_elements=256 if whole_lines else 1)
     if len(lines) == 0:
         return np.zeros(0), lines
     normals = wall_normals(mesh.points, mesh.boundary_faces, mesh.boundary_ids, p)

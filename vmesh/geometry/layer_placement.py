@@ -57,6 +57,8 @@ def layer_lines(cells, p, boundary_faces, boundary_ids, boundary_cells, in_layer
         As :class:`~vmesh.mesh.HexMesh` (wall: id 0).
     in_layer : (m,) bool
         Elements of the boundary-layer blocks.
+    max_elements : int
+        Elements followed along each line (1: the first element only, no face pairing).
 
     Returns
     -------
@@ -76,7 +78,8 @@ def layer_lines(cells, p, boundary_faces, boundary_ids, boundary_cells, in_layer
     members = np.flatnonzero(in_layer)
     position = np.full(len(cells), -1, np.int64)
     position[members] = np.arange(len(members))
-    partner = _face_partners(cells, p, members)
+    # the face pairs carry a line into the next element: not needed for first elements only
+    partner = _face_partners(cells, p, members) if max_elements > 1 else None
     tf = tensor_faces(p)
     nf = tf.shape[1]
     cell = np.repeat(owners, nf)
@@ -85,12 +88,14 @@ def layer_lines(cells, p, boundary_faces, boundary_ids, boundary_cells, in_layer
     columns = [cells[cell, tf[face, at]]]
     active = np.ones(len(cell), bool)
     elements = np.zeros(len(cell), np.int64)
-    for _ in range(max_elements):
+    for k in range(max_elements):
         stride = (p + 1) ** (face // 2) * np.where(face % 2 == 0, 1, -1)
         base = tf[face, at]
         for j in range(1, p + 1):
             columns.append(np.where(active, cells[cell, base + j * stride], -1))
         elements += active
+        if k + 1 == max_elements:
+            break
         nxt = partner[6 * np.maximum(position[cell], 0) + (face ^ 1)]
         active &= nxt >= 0
         if not active.any():

@@ -66,6 +66,17 @@ def _entries(surface) -> dict:
     return entries
 
 
+def cached_trees(surface) -> dict:
+    """The trees and projectors built so far over ``surface`` (for
+    :class:`vmesh.cache.DiskPrefixCache`, which keeps them with the surface)."""
+    return dict(_CACHE.get(id(surface), {}))
+
+
+def adopt_trees(surface, trees: dict) -> None:
+    """Cache ``trees`` (from :func:`cached_trees` of an equal surface) for ``surface``."""
+    _entries(surface).update(trees)
+
+
 def surface_tree(surface):
     """The :class:`~vmesh.geometry.bvh.TriangleBVH` of all of ``surface``'s triangles, built
     once per surface object (cached; see the module docstring)."""

@@ -336,6 +336,11 @@ class SignedDistance(SurfaceQueries):
         self.normals = Pseudonormals.of(v, f, edge_of_half, faces_per_edge, self.diagonal)
         self._wn = None
 
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state["_wn"] = None  # libigl's winding-number tree cannot be pickled; rebuilt when asked
+        return state
+
     @classmethod
     def from_surface(cls, surface, sign: str = "auto") -> "SignedDistance":
         """Build from a :class:`~vmesh.surface.SurfaceMesh`, sharing its cached tree

@@ -52,7 +52,10 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
     """Ordered vertex loops of the surface boundary (one array per open end).
 
     Walks the boundary half-edges; where several boundary loops touch at a vertex
-    the walk still closes each loop because every half-edge is used once.
+    the walk still closes each loop because every half-edge is used once. Which way
+    the walk continues there depends on the face orientation: one rim pinched at a
+    vertex is one loop on one orientation, two on the other (see :func:`join_touching`,
+    :func:`split_pinched_loop`).
     """
     he = boundary_edges(faces)
     if len(he) == 0:
@@ -77,6 +80,53 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
             i = nxt[0]
         loops.append(np.asarray(loop, dtype=np.int64))
     return loops
+
+
+def join_touching(loops: list) -> list:
+    """Boundary loops that share a vertex spliced into one walk through it: the same
+    loops on either face orientation (:func:`boundary_loops` splits a pinched rim on
+    one of them)."""
+    owner, out = {}, []
+    for loop in loops:
+        loop = loop.tolist()
+        while True:
+            common = next((a for a in loop if a in owner), None)
+            if common is None:
+                break
+            other = out[owner[common]]
+            out[owner[common]] = None
+            for a in other:
+                owner.pop(a, None)
+            k, i = other.index(common), loop.index(common)
+            loop = loop[:i] + other[k:] + other[:k] + loop[i:]
+        for a in loop:
+            owner[a] = len(out)
+        out.append(loop)
+    return [np.asarray(loop, dtype=np.int64) for loop in out if loop is not None]
+
+
+def split_pinched_loop(loop: np.ndarray) -> list[np.ndarray]:
+    """The simple loops of a boundary loop that passes a vertex more than once (a rim
+    pinched at a vertex): which of the walks through such a vertex :func:`boundary_loops`
+    takes depends on the face orientation, so a notch beside a rim is its own loop on one
+    orientation and part of the rim on the other; split, it is its own loop on both."""
+    loop = np.asarray(loop, np.int64)
+    if len(np.unique(loop)) == len(loop):
+        return [loop]
+    out, stack, where = [], [], {}
+    for a in loop.tolist():
+        if a in where:  # close the cycle since a's last visit
+            k = where[a]
+            out.append(np.asarray(stack[k:], np.int64))
+            for b in stack[k + 1 :]:
+                where.pop(b, None)
+            del stack[k + 1 :]
+        else:
+            where[a] = len(stack)
+            stack.append(a)
+    if len(stack) >= 3:
+        out.append(np.asarray(stack, np.int64))
+    return [c for c in out if len(c) >= 3]
 
 
 def non_manifold_edges(faces: np.ndarray) -> np.ndarray:

@@ -144,17 +144,45 @@ def build_blocks(
                 warn(note)
         blocks.info["fixes"][:0], blocks.info["cut_stubs"] = notes, label_ostia(blocks, cut)
         return blocks
-    if not options.repair.straighten_stuck_ends and not work.spent:
-        # every try failed: the skeleton as given once more, now also turning the first
-        # sections at junction ends out of other fixes towards their chords (a last resort:
-        # builds that succeed without it stay as they are)
-        try:
-            return build_blocks(skeleton, distance, caps, options.replace(straighten_stuck_ends=True, max_retopology_tries=1),
-                                None, warn, progress, project, intersect_lines, work)
-        except MeshingError:
-            pass
+    # every try failed: the skeleton as given once more with a last resort (builds that
+    # succeed without it stay as they are)
+    if (blocks := _last_resort(skeleton, distance, caps, options, (warn, progress, project, intersect_lines), work)) is not None:
+        return blocks
     first.hint += work.stop_note()
     raise first.error(bad_blocks_path, tries)
+
+
+def _last_resort(skeleton, distance, caps, options: BlockOptions, hooks: tuple, work) -> BlockStructure | None:
+    """:func:`build_blocks` with each of :func:`_last_tries` in turn; the first structure
+    built, or None."""
+    for last in _last_tries(options):
+        if work.spent:
+            break
+        try:
+            blocks = build_blocks(skeleton, distance, caps, last, None, *hooks, work)
+        except MeshingError:
+            continue
+        if last.repair.spread_tight:
+            blocks.info["fixes"].insert(0, "last try: junction clearances end at their own crowded stretch, and the cross-sections of "
+                                           "branches between two junctions without room spread between the junctions' reaches")
+        return blocks
+    return None
+
+
+def _last_tries(options: BlockOptions) -> list:
+    """The options of :func:`build_blocks`' last tries after every other try failed: first
+    turning the first sections at junction ends out of other fixes towards their chords;
+    then (with its own tries, that straightening included) the last-try placement
+    (:mod:`.sections`): a junction's clearance along a branch ends at its own crowded
+    stretch (a bulge further on is not the junction's), and the sections of branches
+    between two junctions without room stand between the two junctions' reaches. Not by
+    default: both move sections of builds that work (g0008 extracted, g0002 extracted)."""
+    if options.repair.straighten_stuck_ends:
+        return []
+    out = [options.replace(straighten_stuck_ends=True, max_retopology_tries=1)]
+    if not options.repair.spread_tight:
+        out.append(options.replace(spread_tight=True, clear_own_stretch=True))
+    return out
 
 
 def _fallback(opts, options, at_node, flat: dict, leaned: bool, work) -> BlockOptions | None:

@@ -57,6 +57,8 @@ class RepairOptions:
     wall_margins: tuple = (0.0, 0.5, 1.0, 2.0)  # extra margins tried at folding junction ends (× radius)
     relieve_wall_folds: bool = True  # re-place junction sections where boundary-layer blocks would fold (fill-judged)
     straighten_stuck_ends: bool = False  # straighten first sections at junction ends out of fixes (build_blocks' last try)
+    clear_own_stretch: bool = False  # a junction's clearance along a branch ends at its own crowded stretch (build_blocks' last try)
+    spread_tight: bool = False  # sections of a branch between two junctions without room between their reaches (build_blocks' last try)
     work_budget: int = 160  # assemblies of the whole structure one build may do over its fixes and tries (0: unbounded)
 
 

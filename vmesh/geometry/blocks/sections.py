@@ -22,6 +22,25 @@ OPEN_END_SHIFT = 0.05
 #: closed end whose dome retreat gives way to them (:meth:`_Sections._apply_clearance`).
 DOME_YIELD_ROOM = 0.25
 
+#: The most a junction's half-sections are taken to reach along a short branch between two
+#: junctions, in the branch's radii (:meth:`_Sections._bounded_reach`).
+REACH_RADII = 3.0
+
+
+#: Clean samples in a row (0.25 branch radii apart: one branch radius) that end a
+#: junction's crowded stretch along a branch (:meth:`_Sections._clearance`).
+CLEAR_RUN = 4
+
+
+def _first_run(ok: np.ndarray, n: int):
+    """Index where the first run of ``n`` True values in a row starts, or None."""
+    count = 0
+    for i, v in enumerate(ok.tolist()):
+        count = count + 1 if v else 0
+        if count == n:
+            return i - n + 1
+    return None
+
 
 class _Sections:
     """Section steps of the block builder: branches, section positions, frames and ray
@@ -160,9 +179,14 @@ class _Sections:
         out = {}
         for n_job, (c, h, bi, side, s) in enumerate(jobs):
             ok = clean[owner == n_job]
-            # first candidate from which on every later one is clean
-            bad = np.flatnonzero(~ok)
-            first = 0 if len(bad) == 0 else bad[-1] + 1
+            first = _clear_from(ok, s, float(np.median(sk.radii[self.topo.branches[bi].nodes])))
+            if opt.repair.clear_own_stretch and first > 0:
+                # build_blocks' last try: CLEAR_RUN clean candidates in a row end the
+                # junction's crowded stretch even when shorter than a branch radius
+                # (g0016 extracted: a bulge 2.5-4.7 along a branch of radius 0.67)
+                run = _first_run(ok, CLEAR_RUN)
+                if run is not None:
+                    first = min(first, run)
             out[(bi, side)] = 0.0 if first == 0 else (s[first] if first < len(s) else s[-1])
         return out
 
@@ -274,6 +298,30 @@ class _Sections:
                 if ends[-1] > reach:
                     K = len(br.nodes) - 1
                     br.s[1:-1] = reach + (ends[-1] - reach) * np.arange(1, K) / K
+            elif not room and self.opt.repair.spread_tight and br.kinds == [JUNCTION, JUNCTION] and br.nodes[0] != br.nodes[-1]:
+                # build_blocks' last try: a branch between two junctions without room has
+                # its sections between the two junctions' bounded reaches (thin blocks)
+                # instead of at their nodes inside the half-sections. Not by default: some
+                # such branches build with their sections at the nodes (g0002 extracted's
+                # branch between nodes 5 and 25), and in the fix loop it took fixes from
+                # builds that worked (thoracic_aorta_open, h11/gbuild2)
+                K = len(br.nodes) - 1
+                a = self._bounded_reach(bi, 0)
+                b = br.arc[-1] - self._bounded_reach(bi, 1)
+                if b > a:
+                    br.s[1:-1] = a + (b - a) * np.arange(1, K) / K
+
+    def _bounded_reach(self, bi: int, side: int) -> float:
+        """The junction's reach along a branch, within ``[0, REACH_RADII * the branch's radius]``.
+
+        A half-section bounded by the branch's wall reaches about r / tan(half-angle) along
+        it (2.4 r at 45 degrees between branches); a reach measured much further comes from
+        rays that ran along a touching vessel or across a wide junction (g0002 given: 4.1
+        along a branch 4.5 long, 7-15 along branches 8.5-13.3 long), and sections placed
+        past it would all be packed into the branch's last radius. A reach measured
+        negative (behind its node) counts as none."""
+        rb = float(np.median(self.topo.sk.radii[self.topo.branches[bi].nodes]))
+        return float(np.clip(self._junction_reach(bi, side), 0.0, REACH_RADII * rb))
 
 
     # -- 6. frames and ray casting ------------------------------------------------------
@@ -543,3 +591,21 @@ class _Sections:
             raise MeshingError(f"closed end at skeleton node {node}: no wall found round the dome beyond its cross-section")
         return {"section": n, "core": core_v, "lifted": lifted,
                 "inner": c + ((1.0 - layer) * R)[:, None] * dirs, "wall": c + R[:, None] * dirs}
+
+
+def _clear_from(ok: np.ndarray, s: np.ndarray, rb: float) -> int:
+    """Index of the first candidate (arc lengths ``s`` from a junction, ``ok`` where every
+    ray is short) from which sections are clear of the junction: after the last candidate
+    that is not, unless a clean stretch of at least one branch radius lies between: rays
+    long again beyond it are the branch's own (a bend curling back, a vessel passing),
+    not the junction's, and sections pushed past them would stand in that bend
+    (hepatic_artery extracted, junction 11)."""
+    bad = np.flatnonzero(~ok)
+    if len(bad) == 0:
+        return 0
+    run = np.r_[bad[np.flatnonzero(np.diff(bad) > 1)], bad[-1]]  # last index of each unclean run
+    for end in run[:-1]:
+        nxt = bad[bad > end][0]  # where the next unclean run starts
+        if s[nxt - 1] - s[end + 1] >= rb:
+            return int(end + 1)
+    return int(bad[-1] + 1)
