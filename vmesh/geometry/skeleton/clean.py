@@ -144,16 +144,23 @@ def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead
     return None
 
 
+#: how far (x its radius) a junction's own stretch reaches: the block builder's REACH_RADII
+#: (its half-sections' reach); a shorter branch to another junction is a pair of close
+#: junctions (the builder's business), not a fused pair.
+FUSED_REACH = 3.0
+
+
 def _fused_to_junction(skel: Skeleton, c: int, pi, ai, pj, aj, scale, distance):
     """The job that moves junction ``c`` onto the far junction of the shorter of its two
     branches ``pi``, ``pj`` when that branch runs in one lumen with the other all the way to
     it (every midpoint of the two, matched by arc length, a quarter radius or more inside):
-    the two never part before it, so the junction ``c`` stands for lies there. None if not."""
+    the two never part before it, so the junction ``c`` stands for lies there. None if not,
+    or if that branch is no longer than :data:`FUSED_REACH` radii of ``c``."""
     if ai[-1] < aj[-1]:
         pi, ai, pj, aj = pj, aj, pi, ai  # j: the shorter
     e = int(pj[-1])
-    if skel.degrees[e] < 3:
-        return None
+    if skel.degrees[e] < 3 or aj[-1] <= FUSED_REACH * scale[c]:
+        return None  # a junction within the junction's own reach: two close junctions, not a fused pair
     s = np.arange(0.05 * scale[c], aj[-1], 0.05 * scale[c])
     mid = 0.5 * (polyline_at(skel.points[pi], ai, s) + polyline_at(skel.points[pj], aj, s))
     r = np.maximum(np.interp(s, ai, scale[pi]), np.interp(s, aj, scale[pj]))
