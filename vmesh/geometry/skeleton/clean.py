@@ -269,7 +269,9 @@ def separate_parallel_branches(
         branches are not yet ``part_angle`` apart there is left where it is. With
         ``distance``, farther while the two branches still share one lumen (their midpoint
         a quarter radius or more inside the wall): an acute branch running inside its
-        parent for many radii parts where its own lumen does.
+        parent for many radii parts where its own lumen does. When the shorter of the two
+        ends in a junction (more than ``FUSED_REACH`` radii on) before they part, the
+        junction moves onto that one (:func:`_fused_to_junction`).
     distance : callable, optional
         Signed distance (positive inside): radii of the moved nodes and the shared lumen.
         Without it (or where it is not positive), the larger of the two branch radii at
