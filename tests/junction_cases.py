@@ -343,3 +343,31 @@ def blebbed_bifurcation(at: float = 3.5, bleb: float = 0.7, angle: float = 60.0,
     a = np.r_[case.a, [centre]]
     b = np.r_[case.b, [centre + 1e-6 * d1]]  # a ball: a capsule of (almost) no length
     return JunctionCase(case.name, a, b, np.r_[case.r, bleb], case.skeleton, case.blend)
+
+
+def fused_acute_pair(angle: float = 15.0, short: float = 3.5, ratio: float = 0.8) -> JunctionCase:
+    """A bifurcation at the origin (parent from -x, radius 1) whose daughters (radii
+    ``ratio`` and 0.9 ``ratio``) leave ``angle`` degrees apart, the second ending after
+    ``short`` in a junction of its own (a continuation 50 degrees further off and a side
+    branch out of the plane) while the two tubes still overlap: they part only about
+    (r1 + r2) / sin(angle) along. As g0006 given's junction 2 (15 degrees, junction 6
+    inside the fused lumen)."""
+    r1, r2 = ratio, 0.9 * ratio
+    pts, edges, radii = [np.zeros(3)], [], [1.0]
+    a, b, r = [], [], []
+    add = _branch_adder(pts, edges, radii, a, b, r)
+    add(np.zeros(3), 0, np.array([-1.0, 0, 0]), 1.0, 8.0)
+    add(np.zeros(3), 0, direction(angle / 2), r1, 10.0)
+    d2 = direction(-angle / 2)
+    p, e = _chain(np.zeros(3), d2, short, 0.8 * r2, len(pts), 0)  # ends at its junction, not past it
+    pts.extend(p)
+    edges.extend(e)
+    radii.extend([r2] * len(p))
+    a.append(np.zeros(3))
+    b.append(short * d2)
+    r.append(r2)
+    K, k = short * d2, len(pts) - 1
+    add(K, k, direction(-angle / 2 - 50.0), 0.8 * r2, 6.0)
+    add(K, k, direction(-angle / 2 - 90.0, 60.0), 0.6 * r2, 4.0)
+    sk = Skeleton(np.asarray(pts), np.asarray(radii, float), np.asarray(edges))
+    return JunctionCase(f"fused_acute_{angle:g}_{short:g}", np.asarray(a), np.asarray(b), np.asarray(r), sk)

@@ -15,7 +15,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from junction_cases import bent_bulged_branch, bifurcation, close_junctions, direction, furcation, retrograde_branch, trifurcation, upstream_node
+from junction_cases import bent_bulged_branch, bifurcation, close_junctions, direction, furcation, fused_acute_pair, retrograde_branch, trifurcation, upstream_node
 from vmesh.errors import MeshingError
 from vmesh.geometry import skeleton_ops as ops
 from vmesh.geometry import transfinite_curves as curves
@@ -220,3 +220,21 @@ def test_the_last_try_ends_a_junctions_clearance_at_its_own_stretch():
         first[own] = float(b.topo.branches[bent[0]].s[1])
     assert first[False] < bulge_at - 1.6 * 0.7  # before the bulge (was 4.38: the bulge taken for the junction's crowding)
     assert first[True] <= first[False]
+
+
+@pytest.mark.parametrize("angle", [15.0, pytest.param(10.0, marks=pytest.mark.slow)])
+def test_a_junction_inside_a_fused_acute_pair_moves_to_where_the_pair_ends(angle):
+    """g0006 given's junction 2: daughters ``angle`` degrees apart share one lumen, and the
+    shorter ends in a junction of its own before the two part. No point of the pair is
+    ``part_angle`` apart, so the junction stayed and its half-sections reached along the
+    fused stretch (blocks invalid in every try). Now the shorter daughter joins the parent
+    (onto the midpoints of the two) and the longer leaves from its far junction."""
+    case = fused_acute_pair(angle, 3.5)
+    far = int(np.flatnonzero(case.skeleton.degrees >= 3).max())  # the short daughter's junction
+    sk, moved = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
+    assert moved == 1
+    assert sorted(sk.degrees[sk.degrees >= 3].tolist()) == [4]  # one junction left: the far one, with the long daughter
+    assert np.linalg.norm(sk.points[sk.degrees >= 3][0] - case.skeleton.points[far]) < 0.8  # near the far junction
+    assert case.distance(sk.points).min() > 0  # every node inside
+    blocks = build_blocks(sk, case.distance, None, BlockOptions(), project=case.project)
+    assert blocks.corner_jacobians().min() > 0

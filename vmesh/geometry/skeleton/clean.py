@@ -137,7 +137,36 @@ def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead
             wide = np.flatnonzero(spread >= target)
             if len(wide):
                 return (c, pi, ai, pj, aj, s[wide[0]], mid[wide[0]], r[wide[0]], eps)
+            if distance is not None:
+                job = _fused_to_junction(skel, c, pi, ai, pj, aj, scale, distance)
+                if job is not None:
+                    return job
     return None
+
+
+#: how far (x its radius) a junction's own stretch reaches: the block builder's REACH_RADII
+#: (its half-sections' reach); a shorter branch to another junction is a pair of close
+#: junctions (the builder's business), not a fused pair.
+FUSED_REACH = 3.0
+
+
+def _fused_to_junction(skel: Skeleton, c: int, pi, ai, pj, aj, scale, distance):
+    """The job that moves junction ``c`` onto the far junction of the shorter of its two
+    branches ``pi``, ``pj`` when that branch runs in one lumen with the other all the way to
+    it (every midpoint of the two, matched by arc length, a quarter radius or more inside):
+    the two never part before it, so the junction ``c`` stands for lies there. None if not,
+    or if that branch is no longer than :data:`FUSED_REACH` radii of ``c``."""
+    if ai[-1] < aj[-1]:
+        pi, ai, pj, aj = pj, aj, pi, ai  # j: the shorter
+    e = int(pj[-1])
+    if skel.degrees[e] < 3 or aj[-1] <= FUSED_REACH * scale[c]:
+        return None  # a junction within the junction's own reach: two close junctions, not a fused pair
+    s = np.arange(0.05 * scale[c], aj[-1], 0.05 * scale[c])
+    mid = 0.5 * (polyline_at(skel.points[pi], ai, s) + polyline_at(skel.points[pj], aj, s))
+    r = np.maximum(np.interp(s, ai, scale[pi]), np.interp(s, aj, scale[pj]))
+    if not (np.asarray(distance(mid), float) >= 0.25 * r).all():
+        return None
+    return (c, pi, ai, pj, aj, None, None, None, 0.02 * scale[c])
 
 
 def _join_parallel(skel: Skeleton, job: tuple, distance=None) -> tuple[Skeleton, np.ndarray]:
@@ -145,6 +174,8 @@ def _join_parallel(skel: Skeleton, job: tuple, distance=None) -> tuple[Skeleton,
     part: the common stretch of the two onto their midpoints; returns the new skeleton and
     the mask of the nodes of ``skel`` (and the new junction, last) dropped."""
     c, pi, ai, pj, aj, star, at, r_at, eps = job
+    if star is None:
+        return _join_fused(skel, job, distance)
     # branch i: pi[:ki] before the new junction (moved onto the midpoints), pi[li:] after
     # it, nodes at it dropped; branch j: pj[lj:] after it, the rest but c dropped
     ki = int(np.searchsorted(ai, star - eps, side="left"))
@@ -171,6 +202,35 @@ def _join_parallel(skel: Skeleton, job: tuple, distance=None) -> tuple[Skeleton,
     etags = [t for t, k in zip(skel.edge_tags, keep) if k] + [()] * 3
     grown = Skeleton(pts, rad, edges, tags, etags, name=skel.name)
     return contract_nodes(grown, np.where(drop, -1, np.arange(n + 1))), drop
+
+
+def _join_fused(skel: Skeleton, job: tuple, distance=None) -> tuple[Skeleton, np.ndarray]:
+    """Join a fused pair (from :func:`_fused_to_junction`): the shorter branch ``pj`` onto
+    the midpoints of the two (it joins the vessel they leave), the longer branch ``pi``
+    leaves from the far junction of ``pj``; returns the new skeleton and the mask of the
+    nodes of ``skel`` (and one unused slot, last, as :func:`_join_parallel`) dropped."""
+    c, pi, ai, pj, aj, _, _, _, eps = job
+    e, n = int(pj[-1]), skel.n_nodes
+    li = int(np.searchsorted(ai, aj[-1] + eps, side="right"))
+    if li >= len(pi):  # no node of the longer branch past the far junction
+        li = len(pi) - 1
+    scale = node_scale(skel)
+    pts, rad = skel.points.copy(), skel.radii.copy()
+    inner = pj[1:]  # the far junction too: it moves onto the axis of the shared lumen
+    pts[inner] = 0.5 * (skel.points[inner] + polyline_at(skel.points[pi], ai, aj[1:]))
+    rad[inner] = np.maximum(scale[inner], np.interp(aj[1:], ai, scale[pi]))
+    if distance is not None and len(inner):
+        depth = np.asarray(distance(pts[inner]), float)
+        rad[inner] = np.where(depth > 0, depth, rad[inner])
+    drop = np.zeros(n + 1, bool)
+    drop[pi[1:li]] = True
+    drop[n] = True
+    path = np.sort(np.c_[pi[:li], pi[1 : li + 1]], axis=1)
+    keep = ~(np.sort(skel.edges, axis=1)[:, None, :] == path[None]).all(-1).any(-1)
+    edges = np.r_[skel.edges[keep], [[e, pi[li]]]]
+    etags = [t for t, k in zip(skel.edge_tags, keep) if k] + [()]
+    grown = Skeleton(pts, rad, edges, list(skel.node_tags), etags, name=skel.name)
+    return contract_nodes(grown, np.where(drop[:n], -1, np.arange(n))), drop
 
 
 def separate_parallel_branches(
@@ -209,7 +269,9 @@ def separate_parallel_branches(
         branches are not yet ``part_angle`` apart there is left where it is. With
         ``distance``, farther while the two branches still share one lumen (their midpoint
         a quarter radius or more inside the wall): an acute branch running inside its
-        parent for many radii parts where its own lumen does.
+        parent for many radii parts where its own lumen does. When the shorter of the two
+        ends in a junction (more than ``FUSED_REACH`` radii on) before they part, the
+        junction moves onto that one (:func:`_fused_to_junction`).
     distance : callable, optional
         Signed distance (positive inside): radii of the moved nodes and the shared lumen.
         Without it (or where it is not positive), the larger of the two branch radii at
@@ -235,7 +297,11 @@ def separate_parallel_branches(
         # contract_nodes numbers the kept nodes in order; c is looked at again (it may have
         # more branches), the new junction is not
         new_index = np.cumsum(~drop) - 1
-        done = {int(new_index[d]) for d in done if d != c and not drop[d]} | {int(new_index[n])}
+        if job[5] is None:  # a fused pair: the far junction, which gained the branch, is looked at again
+            e = int(job[3][-1])
+            done = {int(new_index[d]) for d in done if d not in (c, e) and not drop[d]}
+        else:
+            done = {int(new_index[d]) for d in done if d != c and not drop[d]} | {int(new_index[n])}
         moved += 1
     return skel.copy() if skel is skeleton else skel, moved
 
