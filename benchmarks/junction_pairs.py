@@ -41,6 +41,23 @@ def _angle(u, v):
     return float(np.degrees(np.arccos(np.clip(u @ v, -1.0, 1.0))))
 
 
+def crossing_margin(sk, near, far, paths=None):
+    """The least ``angle(daughter, sibling) - angle(daughter, link)`` (degrees) over the far
+    junction's daughters: below about 10 the daughter runs across the near junction's
+    half-plane next to the link (docs/junctions.md, h12/fans)."""
+    from vmesh.geometry.skeleton.graph import branch_paths
+
+    paths = branch_paths(sk.n_nodes, sk.edges) if paths is None else paths
+    own = lambda c: [q if int(q[0]) == c else q[::-1] for q in paths if c in (int(q[0]), int(q[-1]))]
+    link = next(q for q in own(near) if int(q[-1]) == far)
+    u = _branch_dir(sk, link, float(sk.radii[near]))[0]
+    sib = [_branch_dir(sk, q, float(sk.radii[near]))[0] for q in own(near) if q is not link and int(q[-1]) != far]
+    daughters = [_branch_dir(sk, q, float(sk.radii[far]))[0] for q in own(far) if int(q[-1]) != near]
+    if not sib or not daughters:
+        return float("inf")
+    return min(min(_angle(w, v) for v in sib) - _angle(w, u) for w in daughters)
+
+
 def _crossing(sk, paths, a, b):
     """Whether a daughter of one junction of the pair points nearer to a sibling of the link
     at the other junction than along the link (it runs across that junction's half-plane
