@@ -29,9 +29,6 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
-import os
-import pickle
-import tempfile
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
@@ -252,7 +249,7 @@ class DiskPrefixCache(PrefixCache):
     of vmesh's sources and the versions of the libraries the prefix calls: an edited module
     or another library version misses, so a hit is what the steps would compute now.
 
-    Files: ``<cache>/prefix/<digest>.pkl`` (:func:`vmesh.disk_cache.cache_dir`), the newest
+    Files: ``<cache>/prefix/<digest>.pkl`` (:func:`vmesh.disk_cache.store_object`), the newest
     :data:`DISK_KEEP` kept; ``VMESH_DISK_CACHE=0`` turns it off. An unreadable entry only
     means the steps run. A step patched at run time (a test's monkeypatch) is not in the
     key: such a test runs ``vmesh run`` with ``VMESH_DISK_CACHE=0``.
@@ -262,23 +259,15 @@ class DiskPrefixCache(PrefixCache):
         super().__init__(max_entries=1)
 
     @staticmethod
-    def _path(key: str):
+    def _digest(key: str) -> str:
         from . import disk_cache
 
-        return disk_cache.cache_dir("prefix") / f"{disk_cache.key('prefix', key, _sources_digest(), _versions())}.pkl"
+        return disk_cache.key("prefix", key, _sources_digest(), _versions())
 
     def _get(self, key: str) -> _Entry | None:
         from . import disk_cache
 
-        entry = None
-        if disk_cache.enabled():
-            path = self._path(key)
-            try:
-                with open(path, "rb") as f:
-                    entry = pickle.load(f)
-                os.utime(path)  # recently used: pruned last
-            except Exception:  # missing, truncated, written by other code: the steps run
-                entry = None
+        entry = disk_cache.load_object("prefix", self._digest(key))
         if isinstance(entry, _Entry):
             self.hits += 1
             return entry
@@ -304,31 +293,10 @@ class DiskPrefixCache(PrefixCache):
         if not disk_cache.enabled():
             return
         entry.trees = {layer: cached_trees(v) for layer, v in entry.layers.items() if isinstance(v, SurfaceMesh)}
-        path = self._path(key)
         try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".pkl", dir=path.parent)
-            with os.fdopen(fd, "wb") as f:
-                pickle.dump(entry, f, protocol=pickle.HIGHEST_PROTOCOL)
-            os.replace(tmp, path)
-        except Exception:  # a layer that cannot be pickled, a full or read-only disk: not kept
-            try:
-                os.unlink(tmp)
-            except (OSError, UnboundLocalError):
-                pass
-            return
+            disk_cache.store_object("prefix", self._digest(key), entry, keep=DISK_KEEP)
         finally:
             entry.trees = {}
-        _prune(path.parent, DISK_KEEP)
-
-
-def _prune(folder, keep: int) -> None:
-    try:
-        entries = sorted(folder.glob("*.pkl"), key=lambda p: p.stat().st_mtime, reverse=True)
-        for p in entries[keep:]:
-            p.unlink(missing_ok=True)
-    except OSError:
-        pass
 
 
 _DIGEST: list = []

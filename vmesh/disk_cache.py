@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import os
 import pathlib
+import pickle
 import tempfile
 
 import numpy as np
@@ -70,10 +71,7 @@ def load(kind: str, digest: str) -> dict | None:
             out = {k: z[k] for k in z.files}
     except Exception:  # missing, truncated or not an npz (zipfile, EOF, value errors): run the step
         return None
-    try:
-        os.utime(path)  # recently used: pruned last
-    except OSError:  # a read-only cache still serves
-        pass
+    _touch(path)
     return out
 
 
@@ -82,23 +80,69 @@ def store(kind: str, digest: str, arrays: dict) -> bool:
     the kind's folder to :data:`KEEP` entries; False where nothing could be written."""
     if not enabled():
         return False
-    folder = cache_dir(kind)
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{digest}.", suffix=".npz", dir=folder)
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-        os.replace(tmp, folder / f"{digest}.npz")
+        _write(kind, f"{digest}.npz", lambda f: np.savez(f, **arrays))
     except OSError:
         return False
     prune(kind)
     return True
 
 
-def prune(kind: str, keep: int = KEEP) -> None:
-    """Remove all but the ``keep`` most recently used entries of ``kind``."""
+def load_object(kind: str, digest: str):
+    """The object pickled under ``digest`` (:func:`store_object`), or None (missing,
+    unreadable, written by other code, or caching off)."""
+    if not enabled():
+        return None
+    path = cache_dir(kind) / f"{digest}.pkl"
     try:
-        entries = sorted(cache_dir(kind).glob("*.npz"), key=lambda p: p.stat().st_mtime, reverse=True)
+        with open(path, "rb") as f:
+            out = pickle.load(f)
+    except Exception:  # missing, truncated, a class that no longer unpickles: run the steps
+        return None
+    _touch(path)
+    return out
+
+
+def store_object(kind: str, digest: str, obj, keep: int = KEEP) -> bool:
+    """Pickle ``obj`` under ``digest`` (atomically, as :func:`store`) and prune the kind's
+    folder to ``keep`` entries; False where nothing could be written (also an object that
+    cannot be pickled)."""
+    if not enabled():
+        return False
+    try:
+        _write(kind, f"{digest}.pkl", lambda f: pickle.dump(obj, f, protocol=pickle.HIGHEST_PROTOCOL))
+    except Exception:  # a full or read-only disk, an object that cannot be pickled: not kept
+        return False
+    prune(kind, keep, suffix=".pkl")
+    return True
+
+
+def _write(kind: str, name: str, write) -> None:
+    """``write(file)`` into ``<kind>/<name>`` through a temporary file renamed over it (a
+    reader never sees half a file); the temporary file is removed when ``write`` fails."""
+    folder = cache_dir(kind)
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{name}.", dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+        os.replace(tmp, folder / name)
+    except BaseException:
+        pathlib.Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _touch(path: pathlib.Path) -> None:
+    try:
+        os.utime(path)  # recently used: pruned last
+    except OSError:  # a read-only cache still serves
+        pass
+
+
+def prune(kind: str, keep: int = KEEP, suffix: str = ".npz") -> None:
+    """Remove all but the ``keep`` most recently used entries (files ``*suffix``) of ``kind``."""
+    try:
+        entries = sorted(cache_dir(kind).glob(f"*{suffix}"), key=lambda p: p.stat().st_mtime, reverse=True)
         for p in entries[keep:]:
             p.unlink(missing_ok=True)
     except OSError:
