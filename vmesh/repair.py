@@ -419,6 +419,14 @@ HOLE_REACH = 1.5
 HOLE_MAX_EDGES = 5
 
 
+def _plane_around(tree, areas, normals, centre, rim, axis) -> bool:
+    """Whether the faces within :data:`HOLE_REACH` rim radii of a loop's centre lie mostly
+    in the loop's plane (their area-weighted normals along ``axis``). Asked only of loops
+    whose own ring of faces passed the cheaper alignment test: the k-d tree query costs."""
+    ball = np.asarray(tree.query_ball_point(centre, HOLE_REACH * np.linalg.norm(rim - centre, axis=1).mean()), np.int64)
+    return bool(len(ball)) and np.sum(areas[ball] * np.abs(normals[ball] @ axis)) > HOLE_AREA_ALIGNMENT * np.sum(areas[ball])
+
+
 def wall_hole_loops(vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
     """The boundary loops of a consistently oriented surface that are holes in its wall
     (the surface around them lies nearly in the loop's plane, or the loop has at most
@@ -451,10 +459,7 @@ def wall_hole_loops(vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]
             continue
         axis = area_vector / norm
         ring = np.unique(face_of_vertex[loop].indices)
-        ball = np.asarray(tree.query_ball_point(centre, HOLE_REACH * np.linalg.norm(rim - centre, axis=1).mean()), np.int64)
-        if np.mean(np.abs(normals[ring] @ axis)) > HOLE_ALIGNMENT and len(ball) and (
-            np.sum(areas[ball] * np.abs(normals[ball] @ axis)) > HOLE_AREA_ALIGNMENT * np.sum(areas[ball])
-        ):
+        if np.mean(np.abs(normals[ring] @ axis)) > HOLE_ALIGNMENT and _plane_around(tree, areas, normals, centre, rim, axis):
             holes.append(loop)
         else:  # an open end; where its rim is pinched at a vertex, a triangle missing there is a hole
             holes.extend(c for c in topology.split_pinched_loop(loop) if len(c) == 3 < len(loop))
