@@ -303,8 +303,9 @@ class _Sections:
                 # its sections between the two junctions' bounded reaches (thin blocks)
                 # instead of at their nodes inside the half-sections. Not by default: some
                 # such branches build with their sections at the nodes (g0002 extracted's
-                # branch between nodes 5 and 25), and in the fix loop it took fixes from
-                # builds that worked (thoracic_aorta_open, h11/gbuild2)
+                # branch between nodes 5 and 25), and in the fix loop it took the
+                # stuck-end straightening from an aorta whose build needs it
+                # (docs/junctions.md, h11/gbuild2)
                 K = len(br.nodes) - 1
                 a = self._bounded_reach(bi, 0)
                 b = br.arc[-1] - self._bounded_reach(bi, 1)
@@ -598,8 +599,8 @@ def _clear_from(ok: np.ndarray, s: np.ndarray, rb: float) -> int:
     ray is short) from which sections are clear of the junction: after the last candidate
     that is not, unless a clean stretch of at least one branch radius lies between: rays
     long again beyond it are the branch's own (a bend curling back, a vessel passing),
-    not the junction's, and sections pushed past them would stand in that bend
-    (hepatic_artery extracted, junction 11)."""
+    not the junction's, and sections pushed past them would stand in that bend (a branch
+    curling back 3-4 radii from its 4-junction: docs/junctions.md, h12/realbuild)."""
     bad = np.flatnonzero(~ok)
     if len(bad) == 0:
         return 0
