@@ -129,6 +129,11 @@ def _segment_distance(y: np.ndarray, seg: np.ndarray) -> np.ndarray:
     return np.linalg.norm(y - (seg[0] + t[:, None] * ab), axis=1)
 
 
+def _on_patch(cuts: ContactCuts, k: int, y: np.ndarray) -> np.ndarray:
+    """Whether plane points ``y`` of cut ``k`` lie on its patch (inside both inflated tubes)."""
+    return (_segment_distance(y, cuts.axis_a[k]) < cuts.radius[k, 0]) & (_segment_distance(y, cuts.axis_b[k]) < cuts.radius[k, 1])
+
+
 def cut_feet(cuts: ContactCuts, points: np.ndarray, inside) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Nearest cut foot of each point: the point's foot on a cut's plane where that foot lies
     on the patch and inside the vessel (``inside(feet) > 0``, a signed distance).
@@ -147,7 +152,7 @@ def cut_feet(cuts: ContactCuts, points: np.ndarray, inside) -> tuple[np.ndarray,
             continue
         h = (p[near] - cuts.centre[k]) @ cuts.normal[k]
         y = p[near] - h[:, None] * cuts.normal[k]
-        on = (np.abs(h) < dist[near]) & (_segment_distance(y, cuts.axis_a[k]) < cuts.radius[k, 0]) & (_segment_distance(y, cuts.axis_b[k]) < cuts.radius[k, 1])
+        on = (np.abs(h) < dist[near]) & _on_patch(cuts, k, y)
         if not on.any():
             continue
         idx, y, h = near[on], y[on], h[on]
@@ -259,7 +264,7 @@ class CutSurface:
             if not ok.any():
                 continue
             y = q[ok] + t[ok, None] * d[ok]
-            on = (_segment_distance(y, self.cuts.axis_a[k]) < self.cuts.radius[k, 0]) & (_segment_distance(y, self.cuts.axis_b[k]) < self.cuts.radius[k, 1])
+            on = _on_patch(self.cuts, k, y)
             if on.any():
                 on[on] = np.asarray(self.inner.distance(y[on]), float) > 0
             i = near[np.flatnonzero(ok)[on]]

@@ -206,7 +206,8 @@ def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray, projec
     bend /= np.maximum(np.linalg.norm(bend, axis=1, keepdims=True), 1e-300)
     half, bend = _smooth_bulges(topo, V, d, half, bend, curved, edges_of)
     if project is not None:
-        half = np.where(_near_junctions(blocks, topo), half, np.minimum(half, _course_bounds(blocks, topo, V, project)))
+        group = _segment_groups(blocks)
+        half = np.where(_near_junctions(blocks, topo, group), half, np.minimum(half, _course_bounds(blocks, topo, V, project, group)))
     acc = _symmetric_tangents(d, bend, half)
     scale = _alike_in_blocks(topo, V, acc, edges_of)
     half = half * scale
@@ -215,7 +216,13 @@ def along_tangents(blocks: BlockStructure, topo: Topology, V: np.ndarray, projec
     return acc, curved
 
 
-def _near_junctions(blocks, topo):
+def _segment_groups(blocks) -> np.ndarray:
+    """Per block, a label shared by the blocks of the same (skeleton node, segment): the
+    blocks between one section and the next."""
+    return np.unique(np.c_[blocks.block_node, blocks.block_segment], axis=0, return_inverse=True)[1].ravel()
+
+
+def _near_junctions(blocks, topo, group):
     """Along edges of the segments that reach a junction: there the along edges turn from a
     junction's half-plane to its branch as the crotch asks, not as the vessel's course does.
     A junction's corners are those of blocks inside it (no segment) or shared by the blocks
@@ -226,8 +233,6 @@ def _near_junctions(blocks, topo):
     n_seg = np.bincount(pairs[:, 0], minlength=len(blocks.vertices))
     corner = n_seg >= 3
     corner[blocks.hexes[blocks.block_segment < 0].ravel()] = True
-    _, group = np.unique(np.c_[blocks.block_node, blocks.block_segment], axis=0, return_inverse=True)
-    group = group.ravel()
     touched = np.zeros(group.max() + 1 if nb else 0, bool)
     touched[group[corner[blocks.hexes].any(axis=1)]] = True
     out = np.zeros(len(topo.edges), bool)
@@ -235,7 +240,7 @@ def _near_junctions(blocks, topo):
     return out
 
 
-def _course_bounds(blocks, topo, V, project):
+def _course_bounds(blocks, topo, V, project, group):
     """Per edge, the largest end turn (radians) of its symmetric arc that bulges no more
     than the vessel's own course between its two sections.
 
@@ -257,8 +262,7 @@ def _course_bounds(blocks, topo, V, project):
     axis = np.argmax(along[bsel], axis=1)
     cols = 4 * axis[:, None] + np.arange(4)[None, :]
     edges = np.take_along_axis(topo.block_edge[bsel], cols, axis=1)  # (nb, 4) along edges
-    _, group = np.unique(np.c_[blocks.block_node[bsel], blocks.block_segment[bsel]], axis=0, return_inverse=True)
-    group = group.ravel()
+    group = group[bsel]
     ng = group.max() + 1
     e_flat, g_flat = edges.ravel(), np.repeat(group, 4)
     e_flat, first = np.unique(e_flat, return_index=True)
