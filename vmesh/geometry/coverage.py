@@ -216,8 +216,7 @@ def measure_coverage(
     depth: float = 0.3,
     end_depth: float = 1.5,
     branches=None,
-    wall_tree=None,
-    on_wall=None,
+    wall_tree=None, on_wall=None,
 ) -> tuple[dict, list]:
     """Measure how much of the input wall the mesh boundary misses.
 
@@ -248,11 +247,7 @@ def measure_coverage(
     wall_tree : TriangleBVH, optional
         A tree of the wall triangles (the surface without its caps), shared with the chain.
     on_wall : (n,) bool, optional
-        The mesh nodes the mesher put on the wall (``HexMesh.on_wall``). A wall-face node
-        that is not was left on its face's patch: no wall lay along the face's normal (the
-        face spans the mouth of a vessel part without skeleton). Such nodes are counted
-        apart (``wall_nodes_over_openings``): they were never on the wall, so they are no
-        wall *moved off* it. ``None``: every wall node was put on the wall.
+        Nodes the mesher put on the wall (``HexMesh.on_wall``; None: all), see :func:`_wall_node_stats`.
 
     Returns
     -------
@@ -282,7 +277,6 @@ def measure_coverage(
     uncovered_area = float((area[:, None] * (far & ~end_cap)).sum() / 4.0)
     beyond_area = float((area[:, None] * end_cap).sum() / 4.0)
     off = _wall_node_distances(X, boundary_faces, boundary_ids, TriangleBVH(V, WF) if wall_tree is None else wall_tree, skeleton_points, skeleton_edges, skeleton_radii, on_wall)
-    d_n = off[1][off[2]] if off[2].any() else np.zeros(1)
     surface_volume, mesh_volume = enclosed_volume(V, F), enclosed_volume(X, tri)
     missing, n_patches, n_missing = _missing_parts(
         V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names,
@@ -299,10 +293,7 @@ def measure_coverage(
         "volume_ratio": mesh_volume / surface_volume if surface_volume > 0 else float("nan"),
         "mesh_volume": mesh_volume,
         "surface_volume": surface_volume,
-        "wall_node_max_rel": float(d_n.max()),
-        "wall_node_mean_rel": float(d_n.mean()),
-        "wall_nodes_over_openings": int((~off[2]).sum()),
-        "over_openings_max_rel": float(off[1][~off[2]].max()) if (~off[2]).any() else 0.0,
+        **_wall_node_stats(off),
         "patches": int(n_patches),
         "missing_parts": int(n_missing),
         "missing": [m.as_dict() for m in missing],
@@ -343,6 +334,21 @@ def _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, skeleton_po
     r_n = skeleton_radius(X[wall_nodes], skeleton_points, skeleton_edges, skeleton_radii)[0]
     placed = np.ones(len(wall_nodes), bool) if on_wall is None else np.asarray(on_wall, bool)[wall_nodes]
     return X[wall_nodes], np.sqrt(wall_tree.closest(X[wall_nodes])[0]) / r_n, placed
+
+
+def _wall_node_stats(off) -> dict:
+    """Distances of the wall nodes off the input wall (``off`` of :func:`_wall_node_distances`).
+
+    A wall-face node the mesher did not put on the wall was left on its face's patch: no
+    wall lay along the face's normal (the face spans the mouth of a vessel part without
+    skeleton). It was never on the wall, so it is no wall *moved off* it: counted apart."""
+    placed, left = off[1][off[2]], off[1][~off[2]]
+    return {
+        "wall_node_max_rel": float(placed.max()) if placed.size else 0.0,
+        "wall_node_mean_rel": float(placed.mean()) if placed.size else 0.0,
+        "wall_nodes_over_openings": int(left.size),
+        "over_openings_max_rel": float(left.max()) if left.size else 0.0,
+    }
 
 
 def _wall_and_caps(F, n_vertices, cap_faces):
