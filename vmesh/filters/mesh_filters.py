@@ -429,7 +429,7 @@ def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing)
         mesh.points, mesh.boundary_faces, mesh.boundary_ids, mesh.order,
         skeleton.points, skeleton.edges, skeleton.radii,
         distance=distance, patch_area=patch_area, depth=depth, end_depth=end_depth, branches=skeleton.branches(),
-        wall_tree=wall_projector(ctx.surface, caps).tree,
+        wall_tree=wall_projector(ctx.surface, caps).tree, on_wall=mesh.on_wall,
     )
     ctx.report.sections["coverage"] = summary
     ctx.count(uncovered=summary["uncovered_share"], volume_ratio=summary["volume_ratio"], missing=summary["missing_parts"])

@@ -8,7 +8,8 @@ measures, with pure array work and BVH queries,
 - the share of the input wall (caps left out: the mesh ends there) farther than
   ``distance`` local radii from the mesh boundary;
 - the enclosed volume ratio (mesh volume / surface volume);
-- the distance of every mesh wall node to the input wall, relative to the local radius;
+- the distance of every mesh wall node to the input wall, relative to the local radius
+  (nodes the mesher left off the wall over an opening, ``on_wall`` false, apart);
 
 and clusters the uncovered wall into connected patches. A patch larger than a local
 cross-section (``patch_area`` × π r²) that reaches deeper than ``depth`` local radii
@@ -46,6 +47,9 @@ class MissingPart:
     #: farthest mesh wall node off the input wall near the patch (x local radius): the mesh
     #: reaches the place, but its wall was moved off the surface there (folded blocks)
     wall_off: float = 0.0
+    #: mesh wall nodes near the patch that the mesher left on their face's patch, off the
+    #: wall, because no wall lay along the face's normal: the face spans the mouth of the part
+    over_opening: int = 0
 
     def describe(self) -> str:
         """Where the patch is: the caps it reaches, the nearest skeleton node and branch, a position."""
@@ -69,18 +73,24 @@ class MissingPart:
             "skeleton_node": int(self.skeleton_node),
             "branch": int(self.branch),
             "wall_off_rel": float(self.wall_off),
+            "nodes_over_opening": int(self.over_opening),
         }
 
     def cause(self, depth: float = 0.3) -> str:
         """Why the mesh misses the part, and a remedy: its wall nodes moved off the wall
-        (``wall_off`` beyond ``depth``), or a vessel the skeleton never entered."""
+        (``wall_off`` beyond ``depth``), or a vessel the skeleton never entered (the mesh's
+        wall faces may span its mouth: ``over_opening``)."""
         if self.wall_off > depth:
             return (
                 f"the mesh's wall nodes there lie up to {self.wall_off:.2g} radii off the input wall: its blocks "
                 "reach the place, but their boundary layer folded and was moved off the wall (see compute_quality's "
                 "minimum and the build_block_structure warnings on folding blocks)"
             )
-        return "the skeleton does not reach into it (give a centerline that does, or keep clean_skeleton.graft_to_caps on)"
+        mouth = (
+            f"the mesh's wall spans its mouth ({self.over_opening} wall node(s) there found no wall along their "
+            "face's normal and stayed off it); " if self.over_opening else ""
+        )
+        return mouth + "the skeleton does not reach into it (give a centerline that does, or keep clean_skeleton.graft_to_caps on)"
 
     def message(self, depth: float = 0.3) -> str:
         """The line a failed check prints: size, place and :meth:`cause`."""
@@ -206,7 +216,7 @@ def measure_coverage(
     depth: float = 0.3,
     end_depth: float = 1.5,
     branches=None,
-    wall_tree=None,
+    wall_tree=None, on_wall=None,
 ) -> tuple[dict, list]:
     """Measure how much of the input wall the mesh boundary misses.
 
@@ -236,6 +246,8 @@ def measure_coverage(
         Skeleton branches (node paths), to name the branch of a missing part.
     wall_tree : TriangleBVH, optional
         A tree of the wall triangles (the surface without its caps), shared with the chain.
+    on_wall : (n,) bool, optional
+        Nodes the mesher put on the wall (``HexMesh.on_wall``; None: all), see :func:`_wall_node_stats`.
 
     Returns
     -------
@@ -264,8 +276,7 @@ def measure_coverage(
     end_cap = far & ((beyond & (rel <= end_depth)) | (past[:, None] & (rel <= min(end_depth, 1.0))))
     uncovered_area = float((area[:, None] * (far & ~end_cap)).sum() / 4.0)
     beyond_area = float((area[:, None] * end_cap).sum() / 4.0)
-    off = _wall_node_distances(X, boundary_faces, boundary_ids, TriangleBVH(V, WF) if wall_tree is None else wall_tree, skeleton_points, skeleton_edges, skeleton_radii)
-    d_n = off[1]
+    off = _wall_node_distances(X, boundary_faces, boundary_ids, TriangleBVH(V, WF) if wall_tree is None else wall_tree, skeleton_points, skeleton_edges, skeleton_radii, on_wall)
     surface_volume, mesh_volume = enclosed_volume(V, F), enclosed_volume(X, tri)
     missing, n_patches, n_missing = _missing_parts(
         V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names,
@@ -282,8 +293,7 @@ def measure_coverage(
         "volume_ratio": mesh_volume / surface_volume if surface_volume > 0 else float("nan"),
         "mesh_volume": mesh_volume,
         "surface_volume": surface_volume,
-        "wall_node_max_rel": float(d_n.max()),
-        "wall_node_mean_rel": float(d_n.mean()),
+        **_wall_node_stats(off),
         "patches": int(n_patches),
         "missing_parts": int(n_missing),
         "missing": [m.as_dict() for m in missing],
@@ -315,14 +325,30 @@ def _past_end_faces(X, boundary_faces, boundary_ids, points) -> np.ndarray:
     return out
 
 
-def _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, skeleton_points, skeleton_edges, skeleton_radii):
-    """The mesh wall nodes' positions and their distances to the input wall (``wall_tree``),
-    relative to the local radius."""
+def _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, skeleton_points, skeleton_edges, skeleton_radii, on_wall=None):
+    """The mesh wall nodes' positions, their distances to the input wall (``wall_tree``),
+    relative to the local radius, and which of them the mesher put on the wall."""
     wall_nodes = np.unique(np.asarray(boundary_faces)[np.asarray(boundary_ids) == 0])
     if len(wall_nodes) == 0:
-        return np.zeros((1, 3)), np.zeros(1)
+        return np.zeros((1, 3)), np.zeros(1), np.ones(1, bool)
     r_n = skeleton_radius(X[wall_nodes], skeleton_points, skeleton_edges, skeleton_radii)[0]
-    return X[wall_nodes], np.sqrt(wall_tree.closest(X[wall_nodes])[0]) / r_n
+    placed = np.ones(len(wall_nodes), bool) if on_wall is None else np.asarray(on_wall, bool)[wall_nodes]
+    return X[wall_nodes], np.sqrt(wall_tree.closest(X[wall_nodes])[0]) / r_n, placed
+
+
+def _wall_node_stats(off) -> dict:
+    """Distances of the wall nodes off the input wall (``off`` of :func:`_wall_node_distances`).
+
+    A wall-face node the mesher did not put on the wall was left on its face's patch: no
+    wall lay along the face's normal (the face spans the mouth of a vessel part without
+    skeleton). It was never on the wall, so it is no wall *moved off* it: counted apart."""
+    placed, left = off[1][off[2]], off[1][~off[2]]
+    return {
+        "wall_node_max_rel": float(placed.max()) if placed.size else 0.0,
+        "wall_node_mean_rel": float(placed.mean()) if placed.size else 0.0,
+        "wall_nodes_over_openings": int(left.size),
+        "over_openings_max_rel": float(left.max()) if left.size else 0.0,
+    }
 
 
 def _wall_and_caps(F, n_vertices, cap_faces):
@@ -343,9 +369,10 @@ def _wall_and_caps(F, n_vertices, cap_faces):
 def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names, patch_area, depth, end_depth, node_of_branch, off):
     """Connected uncovered patches of the wall (a face is uncovered when at least two of its
     four samples are) and the missing parts among them, largest first; ``off``: the mesh
-    wall nodes and their distances off the wall (x local radius), for a part's ``wall_off``:
-    the farthest node within the part's depth (plus half a radius) of its faces, where the
-    mesh wall that misses it lies.
+    wall nodes, their distances off the wall (x local radius) and whether the mesher put them
+    on the wall, for a part's ``wall_off``: the farthest node put on the wall within the
+    part's depth (plus half a radius) of its faces, where the mesh wall that misses it lies
+    (and ``over_opening``: the nodes there the mesher left off the wall).
 
     Returns the parts (at most :data:`MAX_PATCHES`), the patch count and the count of
     missing parts."""
@@ -386,7 +413,7 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
                     caps=caps,
                     skeleton_node=node,
                     branch=int(node_of_branch[node]) if node_of_branch is not None else -1,
-                    wall_off=_wall_off(V[WF[faces_k]].mean(axis=1), (patch_depth[k] + 0.5) * patch_r[k], off),
+                    **_wall_off(V[WF[faces_k]].mean(axis=1), (patch_depth[k] + 0.5) * patch_r[k], off),
                 )
             )
         n_missing = len(big)
@@ -395,13 +422,15 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
     return missing, n_patches, n_missing
 
 
-def _wall_off(centres, reach, off) -> float:
-    """The farthest of the mesh wall nodes ``off = (positions, distances)`` within ``reach``
-    of any of ``centres``; 0 when none is."""
+def _wall_off(centres, reach, off) -> dict:
+    """Of the mesh wall nodes ``off = (positions, distances, placed)`` within ``reach`` of
+    any of ``centres``: the farthest distance of those the mesher put on the wall
+    (``wall_off``, 0 when none is) and the count of those it left off (``over_opening``)."""
     from scipy.spatial import cKDTree
 
     near = cKDTree(centres).query(off[0], distance_upper_bound=reach)[0] <= reach
-    return float(off[1][near].max()) if near.any() else 0.0
+    moved = near & off[2]
+    return {"wall_off": float(off[1][moved].max()) if moved.any() else 0.0, "over_opening": int((near & ~off[2]).sum())}
 
 
 def _branch_of_node(branches, n_nodes):
