@@ -17,7 +17,7 @@ from numba.extending import intrinsic
 
 #: how far ahead (in the colour's node list) the hexahedron rows and the points are asked for:
 #: a point's address is read from a hexahedron row, which must have arrived first
-ROWS_AHEAD, POINTS_AHEAD = 2, 1
+ROWS_AHEAD, POINTS_AHEAD = 4, 2
 
 
 @intrinsic
