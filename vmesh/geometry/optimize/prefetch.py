@@ -18,6 +18,8 @@ from numba.extending import intrinsic
 #: how far ahead (in the colour's node list) the hexahedron rows and the points are asked for:
 #: a point's address is read from a hexahedron row, which must have arrived first
 ROWS_AHEAD, POINTS_AHEAD = 4, 2
+#: and the incidence of a node (its hexahedra's numbers) before that
+INC_AHEAD = 8
 
 
 @intrinsic
@@ -62,6 +64,9 @@ def ahead(X, hexes, scale, cq, ptr, inc, nodes, dirty, only_dirty, j, hi):
     """Before node ``nodes[j]`` is updated: ask for what the updates of the next nodes (up to
     ``hi``, the end of the caller's chunk) will read; with ``only_dirty``, skip those that
     have nothing to do."""
+    k = j + INC_AHEAD
+    if k < hi:
+        _prefetch(inc.ctypes.data + ptr[nodes[k]] * inc.strides[0])
     k = j + ROWS_AHEAD
     if k < hi and (dirty[nodes[k]] or not only_dirty):
         _rows(hexes, scale, cq, ptr, inc, nodes[k])
