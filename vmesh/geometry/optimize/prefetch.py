@@ -22,13 +22,18 @@ ROWS_AHEAD, POINTS_AHEAD = 4, 2
 INC_AHEAD = 8
 
 
+#: the intrinsic's name is mangled on its pointer type as llvmlite names it (``p0i8``); LLVM's
+#: auto-upgrade renames it where pointers are opaque (``p0``)
+_NAME = "llvm.prefetch." + ir.IntType(8).as_pointer().intrinsic_name
+
+
 @intrinsic
 def _prefetch(typingctx, addr):
     """``llvm.prefetch`` of the byte at address ``addr`` (read, keep in all cache levels)."""
 
     def codegen(context, builder, sig, args):
         i8p, i32 = ir.IntType(8).as_pointer(), ir.IntType(32)
-        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]), "llvm.prefetch.p0")
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]), _NAME)
         builder.call(fn, [builder.inttoptr(args[0], i8p), ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
         return context.get_dummy_value()
 
