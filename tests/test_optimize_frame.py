@@ -95,3 +95,37 @@ def test_frame_functional_equals_the_displaced_mesh():
                 h = 0.5 * (D + np.sqrt(D * D + 4 * delta * delta))
                 want += (E * E).sum() / (3 * h ** (2 / 3))
         assert np.isclose(f, want, rtol=1e-12, atol=0)
+
+
+def test_colour_pass_with_prefetch_equals_its_steps_in_order():
+    """A colour pass (which asks for the next nodes' data ahead, optimize/prefetch.py) moves
+    its nodes exactly as their steps taken one by one in order, also for colours shorter
+    than the look-ahead and chunks of one node (the look-ahead stops at a chunk's end)."""
+    X0, hexes, scale, ptr, inc = _jittered_mesh()
+    n = len(X0)
+    colour = K.colour_nodes(hexes, ptr, inc, np.arange(n), n)
+    first = np.flatnonzero(colour == 0)
+    kind, normal = np.full(n, K.FREE, np.int64), np.zeros((n, 3))
+    width = 4 * int(np.diff(ptr).max())
+    for nodes in (first[:1], first[:2], first[:3], first[:70], first):
+        runs = []
+        for kernel in (K.sweep_colour_serial, K.sweep_colour_parallel, None):
+            X, cq = X0.copy(), K.corner_qualities(X0, hexes, scale)
+            caps = K.step_caps(X, hexes, ptr, inc, nodes, n, 0.5)
+            trial, state, buf = np.empty((len(nodes), 3)), np.empty((len(nodes), 4)), np.empty((len(nodes), width))
+            dirty = np.ones(n, np.bool_)
+            args = (K.SMOOTH, 0.95, trial, state, dirty, buf, 0.01)
+            if kernel is not None:
+                kernel(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, caps, 1e-3, *args)
+            else:
+                L = np.empty((width // 4, K.NL))
+                for j, v in enumerate(nodes):
+                    state[j, 3] = 0.0
+                    trial[j] = X[v]
+                    dirty[v] = False
+                    K._step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, caps, 1e-3, *args[:2], trial, state, dirty, buf, 0.01, L)
+            runs.append((X, cq, state[:, 3].copy(), dirty))
+        assert runs[0][2].any() or len(nodes) < 70  # the larger colours move nodes
+        for other in runs[1:]:
+            for a, b in zip(runs[0], other):
+                assert np.array_equal(a, b)

@@ -31,6 +31,8 @@ from llvmlite import ir
 from numba.core import types as nbtypes
 from numba.extending import intrinsic
 
+from .prefetch import ahead
+
 #: node kinds: free in 3-D, sliding on the wall (tangent plane, then projection), sliding in a
 #: cap plane, fixed, sliding at a fixed distance from the wall (first boundary layer: tangent
 #: plane, then put back at that distance)
@@ -559,6 +561,7 @@ def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, 
     for i in nb.prange(chunks):
         lo, hi = _chunk(n, chunks, i)
         for j in range(lo, hi):
+            ahead(X, hexes, scale, cq, ptr, inc, nodes, dirty, True, j, hi)
             v = nodes[j]
             state[j, 3] = 0.0
             trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0], X[v, 1], X[v, 2]
@@ -580,6 +583,7 @@ def _accept_trials(X, hexes, scale, ptr, inc, cq, nodes, projected, delta, mode,
         lo, hi = _chunk(n, chunks, i)
         L = frames[i]
         for j in range(lo, hi):
+            ahead(X, hexes, scale, cq, ptr, inc, nodes, dirty, False, j, hi)
             v = nodes[j]
             frame(X, hexes, scale, ptr, inc, cq, v, L)
             z0, z1, z2 = projected[j, 0] - X[v, 0], projected[j, 1] - X[v, 1], projected[j, 2] - X[v, 2]
