@@ -261,8 +261,9 @@ def separate_parallel_branches(
     At a junction of four or more branches a move leaves the junction behind, one branch
     fewer, and a new junction on the pair: once all of a junction's moves are made, those
     whose pair the block builder cannot block (:func:`.pairs.blockable_pair`) are undone
-    when that leaves the junction in no other close pair (a planar fan of daughters 20-30
-    degrees apart is blocked whole; its split pairs are not).
+    when that leaves the junction in no other close pair and gives back five or more
+    branches (a planar fan of daughters 20-30 degrees apart is blocked whole; its split
+    pairs are not).
 
     Parameters
     ----------
@@ -325,14 +326,18 @@ def _unblockable_moves(skel: Skeleton, made: list) -> frozenset:
     """Keys of the moves in ``made`` (``(junction, new junction, move key, junction key)``,
     nodes of ``skel``) to undo: those whose pair the block builder cannot block
     (:func:`.pairs.blockable_pair`, near: the junction that stayed), at a junction that
-    undoing them leaves in no other close pair. A junction still in another close pair
-    is merged with it by the builder anyway, and undone moves only widen that merge."""
+    undoing them leaves in no other close pair and gives back a junction of five or more
+    branches. A junction still in another close pair is merged with it by the builder
+    anyway, and undone moves only widen that merge; a trifurcation split into two
+    bifurcations the builder merges and splits by pairings itself (docs/junctions.md,
+    h13/pairs: undone, such a pair cost a passing run)."""
     deg = skel.degrees
     paths = branch_paths(skel.n_nodes, skel.edges)
     out = set()
     for ckey in {m[3] for m in made}:
-        moves = [(c, n, key) for c, n, key, ck in made if ck == ckey and deg[c] >= 3 and deg[n] >= 3]
-        if not moves:
+        at = [m for m in made if m[3] == ckey]
+        moves = [(c, n, key) for c, n, key, _ in at if deg[c] >= 3 and deg[n] >= 3]
+        if not moves or deg[moves[0][0]] + len(at) < 5:  # each move took one branch off the junction
             continue
         c = moves[0][0]
         bad = {n: key for _, n, key in moves if not blockable_pair(skel, c, n, paths)}
