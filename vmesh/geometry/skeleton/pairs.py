@@ -7,8 +7,8 @@ of the near junction, and cut across the far junction's crotch when one runs acr
 near junction's half-plane between the link and a sibling (docs/junctions.md, h12/fans:
 margin >= 10 degrees valid in 9/9 crowded pairs, < 10 invalid in 18/18).
 
-The skeleton cleaning (:func:`.clean.separate_parallel_branches`) asks this before it
-leaves a junction pair it made.
+The skeleton cleaning (:func:`.clean.separate_parallel_branches`) asks this of the
+junction pairs its moves made.
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from .graph import branch_paths
 
 #: least crossing margin (degrees) of a blockable pair. From the synthetic two-junction
 #: sweep (``benchmarks/junction_pairs.py --pair``: +10 built in the first try, -10 did
-#: not), not from a corpus run; 5 and 15 sort the measured pairs the same
-#: (docs/junctions.md, h13/pairs).
+#: not), not from a corpus run; the cleaning undoes the same moves at 5 and 15 on every
+#: vessel measured (docs/junctions.md, h13/pairs).
 CROSSING_MARGIN = 10.0
 
 #: how far (x the near junction's radius) its half-sections reach along a branch at most:
