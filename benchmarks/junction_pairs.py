@@ -7,7 +7,9 @@ builds with every builder try traced: per pair the first try's half-section reac
 (``_junction_reach`` from each end) against the branch's length, which tries fail and at
 which pairs their invalid blocks sit, and what ``merge_junction_pair`` makes of a pair.
 Per pair also the crossing test (:func:`_crossing`): does a daughter of the far junction
-point nearer to a sibling of the link at the near junction than along the link?
+point nearer to a sibling of the link at the near junction than along the link? (The rule
+the cleaning applies is :mod:`vmesh.geometry.skeleton.pairs`; its margin is
+``pair_margin``.)
 
     PYTHONPATH=$PWD nice python3 benchmarks/junction_pairs.py SURFACE [SKELETON|-] [--set k=v ...]
     PYTHONPATH=$PWD nice python3 benchmarks/junction_pairs.py --fan 4 45        # tests' fan, separated
@@ -39,23 +41,6 @@ def _branch_dir(sk, path, r_ahead):
 
 def _angle(u, v):
     return float(np.degrees(np.arccos(np.clip(u @ v, -1.0, 1.0))))
-
-
-def crossing_margin(sk, near, far, paths=None):
-    """The least ``angle(daughter, sibling) - angle(daughter, link)`` (degrees) over the far
-    junction's daughters: below about 10 the daughter runs across the near junction's
-    half-plane next to the link (docs/junctions.md, h12/fans)."""
-    from vmesh.geometry.skeleton.graph import branch_paths
-
-    paths = branch_paths(sk.n_nodes, sk.edges) if paths is None else paths
-    own = lambda c: [q if int(q[0]) == c else q[::-1] for q in paths if c in (int(q[0]), int(q[-1]))]
-    link = next(q for q in own(near) if int(q[-1]) == far)
-    u = _branch_dir(sk, link, float(sk.radii[near]))[0]
-    sib = [_branch_dir(sk, q, float(sk.radii[near]))[0] for q in own(near) if q is not link and int(q[-1]) != far]
-    daughters = [_branch_dir(sk, q, float(sk.radii[far]))[0] for q in own(far) if int(q[-1]) != near]
-    if not sib or not daughters:
-        return float("inf")
-    return min(min(_angle(w, v) for v in sib) - _angle(w, u) for w in daughters)
 
 
 def _crossing(sk, paths, a, b):
@@ -129,24 +114,6 @@ def describe_pairs(sk, within=2.5):
     return out
 
 
-def _pair_case(gap, a1, a2, side):
-    """Trunk (radius 1) along +x, a side branch (0.6) at azimuth ``side`` at the origin, and
-    ``gap`` on a junction into daughters (0.75, 0.7) at azimuths ``a1``, ``a2``: one plane."""
-    from junction_cases import JunctionCase, _branch_adder, direction
-    from vmesh.skeleton import Skeleton
-
-    J2 = np.array([gap, 0.0, 0.0])
-    pts, edges, radii, a, b, r = [np.zeros(3), J2], [(0, 1)], [1.0, 0.9], [], [], []
-    add = _branch_adder(pts, edges, radii, a, b, r)
-    add(np.zeros(3), 0, np.array([-1.0, 0, 0]), 1.0, 8.0)
-    add(np.zeros(3), 0, direction(side), 0.6, 6.0)
-    add(J2, 1, direction(a1), 0.75, 8.0)
-    add(J2, 1, direction(a2), 0.7, 8.0)
-    a.append(np.zeros(3)), b.append(J2), r.append(0.9)
-    sk = Skeleton(np.asarray(pts), np.asarray(radii, float), np.asarray(edges))
-    return JunctionCase(f"pair_{gap:g}_{a1:g}_{a2:g}_{side:g}", np.asarray(a), np.asarray(b), np.asarray(r), sk)
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("surface", nargs="?", help="surface file (none with --fan / --close / --pair)")
@@ -168,16 +135,13 @@ def main(argv=None):
         import sys
         from pathlib import Path
         sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-        from junction_cases import close_junctions, direction, furcation
+        from junction_cases import close_junctions, fan, junction_pair
         from vmesh.geometry import skeleton_ops as ops
         from vmesh.geometry.block_builder import BlockOptions, build_blocks
         if args.fan:
-            n, spread = int(args.fan[0]), args.fan[1]
-            w = np.linspace(1.0, 0.6, n)  # duplicates: tests/test_nfurcation_fans.py::fan, kept standalone
-            radii = 2.0 * w / (w**3).sum() ** (1 / 3)
-            case = furcation(f"fan_{n}_{spread}", [(direction(x), q) for x, q in zip(np.linspace(-spread, spread, n), radii)], parent_radius=2.0)
+            case = fan(int(args.fan[0]), args.fan[1])
         elif args.pair:
-            case = _pair_case(*args.pair)
+            case = junction_pair(*args.pair)
         else:
             case = close_junctions(args.close[0], side=(args.close[1], args.close[2]))
         sk, moved = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)

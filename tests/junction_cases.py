@@ -118,6 +118,32 @@ def furcation(name: str, daughters, parent_radius: float = 1.0, parent_length: f
     return JunctionCase(name, np.asarray(a), np.asarray(b), np.asarray(r), sk, blend)
 
 
+def fan(n: int, spread: float, r0: float = 2.0) -> JunctionCase:
+    """A planar n-furcation (the generator's ``nfurcation``): a parent of radius ``r0`` into
+    ``n`` daughters spread +-``spread`` degrees in a plane, radii by Murray's law (weights 1
+    to 0.6)."""
+    w = np.linspace(1.0, 0.6, n)
+    radii = r0 * w / (w**3).sum() ** (1 / 3)
+    angles = np.linspace(-spread, spread, n)
+    return furcation(f"fan_{n}_{spread:g}", [(direction(a), r) for a, r in zip(angles, radii)], parent_radius=r0)
+
+
+def junction_pair(gap: float, a1: float, a2: float, side: float) -> JunctionCase:
+    """Two junctions in one plane: a trunk (radius 1) along +x, a side branch (0.6) at
+    azimuth ``side`` at the origin, and ``gap`` on a junction into daughters (0.75, 0.7) at
+    azimuths ``a1``, ``a2`` (``benchmarks/junction_pairs.py --pair``)."""
+    J2 = np.array([gap, 0.0, 0.0])
+    pts, edges, radii, a, b, r = [np.zeros(3), J2], [(0, 1)], [1.0, 0.9], [], [], []
+    add = _branch_adder(pts, edges, radii, a, b, r)
+    add(np.zeros(3), 0, np.array([-1.0, 0, 0]), 1.0, 8.0)
+    add(np.zeros(3), 0, direction(side), 0.6, 6.0)
+    add(J2, 1, direction(a1), 0.75, 8.0)
+    add(J2, 1, direction(a2), 0.7, 8.0)
+    a.append(np.zeros(3)), b.append(J2), r.append(0.9)
+    sk = Skeleton(np.asarray(pts), np.asarray(radii, float), np.asarray(edges))
+    return JunctionCase(f"pair_{gap:g}_{a1:g}_{a2:g}_{side:g}", np.asarray(a), np.asarray(b), np.asarray(r), sk)
+
+
 def close_junctions(gap: float, angle: float = 40.0, side: tuple = (90.0, 30.0)) -> JunctionCase:
     """A trunk along +x with a side branch at the origin and a bifurcation ``gap`` radii on.
 

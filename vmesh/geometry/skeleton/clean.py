@@ -10,6 +10,7 @@ from scipy.sparse.csgraph import connected_components
 
 from ...skeleton import Skeleton
 from .graph import arc_length, polyline_at, branch_paths, component_labels, contract_nodes, edge_lengths, END_TAGS, remove_nodes, _union
+from .pairs import PAIR_REACH, blockable_pair, link_length
 
 
 def node_scale(skeleton: Skeleton) -> np.ndarray:
@@ -88,13 +89,14 @@ def _pair_angle(m: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.arccos(np.clip(cos, -1.0, 1.0))
 
 
-def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead: float, max_shift: float, distance=None):
+def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead: float, max_shift: float, distance=None, undone=frozenset()):
     """The first junction of ``skel`` not in ``done`` with two branches less than ``limit``
     (radians) apart that part by ``target`` within ``max_shift`` x its radius, or farther
     while they share one lumen (with ``distance``; see :func:`separate_parallel_branches`):
     ``(c, pi, ai, pj, aj, star, at, r_at, eps)``, the junction, the two branches from it and
     their arc lengths, the arc length, position and radius of the new junction and the
-    tolerance on arc length; None if there is none. Adds the junctions looked at to ``done``."""
+    tolerance on arc length; None if there is none. Adds the junctions looked at to ``done``;
+    the moves in ``undone`` (:func:`_move_key`) are left out."""
     scale = node_scale(skel)
     paths = branch_paths(skel.n_nodes, skel.edges)
     for c in np.flatnonzero(skel.degrees >= 3).tolist():
@@ -114,6 +116,8 @@ def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead
                 break
             pi, ai, pj, aj = out[i[k]], arcs[i[k]], out[j[k]], arcs[j[k]]
             if pi[-1] == pj[-1]:  # two paths between the same nodes: a loop, not a fork
+                continue
+            if undone and _move_key(skel, (c, pi, None, pj)) in undone:  # a move undone (:func:`separate_parallel_branches`)
                 continue
             eps = 0.02 * rc
             top = min(ai[-1] - ahead * rc, aj[-1] - ahead * rc) - eps
@@ -146,8 +150,8 @@ def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead
 
 #: how far (x its radius) a junction's own stretch reaches: the block builder's REACH_RADII
 #: (its half-sections' reach); a shorter branch to another junction is a pair of close
-#: junctions (the builder's business), not a fused pair.
-FUSED_REACH = 3.0
+#: junctions (the builder's business, :mod:`.pairs`), not a fused pair.
+FUSED_REACH = PAIR_REACH
 
 
 def _fused_to_junction(skel: Skeleton, c: int, pi, ai, pj, aj, scale, distance):
@@ -254,6 +258,13 @@ def separate_parallel_branches(
     ``ahead`` x radius further on, are ``part_angle`` apart (about where the medial axis
     of the surface branches).
 
+    At a junction of four or more branches a move leaves the junction behind, one branch
+    fewer, and a new junction on the pair: once all of a junction's moves are made, those
+    whose pair the block builder cannot block (:func:`.pairs.blockable_pair`) are undone
+    when that leaves the junction in no other close pair and gives back five or more
+    branches (a planar fan of daughters 20-30 degrees apart is blocked whole; its split
+    pairs are not).
+
     Parameters
     ----------
     skeleton : Skeleton
@@ -286,24 +297,82 @@ def separate_parallel_branches(
     if min_angle <= 0 or skeleton.n_edges == 0:
         return skeleton.copy(), 0
     limit, target = np.radians(min_angle), np.radians(max(part_angle, min_angle))
-    skel, moved, done = skeleton, 0, set()
+    # a move's pair is judged once all of its junction's moves are made (the siblings a
+    # daughter is measured against are those the other moves leave), then the moves
+    # again from the start without those undone
+    undone = frozenset()
+    for _ in range(skeleton.n_nodes):  # each pass undoes one move more, at least
+        skel, moved, made = _separate(skeleton, limit, target, ahead, max_shift, distance, undone)
+        undo = _unblockable_moves(skel, made)
+        if not undo or undo <= undone:
+            break
+        undone = undone | undo
+    return skel.copy() if skel is skeleton else skel, moved
+
+
+def _point_key(p) -> tuple:
+    """A node's identity across runs of the same moves: its position."""
+    return tuple(np.round(np.asarray(p, float), 9).tolist())
+
+
+def _move_key(skel: Skeleton, job: tuple) -> tuple:
+    """A move's identity across runs: its junction's position and the far ends of its two
+    branches."""
+    c, pi, pj = job[0], job[1], job[3]
+    return (_point_key(skel.points[c]),) + tuple(sorted((_point_key(skel.points[pi[-1]]), _point_key(skel.points[pj[-1]]))))
+
+
+def _unblockable_moves(skel: Skeleton, made: list) -> frozenset:
+    """Keys of the moves in ``made`` (``(junction, new junction, move key, junction key)``,
+    nodes of ``skel``) to undo: those whose pair the block builder cannot block
+    (:func:`.pairs.blockable_pair`, near: the junction that stayed), at a junction that
+    undoing them leaves in no other close pair and gives back a junction of five or more
+    branches. A junction still in another close pair is merged with it by the builder
+    anyway, and undone moves only widen that merge; a trifurcation split into two
+    bifurcations the builder merges and splits by pairings itself (docs/junctions.md,
+    h13/pairs: undone, such a pair cost a passing run)."""
+    deg = skel.degrees
+    paths = branch_paths(skel.n_nodes, skel.edges)
+    out = set()
+    for ckey in {m[3] for m in made}:
+        at = [m for m in made if m[3] == ckey]
+        moves = [(c, n, key) for c, n, key, _ in at if deg[c] >= 3 and deg[n] >= 3]
+        if not moves or deg[moves[0][0]] + len(at) < 5:  # each move took one branch off the junction
+            continue
+        c = moves[0][0]
+        bad = {n: key for _, n, key in moves if not blockable_pair(skel, c, n, paths)}
+        ends = {int(q[-1] if q[0] == c else q[0]) for q in paths if (int(q[0]) == c) != (int(q[-1]) == c)}
+        close = {x for x in ends if deg[x] >= 3 and link_length(skel, c, x, paths) < PAIR_REACH * float(skel.radii[c])}
+        if bad and close <= set(bad):
+            out |= set(bad.values())
+    return frozenset(out)
+
+
+def _separate(skeleton: Skeleton, limit, target, ahead, max_shift, distance, undone) -> tuple[Skeleton, int, list]:
+    """The moves of :func:`separate_parallel_branches` but those in ``undone`` (move keys);
+    the skeleton, the number of moves and ``(junction, new junction, move key,
+    junction key)`` per move that left its junction behind, as nodes of the result."""
+    skel, moved, done, made = skeleton, 0, set(), []
     while True:
-        job = _parallel_pair(skel, done, limit, target, ahead, max_shift, distance)
+        job = _parallel_pair(skel, done, limit, target, ahead, max_shift, distance, undone)
         if job is None:
             break
         c = job[0]
+        key, ckey = _move_key(skel, job), _point_key(skel.points[c])
         skel, drop = _join_parallel(skel, job, distance)
         n = len(drop) - 1
         # contract_nodes numbers the kept nodes in order; c is looked at again (it may have
         # more branches), the new junction is not
         new_index = np.cumsum(~drop) - 1
+        made = [(int(new_index[a]), int(new_index[b]), k, ck) for a, b, k, ck in made if not (drop[a] or drop[b])]
         if job[5] is None:  # a fused pair: the far junction, which gained the branch, is looked at again
             e = int(job[3][-1])
             done = {int(new_index[d]) for d in done if d not in (c, e) and not drop[d]}
         else:
             done = {int(new_index[d]) for d in done if d != c and not drop[d]} | {int(new_index[n])}
+            made.append((int(new_index[c]), int(new_index[n]), key, ckey))
         moved += 1
-    return skel.copy() if skel is skeleton else skel, moved
+    return skel, moved, made
 
 
 def _node_at_foot(skel: Skeleton, seg: int, t: float, scale: np.ndarray) -> tuple[Skeleton, int]:

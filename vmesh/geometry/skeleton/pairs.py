@@ -1,0 +1,98 @@
+"""Which close junction pairs the block builder can block (issue 17).
+
+Two junctions joined by a branch shorter than the near junction's half-section reach
+along it: the near junction's half-sections reach past the far one. The builder's blocks
+on the link stay valid when every daughter of the far junction stays in the link's sector
+of the near junction, and cut across the far junction's crotch when one runs across the
+near junction's half-plane between the link and a sibling (docs/junctions.md, h12/fans:
+margin >= 10 degrees valid in 9/9 crowded pairs, < 10 invalid in 18/18).
+
+The skeleton cleaning (:func:`.clean.separate_parallel_branches`) asks this of the
+junction pairs its moves made.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...skeleton import Skeleton
+from .graph import branch_paths
+
+#: least crossing margin (degrees) of a blockable pair. From the synthetic two-junction
+#: sweep (``benchmarks/junction_pairs.py --pair``: +10 built in the first try, -10 did
+#: not), not from a corpus run; the cleaning undoes the same moves at 5 and 15 on every
+#: vessel measured (docs/junctions.md, h13/pairs).
+CROSSING_MARGIN = 10.0
+
+#: how far (x the near junction's radius) its half-sections reach along a branch at most:
+#: the block builder's REACH_RADII; a longer link leaves the pair room.
+PAIR_REACH = 3.0
+
+
+def branch_direction(points: np.ndarray, path, ahead: float) -> np.ndarray:
+    """Unit direction from a branch's first node to its node ``ahead`` (arc length) along
+    it (the last node on a shorter branch)."""
+    P = points[np.asarray(path)]
+    arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))]
+    k = int(min(np.searchsorted(arc, ahead), len(P) - 1))
+    d = P[k] - P[0]
+    return d / max(float(np.linalg.norm(d)), 1e-300)
+
+
+def _angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Angle (degrees) between unit vectors, row-wise."""
+    return np.degrees(np.arccos(np.clip((u * v).sum(-1), -1.0, 1.0)))
+
+
+def crossing_margin(link: np.ndarray, siblings: np.ndarray, daughters: np.ndarray) -> float:
+    """The least ``angle(daughter, nearest sibling) - angle(daughter, link)`` (degrees) over
+    the far junction's daughters.
+
+    ``link``: unit direction from the near junction along the link to the far one;
+    ``siblings``: (s, 3) unit directions of the near junction's other branches;
+    ``daughters``: (d, 3) unit directions of the far junction's branches but the link. A
+    daughter with a margin under about 10 degrees runs across the near junction's
+    half-plane between the link and that sibling. Infinite when either set is empty (no
+    half-plane to cross)."""
+    siblings, daughters = np.reshape(siblings, (-1, 3)), np.reshape(daughters, (-1, 3))
+    if not len(siblings) or not len(daughters):
+        return float("inf")
+    to_sibling = _angle(daughters[:, None, :], siblings[None, :, :]).min(axis=1)
+    return float((to_sibling - _angle(daughters, np.asarray(link)[None])).min())
+
+
+def pair_margin(skeleton: Skeleton, near: int, far: int, paths=None) -> float:
+    """:func:`crossing_margin` of the junction pair ``near`` - ``far`` (joined by a branch),
+    directions one radius (each junction's own) along the branches; infinite when no
+    branch joins them."""
+    paths = branch_paths(skeleton.n_nodes, skeleton.edges) if paths is None else paths
+    own = lambda c: [q if int(q[0]) == c else q[::-1] for q in paths if (int(q[0]) == c) != (int(q[-1]) == c)]
+    at_near = own(near)
+    link = next((q for q in at_near if int(q[-1]) == far), None)
+    if link is None:
+        return float("inf")
+    P, rn, rf = skeleton.points, float(skeleton.radii[near]), float(skeleton.radii[far])
+    sib = [branch_direction(P, q, rn) for q in at_near if int(q[-1]) != far]
+    dau = [branch_direction(P, q, rf) for q in own(far) if int(q[-1]) != near]
+    return crossing_margin(branch_direction(P, link, rn), np.reshape(sib, (-1, 3)), np.reshape(dau, (-1, 3)))
+
+
+def link_length(skeleton: Skeleton, a: int, b: int, paths=None) -> float:
+    """Arc length of the branch joining nodes ``a`` and ``b``; infinite when none does."""
+    paths = branch_paths(skeleton.n_nodes, skeleton.edges) if paths is None else paths
+    for q in paths:
+        if {int(q[0]), int(q[-1])} == {a, b} and a != b:
+            return float(np.linalg.norm(np.diff(skeleton.points[q], axis=0), axis=1).sum())
+    return float("inf")
+
+
+def blockable_pair(skeleton: Skeleton, near: int, far: int, paths=None, margin: float | None = None) -> bool:
+    """Whether the builder can block the junction pair ``near`` - ``far``: the link is at
+    least :data:`PAIR_REACH` radii of ``near`` long (room for its half-sections), or every
+    daughter of ``far`` points at least ``margin`` degrees nearer the link than any other
+    branch of ``near`` (:func:`crossing_margin`; ``margin`` default :data:`CROSSING_MARGIN`)."""
+    margin = CROSSING_MARGIN if margin is None else margin
+    paths = branch_paths(skeleton.n_nodes, skeleton.edges) if paths is None else paths
+    if link_length(skeleton, near, far, paths) >= PAIR_REACH * float(skeleton.radii[near]):
+        return True
+    return pair_margin(skeleton, near, far, paths) >= margin
