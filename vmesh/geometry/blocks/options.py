@@ -152,3 +152,5 @@ class _LocalFixes:
     lookahead: dict = field(default_factory=dict)  # junction node -> radii along its branches for their directions
     at_node: set = field(default_factory=set)  # junctions whose half-sections meet on their node, not the wall's centre
     planar: set = field(default_factory=set)  # n-furcations whose half-sections keep to half-planes (:meth:`_Junctions._leaned`)
+    chosen: set = field(default_factory=set)  # n-furcations whose lean :func:`~.builder._choose_lean` chose: :meth:`choose_planes` leaves them
+    work_at: dict = field(default_factory=dict)  # junction node -> fixes the fix loop made at its ends (:func:`~.builder._choose_lean`)
