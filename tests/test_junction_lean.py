@@ -19,7 +19,7 @@ from junction_cases import direction, trifurcation, trifurcation_out_of_plane
 from vmesh.geometry import cross_sections as cs
 from vmesh.geometry import skeleton_ops as ops
 from vmesh.geometry.block_builder import BlockOptions, build_blocks
-from vmesh.geometry.blocks.builder import _Builder, _choose_lean
+from vmesh.geometry.blocks.builder import _choose_lean
 from vmesh.geometry.blocks.junctions import _Junctions
 from vmesh.geometry.blocks.checks import _Failure
 from vmesh.geometry.blocks.options import _Junction, _LocalFixes
@@ -91,8 +91,7 @@ DEFAULT = Refinement(around=2, core=2, ring=2, layer=3, element_length=0.5, firs
 
 def _inverted(case, lean):
     sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
-    # one builder, not build_blocks: that would choose lean or half-planes by the fix loop's work
-    blocks = _Builder(sk, case.distance, None, BlockOptions(junction_lean=lean), None, None, case.project).run()
+    blocks = build_blocks(sk, case.distance, None, BlockOptions(junction_lean=lean), project=case.project)
     assert blocks.corner_jacobians().min() > 0
     sm = mesh_blocks(blocks, case.project, DEFAULT, signed_distance=case.distance)
     sj = scaled_jacobian(sm.points, sm.cells, DEFAULT.order)
@@ -118,6 +117,7 @@ class _Variant:
         if planar in fails:
             raise _Failure("invalid", None, [], None, [], [], "")
         self.planar = planar
+        self.opt = BlockOptions(choose_lean=True)
         self.topo = types.SimpleNamespace(junctions={0: "lean", 1: "lean", 2: "flat"})
         self.local = _LocalFixes(planar=set(planar), work_at=dict(work[planar]))
 
@@ -150,20 +150,28 @@ def test_choose_lean_keeps_per_junction_the_choice_with_fewer_fixes():
 
 
 @pytest.mark.slow
-def test_generated_trifurcation_ends_better_with_the_choice_needing_fewer_fixes():
-    """A trifurcation (60 degrees, one daughter half as wide): the fix loop needs fewer
-    fixes with half-planes (measured 4 leaning, 0), which the builder keeps. Its raw fill
-    folds more than the lean's (11 inverted against 0), but after untangling and the light
-    pass its least scaled Jacobian is no worse (measured 0.347 against 0.339)."""
+@pytest.mark.parametrize("make", [
+    pytest.param(lambda: trifurcation(60, 2), id="trif_60_2"),
+    pytest.param(trifurcation_out_of_plane, id="trif_out", marks=pytest.mark.xfail(
+        strict=True, reason="fewer fixes with half-planes (3 leaning, 1), but the lean ends better (0.408 against 0.386): "
+                            "why choose_lean is off by default")),
+])
+def test_trifurcation_ends_no_worse_with_the_choice_needing_fewer_fixes(make):
+    """With ``choose_lean``: the fix loop needs fewer fixes with half-planes at both
+    trifurcations, so the builder keeps them. At one with a daughter half as wide (60
+    degrees) their raw fill folds more than the lean's (11 inverted against 0), yet after
+    untangling and the light pass the least scaled Jacobian is no worse (measured 0.347
+    against 0.339). At g0018's (a daughter 33 degrees out of the plane) the lean ends
+    better. By default (``choose_lean`` off) the lean is built alone."""
     from benchmarks.junction_sweep import optimised
     from test_junctions import DEFAULT
 
-    case = trifurcation(60, 2)
+    case = make()
     sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
-    chosen = build_blocks(sk, case.distance, None, BlockOptions(), project=case.project)
+    chosen = build_blocks(sk, case.distance, None, BlockOptions(choose_lean=True), project=case.project)
     lean_, flat_ = chosen.info["junction_lean"]["fixes_lean_flat"]["0"]
     assert flat_ < lean_ and chosen.info["junction_lean"]["kept"] == "0: half-planes"
-    lean = _Builder(sk, case.distance, None, BlockOptions(), None, None, case.project).run()
+    lean = build_blocks(sk, case.distance, None, BlockOptions(), project=case.project)
     assert "junction_lean" not in lean.info
     final = [optimised(case, b, DEFAULT)[1] for b in (chosen, lean)]
     assert final[0].min() > 0.3 and final[0].min() >= final[1].min() - 1e-3

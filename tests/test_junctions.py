@@ -48,10 +48,8 @@ def _cases():
 
 
 #: Configurations whose crotch still folds in the default fill (issue 18 is open for them):
-#: small angles with uneven daughters, narrow trifurcations. trif_60_2's fix loop needs fewer
-#: fixes with half-planes than leaning, so the builder keeps them: their raw fill folds but ends
-#: better once untangled (test_junction_lean.py judges its optimised minimum).
-KNOWN_FOLDS = {"bif_15_2", "bif_15_5", "bif_30_2", "bif_30_5", "bif_60_5", "trif_30_1", "trif_60_2"}
+#: small angles with uneven daughters, narrow trifurcations.
+KNOWN_FOLDS = {"bif_15_2", "bif_15_5", "bif_30_2", "bif_30_5", "bif_60_5", "trif_30_1"}
 #: Configurations whose blocks stay invalid once ``separate_parallel_branches`` has moved the
 #: junction towards the carina ("blocks stay invalid", issue 17).
 KNOWN_INVALID = {"bif_15_2", "bif_30_5"}

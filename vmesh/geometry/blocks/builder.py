@@ -187,7 +187,7 @@ def _last_tries(options: BlockOptions) -> list:
 
 def _choose_lean(make, work) -> BlockStructure:
     """Build with leaning half-sections and, where some n-furcation leans, also with
-    half-planes there from the start; keep per such junction the choice the fix loop had
+    half-planes there from the start (with ``choose_lean``); keep per such junction the choice the fix loop had
     to work less for at its node (ties keep the lean).
 
     ``make(planar)`` is a new :class:`_Builder` whose junctions ``planar`` keep to
@@ -201,7 +201,7 @@ def _choose_lean(make, work) -> BlockStructure:
     lean = make(frozenset())
     blocks = lean.make_valid()
     nodes = sorted(c for c, j in lean.topo.junctions.items() if lean.leans(j))
-    if not nodes or work.spent:
+    if not nodes or work.spent or not lean.opt.junction.choose_lean:
         return lean.finish(blocks)
     variants = {frozenset(): (lean, blocks)}
     try:

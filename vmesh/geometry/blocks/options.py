@@ -33,6 +33,7 @@ class JunctionOptions:
     clear_ray_factor: float = 1.8
     junction_margin: float = 0.3  # × branch radius, between half-sections and the first section
     junction_lean: float = 1.0  # how far n-furcations' half-sections may lean towards the bisector of branches leaving the plane unalike (0: planar)
+    choose_lean: bool = False  # build leaning n-furcations with half-planes too, keep per junction the one needing fewer fixes (:func:`~.builder._choose_lean`)
     junction_centre: float = 1.0  # how far half-sections' common line moves from the node to the wall's centre (0: at the node)
 
 
