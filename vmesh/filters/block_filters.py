@@ -39,6 +39,7 @@ from ..registry import Parameter, register_filter
         Parameter("check_wall_projection", "bool", True, "Also check boundary-layer blocks with their wall faces projected onto the wall, and thicken the layer (up to 0.5) where they would fold."),
         Parameter("own_territory", "bool", True, "Cut cross-section rays where they cross into a touching vessel (one whose way along the skeleton is much longer than the straight way), so that each vessel's blocks stay in its own lumen."),
         Parameter("junction_lean", "float", 1.0, "How far the half cross-sections of a junction of 4 or more branches that leave its plane unalike may lean about its axis towards the true bisector of their branches (0: half-planes).", min=0.0, max=1.5),
+        Parameter("choose_lean", "bool", False, "Where a junction of 4 or more branches leans, also build it with half-planes from the start and keep, per junction, the choice the block repairs needed fewer fixes at (twice the block-building time on such trees; off: measured as many runs lost as gained, docs/junctions.md)."),
         Parameter("cut_contacts", "bool", True, "Where two vessels pass in contact with no junction between them, mesh them apart: a planar cut on the radical plane between their axes is part of the wall for every later stage (rays, projection, optimisers); the fused neck's surface is left out (report.json: blocks.contact_cuts)."),
         Parameter("work_budget", "int", 160, "Most assemblies of the whole block structure over all fix rounds and changed skeletons (each costs time in proportion to the tree); a structure still invalid then fails with the usual error (0: no budget).", min=0, max=10000),
     ],
@@ -50,7 +51,8 @@ from ..registry import Parameter, register_filter
 def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_bias, junction_rotation, rotation_range,
                           max_out_of_plane, min_branch_gap, split_nonplanar, clear_ray_factor, junction_margin, cap_distance,
                           dome_depth, dome_max_retreat, max_fix_rounds, check_wall_projection, junction_centre=1.0,
-                          relieve_wall_folds=True, work_budget=160, own_territory=True, junction_lean=1.0, cut_contacts=True):
+                          relieve_wall_folds=True, work_budget=160, own_territory=True, junction_lean=1.0, cut_contacts=True,
+                          choose_lean=False):
     """One O-grid cross-section per skeleton node (a core of a x b blocks, a ring and a
     boundary-layer ring whose outer corners are found on the wall by ray casting in the
     section plane), half cross-sections on half-planes through each junction's axis shared
@@ -70,7 +72,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         junction=JunctionOptions(
             junction_rotation=junction_rotation, rotation_range=rotation_range, max_out_of_plane=max_out_of_plane,
             min_branch_gap=min_branch_gap, clear_ray_factor=clear_ray_factor, junction_margin=junction_margin,
-            junction_centre=junction_centre, junction_lean=junction_lean,
+            junction_centre=junction_centre, junction_lean=junction_lean, choose_lean=choose_lean,
         ),
         ends=EndOptions(cap_distance=cap_distance, dome_depth=dome_depth, dome_max_retreat=dome_max_retreat),
         repair=RepairOptions(split_nonplanar=split_nonplanar, max_fix_rounds=max_fix_rounds, relieve_wall_folds=relieve_wall_folds,

@@ -123,7 +123,7 @@ def build_blocks(
         seen.add(key)
         tries += opts is options  # a skeleton counts once; its :func:`_fallback` placements always follow
         try:
-            blocks = _Builder(sk, distance, caps, opts, warn, progress, project, intersect_lines, work).run()
+            blocks = _choose_lean(lambda planar: _Builder(sk, distance, caps, opts, warn, progress, project, intersect_lines, work, planar), work)
         except _Failure as failure:
             if (nxt := _fallback(opts, options, at_node, flat, failure.leaned, work)) is not None:
                 queue.insert(0, (sk, notes, nxt, made, cut))
@@ -182,6 +182,60 @@ def _last_tries(options: BlockOptions) -> list:
     out = [options.replace(straighten_stuck_ends=True, max_retopology_tries=1)]
     if not options.repair.spread_tight:
         out.append(options.replace(spread_tight=True, clear_own_stretch=True))
+    return out
+
+
+def _choose_lean(make, work) -> BlockStructure:
+    """Build with leaning half-sections and, where some n-furcation leans, also with
+    half-planes there from the start (with ``choose_lean``); keep per such junction the choice the fix loop had
+    to work less for at its node (ties keep the lean).
+
+    ``make(planar)`` is a new :class:`_Builder` whose junctions ``planar`` keep to
+    half-planes. The raw fill of the two valid structures does not say which ends better,
+    and half-planes put in after the fix loop inherit the margins the loop gave the lean
+    (docs/junctions.md, h12/lean): how hard the loop had to work under each choice does.
+    Only trees with a leaning n-furcation pay, one more fix loop (two where their
+    junctions choose unalike: each junction's choice together; where that is not valid,
+    the whole-tree variant with less work at those junctions); the wall-fold steps run
+    once, on the structure kept."""
+    lean = make(frozenset())
+    blocks = lean.make_valid()
+    nodes = sorted(c for c, j in lean.topo.junctions.items() if lean.leans(j))
+    if not nodes or work.spent or not lean.opt.junction.choose_lean:
+        return lean.finish(blocks)
+    variants = {frozenset(): (lean, blocks)}
+    try:
+        flat = make(frozenset(nodes))
+        variants[frozenset(nodes)] = (flat, flat.make_valid())
+    except (_Failure, MeshingError):
+        pass
+    if len(variants) == 1 or set(flat.topo.junctions) != set(lean.topo.junctions):
+        # half-planes cannot be built, or the two trees' junctions do not match up
+        return _kept(lean, blocks, nodes, {}, "lean")
+    cost = {c: (lean.local.work_at.get(c, 0), flat.local.work_at.get(c, 0)) for c in nodes}
+    pick = frozenset(c for c in nodes if cost[c][1] < cost[c][0])
+    if pick not in variants and not work.spent:
+        try:
+            both = make(pick)
+            variants[pick] = (both, both.make_valid())
+        except (_Failure, MeshingError):
+            # the junctions' choices interact: the whole-tree variant with less work
+            pick = frozenset(nodes) if sum(b for _, b in cost.values()) < sum(a for a, _ in cost.values()) else frozenset()
+    if pick not in variants:
+        pick = frozenset()
+    builder, blocks = variants[pick]
+    return _kept(builder, blocks, nodes, cost, ", ".join(f"{c}: {'half-planes' if c in pick else 'lean'}" for c in nodes))
+
+
+def _kept(builder, blocks, nodes, cost, choice) -> BlockStructure:
+    """``builder``'s finished structure, with :func:`_choose_lean`'s choice in its record;
+    :meth:`~.repair._Repair.choose_planes` leaves the junctions ``nodes`` as chosen."""
+    builder.local.chosen = set(nodes) if cost else set()
+    out = builder.finish(blocks)
+    out.info["junction_lean"] = {"nodes": nodes, "fixes_lean_flat": {str(c): list(v) for c, v in cost.items()}, "kept": choice}
+    if cost:
+        out.info["fixes"].insert(0, f"n-furcation half-sections ({choice}): the choice the fix loop needed fewer fixes at "
+                                    f"(lean / half-planes: {', '.join(f'{c}: {a} / {b}' for c, (a, b) in cost.items())})")
     return out
 
 
@@ -248,7 +302,7 @@ def _retopology_options(failure: "_Failure", notes: list, distance, options: Blo
 # ---------------------------------------------------------------------------
 class _Builder(_Junctions, _Sections, _Assembly, _Repair, _Stubs):
     def __init__(self, skeleton: Skeleton, distance, caps, options: BlockOptions, warn, progress, project=None, intersect_lines=None,
-                 work=None):
+                 work=None, planar=frozenset()):
         self.opt = options
         self.sdf = distance
         self.intersect_lines = intersect_lines
@@ -257,7 +311,7 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _Stubs):
         self.tick = progress or (lambda f, m="": None)
         self.template = cs.o_grid_template(options.section.blocks_around)
         self.fixes: list[str] = []
-        self.local = _LocalFixes()
+        self.local = _LocalFixes(planar=set(planar))  # n-furcations built with half-planes (:func:`_choose_lean`)
         # the state the steps change, by concern (:mod:`.state`)
         self.topo = _Topology(skeleton)
         self.ends = _Ends(list(caps or []))
@@ -269,6 +323,12 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _Stubs):
 
     # -- entry ------------------------------------------------------------------
     def run(self) -> BlockStructure:
+        return self.finish(self.make_valid())
+
+
+    def make_valid(self) -> BlockStructure:
+        """Steps 1-5 of the method: the first valid block structure (raises
+        :class:`_Failure` or :class:`MeshingError` where none is found)."""
         from ..skeleton.graph import branch_paths, path_edge_ids
 
         self.check_skeleton()
@@ -295,6 +355,12 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _Stubs):
             if round_ == self.opt.repair.max_fix_rounds or self.work.spent or not self.fix(bad, J):
                 self.fail(blocks, bad)
         self.work.valid_after = self.work.used  # the rest (wall folds) is bounded by the options
+        return blocks
+
+
+    def finish(self, blocks: BlockStructure) -> BlockStructure:
+        """The steps that only improve the valid ``blocks`` (wall folds, centres, planes),
+        and the build's record."""
         if self.project is not None:
             blocks = self._kept_valid(self.thicken_layers, blocks)
             blocks = self._kept_valid(self.choose_centres, blocks)

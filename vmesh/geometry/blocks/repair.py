@@ -129,7 +129,7 @@ class _Repair:
         resolution and no worse at any, with every block valid
         (:meth:`_switch_where_better`). 3-junctions never lean
         (their axis is the normal of their branches' tips' plane: nothing to lean for)."""
-        nodes = sorted(c for c, j in self.topo.junctions.items() if self.leans(j))
+        nodes = sorted(c for c, j in self.topo.junctions.items() if self.leans(j) and c not in self.local.chosen)
         out, switch = self._switch_where_better(blocks, nodes, self.local.planar)
         if switch:
             self.fixes.append(f"half cross-sections of junction node(s) {switch} keep to half-planes, where their blocks fill better than leaning")
@@ -330,6 +330,8 @@ class _Repair:
                     if sc > 0.45:
                         self.local.core_scale[key] = sc * 0.8
                         shrunk = True
+                        if key[0] == "J":
+                            self._worked(key[1])
                 if shrunk:
                     self.fixes.append(f"shrank the core at skeleton node {int(br.nodes[k])}")
                     changed = True
@@ -341,11 +343,15 @@ class _Repair:
                     if br.margin[side] < 2.0 and K > 2:
                         br.margin[side] += 0.5
                         self.fixes.append(f"moved the cross-sections next to junction node {node} further along its branch")
+                        self._worked(node)
                         changed = True
                     elif self._rerotate(bi, side):
                         self.fixes.append(f"re-rotated the half-planes of junction node {node}")
+                        self._worked(node)
                         rotated.append((bi, side, node))
                     elif self.separate_junctions(bi):
+                        for c in (br.nodes[0], br.nodes[-1]):
+                            self._worked(int(c))
                         changed = moved = True
                         break
                     else:
@@ -372,12 +378,18 @@ class _Repair:
             for bi, side, node in stuck:
                 if self._straighten_first(bi, side):
                     self.fixes.append(f"straightened the first cross-section next to junction node {node}")
+                    self._worked(node)
                     changed = True
         if moved:
             self.placed.clear = self._clearance()
         if changed:
             self._apply_clearance()
         return changed
+
+
+    def _worked(self, node: int) -> None:
+        """Count one fix at junction ``node`` (what :func:`~.builder._choose_lean` compares)."""
+        self.local.work_at[node] = self.local.work_at.get(node, 0) + 1
 
 
     def _straighten_first(self, bi: int, side: int) -> bool:
