@@ -248,9 +248,7 @@ def optimise_linear(
     untangle_mode: int = K.ESCOBAR,
     smooth_rings: int = 0,
     grow_below_threshold: bool = True,
-    smooth_tol: float = 0.0,
-    keep_partial_free_layer: bool = False,
-    untangle_patience: int | None = None,
+    smooth_tol: float = 0.0, keep_partial_free_layer: bool = False, untangle_patience: int | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Untangle and smooth the neighbourhood of low-quality linear hexahedra.
 
@@ -298,8 +296,7 @@ def optimise_linear(
     keep_partial_free_layer : bool
         On a valid mesh, keep the free-layer try whenever it beats the held one (:func:`polish`).
     untangle_patience : int, optional
-        Stop growing the untangling region once this many rings in a row have not lowered
-        the number of its elements below ``untangle_below`` (None: grow up to ``max_fraction``).
+        Rings in a row without fewer elements below ``untangle_below`` that end the growth (None: up to ``max_fraction``).
 
     Returns
     -------
@@ -322,8 +319,7 @@ def optimise_linear(
     kind, normal, height = _node_kinds(sub, n, wall, project, wall_normals, cap_nodes, cap_normals, boundary, keep_first_layer)
     fixed, stats = kind == K.FIXED, {"updates": 0}
     untangled, smoothed = np.zeros(n, bool), np.zeros(n, bool)
-    run = dict(kind=kind, normal=normal, project=project, wall_normals=wall_normals, stats=stats, height=height, X0=X.copy(), keep_partial=keep_partial_free_layer and q.min() > 0,
-               patience=untangle_patience)
+    run = dict(kind=kind, normal=normal, project=project, wall_normals=wall_normals, stats=stats, height=height, X0=X.copy(), keep_partial=keep_partial_free_layer and q.min() > 0, patience=untangle_patience)
     bad = q < untangle_below
     if bad.any():
         q = _untangle(X, sub, n, fixed, bad, run, untangle_below, max_fraction, sweeps, untangle_mode, grow_below_threshold, untangled, info)
@@ -331,8 +327,7 @@ def optimise_linear(
     if smooth_below > 0 and low.any():
         _smooth_region(X, sub, n, fixed, low, run, smooth_below, smooth_sweeps, smooth_rings, smoothed, smooth_tol)
         q = hex8_scaled_jacobian(X, sub)
-    info.update(after={"min": float(q.min()), "mean": float(q.mean())}, untangled_nodes=int(untangled.sum()), smoothed_nodes=int((smoothed & ~untangled).sum()),
-                moved=int((untangled | smoothed).sum()), updates=stats["updates"], seconds=time.perf_counter() - t0)
+    info.update(after={"min": float(q.min()), "mean": float(q.mean())}, untangled_nodes=int(untangled.sum()), smoothed_nodes=int((smoothed & ~untangled).sum()), moved=int((untangled | smoothed).sum()), updates=stats["updates"], seconds=time.perf_counter() - t0)
     return X, info
 
 
