@@ -217,6 +217,11 @@ def _polish(X, sm, info, goals, constraints):
     return Y
 
 
+#: Rings the light pass's untangling of elements the untanglers left inverted may grow
+#: without fewer inverted elements (it is a last local try, after the untanglers).
+LIGHT_PASS_PATIENCE = 3
+
+
 def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol=0.0):
     """The default light pass of :mod:`vmesh.geometry.optimize` over every element below
     ``below`` (no untangling): raises the mean without lowering any element's neighbourhood
@@ -232,7 +237,7 @@ def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol
     ctx.tick(0.97, "light pass")
     X, info = optimise(
         sm.points, sm.cells, p, ref_nodes=ref_nodes, wall=wall, wall_normals=sdf.gradient, project=projector, cap_nodes=cap_nodes, cap_normals=cap_normals,
-        boundary=boundary, untangle_below=0.0, smooth_below=below, smooth_sweeps=sweeps, smooth_tol=tol,
+        boundary=boundary, untangle_below=0.0, smooth_below=below, smooth_sweeps=sweeps, smooth_tol=tol, untangle_patience=LIGHT_PASS_PATIENCE,
     )
     if p > 1:
         before = scaled_jacobian(sm.points, sm.cells, p, ref_nodes)

@@ -11,7 +11,7 @@ from ...blocks import FACE_INTERIOR, FACE_WALL, HEX_FACES, BlockStructure
 from ...errors import MeshingError
 
 
-def projected_wall_quality(blocks: BlockStructure, project, samples: int = 4) -> np.ndarray:
+def projected_wall_quality(blocks: BlockStructure, project, samples: int = 4, last: dict | None = None) -> np.ndarray:
     # duplicates: its docstring's parameter list reads like transfinite.mesh_blocks'; no shared logic
     """Scaled Jacobian of boundary-layer blocks once their wall faces are projected onto the wall.
 
@@ -27,13 +27,16 @@ def projected_wall_quality(blocks: BlockStructure, project, samples: int = 4) ->
         ``project(points (n, 3)) -> closest wall points (n, 3)``.
     samples : int
         Sub-faces per side of a wall face.
+    last : dict, optional
+        The previous call's faces and results with the same ``project`` (filled in here;
+        start with ``{}``): faces whose eight corners are where they were keep their result
+        (each face's value depends on its corners alone), so a fix that moves a few sections
+        of a tree projects only their blocks' faces again.
 
     Returns
     -------
     (nb,) float: the smallest scaled corner Jacobian per block (1 for blocks off the wall).
     """
-    from ...blocks import HEX_FACES, scaled_corner_jacobians
-
     out = np.ones(blocks.n_blocks)
     b, f = np.nonzero(blocks.face_boundary == FACE_WALL)
     # faces 0..3 (i, j sides): the opposite face across the layer; end faces (k) are skipped
@@ -43,8 +46,31 @@ def projected_wall_quality(blocks: BlockStructure, project, samples: int = 4) ->
         return out
     wall = blocks.vertices[blocks.hexes[b[:, None], HEX_FACES[f]]]  # (m, 4, 3), outward order
     # the opposite face in the same corner order: reversed orientation, matched corner by corner
-    match = {0: [1, 5, 6, 2], 1: [0, 3, 7, 4], 2: [3, 2, 6, 7], 3: [0, 4, 5, 1]}
-    inner = blocks.vertices[blocks.hexes[b[:, None], np.array([match[int(x)] for x in f])]]
+    inner = blocks.vertices[blocks.hexes[b[:, None], _OPPOSITE[f]]]
+    corners = np.concatenate([wall, inner], axis=1)  # (m, 8, 3)
+    if last is not None and last.get("samples") == samples and np.array_equal(last.get("faces"), np.c_[b, f]):
+        redo = np.flatnonzero(np.any(corners != last["corners"], axis=(1, 2)))
+        sj = last["sj"].copy()
+        sj[redo] = _face_quality(wall[redo], inner[redo], project, samples)
+    else:
+        sj = _face_quality(wall, inner, project, samples)
+    if last is not None:
+        last.update(samples=samples, faces=np.c_[b, f], corners=corners, sj=sj)
+    np.minimum.at(out, b, sj)
+    return out
+
+
+#: per wall face (0..3) of a block, the opposite face's corners matched to its own
+_OPPOSITE = np.array([[1, 5, 6, 2], [0, 3, 7, 4], [3, 2, 6, 7], [0, 4, 5, 1]])
+
+
+def _face_quality(wall: np.ndarray, inner: np.ndarray, project, samples: int) -> np.ndarray:
+    """Smallest scaled corner Jacobian of the layer between each wall face ``(m, 4, 3)``,
+    sampled and projected onto the wall, and its opposite face ``(m, 4, 3)``."""
+    from ...blocks import scaled_corner_jacobians
+
+    if len(wall) == 0:
+        return np.zeros(0)
     s = np.linspace(0.0, 1.0, samples + 1)
     U, V = np.meshgrid(s, s, indexing="ij")
     w = np.stack([(1 - U) * (1 - V), U * (1 - V), U * V, (1 - U) * V], axis=-1)  # (n+1, n+1, 4)
@@ -56,11 +82,9 @@ def projected_wall_quality(blocks: BlockStructure, project, samples: int = 4) ->
     # sub-hexes: bottom = inner cell, top = projected wall cell (outward along the layer)
     H = np.stack([i[:, :-1, :-1], i[:, 1:, :-1], i[:, 1:, 1:], i[:, :-1, 1:],
                   o[:, :-1, :-1], o[:, 1:, :-1], o[:, 1:, 1:], o[:, :-1, 1:]], axis=3)
-    sj = scaled_corner_jacobians(H.reshape(-1, 8, 3)).min(axis=1).reshape(len(b), -1)
+    sj = scaled_corner_jacobians(H.reshape(-1, 8, 3)).min(axis=1).reshape(len(wall), -1)
     # wall corners run outward: the inner cell (bottom) faces the projected wall (top)
-    sj = sj.min(axis=1)
-    np.minimum.at(out, b, sj)
-    return out
+    return sj.min(axis=1)
 
 
 #: Element counts of the fill checks (around, ring, layer, element length × radius, refinement

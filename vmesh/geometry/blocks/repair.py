@@ -36,7 +36,7 @@ class _Repair:
         junction's blocks fill better at one resolution and no worse at any, and every
         block stays valid."""
         opt = self.opt
-        quality = projected_wall_quality(blocks, self.project)
+        quality = self._wall_quality(blocks)
         ends = self._junction_ends(np.flatnonzero(quality <= opt.repair.wall_quality))
         if not ends:
             return blocks
@@ -99,7 +99,7 @@ class _Repair:
             self._rebuild_junction(c)
         self._apply_clearance()
         trial = self.assemble()
-        after = self._centre_scores(trial, nodes) if trial.corner_jacobians().min() > 0 else {c: np.full(len(FILL_CHECKS), -np.inf) for c in nodes}
+        after = self._centre_scores(trial, nodes) if self.built.corners.min() > 0 else {c: np.full(len(FILL_CHECKS), -np.inf) for c in nodes}
         switch = [c for c in nodes if np.all(after[c] >= before[c] - 1e-9) and np.any(after[c] > before[c] + 1e-9)]
         for c in nodes:
             if c not in switch:
@@ -107,7 +107,7 @@ class _Repair:
                 flag.discard(c)
         self._apply_clearance()
         out = self.assemble()
-        if switch and out.corner_jacobians().min() <= 0:
+        if switch and self.built.corners.min() <= 0:
             # the junctions' choices interact: back to where they were everywhere
             for c in switch:
                 self.topo.junctions[c] = saved[c]
@@ -165,7 +165,7 @@ class _Repair:
                 self.topo.branches[bi].margin[side] = base[(bi, side)] + add
             self._apply_clearance()
             trial = self.assemble()
-            J = trial.corner_jacobians().min(axis=1)
+            J = self.built.corners.min(axis=1)  # trial.corner_jacobians(), kept by the assembly
             mine = [self._end_blocks(bi, side) for bi, side in ends]
             sel = np.unique(np.concatenate(mine))
             q = np.ones(trial.n_blocks)
@@ -210,18 +210,21 @@ class _Repair:
                 j.cand.pick[sp], j.psi[sp] = k, j.cand.psi[sp, k]
             self._apply_clearance()
             trial = self.assemble()
-            J = trial.corner_jacobians().min(axis=1)
             near = np.unique(np.concatenate([self._end_blocks(bi, side) for c in {c for c, _ in seps} for bi, side in self.topo.junctions[c].ends]))
             q = np.ones(trial.n_blocks)
             q[near] = self._fill_quality(trial, near)
+            # per branch its least corner Jacobian, and per half-plane its blocks: one pass
+            # over the tree's blocks per candidate, not one per half-plane
+            where = self.built.block_where[:, 0]
+            least = np.full(len(self.topo.branches), np.inf)
+            np.minimum.at(least, where, self.built.corners.min(axis=1))
+            mine_of = self._half_plane_blocks(trial, seps)
             for e, (c, sp) in enumerate(seps):
                 j = self.topo.junctions[c]
                 if not np.isfinite(j.cand.cost[sp, n]):
                     continue
-                own = j.half_ids[sp][j.spine_ids < 0]
-                mine = np.flatnonzero(np.isin(trial.hexes, own[own >= 0]).any(axis=1))
-                branches = np.unique(self.built.block_where[mine, 0])
-                if J[np.isin(self.built.block_where[:, 0], branches)].min() > 0:
+                mine = mine_of[e]
+                if least[np.unique(where[mine])].min() > 0:
                     score[e, n] = fill_score(q[mine])
         for e, (c, sp) in enumerate(seps):
             j = self.topo.junctions[c]
@@ -232,6 +235,21 @@ class _Repair:
             j.cand.pick[sp], j.psi[sp] = k, j.cand.psi[sp, k]
         self._apply_clearance()
 
+
+    def _half_plane_blocks(self, blocks: BlockStructure, seps: list) -> list:
+        """Per half-plane ``(junction, separator)`` of ``seps``, the blocks (sorted) with a
+        vertex of its half-section off the spine. Those vertices are each half-section's
+        own, so one vertex-to-half-plane map serves all of them."""
+        owner = np.full(len(blocks.vertices), -1, np.int64)
+        for e, (c, sp) in enumerate(seps):
+            j = self.topo.junctions[c]
+            own = j.half_ids[sp][j.spine_ids < 0]
+            owner[own[own >= 0]] = e
+        hit = owner[blocks.hexes]  # (nb, 8)
+        b, corner = np.nonzero(hit >= 0)
+        pairs = np.unique(np.c_[hit[b, corner], b], axis=0)  # (half-plane, block), sorted
+        cut = np.searchsorted(pairs[:, 0], np.arange(len(seps) + 1))
+        return [pairs[cut[e]:cut[e + 1], 1] for e in range(len(seps))]
 
     def _fill_quality(self, blocks: BlockStructure, subset: np.ndarray) -> np.ndarray:
         """:func:`fill_quality` of ``subset`` on this builder's wall."""
@@ -264,7 +282,7 @@ class _Repair:
         their wall faces are projected onto the wall (:func:`projected_wall_quality`), as
         long as every block stays valid; what is left is reported in ``info``."""
         opt = self.opt
-        quality = projected_wall_quality(blocks, self.project)
+        quality = self._wall_quality(blocks)
         thickened = set()
         for _ in range(4):
             bad = np.flatnonzero(quality <= opt.repair.wall_quality)
@@ -278,20 +296,26 @@ class _Repair:
             for key in keys:
                 self.local.layer_scale[key] = self.local.layer_scale.get(key, 1.0) * 1.25
             trial = self.assemble()
-            if trial.corner_jacobians().min() <= 0:
+            if self.built.corners.min() <= 0:  # trial.corner_jacobians(), kept by the assembly
                 self.local.layer_scale = old
                 break
             thickened |= keys
-            blocks, quality = trial, projected_wall_quality(trial, self.project)
+            blocks, quality = trial, self._wall_quality(trial)
         if thickened:
             self.fixes.append(f"thickened the boundary layer at {len(thickened)} cross-section(s) where projecting the wall would fold it")
             blocks.info.update(self.built.info)
         return blocks
 
 
+    def _wall_quality(self, blocks: BlockStructure) -> np.ndarray:
+        """:func:`projected_wall_quality` of ``blocks``; only the wall faces whose corners
+        moved since the last call are projected again (a thickening or re-placement moves
+        the sections at a few junctions of a tree of thousands)."""
+        return projected_wall_quality(blocks, self.project, last=self.built.wall_faces)
+
     def report_wall_folds(self, blocks: BlockStructure) -> None:
         """Record (and warn about) boundary-layer blocks that may still fold on the wall."""
-        quality = projected_wall_quality(blocks, self.project)
+        quality = self._wall_quality(blocks)
         self.built.info["min_projected_wall_quality"] = round(float(quality.min()), 4)
         self.built.info["blocks_folding_on_wall"] = int(np.sum(quality <= 0))
         # by id: compute_quality tells whether the mesh's worst elements lie in them

@@ -67,3 +67,4 @@ class _Assembled:
     corners: np.ndarray | None = None  # (nb, 8) corner Jacobians (BlockStructure.corner_jacobians)
     unflipped: tuple | None = None  # (vertices, hexes, corner Jacobians) before mirrored blocks were flipped
     info: dict = field(default_factory=dict)  # what the builder reports in ``BlockStructure.info``
+    wall_faces: dict = field(default_factory=dict)  # the last projected_wall_quality's faces and results

@@ -248,8 +248,7 @@ def optimise_linear(
     untangle_mode: int = K.ESCOBAR,
     smooth_rings: int = 0,
     grow_below_threshold: bool = True,
-    smooth_tol: float = 0.0,
-    keep_partial_free_layer: bool = False,
+    smooth_tol: float = 0.0, keep_partial_free_layer: bool = False, untangle_patience: int | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Untangle and smooth the neighbourhood of low-quality linear hexahedra.
 
@@ -296,6 +295,8 @@ def optimise_linear(
         Light pass: moves shorter than this fraction of the step cap leave the neighbours clean.
     keep_partial_free_layer : bool
         On a valid mesh, keep the free-layer try whenever it beats the held one (:func:`polish`).
+    untangle_patience : int, optional
+        Rings in a row without fewer elements below ``untangle_below`` that end the growth (None: up to ``max_fraction``).
 
     Returns
     -------
@@ -318,7 +319,7 @@ def optimise_linear(
     kind, normal, height = _node_kinds(sub, n, wall, project, wall_normals, cap_nodes, cap_normals, boundary, keep_first_layer)
     fixed, stats = kind == K.FIXED, {"updates": 0}
     untangled, smoothed = np.zeros(n, bool), np.zeros(n, bool)
-    run = dict(kind=kind, normal=normal, project=project, wall_normals=wall_normals, stats=stats, height=height, X0=X.copy(), keep_partial=keep_partial_free_layer and q.min() > 0)
+    run = dict(kind=kind, normal=normal, project=project, wall_normals=wall_normals, stats=stats, height=height, X0=X.copy(), keep_partial=keep_partial_free_layer and q.min() > 0, patience=untangle_patience)
     bad = q < untangle_below
     if bad.any():
         q = _untangle(X, sub, n, fixed, bad, run, untangle_below, max_fraction, sweeps, untangle_mode, grow_below_threshold, untangled, info)
@@ -326,8 +327,7 @@ def optimise_linear(
     if smooth_below > 0 and low.any():
         _smooth_region(X, sub, n, fixed, low, run, smooth_below, smooth_sweeps, smooth_rings, smoothed, smooth_tol)
         q = hex8_scaled_jacobian(X, sub)
-    info.update(after={"min": float(q.min()), "mean": float(q.mean())}, untangled_nodes=int(untangled.sum()), smoothed_nodes=int((smoothed & ~untangled).sum()),
-                moved=int((untangled | smoothed).sum()), updates=stats["updates"], seconds=time.perf_counter() - t0)
+    info.update(after={"min": float(q.min()), "mean": float(q.mean())}, untangled_nodes=int(untangled.sum()), smoothed_nodes=int((smoothed & ~untangled).sum()), moved=int((untangled | smoothed).sum()), updates=stats["updates"], seconds=time.perf_counter() - t0)
     return X, info
 
 
@@ -368,12 +368,20 @@ def _untangle_regions(X, sub, n, fixed, bad, run, below, max_fraction, sweeps, m
     # small meshes: at least twice the first region (1 % of a few thousand nodes is less than one fold's neighbourhood)
     budget = max(int(max_fraction * n), 2 * int((active & ~fixed).sum()))
     rings = 0
+    fewest, stalled = None, 0  # the least elements below ``below`` so far, and rings since
     for ring in range(64):
         st = _Stage(run["X0"], sub, active, n, fixed)
         qs = _run_stage(X, st, run["kind"], run["normal"], _delta, mode, run["project"], run["wall_normals"], run["stats"], sweeps, below, untangled, run["height"], run["X0"])
         rings = ring
         if qs.min() > 0 and not grow_below_threshold or qs.min() >= below:
             break
+        if run.get("patience") is not None:
+            # a fold the rings around it do not open (two vessels fused across each other)
+            # would otherwise grow the region, and re-sweep all of it, up to max_fraction
+            left = int((qs < below).sum())
+            fewest, stalled = (left, 0) if fewest is None or left < fewest else (fewest, stalled + 1)
+            if stalled >= run["patience"]:
+                break
         grown = K.grow_nodes(st.hexes, st.ptr, st.inc, active)
         if int((grown & ~fixed).sum()) > budget or (grown == active).all():
             break
