@@ -88,6 +88,18 @@ def test_trifurcation_keeps_its_split():
     assert moved == 1 and max(sk.degrees) == 3
 
 
+def test_fan_with_one_blockable_pair_keeps_its_split():
+    # a fan of 4 whose two moves leave one pair with a link longer than its reach (blockable)
+    # and one crossing: undoing the crossing one alone gives the junction 4 branches back,
+    # which the builder merges and re-splits itself, so the split stays
+    angles, radii = (-50, -38, 5, 30), (1.0, 1.0, 0.9, 0.8)
+    case = furcation("fan_4_pairs", [(direction(a), r) for a, r in zip(angles, radii)], parent_radius=1.3)
+    sk, made = _split(case)
+    assert len(made) == 2 and sorted(blockable_pair(sk, c, n) for c, n in made) == [False, True]
+    sk, moved = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
+    assert moved == 2 and max(sk.degrees) == 3
+
+
 def test_three_junction_moves_to_where_its_daughters_part():
     # a bifurcation whose daughters leave 20 degrees apart: the junction moves
     case = furcation("narrow", [(direction(10), 0.8), (direction(-10), 0.8)])

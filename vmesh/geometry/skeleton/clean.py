@@ -337,10 +337,12 @@ def _unblockable_moves(skel: Skeleton, made: list) -> frozenset:
     for ckey in {m[3] for m in made}:
         at = [m for m in made if m[3] == ckey]
         moves = [(c, n, key) for c, n, key, _ in at if deg[c] >= 3 and deg[n] >= 3]
-        if not moves or deg[moves[0][0]] + len(at) < 5:  # each move took one branch off the junction
+        if not moves:
             continue
         c = moves[0][0]
         bad = {n: key for _, n, key in moves if not blockable_pair(skel, c, n, paths)}
+        if deg[c] + len(bad) < 5:  # undoing a move gives its branch back to the junction
+            continue
         ends = {int(q[-1] if q[0] == c else q[0]) for q in paths if (int(q[0]) == c) != (int(q[-1]) == c)}
         close = {x for x in ends if deg[x] >= 3 and link_length(skel, c, x, paths) < PAIR_REACH * float(skel.radii[c])}
         if bad and close <= set(bad):
