@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...skeleton import Skeleton
-from .graph import branch_paths
+from .graph import arc_length, branch_paths
 
 #: least crossing margin (degrees) of a blockable pair. From the synthetic two-junction
 #: sweep (``benchmarks/junction_pairs.py --pair``: +10 built in the first try, -10 did
@@ -82,7 +82,7 @@ def link_length(skeleton: Skeleton, a: int, b: int, paths=None) -> float:
     paths = branch_paths(skeleton.n_nodes, skeleton.edges) if paths is None else paths
     for q in paths:
         if {int(q[0]), int(q[-1])} == {a, b} and a != b:
-            return float(np.linalg.norm(np.diff(skeleton.points[q], axis=0), axis=1).sum())
+            return float(arc_length(skeleton.points[q])[-1])
     return float("inf")
 
 
