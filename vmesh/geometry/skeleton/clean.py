@@ -9,7 +9,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from ...skeleton import Skeleton
-from .graph import arc_length, polyline_at, branch_paths, component_labels, contract_nodes, edge_lengths, END_TAGS, remove_nodes, _union
+from .graph import arc_length, polyline_at, branch_paths, branches_at, component_labels, contract_nodes, edge_lengths, END_TAGS, remove_nodes, _union
 from .pairs import PAIR_REACH, blockable_pair, link_length
 
 
@@ -103,7 +103,7 @@ def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead
         if c in done:
             continue
         done.add(c)  # unless a move below changes it
-        out = [p if p[0] == c else p[::-1] for p in paths if (p[0] == c) != (p[-1] == c)]  # loops skipped
+        out = branches_at(paths, c)
         if len(out) < 2:
             continue
         rc = scale[c]
@@ -343,7 +343,7 @@ def _unblockable_moves(skel: Skeleton, made: list) -> frozenset:
         bad = {n: key for _, n, key in moves if not blockable_pair(skel, c, n, paths)}
         if deg[c] + len(bad) < 5:  # undoing a move gives its branch back to the junction
             continue
-        ends = {int(q[-1] if q[0] == c else q[0]) for q in paths if (int(q[0]) == c) != (int(q[-1]) == c)}
+        ends = {int(q[-1]) for q in branches_at(paths, c)}
         close = {x for x in ends if deg[x] >= 3 and link_length(skel, c, x, paths) < PAIR_REACH * float(skel.radii[c])}
         if bad and close <= set(bad):
             out |= set(bad.values())

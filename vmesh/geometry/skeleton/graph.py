@@ -154,6 +154,25 @@ def branch_paths(n_nodes: int, edges: np.ndarray) -> list[np.ndarray]:
     return paths
 
 
+def branches_at(paths: list[np.ndarray], c: int) -> list[np.ndarray]:
+    """The branches of ``paths`` (from :func:`branch_paths`) at node ``c``, each oriented
+    from ``c``; loops (both ends at ``c``) are skipped.
+
+    Parameters
+    ----------
+    paths : list of ndarray
+        Node paths of the branches.
+    c : int
+        Node index.
+
+    Returns
+    -------
+    list of ndarray
+        The paths that start or end at ``c`` (not both), reversed where they end at it.
+    """
+    return [q if int(q[0]) == c else q[::-1] for q in paths if (int(q[0]) == c) != (int(q[-1]) == c)]
+
+
 def path_edge_ids(n_nodes: int, edges: np.ndarray, paths: list[np.ndarray]) -> list[np.ndarray]:
     """Edge index of every step of every path (``len(path) - 1`` per path)."""
     adj = _adjacency_with_edge_ids(n_nodes, np.asarray(edges, np.int64).reshape(-1, 2))

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...skeleton import Skeleton
-from .graph import arc_length, branch_paths
+from .graph import arc_length, branch_paths, branches_at
 
 #: least crossing margin (degrees) of a blockable pair. From the synthetic two-junction
 #: sweep (``benchmarks/junction_pairs.py --pair``: +10 built in the first try, -10 did
@@ -66,14 +66,13 @@ def pair_margin(skeleton: Skeleton, near: int, far: int, paths=None) -> float:
     directions one radius (each junction's own) along the branches; infinite when no
     branch joins them."""
     paths = branch_paths(skeleton.n_nodes, skeleton.edges) if paths is None else paths
-    own = lambda c: [q if int(q[0]) == c else q[::-1] for q in paths if (int(q[0]) == c) != (int(q[-1]) == c)]
-    at_near = own(near)
+    at_near = branches_at(paths, near)
     link = next((q for q in at_near if int(q[-1]) == far), None)
     if link is None:
         return float("inf")
     P, rn, rf = skeleton.points, float(skeleton.radii[near]), float(skeleton.radii[far])
     sib = [branch_direction(P, q, rn) for q in at_near if int(q[-1]) != far]
-    dau = [branch_direction(P, q, rf) for q in own(far) if int(q[-1]) != near]
+    dau = [branch_direction(P, q, rf) for q in branches_at(paths, far) if int(q[-1]) != near]
     return crossing_margin(branch_direction(P, link, rn), np.reshape(sib, (-1, 3)), np.reshape(dau, (-1, 3)))
 
 
