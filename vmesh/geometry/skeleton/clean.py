@@ -9,7 +9,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from ...skeleton import Skeleton
-from .graph import arc_length, polyline_at, branch_paths, branches_at, component_labels, contract_nodes, edge_lengths, END_TAGS, remove_nodes, _union
+from .graph import arc_length, polyline_at, branch_paths, branches_at, component_labels, contract_nodes, edge_lengths, END_TAGS, remove_nodes, vector_angle, _union
 from .pairs import PAIR_REACH, blockable_pair, link_length
 
 
@@ -84,9 +84,7 @@ def merge_close_junctions(skeleton: Skeleton, tolerance: float = 0.5) -> tuple[S
 
 def _pair_angle(m: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angle (radians) at ``m`` between the directions to ``a`` and to ``b`` (row-wise)."""
-    u, v = a - m, b - m
-    cos = (u * v).sum(-1) / np.maximum(np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1), 1e-300)
-    return np.arccos(np.clip(cos, -1.0, 1.0))
+    return vector_angle(a - m, b - m)
 
 
 def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead: float, max_shift: float, distance=None, undone=frozenset()):

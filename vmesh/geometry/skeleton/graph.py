@@ -41,6 +41,23 @@ def arc_length(points: np.ndarray) -> np.ndarray:
 
 
 
+def vector_angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Angle between vectors, row-wise (broadcast over leading axes).
+
+    Parameters
+    ----------
+    u, v : (..., 3) float
+        The vectors (any length but zero).
+
+    Returns
+    -------
+    ndarray
+        The angles in radians, in ``[0, pi]``.
+    """
+    cos = (u * v).sum(-1) / np.maximum(np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1), 1e-300)
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
 def polyline_at(points: np.ndarray, arc: np.ndarray, s: np.ndarray, values: np.ndarray | None = None):
     """Points at arc lengths ``s`` (clamped to the ends) of a polyline with node arc lengths
     ``arc``; with per-node ``values``, also those values interpolated linearly there.

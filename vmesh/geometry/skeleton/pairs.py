@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...skeleton import Skeleton
-from .graph import arc_length, branch_paths, branches_at
+from .graph import arc_length, branch_paths, branches_at, vector_angle
 
 #: least crossing margin (degrees) of a blockable pair. From the synthetic two-junction
 #: sweep (``benchmarks/junction_pairs.py --pair``: +10 built in the first try, -10 did
@@ -39,11 +39,6 @@ def branch_direction(points: np.ndarray, path, ahead: float) -> np.ndarray:
     return d / max(float(np.linalg.norm(d)), 1e-300)
 
 
-def _angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Angle (degrees) between unit vectors, row-wise."""
-    return np.degrees(np.arccos(np.clip((u * v).sum(-1), -1.0, 1.0)))
-
-
 def crossing_margin(link: np.ndarray, siblings: np.ndarray, daughters: np.ndarray) -> float:
     """The least ``angle(daughter, nearest sibling) - angle(daughter, link)`` (degrees) over
     the far junction's daughters.
@@ -57,8 +52,9 @@ def crossing_margin(link: np.ndarray, siblings: np.ndarray, daughters: np.ndarra
     siblings, daughters = np.reshape(siblings, (-1, 3)), np.reshape(daughters, (-1, 3))
     if not len(siblings) or not len(daughters):
         return float("inf")
-    to_sibling = _angle(daughters[:, None, :], siblings[None, :, :]).min(axis=1)
-    return float((to_sibling - _angle(daughters, np.asarray(link)[None])).min())
+    angle = lambda u, v: np.degrees(vector_angle(u, v))
+    to_sibling = angle(daughters[:, None, :], siblings[None, :, :]).min(axis=1)
+    return float((to_sibling - angle(daughters, np.asarray(link)[None])).min())
 
 
 def pair_margin(skeleton: Skeleton, near: int, far: int, paths=None) -> float:
