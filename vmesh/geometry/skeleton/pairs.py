@@ -24,8 +24,8 @@ from .graph import arc_length, branch_paths, branches_at, vector_angle
 #: vessel measured (docs/junctions.md, h13/pairs).
 CROSSING_MARGIN = 10.0
 
-#: how far (x the near junction's radius) its half-sections reach along a branch at most:
-#: the block builder's REACH_RADII; a longer link leaves the pair room.
+#: how far (x the near junction's radius) its half-sections reach along a branch at most;
+#: a longer link leaves the pair room. The block builder's ``REACH_RADII`` is this value.
 PAIR_REACH = 3.0
 
 
