@@ -10,7 +10,7 @@ from scipy.sparse.csgraph import connected_components
 
 from ...skeleton import Skeleton
 from .graph import arc_length, polyline_at, branch_paths, branches_at, component_labels, contract_nodes, edge_lengths, END_TAGS, remove_nodes, vector_angle, _union
-from .pairs import PAIR_REACH, blockable_pair, link_length
+from .pairs import PAIR_REACH, _move_key, _point_key, _unblockable_moves
 
 
 def node_scale(skeleton: Skeleton) -> np.ndarray:
@@ -94,7 +94,7 @@ def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead
     ``(c, pi, ai, pj, aj, star, at, r_at, eps)``, the junction, the two branches from it and
     their arc lengths, the arc length, position and radius of the new junction and the
     tolerance on arc length; None if there is none. Adds the junctions looked at to ``done``;
-    the moves in ``undone`` (:func:`_move_key`) are left out."""
+    the moves in ``undone`` (:func:`.pairs._move_key`) are left out."""
     scale = node_scale(skel)
     paths = branch_paths(skel.n_nodes, skel.edges)
     for c in np.flatnonzero(skel.degrees >= 3).tolist():
@@ -306,46 +306,6 @@ def separate_parallel_branches(
             break
         undone = undone | undo
     return skel.copy() if skel is skeleton else skel, moved
-
-
-def _point_key(p) -> tuple:
-    """A node's identity across runs of the same moves: its position."""
-    return tuple(np.round(np.asarray(p, float), 9).tolist())
-
-
-def _move_key(skel: Skeleton, job: tuple) -> tuple:
-    """A move's identity across runs: its junction's position and the far ends of its two
-    branches."""
-    c, pi, pj = job[0], job[1], job[3]
-    return (_point_key(skel.points[c]),) + tuple(sorted((_point_key(skel.points[pi[-1]]), _point_key(skel.points[pj[-1]]))))
-
-
-def _unblockable_moves(skel: Skeleton, made: list) -> frozenset:
-    """Keys of the moves in ``made`` (``(junction, new junction, move key, junction key)``,
-    nodes of ``skel``) to undo: those whose pair the block builder cannot block
-    (:func:`.pairs.blockable_pair`, near: the junction that stayed), at a junction that
-    undoing them leaves in no other close pair and gives back a junction of five or more
-    branches. A junction still in another close pair is merged with it by the builder
-    anyway, and undone moves only widen that merge; a trifurcation split into two
-    bifurcations the builder merges and splits by pairings itself (docs/junctions.md,
-    h13/pairs: undone, such a pair cost a passing run)."""
-    deg = skel.degrees
-    paths = branch_paths(skel.n_nodes, skel.edges)
-    out = set()
-    for ckey in {m[3] for m in made}:
-        at = [m for m in made if m[3] == ckey]
-        moves = [(c, n, key) for c, n, key, _ in at if deg[c] >= 3 and deg[n] >= 3]
-        if not moves:
-            continue
-        c = moves[0][0]
-        bad = {n: key for _, n, key in moves if not blockable_pair(skel, c, n, paths)}
-        if deg[c] + len(bad) < 5:  # undoing a move gives its branch back to the junction
-            continue
-        ends = {int(q[-1]) for q in branches_at(paths, c)}
-        close = {x for x in ends if deg[x] >= 3 and link_length(skel, c, x, paths) < PAIR_REACH * float(skel.radii[c])}
-        if bad and close <= set(bad):
-            out |= set(bad.values())
-    return frozenset(out)
 
 
 def _separate(skeleton: Skeleton, limit, target, ahead, max_shift, distance, undone) -> tuple[Skeleton, int, list]:

@@ -91,3 +91,43 @@ def blockable_pair(skeleton: Skeleton, near: int, far: int, paths=None, margin: 
     if link_length(skeleton, near, far, paths) >= PAIR_REACH * float(skeleton.radii[near]):
         return True
     return pair_margin(skeleton, near, far, paths) >= margin
+
+
+def _point_key(p) -> tuple:
+    """A node's identity across runs of the same moves: its position."""
+    return tuple(np.round(np.asarray(p, float), 9).tolist())
+
+
+def _move_key(skel: Skeleton, job: tuple) -> tuple:
+    """A move's identity across runs: its junction's position and the far ends of its two
+    branches."""
+    c, pi, pj = job[0], job[1], job[3]
+    return (_point_key(skel.points[c]),) + tuple(sorted((_point_key(skel.points[pi[-1]]), _point_key(skel.points[pj[-1]]))))
+
+
+def _unblockable_moves(skel: Skeleton, made: list) -> frozenset:
+    """Keys of the moves in ``made`` (``(junction, new junction, move key, junction key)``,
+    nodes of ``skel``) to undo: those whose pair the block builder cannot block
+    (:func:`blockable_pair`, near: the junction that stayed), at a junction that
+    undoing them leaves in no other close pair and gives back a junction of five or more
+    branches. A junction still in another close pair is merged with it by the builder
+    anyway, and undone moves only widen that merge; a trifurcation split into two
+    bifurcations the builder merges and splits by pairings itself (docs/junctions.md,
+    h13/pairs: undone, such a pair cost a passing run)."""
+    deg = skel.degrees
+    paths = branch_paths(skel.n_nodes, skel.edges)
+    out = set()
+    for ckey in {m[3] for m in made}:
+        at = [m for m in made if m[3] == ckey]
+        moves = [(c, n, key) for c, n, key, _ in at if deg[c] >= 3 and deg[n] >= 3]
+        if not moves:
+            continue
+        c = moves[0][0]
+        bad = {n: key for _, n, key in moves if not blockable_pair(skel, c, n, paths)}
+        if deg[c] + len(bad) < 5:  # undoing a move gives its branch back to the junction
+            continue
+        ends = {int(q[-1]) for q in branches_at(paths, c)}
+        close = {x for x in ends if deg[x] >= 3 and link_length(skel, c, x, paths) < PAIR_REACH * float(skel.radii[c])}
+        if bad and close <= set(bad):
+            out |= set(bad.values())
+    return frozenset(out)
