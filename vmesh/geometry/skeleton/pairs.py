@@ -114,6 +114,8 @@ def _unblockable_moves(skel: Skeleton, made: list) -> frozenset:
     anyway, and undone moves only widen that merge; a trifurcation split into two
     bifurcations the builder merges and splits by pairings itself (docs/junctions.md,
     h13/pairs: undone, such a pair cost a passing run)."""
+    if not made:  # no move left a junction behind: no pair to judge
+        return frozenset()
     deg = skel.degrees
     paths = branch_paths(skel.n_nodes, skel.edges)
     out = set()
