@@ -299,11 +299,14 @@ def separate_parallel_branches(
     # daughter is measured against are those the other moves leave), then the moves
     # again from the start without those undone
     undone = frozenset()
-    for _ in range(skeleton.n_nodes):  # each pass undoes one move more, at least
+    while True:
         skel, moved, made = _separate(skeleton, limit, target, ahead, max_shift, distance, undone)
         undo = _unblockable_moves(skel, made)
         if not undo or undo <= undone:
             break
+        # terminates: every pass that goes on adds a move of its own to undone, and a move
+        # once undone is not made again (_parallel_pair skips it), so the passes are at most
+        # the distinct moves seen, each a pair of branches at a junction, plus one
         undone = undone | undo
     return skel.copy() if skel is skeleton else skel, moved
 
