@@ -70,6 +70,16 @@ def test_fan_separation_undone(n, spread):
     assert moved == 0 and sorted(sk.degrees[sk.degrees >= 3].tolist()) == [n + 1]
 
 
+@pytest.mark.parametrize("scale", [1e-3, 1e3])
+def test_fan_separation_undone_in_any_length_unit(scale):
+    # the moves undone are told apart by position in radii: metres and micrometres alike
+    case = fan(4, 45)
+    sk = case.skeleton
+    scaled = Skeleton(sk.points * scale, sk.radii * scale, sk.edges)
+    out, moved = ops.separate_parallel_branches(scaled, 30.0, 60.0, distance=lambda x: case.distance(np.asarray(x) / scale) * scale)
+    assert moved == 0 and sorted(out.degrees[out.degrees >= 3].tolist()) == [5]
+
+
 def test_fan_in_another_close_pair_keeps_its_split():
     # undone, the fan's junction would stay in a close pair with the side branch's: the
     # builder merges that pair anyway, so the split stays

@@ -87,14 +87,14 @@ def _pair_angle(m: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return vector_angle(a - m, b - m)
 
 
-def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead: float, max_shift: float, distance=None, undone=frozenset()):
+def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead: float, max_shift: float, distance=None, undone=frozenset(), unit: float = 1.0):
     """The first junction of ``skel`` not in ``done`` with two branches less than ``limit``
     (radians) apart that part by ``target`` within ``max_shift`` x its radius, or farther
     while they share one lumen (with ``distance``; see :func:`separate_parallel_branches`):
     ``(c, pi, ai, pj, aj, star, at, r_at, eps)``, the junction, the two branches from it and
     their arc lengths, the arc length, position and radius of the new junction and the
     tolerance on arc length; None if there is none. Adds the junctions looked at to ``done``;
-    the moves in ``undone`` (:func:`.pairs._move_key`) are left out."""
+    the moves in ``undone`` (:func:`.pairs._move_key`, positions in units of ``unit``) are left out."""
     scale = node_scale(skel)
     paths = branch_paths(skel.n_nodes, skel.edges)
     for c in np.flatnonzero(skel.degrees >= 3).tolist():
@@ -115,7 +115,7 @@ def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead
             pi, ai, pj, aj = out[i[k]], arcs[i[k]], out[j[k]], arcs[j[k]]
             if pi[-1] == pj[-1]:  # two paths between the same nodes: a loop, not a fork
                 continue
-            if undone and _move_key(skel, (c, pi, None, pj)) in undone:  # a move undone (:func:`separate_parallel_branches`)
+            if undone and _move_key(skel, (c, pi, None, pj), unit) in undone:  # a move undone (:func:`separate_parallel_branches`)
                 continue
             eps = 0.02 * rc
             top = min(ai[-1] - ahead * rc, aj[-1] - ahead * rc) - eps
@@ -316,12 +316,13 @@ def _separate(skeleton: Skeleton, limit, target, ahead, max_shift, distance, und
     the skeleton, the number of moves and ``(junction, new junction, move key,
     junction key)`` per move that left its junction behind, as nodes of the result."""
     skel, moved, done, made = skeleton, 0, set(), []
+    unit = float(np.median(node_scale(skeleton)))  # move keys in radii: the same in mm, cm or m
     while True:
-        job = _parallel_pair(skel, done, limit, target, ahead, max_shift, distance, undone)
+        job = _parallel_pair(skel, done, limit, target, ahead, max_shift, distance, undone, unit)
         if job is None:
             break
         c = job[0]
-        key, ckey = _move_key(skel, job), _point_key(skel.points[c])
+        key, ckey = _move_key(skel, job, unit), _point_key(skel.points[c], unit)
         skel, drop = _join_parallel(skel, job, distance)
         n = len(drop) - 1
         # contract_nodes numbers the kept nodes in order; c is looked at again (it may have

@@ -93,16 +93,19 @@ def blockable_pair(skeleton: Skeleton, near: int, far: int, paths=None, margin: 
     return pair_margin(skeleton, near, far, paths) >= margin
 
 
-def _point_key(p) -> tuple:
-    """A node's identity across runs of the same moves: its position."""
-    return tuple(np.round(np.asarray(p, float), 9).tolist())
+def _point_key(p, unit: float = 1.0) -> tuple:
+    """A node's identity across runs of the same moves: its position in units of ``unit``
+    (a length scale of the skeleton, so that the rounding cuts at the same share of a
+    vessel whatever the length unit)."""
+    return tuple(np.round(np.asarray(p, float) / unit, 9).tolist())
 
 
-def _move_key(skel: Skeleton, job: tuple) -> tuple:
+def _move_key(skel: Skeleton, job: tuple, unit: float = 1.0) -> tuple:
     """A move's identity across runs: its junction's position and the far ends of its two
-    branches."""
+    branches (:func:`_point_key` in units of ``unit``)."""
     c, pi, pj = job[0], job[1], job[3]
-    return (_point_key(skel.points[c]),) + tuple(sorted((_point_key(skel.points[pi[-1]]), _point_key(skel.points[pj[-1]]))))
+    ends = sorted((_point_key(skel.points[pi[-1]], unit), _point_key(skel.points[pj[-1]], unit)))
+    return (_point_key(skel.points[c], unit),) + tuple(ends)
 
 
 def _unblockable_moves(skel: Skeleton, made: list) -> frozenset:
