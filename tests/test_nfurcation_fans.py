@@ -90,7 +90,8 @@ def test_fan_in_another_close_pair_keeps_its_split():
 
 def test_trifurcation_keeps_its_split():
     # a trifurcation split into two bifurcations: the pair fails the rule, but the builder
-    # merges and re-splits such a pair itself (undone, a trifurcation cost a passing run)
+    # merges and re-splits such a pair itself; undone, it would get the junction back with
+    # an unblockable pair in it
     case = fan(3, 25)
     sk, made = _split(case)
     assert len(made) == 1 and not blockable_pair(sk, *made[0])

@@ -111,12 +111,14 @@ def _move_key(skel: Skeleton, job: tuple, unit: float = 1.0) -> tuple:
 def _unblockable_moves(skel: Skeleton, made: list) -> frozenset:
     """Keys of the moves in ``made`` (``(junction, new junction, move key, junction key)``,
     nodes of ``skel``) to undo: those whose pair the block builder cannot block
-    (:func:`blockable_pair`, near: the junction that stayed), at a junction that
-    undoing them leaves in no other close pair and gives back a junction of five or more
-    branches. A junction still in another close pair is merged with it by the builder
-    anyway, and undone moves only widen that merge; a trifurcation split into two
-    bifurcations the builder merges and splits by pairings itself (docs/junctions.md,
-    h13/pairs: undone, such a pair cost a passing run)."""
+    (:func:`blockable_pair`, near: the junction that stayed), at a junction that undoing
+    them leaves in no other close pair and gives back a junction of five or more branches.
+
+    A junction still in another close pair is merged with it by the builder anyway, and
+    undone moves only widen that merge. Why five: the builder merges a junction of four
+    branches split into a close pair and re-splits it by pairings itself, while undoing
+    the split of a trifurcation (or of a fan of four with one pair kept) hands it back a
+    four-branch junction with an unblockable pair in it."""
     if not made:  # no move left a junction behind: no pair to judge
         return frozenset()
     deg = skel.degrees
@@ -129,7 +131,9 @@ def _unblockable_moves(skel: Skeleton, made: list) -> frozenset:
             continue
         c = moves[0][0]
         bad = {n: key for _, n, key in moves if not blockable_pair(skel, c, n, paths)}
-        if deg[c] + len(bad) < 5:  # undoing a move gives its branch back to the junction
+        # undoing a move gives its branch back to the junction; under five the builder's
+        # own merge and re-split of a four-branch junction does better than the undo
+        if deg[c] + len(bad) < 5:
             continue
         ends = {int(q[-1]) for q in branches_at(paths, c)}
         close = {x for x in ends if deg[x] >= 3 and link_length(skel, c, x, paths) < PAIR_REACH * float(skel.radii[c])}
