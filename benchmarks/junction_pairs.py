@@ -6,10 +6,9 @@ centerline), lists every branch between two junctions shorter than ``--within`` 
 builds with every builder try traced: per pair the first try's half-section reaches
 (``_junction_reach`` from each end) against the branch's length, which tries fail and at
 which pairs their invalid blocks sit, and what ``merge_junction_pair`` makes of a pair.
-Per pair also the crossing test (:func:`_crossing`): does a daughter of the far junction
-point nearer to a sibling of the link at the near junction than along the link? (The rule
-the cleaning applies is :mod:`vmesh.geometry.skeleton.pairs`; its margin is
-``pair_margin``.)
+Per pair also the cleaning's pair rule (:func:`_crossing`, from
+:mod:`vmesh.geometry.skeleton.pairs`): the crossing margin of each junction's view and
+whether the pair is blockable.
 
     PYTHONPATH=$PWD nice python3 benchmarks/junction_pairs.py SURFACE [SKELETON|-] [--set k=v ...]
     PYTHONPATH=$PWD nice python3 benchmarks/junction_pairs.py --fan 4 45        # tests' fan, separated
@@ -17,9 +16,9 @@ the cleaning applies is :mod:`vmesh.geometry.skeleton.pairs`; its margin is
     PYTHONPATH=$PWD nice python3 benchmarks/junction_pairs.py --pair 0.9 20 -20 50
 
 The generated vessels are built with ``build_blocks`` directly (``BlockOptions()``), the
-surfaces with the default chain. See docs/junctions.md (issue 17, h12/fans).
+surfaces with the default chain. See docs/junctions.md.
 
-Diagnosis only (issue 17, h12/fans); prints, writes nothing.
+Diagnosis only; prints, writes nothing.
 """
 from __future__ import annotations
 
@@ -40,32 +39,24 @@ def _branch_dir(sk, path, r_ahead):
 
 
 def _angle(u, v):
-    return float(np.degrees(np.arccos(np.clip(u @ v, -1.0, 1.0))))
+    from vmesh.geometry.skeleton.graph import vector_angle
+
+    return float(np.degrees(vector_angle(np.asarray(u), np.asarray(v))))
 
 
 def _crossing(sk, paths, a, b):
-    """Whether a daughter of one junction of the pair points nearer to a sibling of the link
-    at the other junction than along the link (it runs across that junction's half-plane
-    between the link and the sibling): per near junction, the far daughters' worst
-    ``angle(daughter, link) - angle(daughter, nearest sibling)`` (> 0: crossing)."""
+    """The pair rule of the cleaning on the pair, both ways round: per near junction the
+    crossing margin (:func:`vmesh.geometry.skeleton.pairs.pair_margin`, degrees; under 0 a
+    daughter of the far junction runs across the near junction's half-plane between the
+    link and a sibling) and whether :func:`~vmesh.geometry.skeleton.pairs.blockable_pair`
+    holds."""
+    from vmesh.geometry.skeleton.pairs import blockable_pair, pair_margin
+
     out = []
     for near, far in ((a, b), (b, a)):
-        own = lambda c: [q if int(q[0]) == c else q[::-1] for q in paths if c in (int(q[0]), int(q[-1]))]
-        link = next(q for q in own(near) if int(q[-1]) == far)
-        u = _branch_dir(sk, link, float(sk.radii[near]))[0]
-        sib = [(_branch_dir(sk, q, float(sk.radii[near]))[0], int(q[-1])) for q in own(near) if q is not link and int(q[-1]) != far]
-        worst = None
-        for q in own(far):
-            if int(q[-1]) == near:
-                continue
-            w = _branch_dir(sk, q, float(sk.radii[far]))[0]
-            v, vn = min(sib, key=lambda x: _angle(w, x[0]))
-            m = _angle(w, u) - _angle(w, v)
-            if worst is None or m > worst[0]:
-                worst = (m, int(q[-1]), vn, _angle(w, u), _angle(w, v))
-        if worst is not None:
-            out.append(f"near {near}: far daughter ->{worst[1]} {worst[3]:.0f} deg off the link, {worst[4]:.0f} from sibling ->{worst[2]}: "
-                       f"{'CROSSES' if worst[0] > 0 else 'inside'} ({worst[0]:+.0f})")
+        m = pair_margin(sk, near, far, paths)
+        out.append(f"near {near}: margin {m:+.0f} deg, {'CROSSES' if m < 0 else 'inside'}, "
+                   f"{'blockable' if blockable_pair(sk, near, far, paths) else 'not blockable'}")
     return "; ".join(out)
 
 
@@ -114,6 +105,28 @@ def describe_pairs(sk, within=2.5):
     return out
 
 
+def _synthetic_case(args):
+    """The separated skeleton of the ``--fan`` / ``--pair`` / ``--close`` case and a
+    function building its blocks; ``(None, None)`` for a surface."""
+    if not (args.fan or args.close or args.pair):
+        return None, None
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from junction_cases import close_junctions, fan, junction_pair
+    from vmesh.geometry import skeleton_ops as ops
+    from vmesh.geometry.block_builder import BlockOptions, build_blocks
+    if args.fan:
+        case = fan(int(args.fan[0]), args.fan[1])
+    elif args.pair:
+        case = junction_pair(*args.pair)
+    else:
+        case = close_junctions(args.close[0], side=(args.close[1], args.close[2]))
+    sk, moved = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
+    print(f"{case.name}: separate_parallel_branches moved {moved}; {sk.n_nodes} nodes, {len(sk.junctions)} junctions")
+    return sk, lambda: build_blocks(sk, case.distance, None, BlockOptions(), project=case.project, warn=lambda m: None)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("surface", nargs="?", help="surface file (none with --fan / --close / --pair)")
@@ -131,24 +144,7 @@ def main(argv=None):
     from vmesh.geometry.blocks import merge_junction_pair
     from vmesh.geometry.blocks.options import JUNCTION
 
-    if args.fan or args.close or args.pair:
-        import sys
-        from pathlib import Path
-        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-        from junction_cases import close_junctions, fan, junction_pair
-        from vmesh.geometry import skeleton_ops as ops
-        from vmesh.geometry.block_builder import BlockOptions, build_blocks
-        if args.fan:
-            case = fan(int(args.fan[0]), args.fan[1])
-        elif args.pair:
-            case = junction_pair(*args.pair)
-        else:
-            case = close_junctions(args.close[0], side=(args.close[1], args.close[2]))
-        sk, moved = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
-        print(f"{case.name}: separate_parallel_branches moved {moved}; {sk.n_nodes} nodes, {len(sk.junctions)} junctions")
-        build = lambda: build_blocks(sk, case.distance, None, BlockOptions(), project=case.project, warn=lambda m: None)
-    else:
-        sk = build = None
+    sk, build = _synthetic_case(args)
     chain = FilterChain.load("default")
     if args.set:
         import json

@@ -1,12 +1,13 @@
 """Planar n-furcations (a fan of 4-5 daughters, as the generator's ``nfurcation``) through
-the default chain's ``separate_parallel_branches`` and the block builder (issue 17).
+the default chain's ``separate_parallel_branches`` and the block builder.
 
 Two neighbouring daughters of such a fan leave 20-30 degrees apart, under the cleaning's
 30 degrees: its moves split a second junction off a radius or so along them, a pair the
-builder cannot block (held-out corpus seed 1: g0012 and g0002). The cleaning now judges
-each pair it made once all of a junction's moves are in (:mod:`vmesh.geometry.skeleton.pairs`)
-and undoes the failing ones where the junction is left in no other close pair and has five
-or more branches again; the fan is then blocked whole (docs/junctions.md, issue 17, 2026-12-05 morning, branch h13/pairs).
+builder cannot block (its daughters cross the near junction's half-plane between the link
+and a sibling). The cleaning judges each pair it made once all of a junction's moves are
+in (:mod:`vmesh.geometry.skeleton.pairs`) and undoes the failing ones where the junction
+is left in no other close pair and gets five or more branches back; the fan is then
+blocked whole (docs/junctions.md).
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ def test_crossing_margin_signs():
 
 @pytest.mark.parametrize("a1,a2,side,ok", [(20, -20, 50, True), (0, -35, 50, True), (-8, 30, 50, False), (30, -30, 50, False)])
 def test_pair_rule_on_synthetic_pairs(a1, a2, side, ok):
-    # the --pair sweep the margin comes from: these build in the first try or do not (h12/fans)
+    # the --pair sweep the margin comes from: these build in the first try or do not
     case = junction_pair(0.9, a1, a2, side)
     assert blockable_pair(case.skeleton, 0, 1) is ok
 
@@ -70,6 +71,16 @@ def test_fan_separation_undone(n, spread):
     assert moved == 0 and sorted(sk.degrees[sk.degrees >= 3].tolist()) == [n + 1]
 
 
+@pytest.mark.parametrize("scale", [1e-3, 1e3])
+def test_fan_separation_undone_in_any_length_unit(scale):
+    # the moves undone are told apart by position in radii: metres and micrometres alike
+    case = fan(4, 45)
+    sk = case.skeleton
+    scaled = Skeleton(sk.points * scale, sk.radii * scale, sk.edges)
+    out, moved = ops.separate_parallel_branches(scaled, 30.0, 60.0, distance=lambda x: case.distance(np.asarray(x) / scale) * scale)
+    assert moved == 0 and sorted(out.degrees[out.degrees >= 3].tolist()) == [5]
+
+
 def test_fan_in_another_close_pair_keeps_its_split():
     # undone, the fan's junction would stay in a close pair with the side branch's: the
     # builder merges that pair anyway, so the split stays
@@ -80,12 +91,25 @@ def test_fan_in_another_close_pair_keeps_its_split():
 
 def test_trifurcation_keeps_its_split():
     # a trifurcation split into two bifurcations: the pair fails the rule, but the builder
-    # merges and re-splits such a pair itself (undone, a trifurcation cost a passing run)
+    # merges and re-splits such a pair itself; undone, it would get the junction back with
+    # an unblockable pair in it
     case = fan(3, 25)
     sk, made = _split(case)
     assert len(made) == 1 and not blockable_pair(sk, *made[0])
     sk, moved = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
     assert moved == 1 and max(sk.degrees) == 3
+
+
+def test_fan_with_one_blockable_pair_keeps_its_split():
+    # a fan of 4 whose two moves leave one pair with a link longer than its reach (blockable)
+    # and one crossing: undoing the crossing one alone gives the junction 4 branches back,
+    # which the builder merges and re-splits itself, so the split stays
+    angles, radii = (-50, -38, 5, 30), (1.0, 1.0, 0.9, 0.8)
+    case = furcation("fan_4_pairs", [(direction(a), r) for a, r in zip(angles, radii)], parent_radius=1.3)
+    sk, made = _split(case)
+    assert len(made) == 2 and sorted(blockable_pair(sk, c, n) for c, n in made) == [False, True]
+    sk, moved = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
+    assert moved == 2 and max(sk.degrees) == 3
 
 
 def test_three_junction_moves_to_where_its_daughters_part():
@@ -98,7 +122,7 @@ def test_three_junction_moves_to_where_its_daughters_part():
 @pytest.mark.slow
 @pytest.mark.parametrize("n,spread", [(4, 45), (5, 55)])
 def test_fan_after_separation_blocks_valid(n, spread):
-    # failed before h13/pairs: 2 junctions split off, 18 / 66 blocks invalid, budget spent
+    # without the undo the split fan had 2 junctions a radius apart and 18 of 66 blocks invalid
     case = fan(n, spread)
     sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
     blocks = build_blocks(sk, case.distance, None, BlockOptions(), project=case.project, warn=lambda m: None)

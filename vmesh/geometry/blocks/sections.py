@@ -24,7 +24,7 @@ DOME_YIELD_ROOM = 0.25
 
 #: The most a junction's half-sections are taken to reach along a short branch between two
 #: junctions, in the branch's radii (:meth:`_Sections._bounded_reach`).
-REACH_RADII = 3.0
+from ..skeleton.pairs import PAIR_REACH as REACH_RADII  # one value with the cleaning's pair rule
 
 
 #: Clean samples in a row (0.25 branch radii apart: one branch radius) that end a

@@ -9,8 +9,8 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from ...skeleton import Skeleton
-from .graph import arc_length, polyline_at, branch_paths, component_labels, contract_nodes, edge_lengths, END_TAGS, remove_nodes, _union
-from .pairs import PAIR_REACH, blockable_pair, link_length
+from .graph import arc_length, polyline_at, branch_paths, branches_at, component_labels, contract_nodes, edge_lengths, END_TAGS, remove_nodes, vector_angle, _union
+from .pairs import PAIR_REACH, _move_key, _point_key, _unblockable_moves
 
 
 def node_scale(skeleton: Skeleton) -> np.ndarray:
@@ -84,26 +84,24 @@ def merge_close_junctions(skeleton: Skeleton, tolerance: float = 0.5) -> tuple[S
 
 def _pair_angle(m: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angle (radians) at ``m`` between the directions to ``a`` and to ``b`` (row-wise)."""
-    u, v = a - m, b - m
-    cos = (u * v).sum(-1) / np.maximum(np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1), 1e-300)
-    return np.arccos(np.clip(cos, -1.0, 1.0))
+    return vector_angle(a - m, b - m)
 
 
-def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead: float, max_shift: float, distance=None, undone=frozenset()):
+def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead: float, max_shift: float, distance=None, undone=frozenset(), unit: float = 1.0):
     """The first junction of ``skel`` not in ``done`` with two branches less than ``limit``
     (radians) apart that part by ``target`` within ``max_shift`` x its radius, or farther
     while they share one lumen (with ``distance``; see :func:`separate_parallel_branches`):
     ``(c, pi, ai, pj, aj, star, at, r_at, eps)``, the junction, the two branches from it and
     their arc lengths, the arc length, position and radius of the new junction and the
     tolerance on arc length; None if there is none. Adds the junctions looked at to ``done``;
-    the moves in ``undone`` (:func:`_move_key`) are left out."""
+    the moves in ``undone`` (:func:`.pairs._move_key`, positions in units of ``unit``) are left out."""
     scale = node_scale(skel)
     paths = branch_paths(skel.n_nodes, skel.edges)
     for c in np.flatnonzero(skel.degrees >= 3).tolist():
         if c in done:
             continue
         done.add(c)  # unless a move below changes it
-        out = [p if p[0] == c else p[::-1] for p in paths if (p[0] == c) != (p[-1] == c)]  # loops skipped
+        out = branches_at(paths, c)
         if len(out) < 2:
             continue
         rc = scale[c]
@@ -117,7 +115,7 @@ def _parallel_pair(skel: Skeleton, done: set, limit: float, target: float, ahead
             pi, ai, pj, aj = out[i[k]], arcs[i[k]], out[j[k]], arcs[j[k]]
             if pi[-1] == pj[-1]:  # two paths between the same nodes: a loop, not a fork
                 continue
-            if undone and _move_key(skel, (c, pi, None, pj)) in undone:  # a move undone (:func:`separate_parallel_branches`)
+            if undone and _move_key(skel, (c, pi, None, pj), unit) in undone:  # a move undone (:func:`separate_parallel_branches`)
                 continue
             eps = 0.02 * rc
             top = min(ai[-1] - ahead * rc, aj[-1] - ahead * rc) - eps
@@ -301,51 +299,16 @@ def separate_parallel_branches(
     # daughter is measured against are those the other moves leave), then the moves
     # again from the start without those undone
     undone = frozenset()
-    for _ in range(skeleton.n_nodes):  # each pass undoes one move more, at least
+    while True:
         skel, moved, made = _separate(skeleton, limit, target, ahead, max_shift, distance, undone)
         undo = _unblockable_moves(skel, made)
         if not undo or undo <= undone:
             break
+        # terminates: every pass that goes on adds a move of its own to undone, and a move
+        # once undone is not made again (_parallel_pair skips it), so the passes are at most
+        # the distinct moves seen, each a pair of branches at a junction, plus one
         undone = undone | undo
     return skel.copy() if skel is skeleton else skel, moved
-
-
-def _point_key(p) -> tuple:
-    """A node's identity across runs of the same moves: its position."""
-    return tuple(np.round(np.asarray(p, float), 9).tolist())
-
-
-def _move_key(skel: Skeleton, job: tuple) -> tuple:
-    """A move's identity across runs: its junction's position and the far ends of its two
-    branches."""
-    c, pi, pj = job[0], job[1], job[3]
-    return (_point_key(skel.points[c]),) + tuple(sorted((_point_key(skel.points[pi[-1]]), _point_key(skel.points[pj[-1]]))))
-
-
-def _unblockable_moves(skel: Skeleton, made: list) -> frozenset:
-    """Keys of the moves in ``made`` (``(junction, new junction, move key, junction key)``,
-    nodes of ``skel``) to undo: those whose pair the block builder cannot block
-    (:func:`.pairs.blockable_pair`, near: the junction that stayed), at a junction that
-    undoing them leaves in no other close pair and gives back a junction of five or more
-    branches. A junction still in another close pair is merged with it by the builder
-    anyway, and undone moves only widen that merge; a trifurcation split into two
-    bifurcations the builder merges and splits by pairings itself (docs/junctions.md,
-    h13/pairs: undone, such a pair cost a passing run)."""
-    deg = skel.degrees
-    paths = branch_paths(skel.n_nodes, skel.edges)
-    out = set()
-    for ckey in {m[3] for m in made}:
-        at = [m for m in made if m[3] == ckey]
-        moves = [(c, n, key) for c, n, key, _ in at if deg[c] >= 3 and deg[n] >= 3]
-        if not moves or deg[moves[0][0]] + len(at) < 5:  # each move took one branch off the junction
-            continue
-        c = moves[0][0]
-        bad = {n: key for _, n, key in moves if not blockable_pair(skel, c, n, paths)}
-        ends = {int(q[-1] if q[0] == c else q[0]) for q in paths if (int(q[0]) == c) != (int(q[-1]) == c)}
-        close = {x for x in ends if deg[x] >= 3 and link_length(skel, c, x, paths) < PAIR_REACH * float(skel.radii[c])}
-        if bad and close <= set(bad):
-            out |= set(bad.values())
-    return frozenset(out)
 
 
 def _separate(skeleton: Skeleton, limit, target, ahead, max_shift, distance, undone) -> tuple[Skeleton, int, list]:
@@ -353,12 +316,13 @@ def _separate(skeleton: Skeleton, limit, target, ahead, max_shift, distance, und
     the skeleton, the number of moves and ``(junction, new junction, move key,
     junction key)`` per move that left its junction behind, as nodes of the result."""
     skel, moved, done, made = skeleton, 0, set(), []
+    unit = float(np.median(node_scale(skeleton)))  # move keys in radii: the same in mm, cm or m
     while True:
-        job = _parallel_pair(skel, done, limit, target, ahead, max_shift, distance, undone)
+        job = _parallel_pair(skel, done, limit, target, ahead, max_shift, distance, undone, unit)
         if job is None:
             break
         c = job[0]
-        key, ckey = _move_key(skel, job), _point_key(skel.points[c])
+        key, ckey = _move_key(skel, job, unit), _point_key(skel.points[c], unit)
         skel, drop = _join_parallel(skel, job, distance)
         n = len(drop) - 1
         # contract_nodes numbers the kept nodes in order; c is looked at again (it may have

@@ -41,6 +41,23 @@ def arc_length(points: np.ndarray) -> np.ndarray:
 
 
 
+def vector_angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Angle between vectors, row-wise (broadcast over leading axes).
+
+    Parameters
+    ----------
+    u, v : (..., 3) float
+        The vectors (any length but zero).
+
+    Returns
+    -------
+    ndarray
+        The angles in radians, in ``[0, pi]``.
+    """
+    cos = (u * v).sum(-1) / np.maximum(np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1), 1e-300)
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
 def polyline_at(points: np.ndarray, arc: np.ndarray, s: np.ndarray, values: np.ndarray | None = None):
     """Points at arc lengths ``s`` (clamped to the ends) of a polyline with node arc lengths
     ``arc``; with per-node ``values``, also those values interpolated linearly there.
@@ -152,6 +169,25 @@ def branch_paths(n_nodes: int, edges: np.ndarray) -> list[np.ndarray]:
             k = next(k for k in range(indptr[v], indptr[v + 1]) if not used[eid[k]])
             paths.append(walk(v, k))
     return paths
+
+
+def branches_at(paths: list[np.ndarray], c: int) -> list[np.ndarray]:
+    """The branches of ``paths`` (from :func:`branch_paths`) at node ``c``, each oriented
+    from ``c``; loops (both ends at ``c``) are skipped.
+
+    Parameters
+    ----------
+    paths : list of ndarray
+        Node paths of the branches.
+    c : int
+        Node index.
+
+    Returns
+    -------
+    list of ndarray
+        The paths that start or end at ``c`` (not both), reversed where they end at it.
+    """
+    return [q if int(q[0]) == c else q[::-1] for q in paths if (int(q[0]) == c) != (int(q[-1]) == c)]
 
 
 def path_edge_ids(n_nodes: int, edges: np.ndarray, paths: list[np.ndarray]) -> list[np.ndarray]:
