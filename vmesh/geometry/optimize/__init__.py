@@ -296,7 +296,9 @@ def optimise_linear(
     keep_partial_free_layer : bool
         On a valid mesh, keep the free-layer try whenever it beats the held one (:func:`polish`).
     untangle_patience : int, optional
-        Rings in a row without fewer elements below ``untangle_below`` that end the growth (None: up to ``max_fraction``).
+        Rings in a row that neither leave fewer elements below ``untangle_below`` nor raise
+        their minimum, after which the region stops growing (None: up to ``max_fraction``).
+        Counts rings, not the sweeps within one (``_run_stage``'s ``patience``).
 
     Returns
     -------
@@ -319,7 +321,7 @@ def optimise_linear(
     kind, normal, height = _node_kinds(sub, n, wall, project, wall_normals, cap_nodes, cap_normals, boundary, keep_first_layer)
     fixed, stats = kind == K.FIXED, {"updates": 0}
     untangled, smoothed = np.zeros(n, bool), np.zeros(n, bool)
-    run = dict(kind=kind, normal=normal, project=project, wall_normals=wall_normals, stats=stats, height=height, X0=X.copy(), keep_partial=keep_partial_free_layer and q.min() > 0, patience=untangle_patience)
+    run = dict(kind=kind, normal=normal, project=project, wall_normals=wall_normals, stats=stats, height=height, X0=X.copy(), keep_partial=keep_partial_free_layer and q.min() > 0, ring_patience=untangle_patience)
     bad = q < untangle_below
     if bad.any():
         q = _untangle(X, sub, n, fixed, bad, run, untangle_below, max_fraction, sweeps, untangle_mode, grow_below_threshold, untangled, info)
@@ -368,19 +370,24 @@ def _untangle_regions(X, sub, n, fixed, bad, run, below, max_fraction, sweeps, m
     # small meshes: at least twice the first region (1 % of a few thousand nodes is less than one fold's neighbourhood)
     budget = max(int(max_fraction * n), 2 * int((active & ~fixed).sum()))
     rings = 0
-    fewest, stalled = None, 0  # the least elements below ``below`` so far, and rings since
+    best, stalled = None, 0  # the least elements below ``below`` and the best minimum so far, and rings since either improved
     for ring in range(64):
         st = _Stage(run["X0"], sub, active, n, fixed)
         qs = _run_stage(X, st, run["kind"], run["normal"], _delta, mode, run["project"], run["wall_normals"], run["stats"], sweeps, below, untangled, run["height"], run["X0"])
         rings = ring
         if qs.min() > 0 and not grow_below_threshold or qs.min() >= below:
             break
-        if run.get("patience") is not None:
+        if run.get("ring_patience") is not None:
             # a fold the rings around it do not open (two vessels fused across each other)
-            # would otherwise grow the region, and re-sweep all of it, up to max_fraction
-            left = int((qs < below).sum())
-            fewest, stalled = (left, 0) if fewest is None or left < fewest else (fewest, stalled + 1)
-            if stalled >= run["patience"]:
+            # would otherwise grow the region, and re-sweep all of it, up to max_fraction; a
+            # ring that lowers the count or raises the minimum is progress (a fold can open
+            # by its minimum rising while as many elements stay below)
+            left, worst = int((qs < below).sum()), float(qs.min())
+            if best is None or left < best[0] or worst > best[1]:
+                best, stalled = (min(left, best[0]) if best else left, max(worst, best[1]) if best else worst), 0
+            else:
+                stalled += 1
+            if stalled >= run["ring_patience"]:
                 break
         grown = K.grow_nodes(st.hexes, st.ptr, st.inc, active)
         if int((grown & ~fixed).sum()) > budget or (grown == active).all():
