@@ -50,6 +50,8 @@ class MissingPart:
     #: mesh wall nodes near the patch that the mesher left on their face's patch, off the
     #: wall, because no wall lay along the face's normal: the face spans the mouth of the part
     over_opening: int = 0
+    #: the farthest of those off the input wall (x local radius)
+    over_opening_max: float = 0.0
 
     def describe(self) -> str:
         """Where the patch is: the caps it reaches, the nearest skeleton node and branch, a position."""
@@ -74,6 +76,7 @@ class MissingPart:
             "branch": int(self.branch),
             "wall_off_rel": float(self.wall_off),
             "nodes_over_opening": int(self.over_opening),
+            "over_opening_max_rel": float(self.over_opening_max),
         }
 
     def cause(self, depth: float = 0.3) -> str:
@@ -86,9 +89,11 @@ class MissingPart:
                 "reach the place, but their boundary layer folded and was moved off the wall (see compute_quality's "
                 "minimum and the build_block_structure warnings on folding blocks)"
             )
+        # nodes left that far off may also sit on a folded face whose ray missed the wall
+        far = f", the farthest {self.over_opening_max:.2g} radii from the input wall" if self.over_opening_max > depth else ""
         mouth = (
             f"the mesh's wall spans its mouth ({self.over_opening} wall node(s) there found no wall along their "
-            "face's normal and stayed off it); " if self.over_opening else ""
+            f"face's normal and stayed off it{far}); " if self.over_opening else ""
         )
         return mouth + "the skeleton does not reach into it (give a centerline that does, or keep clean_skeleton.graft_to_caps on)"
 
@@ -339,13 +344,18 @@ def _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, skeleton_po
 def _wall_node_stats(off) -> dict:
     """Distances of the wall nodes off the input wall (``off`` of :func:`_wall_node_distances`).
 
-    A wall-face node the mesher did not put on the wall was left on its face's patch: no
-    wall lay along the face's normal (the face spans the mouth of a vessel part without
-    skeleton). It was never on the wall, so it is no wall *moved off* it: counted apart."""
-    placed, left = off[1][off[2]], off[1][~off[2]]
+    ``wall_node_max_rel`` / ``wall_node_mean_rel`` are over every mesh wall node. A
+    wall-face node the mesher did not put on the wall stayed on its face's patch: no wall lay
+    along the face's normal (the face spans the mouth of a vessel part without skeleton, or
+    the face is folded and its ray missed the wall); ``..._placed`` leave those out, and
+    they are counted apart."""
+    dist, placed = off[1], off[2]
+    on, left = dist[placed], dist[~placed]
     return {
-        "wall_node_max_rel": float(placed.max()) if placed.size else 0.0,
-        "wall_node_mean_rel": float(placed.mean()) if placed.size else 0.0,
+        "wall_node_max_rel": float(dist.max()) if dist.size else 0.0,
+        "wall_node_mean_rel": float(dist.mean()) if dist.size else 0.0,
+        "wall_node_max_rel_placed": float(on.max()) if on.size else 0.0,
+        "wall_node_mean_rel_placed": float(on.mean()) if on.size else 0.0,
         "wall_nodes_over_openings": int(left.size),
         "over_openings_max_rel": float(left.max()) if left.size else 0.0,
     }
@@ -425,12 +435,14 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
 def _wall_off(centres, reach, off) -> dict:
     """Of the mesh wall nodes ``off = (positions, distances, placed)`` within ``reach`` of
     any of ``centres``: the farthest distance of those the mesher put on the wall
-    (``wall_off``, 0 when none is) and the count of those it left off (``over_opening``)."""
+    (``wall_off``, 0 when none is), the count of those it left off (``over_opening``) and
+    their farthest distance (``over_opening_max``)."""
     from scipy.spatial import cKDTree
 
     near = cKDTree(centres).query(off[0], distance_upper_bound=reach)[0] <= reach
-    moved = near & off[2]
-    return {"wall_off": float(off[1][moved].max()) if moved.any() else 0.0, "over_opening": int((near & ~off[2]).sum())}
+    moved, left = near & off[2], near & ~off[2]
+    return {"wall_off": float(off[1][moved].max()) if moved.any() else 0.0, "over_opening": int(left.sum()),
+            "over_opening_max": float(off[1][left].max()) if left.any() else 0.0}
 
 
 def _branch_of_node(branches, n_nodes):
