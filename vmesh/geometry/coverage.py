@@ -221,7 +221,8 @@ def measure_coverage(
     depth: float = 0.3,
     end_depth: float = 1.5,
     branches=None,
-    wall_tree=None, on_wall=None,
+    wall_tree=None,
+    on_wall=None,
 ) -> tuple[dict, list]:
     """Measure how much of the input wall the mesh boundary misses.
 
@@ -264,7 +265,8 @@ def measure_coverage(
     """
     from .bvh import TriangleBVH
 
-    V, F = np.ascontiguousarray(surface_vertices, np.float64), np.ascontiguousarray(surface_faces, np.int64)
+    V = np.ascontiguousarray(surface_vertices, np.float64)
+    F = np.ascontiguousarray(surface_faces, np.int64)
     X = np.ascontiguousarray(mesh_points, np.float64)
     wall, cap_of_vertex = _wall_and_caps(F, len(V), cap_faces)
     WF = F[wall]
@@ -272,22 +274,35 @@ def measure_coverage(
     mesh_tree = TriangleBVH(X, tri)
     # input wall -> mesh boundary, at four area-weighted samples per triangle
     area = 0.5 * np.linalg.norm(np.cross(V[WF[:, 1]] - V[WF[:, 0]], V[WF[:, 2]] - V[WF[:, 0]]), axis=1)
-    rel, beyond, face_r, face_node = _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, (skeleton_points, skeleton_edges, skeleton_radii), distance)
+    skeleton = (skeleton_points, skeleton_edges, skeleton_radii)
+    rel, beyond, face_r, face_node = _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, skeleton, distance)
     far = rel > distance
-    total = float(area.sum())
     # wall past an open end face, no deeper than a rounded end: the end cap of a surface without
     # flat caps, left out as flat caps are (past the face's plane too, up to a hemisphere's depth)
     past = _past_end_faces(X, boundary_faces, boundary_ids, V[WF].mean(axis=1))
     end_cap = far & ((beyond & (rel <= end_depth)) | (past[:, None] & (rel <= min(end_depth, 1.0))))
-    uncovered_area = float((area[:, None] * (far & ~end_cap)).sum() / 4.0)
-    beyond_area = float((area[:, None] * end_cap).sum() / 4.0)
-    off = _wall_node_distances(X, boundary_faces, boundary_ids, TriangleBVH(V, WF) if wall_tree is None else wall_tree, skeleton_points, skeleton_edges, skeleton_radii, on_wall)
-    surface_volume, mesh_volume = enclosed_volume(V, F), enclosed_volume(X, tri)
+    wall_tree = TriangleBVH(V, WF) if wall_tree is None else wall_tree
+    off = _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, *skeleton, on_wall)
+    node_of_branch = _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3)))
     missing, n_patches, n_missing = _missing_parts(
         V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names,
-        patch_area, depth, end_depth, _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3))), off,
+        patch_area, depth, end_depth, node_of_branch, off,
     )
-    summary = {
+    volumes = (enclosed_volume(V, F), enclosed_volume(X, tri))
+    summary = _coverage_summary(distance, area, rel, far & ~end_cap, end_cap, volumes, off, n_patches, missing, n_missing)
+    return summary, missing
+
+
+def _coverage_summary(distance, area, rel, uncovered, end_cap, volumes, off, n_patches, missing, n_missing) -> dict:
+    """:func:`measure_coverage`'s summary: the shares of the wall (triangle ``area``, four
+    samples each) ``uncovered`` and past the end faces (``end_cap``), the samples'
+    distances ``rel``, the ``volumes`` (surface, mesh), the wall-node statistics of ``off``
+    and the patches and missing parts."""
+    total = float(area.sum())
+    uncovered_area = float((area[:, None] * uncovered).sum() / 4.0)
+    beyond_area = float((area[:, None] * end_cap).sum() / 4.0)
+    surface_volume, mesh_volume = volumes
+    return {
         "distance_rel": float(distance),
         "uncovered_share": uncovered_area / total if total > 0 else 0.0,
         "uncovered_area": uncovered_area,
@@ -303,7 +318,6 @@ def measure_coverage(
         "missing_parts": int(n_missing),
         "missing": [m.as_dict() for m in missing],
     }
-    return summary, missing
 
 
 def _past_end_faces(X, boundary_faces, boundary_ids, points) -> np.ndarray:
