@@ -113,10 +113,11 @@ class _Variant:
     """Just what :func:`_choose_lean` reads of a builder: its junctions (0, 1, 2; 0 and 1
     lean), the fixes at each (``work[planar]``) and whether it builds."""
 
-    def __init__(self, planar, work, fails=()):
+    def __init__(self, planar, work, fails=(), budget=None):
         if planar in fails:
             raise _Failure("invalid", None, [], None, [], [], "")
-        self.planar = planar
+        self.planar, self.budget = planar, budget
+        self.warn, self.tick = (lambda msg: None), (lambda f, m="": None)
         self.opt = BlockOptions(choose_lean=True)
         self.topo = types.SimpleNamespace(junctions={0: "lean", 1: "lean", 2: "flat"})
         self.local = _LocalFixes(planar=set(planar), work_at=dict(work[planar]))
@@ -125,6 +126,11 @@ class _Variant:
         return j == "lean"
 
     def make_valid(self):
+        self.warn("skeleton warning")
+        self.warn(f"built {sorted(self.planar)}")
+        if self.budget is not None:
+            self.budget.charge()
+            self.budget.valid_after = self.budget.used
         return self.planar
 
     def finish(self, blocks):
@@ -147,6 +153,27 @@ def test_choose_lean_keeps_per_junction_the_choice_with_fewer_fixes():
     # half-planes fail: the lean, and choose_planes judges the junctions as before
     out = _choose_lean(lambda planar: _Variant(planar, work, fails=(both,)), WorkBudget())
     assert out.info["planar"] == none and out.info["chosen"] == set()
+    assert out.info["junction_lean"]["failed"] == ["half-planes at [0, 1]: invalid"]
+
+
+def test_choose_lean_with_the_budget_spent_keeps_the_whole_tree_variant_with_fewer_fixes():
+    """The budget runs out after the half-plane build: the combination is not built, and
+    the choice is the whole-tree one (as when the combination fails), not the lean; the
+    half-plane build was quiet, its warnings given once (after the lean's, without
+    repeats), and the record's ``valid_after`` is the kept variant's."""
+    both = frozenset({0, 1})
+    work = {frozenset(): {0: 5, 1: 2, 2: 7}, both: {0: 1, 1: 2, 2: 0}}
+    budget, heard = WorkBudget(2), []
+
+    def make(planar):
+        v = _Variant(planar, work, budget=budget)
+        v.warn = heard.append
+        return v
+
+    out = _choose_lean(make, budget)
+    assert budget.spent and out.info["planar"] == both
+    assert heard == ["skeleton warning", "built []", "built [0, 1]"]
+    assert budget.valid_after == 2
 
 
 @pytest.mark.slow

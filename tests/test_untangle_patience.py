@@ -1,16 +1,17 @@
 """The light pass's untangling stops growing around a fold no ring opens (issue 17/18).
 
-On BraVa given the light pass (``untangle_below = 0``) re-untangled the elements the
+On a large tree whose two vessels were fused across each other the light pass (``untangle_below = 0``) re-untangled the elements the
 untanglers had left inverted (two vessels fused across each other) and grew its region 63
 rings, twice (first layer held, then free), re-sweeping all of it each ring: ~700 of the
 mesher's 1,818 s wall. With ``untangle_patience`` the region stops growing once that many
-rings in a row leave as many elements below the goal.
+rings in a row leave as many elements below the goal and their minimum no higher.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+import vmesh.geometry.optimize as opt
 from vmesh.geometry.optimize import optimise_linear
 
 
@@ -67,3 +68,29 @@ def test_patience_changes_nothing_where_the_fold_opens():
     X1, b = optimise_linear(points, cells, untangle_patience=3, **kw)
     assert a["before"]["min"] < 0 and a["after"]["min"] > 0
     assert np.array_equal(X0, X1) and a["rings"] == b["rings"]
+
+
+def test_patience_keeps_growing_while_the_minimum_rises(monkeypatch):
+    """A fold that stays one inverted element for six rings while its minimum rises ring
+    by ring, then opens: no ring is a stall (the count is flat, the minimum is not), so the
+    growth goes on until it opens instead of stopping after 3 rings."""
+    mins = [-0.9, -0.8, -0.7, -0.6, -0.5, -0.4]
+
+    def scripted(X, st, *args, **kw):
+        ring = scripted.calls
+        scripted.calls += 1
+        return np.array([mins[ring], 1.0, 1.0]) if ring < len(mins) else np.full(3, 0.5)
+
+    points, cells = _grid(20)
+    held = (points == 0).any(axis=1) | (points == 20).any(axis=1)
+    points[4 + 21 * (10 + 21 * 10)] += [0.9, 0.8, 0.85]  # an inner node pushed through its neighbours
+    monkeypatch.setattr(opt, "_run_stage", scripted)
+    kw = dict(boundary=held, untangle_below=0.0, smooth_below=0.0, max_fraction=1.0, untangle_patience=3)
+    scripted.calls = 0
+    _, info = optimise_linear(points, cells, **kw)
+    assert info["rings"] == len(mins)
+    # the count and the minimum both flat: stalled after 3 rings
+    mins[:] = [-0.9] * 6
+    scripted.calls = 0
+    _, info = optimise_linear(points, cells, **kw)
+    assert info["rings"] == 3

@@ -1,8 +1,8 @@
 """The block builder's wall-fold checks re-project only the wall faces a fix moved (issue 17/18).
 
 On a tree of thousands of sections each thickening round and the junction re-placements
-used to project every wall face of the tree again (BraVa given: 7 whole-tree projections,
-a quarter of the builder); a face's projected quality depends on its eight corners alone,
+used to project every wall face of the tree again (on a whole-brain arterial tree: 7
+whole-tree projections, a quarter of the builder); a face's projected quality depends on its eight corners alone,
 so faces whose corners stayed put keep their value.
 """
 

@@ -50,6 +50,8 @@ class MissingPart:
     #: mesh wall nodes near the patch that the mesher left on their face's patch, off the
     #: wall, because no wall lay along the face's normal: the face spans the mouth of the part
     over_opening: int = 0
+    #: the farthest of those off the input wall (x local radius)
+    over_opening_max: float = 0.0
 
     def describe(self) -> str:
         """Where the patch is: the caps it reaches, the nearest skeleton node and branch, a position."""
@@ -74,6 +76,7 @@ class MissingPart:
             "branch": int(self.branch),
             "wall_off_rel": float(self.wall_off),
             "nodes_over_opening": int(self.over_opening),
+            "over_opening_max_rel": float(self.over_opening_max),
         }
 
     def cause(self, depth: float = 0.3) -> str:
@@ -86,9 +89,11 @@ class MissingPart:
                 "reach the place, but their boundary layer folded and was moved off the wall (see compute_quality's "
                 "minimum and the build_block_structure warnings on folding blocks)"
             )
+        # nodes left that far off may also sit on a folded face whose ray missed the wall
+        far = f", the farthest {self.over_opening_max:.2g} radii from the input wall" if self.over_opening_max > depth else ""
         mouth = (
             f"the mesh's wall spans its mouth ({self.over_opening} wall node(s) there found no wall along their "
-            "face's normal and stayed off it); " if self.over_opening else ""
+            f"face's normal and stayed off it{far}); " if self.over_opening else ""
         )
         return mouth + "the skeleton does not reach into it (give a centerline that does, or keep clean_skeleton.graft_to_caps on)"
 
@@ -216,7 +221,8 @@ def measure_coverage(
     depth: float = 0.3,
     end_depth: float = 1.5,
     branches=None,
-    wall_tree=None, on_wall=None,
+    wall_tree=None,
+    on_wall=None,
 ) -> tuple[dict, list]:
     """Measure how much of the input wall the mesh boundary misses.
 
@@ -259,7 +265,8 @@ def measure_coverage(
     """
     from .bvh import TriangleBVH
 
-    V, F = np.ascontiguousarray(surface_vertices, np.float64), np.ascontiguousarray(surface_faces, np.int64)
+    V = np.ascontiguousarray(surface_vertices, np.float64)
+    F = np.ascontiguousarray(surface_faces, np.int64)
     X = np.ascontiguousarray(mesh_points, np.float64)
     wall, cap_of_vertex = _wall_and_caps(F, len(V), cap_faces)
     WF = F[wall]
@@ -267,22 +274,35 @@ def measure_coverage(
     mesh_tree = TriangleBVH(X, tri)
     # input wall -> mesh boundary, at four area-weighted samples per triangle
     area = 0.5 * np.linalg.norm(np.cross(V[WF[:, 1]] - V[WF[:, 0]], V[WF[:, 2]] - V[WF[:, 0]]), axis=1)
-    rel, beyond, face_r, face_node = _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, (skeleton_points, skeleton_edges, skeleton_radii), distance)
+    skeleton = (skeleton_points, skeleton_edges, skeleton_radii)
+    rel, beyond, face_r, face_node = _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, skeleton, distance)
     far = rel > distance
-    total = float(area.sum())
     # wall past an open end face, no deeper than a rounded end: the end cap of a surface without
     # flat caps, left out as flat caps are (past the face's plane too, up to a hemisphere's depth)
     past = _past_end_faces(X, boundary_faces, boundary_ids, V[WF].mean(axis=1))
     end_cap = far & ((beyond & (rel <= end_depth)) | (past[:, None] & (rel <= min(end_depth, 1.0))))
-    uncovered_area = float((area[:, None] * (far & ~end_cap)).sum() / 4.0)
-    beyond_area = float((area[:, None] * end_cap).sum() / 4.0)
-    off = _wall_node_distances(X, boundary_faces, boundary_ids, TriangleBVH(V, WF) if wall_tree is None else wall_tree, skeleton_points, skeleton_edges, skeleton_radii, on_wall)
-    surface_volume, mesh_volume = enclosed_volume(V, F), enclosed_volume(X, tri)
+    wall_tree = TriangleBVH(V, WF) if wall_tree is None else wall_tree
+    off = _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, *skeleton, on_wall)
+    node_of_branch = _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3)))
     missing, n_patches, n_missing = _missing_parts(
         V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names,
-        patch_area, depth, end_depth, _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3))), off,
+        patch_area, depth, end_depth, node_of_branch, off,
     )
-    summary = {
+    volumes = (enclosed_volume(V, F), enclosed_volume(X, tri))
+    summary = _coverage_summary(distance, area, rel, far & ~end_cap, end_cap, volumes, off, n_patches, missing, n_missing)
+    return summary, missing
+
+
+def _coverage_summary(distance, area, rel, uncovered, end_cap, volumes, off, n_patches, missing, n_missing) -> dict:
+    """:func:`measure_coverage`'s summary: the shares of the wall (triangle ``area``, four
+    samples each) ``uncovered`` and past the end faces (``end_cap``), the samples'
+    distances ``rel``, the ``volumes`` (surface, mesh), the wall-node statistics of ``off``
+    and the patches and missing parts."""
+    total = float(area.sum())
+    uncovered_area = float((area[:, None] * uncovered).sum() / 4.0)
+    beyond_area = float((area[:, None] * end_cap).sum() / 4.0)
+    surface_volume, mesh_volume = volumes
+    return {
         "distance_rel": float(distance),
         "uncovered_share": uncovered_area / total if total > 0 else 0.0,
         "uncovered_area": uncovered_area,
@@ -298,7 +318,6 @@ def measure_coverage(
         "missing_parts": int(n_missing),
         "missing": [m.as_dict() for m in missing],
     }
-    return summary, missing
 
 
 def _past_end_faces(X, boundary_faces, boundary_ids, points) -> np.ndarray:
@@ -339,13 +358,18 @@ def _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, skeleton_po
 def _wall_node_stats(off) -> dict:
     """Distances of the wall nodes off the input wall (``off`` of :func:`_wall_node_distances`).
 
-    A wall-face node the mesher did not put on the wall was left on its face's patch: no
-    wall lay along the face's normal (the face spans the mouth of a vessel part without
-    skeleton). It was never on the wall, so it is no wall *moved off* it: counted apart."""
-    placed, left = off[1][off[2]], off[1][~off[2]]
+    ``wall_node_max_rel`` / ``wall_node_mean_rel`` are over every mesh wall node. A
+    wall-face node the mesher did not put on the wall stayed on its face's patch: no wall lay
+    along the face's normal (the face spans the mouth of a vessel part without skeleton, or
+    the face is folded and its ray missed the wall); ``..._placed`` leave those out, and
+    they are counted apart."""
+    dist, placed = off[1], off[2]
+    on, left = dist[placed], dist[~placed]
     return {
-        "wall_node_max_rel": float(placed.max()) if placed.size else 0.0,
-        "wall_node_mean_rel": float(placed.mean()) if placed.size else 0.0,
+        "wall_node_max_rel": float(dist.max()) if dist.size else 0.0,
+        "wall_node_mean_rel": float(dist.mean()) if dist.size else 0.0,
+        "wall_node_max_rel_placed": float(on.max()) if on.size else 0.0,
+        "wall_node_mean_rel_placed": float(on.mean()) if on.size else 0.0,
         "wall_nodes_over_openings": int(left.size),
         "over_openings_max_rel": float(left.max()) if left.size else 0.0,
     }
@@ -425,12 +449,14 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
 def _wall_off(centres, reach, off) -> dict:
     """Of the mesh wall nodes ``off = (positions, distances, placed)`` within ``reach`` of
     any of ``centres``: the farthest distance of those the mesher put on the wall
-    (``wall_off``, 0 when none is) and the count of those it left off (``over_opening``)."""
+    (``wall_off``, 0 when none is), the count of those it left off (``over_opening``) and
+    their farthest distance (``over_opening_max``)."""
     from scipy.spatial import cKDTree
 
     near = cKDTree(centres).query(off[0], distance_upper_bound=reach)[0] <= reach
-    moved = near & off[2]
-    return {"wall_off": float(off[1][moved].max()) if moved.any() else 0.0, "over_opening": int((near & ~off[2]).sum())}
+    moved, left = near & off[2], near & ~off[2]
+    return {"wall_off": float(off[1][moved].max()) if moved.any() else 0.0, "over_opening": int(left.sum()),
+            "over_opening_max": float(off[1][left].max()) if left.any() else 0.0}
 
 
 def _branch_of_node(branches, n_nodes):

@@ -193,46 +193,63 @@ def _choose_lean(make, work) -> BlockStructure:
     ``make(planar)`` is a new :class:`_Builder` whose junctions ``planar`` keep to
     half-planes. The raw fill of the two valid structures does not say which ends better,
     and half-planes put in after the fix loop inherit the margins the loop gave the lean
-    (docs/junctions.md, h12/lean): how hard the loop had to work under each choice does.
+    (docs/junctions.md): how hard the loop had to work under each choice does.
     Only trees with a leaning n-furcation pay, one more fix loop (two where their
     junctions choose unalike: each junction's choice together; where that is not valid,
-    the whole-tree variant with less work at those junctions); the wall-fold steps run
-    once, on the structure kept."""
+    or the work budget is spent before it is built, the whole-tree variant with less work
+    at those junctions); the wall-fold steps run once, on the structure kept. The extra
+    variants build quietly: the kept one's warnings are given once it is chosen."""
     lean = make(frozenset())
+    said, warn = [], lean.warn
+    lean.warn = lambda msg: (said.append(msg), warn(msg))
     blocks = lean.make_valid()
     nodes = sorted(c for c, j in lean.topo.junctions.items() if lean.leans(j))
     if not nodes or work.spent or not lean.opt.junction.choose_lean:
         return lean.finish(blocks)
-    variants = {frozenset(): (lean, blocks)}
-    try:
-        flat = make(frozenset(nodes))
-        variants[frozenset(nodes)] = (flat, flat.make_valid())
-    except (_Failure, MeshingError):
-        pass
-    if len(variants) == 1 or set(flat.topo.junctions) != set(lean.topo.junctions):
+    variants = {frozenset(): (lean, blocks, work.valid_after, said)}
+    failed = []
+
+    def build(planar):
+        heard = []
+        try:
+            b = make(planar)
+            b.warn, b.tick = heard.append, (lambda f, m="": None)
+            variants[planar] = (b, b.make_valid(), work.valid_after, heard)
+        except (_Failure, MeshingError) as exc:
+            failed.append(f"half-planes at {sorted(planar)}: {exc}")
+            return None
+        return b
+
+    flat = build(frozenset(nodes))
+    if flat is None or set(flat.topo.junctions) != set(lean.topo.junctions):
         # half-planes cannot be built, or the two trees' junctions do not match up
-        return _kept(lean, blocks, nodes, {}, "lean")
+        return _kept(variants[frozenset()], said, warn, lean.tick, work, nodes, {}, "lean", failed)
     cost = {c: (lean.local.work_at.get(c, 0), flat.local.work_at.get(c, 0)) for c in nodes}
     pick = frozenset(c for c in nodes if cost[c][1] < cost[c][0])
     if pick not in variants and not work.spent:
-        try:
-            both = make(pick)
-            variants[pick] = (both, both.make_valid())
-        except (_Failure, MeshingError):
-            # the junctions' choices interact: the whole-tree variant with less work
-            pick = frozenset(nodes) if sum(b for _, b in cost.values()) < sum(a for a, _ in cost.values()) else frozenset()
+        build(pick)
     if pick not in variants:
-        pick = frozenset()
-    builder, blocks = variants[pick]
-    return _kept(builder, blocks, nodes, cost, ", ".join(f"{c}: {'half-planes' if c in pick else 'lean'}" for c in nodes))
+        # not built (budget spent), or the junctions' choices interact: the whole-tree variant with less work
+        pick = frozenset(nodes) if sum(b for _, b in cost.values()) < sum(a for a, _ in cost.values()) else frozenset()
+    return _kept(variants[pick], said, warn, lean.tick, work, nodes, cost, ", ".join(f"{c}: {'half-planes' if c in pick else 'lean'}" for c in nodes), failed)
 
 
-def _kept(builder, blocks, nodes, cost, choice) -> BlockStructure:
-    """``builder``'s finished structure, with :func:`_choose_lean`'s choice in its record;
+def _kept(variant, said, warn, tick, work, nodes, cost, choice, failed) -> BlockStructure:
+    """The finished structure of ``variant`` (builder, blocks, ``work.valid_after`` when they
+    were valid, warnings heard), with :func:`_choose_lean`'s choice in its record; the
+    warnings of a quietly built variant are given now (those in ``said``, given by the lean
+    build, are not repeated), and the steps after go to ``warn`` and ``tick``.
     :meth:`~.repair._Repair.choose_planes` leaves the junctions ``nodes`` as chosen."""
+    builder, blocks, valid_after, heard = variant
+    if heard is not said:  # a quiet variant
+        for msg in heard:
+            if msg not in said:
+                warn(msg)
+    builder.warn, builder.tick = warn, tick
+    work.valid_after = valid_after  # the kept variant's, not the last one built
     builder.local.chosen = set(nodes) if cost else set()
     out = builder.finish(blocks)
-    out.info["junction_lean"] = {"nodes": nodes, "fixes_lean_flat": {str(c): list(v) for c, v in cost.items()}, "kept": choice}
+    out.info["junction_lean"] = {"nodes": nodes, "fixes_lean_flat": {str(c): list(v) for c, v in cost.items()}, "kept": choice, "failed": failed}
     if cost:
         out.info["fixes"].insert(0, f"n-furcation half-sections ({choice}): the choice the fix loop needed fewer fixes at "
                                     f"(lean / half-planes: {', '.join(f'{c}: {a} / {b}' for c, (a, b) in cost.items())})")
@@ -323,6 +340,18 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _Stubs):
 
     # -- entry ------------------------------------------------------------------
     def run(self) -> BlockStructure:
+        """Build the block structure: :meth:`make_valid`, then :meth:`finish`.
+
+        Returns
+        -------
+        BlockStructure
+            Valid blocks with their record in ``info``.
+
+        Raises
+        ------
+        _Failure, MeshingError
+            Where no valid structure is found.
+        """
         return self.finish(self.make_valid())
 
 

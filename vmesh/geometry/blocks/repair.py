@@ -373,9 +373,7 @@ class _Repair:
                         self.fixes.append(f"re-rotated the half-planes of junction node {node}")
                         self._worked(node)
                         rotated.append((bi, side, node))
-                    elif self.separate_junctions(bi):
-                        for c in (br.nodes[0], br.nodes[-1]):
-                            self._worked(int(c))
+                    elif self._separated(bi):
                         changed = moved = True
                         break
                     else:
@@ -409,6 +407,19 @@ class _Repair:
         if changed:
             self._apply_clearance()
         return changed
+
+
+    def _separated(self, bi: int) -> bool:
+        """:meth:`separate_junctions` of branch ``bi``, crediting the fix to the one end
+        junction it moved (its position changed; the other is put back as it was)."""
+        ends = [int(c) for c in (self.topo.branches[bi].nodes[0], self.topo.branches[bi].nodes[-1])]
+        before = {c: self.topo.pos[c].copy() for c in ends}
+        if not self.separate_junctions(bi):
+            return False
+        for c in ends:
+            if not np.array_equal(self.topo.pos[c], before[c]):
+                self._worked(c)
+        return True
 
 
     def _worked(self, node: int) -> None:

@@ -248,7 +248,9 @@ def optimise_linear(
     untangle_mode: int = K.ESCOBAR,
     smooth_rings: int = 0,
     grow_below_threshold: bool = True,
-    smooth_tol: float = 0.0, keep_partial_free_layer: bool = False, untangle_patience: int | None = None,
+    smooth_tol: float = 0.0,
+    keep_partial_free_layer: bool = False,
+    untangle_patience: int | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Untangle and smooth the neighbourhood of low-quality linear hexahedra.
 
@@ -296,7 +298,8 @@ def optimise_linear(
     keep_partial_free_layer : bool
         On a valid mesh, keep the free-layer try whenever it beats the held one (:func:`polish`).
     untangle_patience : int, optional
-        Rings in a row without fewer elements below ``untangle_below`` that end the growth (None: up to ``max_fraction``).
+        Rings in a row with neither fewer elements below ``untangle_below`` nor a higher minimum
+        that end the growth (None: up to ``max_fraction``); rings, not ``_run_stage``'s sweeps.
 
     Returns
     -------
@@ -313,13 +316,11 @@ def optimise_linear(
     X = np.array(points, dtype=np.float64, copy=True, order="C")
     n, sub = len(X), np.ascontiguousarray(cells, dtype=np.int64).reshape(-1, 8)
     q = hex8_scaled_jacobian(X, sub)
-    info = {"before": {"min": float(q.min()), "mean": float(q.mean())} if len(q) else None, "untangled_nodes": 0, "smoothed_nodes": 0, "moved": 0, "rings": 0, "updates": 0}
+    info = _linear_info(q)
     if not len(q) or q.min() >= max(untangle_below, smooth_below):
         return X, {**info, "after": info["before"], "seconds": time.perf_counter() - t0}
-    kind, normal, height = _node_kinds(sub, n, wall, project, wall_normals, cap_nodes, cap_normals, boundary, keep_first_layer)
-    fixed, stats = kind == K.FIXED, {"updates": 0}
-    untangled, smoothed = np.zeros(n, bool), np.zeros(n, bool)
-    run = dict(kind=kind, normal=normal, project=project, wall_normals=wall_normals, stats=stats, height=height, X0=X.copy(), keep_partial=keep_partial_free_layer and q.min() > 0, patience=untangle_patience)
+    constraints = (wall, project, wall_normals, cap_nodes, cap_normals, boundary, keep_first_layer)
+    fixed, run, untangled, smoothed = _linear_run(X, sub, n, constraints, keep_partial_free_layer and q.min() > 0, untangle_patience)
     bad = q < untangle_below
     if bad.any():
         q = _untangle(X, sub, n, fixed, bad, run, untangle_below, max_fraction, sweeps, untangle_mode, grow_below_threshold, untangled, info)
@@ -327,8 +328,41 @@ def optimise_linear(
     if smooth_below > 0 and low.any():
         _smooth_region(X, sub, n, fixed, low, run, smooth_below, smooth_sweeps, smooth_rings, smoothed, smooth_tol)
         q = hex8_scaled_jacobian(X, sub)
-    info.update(after={"min": float(q.min()), "mean": float(q.mean())}, untangled_nodes=int(untangled.sum()), smoothed_nodes=int((smoothed & ~untangled).sum()), moved=int((untangled | smoothed).sum()), updates=stats["updates"], seconds=time.perf_counter() - t0)
-    return X, info
+    return X, _linear_done(info, q, untangled, smoothed, run["stats"], t0)
+
+
+def _linear_run(X, sub, n, constraints, keep_partial, ring_patience):
+    """The fixed nodes, the state :func:`optimise_linear`'s passes share (how each node moves,
+    :func:`_node_kinds` of ``constraints``; the update count; the initial points) and the
+    masks of the nodes each pass moved (untangling, smoothing), empty."""
+    kind, normal, height = _node_kinds(sub, n, *constraints)
+    project, wall_normals = constraints[1], constraints[2]
+    run = dict(
+        kind=kind, normal=normal, project=project, wall_normals=wall_normals, stats={"updates": 0}, height=height,
+        X0=X.copy(), keep_partial=keep_partial, ring_patience=ring_patience,
+    )
+    return kind == K.FIXED, run, np.zeros(n, bool), np.zeros(n, bool)
+
+
+def _linear_info(q) -> dict:
+    """:func:`optimise_linear`'s record before its passes: the hexahedra's scaled Jacobians
+    ``q`` (min and mean; None without hexahedra) and zero counts."""
+    before = {"min": float(q.min()), "mean": float(q.mean())} if len(q) else None
+    return {"before": before, "untangled_nodes": 0, "smoothed_nodes": 0, "moved": 0, "rings": 0, "updates": 0}
+
+
+def _linear_done(info, q, untangled, smoothed, stats, t0) -> dict:
+    """``info`` completed after the passes: the scaled Jacobians ``q`` after, the nodes each
+    pass moved (``untangled``, ``smoothed`` masks), node updates and seconds since ``t0``."""
+    info.update(
+        after={"min": float(q.min()), "mean": float(q.mean())},
+        untangled_nodes=int(untangled.sum()),
+        smoothed_nodes=int((smoothed & ~untangled).sum()),
+        moved=int((untangled | smoothed).sum()),
+        updates=stats["updates"],
+        seconds=time.perf_counter() - t0,
+    )
+    return info
 
 
 def _node_kinds(sub, n, wall, project, wall_normals, cap_nodes, cap_normals, boundary, keep_first_layer):
@@ -368,19 +402,24 @@ def _untangle_regions(X, sub, n, fixed, bad, run, below, max_fraction, sweeps, m
     # small meshes: at least twice the first region (1 % of a few thousand nodes is less than one fold's neighbourhood)
     budget = max(int(max_fraction * n), 2 * int((active & ~fixed).sum()))
     rings = 0
-    fewest, stalled = None, 0  # the least elements below ``below`` so far, and rings since
+    best, stalled = None, 0  # the least elements below ``below`` and the best minimum so far, and rings since either improved
     for ring in range(64):
         st = _Stage(run["X0"], sub, active, n, fixed)
         qs = _run_stage(X, st, run["kind"], run["normal"], _delta, mode, run["project"], run["wall_normals"], run["stats"], sweeps, below, untangled, run["height"], run["X0"])
         rings = ring
         if qs.min() > 0 and not grow_below_threshold or qs.min() >= below:
             break
-        if run.get("patience") is not None:
+        if run.get("ring_patience") is not None:
             # a fold the rings around it do not open (two vessels fused across each other)
-            # would otherwise grow the region, and re-sweep all of it, up to max_fraction
-            left = int((qs < below).sum())
-            fewest, stalled = (left, 0) if fewest is None or left < fewest else (fewest, stalled + 1)
-            if stalled >= run["patience"]:
+            # would otherwise grow the region, and re-sweep all of it, up to max_fraction; a
+            # ring that lowers the count or raises the minimum is progress (a fold can open
+            # by its minimum rising while as many elements stay below)
+            left, worst = int((qs < below).sum()), float(qs.min())
+            if best is None or left < best[0] or worst > best[1]:
+                best, stalled = (min(left, best[0]) if best else left, max(worst, best[1]) if best else worst), 0
+            else:
+                stalled += 1
+            if stalled >= run["ring_patience"]:
                 break
         grown = K.grow_nodes(st.hexes, st.ptr, st.inc, active)
         if int((grown & ~fixed).sum()) > budget or (grown == active).all():

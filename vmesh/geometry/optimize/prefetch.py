@@ -2,8 +2,8 @@
 
 A colour pass visits every node of one colour, ~1/16 of the stage's nodes spread over all of
 it, so each node update starts with cache misses on its hexahedra's rows and their nodes'
-points (the frame costs ~3x more in colour order than in node order, docs/speed.md, eighth
-round). Asking for the next nodes' data while the current node computes hides most of that
+points (the frame costs ~3x more in colour order than in node order, docs/speed.md: the
+nodes of one colour are far apart in memory). Asking for the next nodes' data while the current node computes hides most of that
 latency; the results are unchanged (a prefetch only moves data into the caches).
 """
 
@@ -20,6 +20,8 @@ from numba.extending import intrinsic
 ROWS_AHEAD, POINTS_AHEAD = 4, 2
 #: and the incidence of a node (its hexahedra's numbers) before that
 INC_AHEAD = 8
+# The three distances were measured on a light pass: longer ones gave no gain. Results do
+# not depend on them: a prefetch is a hint only and changes no value read.
 
 
 #: the intrinsic's name is mangled on its pointer type as llvmlite names it (``p0i8``); LLVM's
@@ -66,9 +68,36 @@ def _points(X, hexes, ptr, inc, v):
 
 @nb.njit(cache=True, inline="always")
 def ahead(X, hexes, scale, cq, ptr, inc, nodes, dirty, only_dirty, j, hi):
-    """Before node ``nodes[j]`` is updated: ask for what the updates of the next nodes (up to
-    ``hi``, the end of the caller's chunk) will read; with ``only_dirty``, skip those that
-    have nothing to do."""
+    """Before node ``nodes[j]`` is updated, ask for what the updates of the next nodes will read.
+
+    Parameters
+    ----------
+    X : (n, 3) float
+        Node positions.
+    hexes : (m, 8) int
+        The stage's hexahedra.
+    scale : (m, 3) float
+        Per hexahedron, the inverse target edge length along each axis.
+    cq : (m, 8) float
+        Per hexahedron, its corners' scaled Jacobians.
+    ptr, inc : (n + 1,) int, (k,) int
+        Node-to-hexahedron incidence (CSR; ``inc[t] >> 3`` is the hexahedron).
+    nodes : (c,) int
+        The colour's nodes, in update order.
+    dirty : (n,) bool
+        Nodes with something to do.
+    only_dirty : bool
+        Skip nodes that are not ``dirty``.
+    j : int
+        Position in ``nodes`` of the node about to be updated.
+    hi : int
+        End of the caller's chunk of ``nodes``: nothing past it is asked for.
+
+    Notes
+    -----
+    Asks for the incidence of ``nodes[j + INC_AHEAD]``, the rows of ``nodes[j + ROWS_AHEAD]``
+    and the points of ``nodes[j + POINTS_AHEAD]``. A hint only: no value changes.
+    """
     k = j + INC_AHEAD
     if k < hi:
         _prefetch(inc.ctypes.data + ptr[nodes[k]] * inc.strides[0])
