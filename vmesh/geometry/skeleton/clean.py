@@ -299,7 +299,7 @@ def separate_parallel_branches(
     # daughter is measured against are those the other moves leave), then the moves
     # again from the start without those undone
     undone = frozenset()
-    while True:
+    for _ in range(skeleton.n_edges + 1):  # a safety bound only: see the argument below
         skel, moved, made = _separate(skeleton, limit, target, ahead, max_shift, distance, undone)
         undo = _unblockable_moves(skel, made)
         if not undo or undo <= undone:
