@@ -200,11 +200,13 @@ def _choose_lean(make, work) -> BlockStructure:
     at those junctions); the wall-fold steps run once, on the structure kept. The extra
     variants build quietly: the kept one's warnings are given once it is chosen."""
     lean = make(frozenset())
+    if not lean.opt.junction.choose_lean:
+        return lean.run()
     said, warn = [], lean.warn
     lean.warn = lambda msg: (said.append(msg), warn(msg))
     blocks = lean.make_valid()
     nodes = sorted(c for c, j in lean.topo.junctions.items() if lean.leans(j))
-    if not nodes or work.spent or not lean.opt.junction.choose_lean:
+    if not nodes or work.spent:
         return lean.finish(blocks)
     variants = {frozenset(): (lean, blocks, work.valid_after, said)}
     failed = []

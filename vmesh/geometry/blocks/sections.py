@@ -10,6 +10,7 @@ from .. import cross_sections as cs
 from .checks import _Failure
 from .options import CLOSED, CYCLE, JUNCTION, OPEN, _Branch
 from ..skeleton.graph import polyline_at
+from ..skeleton.pairs import PAIR_REACH
 from .prep import Territory, endpoint_caps, redistribute_sections
 from ..rays import clip_to_territory
 
@@ -24,7 +25,7 @@ DOME_YIELD_ROOM = 0.25
 
 #: The most a junction's half-sections are taken to reach along a short branch between two
 #: junctions, in the branch's radii (:meth:`_Sections._bounded_reach`).
-from ..skeleton.pairs import PAIR_REACH as REACH_RADII  # one value with the cleaning's pair rule
+REACH_RADII = PAIR_REACH  # one value with the skeleton cleaning's pair rule
 
 
 #: Clean samples in a row (0.25 branch radii apart: one branch radius) that end a

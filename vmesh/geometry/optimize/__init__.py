@@ -415,8 +415,10 @@ def _untangle_regions(X, sub, n, fixed, bad, run, below, max_fraction, sweeps, m
             # ring that lowers the count or raises the minimum is progress (a fold can open
             # by its minimum rising while as many elements stay below)
             left, worst = int((qs < below).sum()), float(qs.min())
-            if best is None or left < best[0] or worst > best[1]:
-                best, stalled = (min(left, best[0]) if best else left, max(worst, best[1]) if best else worst), 0
+            if best is None:
+                best = (left, worst)
+            elif left < best[0] or worst > best[1]:
+                best, stalled = (min(left, best[0]), max(worst, best[1])), 0
             else:
                 stalled += 1
             if stalled >= run["ring_patience"]:
