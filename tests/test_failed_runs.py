@@ -170,3 +170,39 @@ def test_a_stop_lost_in_a_finaliser_is_sent_again(monkeypatch):
     assert sent == [signal.SIGTERM, signal.SIGINT] and printed == []
     cli._unraisable_hook(printed.append, debug=True)(types.SimpleNamespace(exc_value=ValueError("x")))
     assert len(printed) == 1
+
+
+def test_a_stop_inside_an_import_is_a_stop_not_a_bug(tmp_path, tube_files):
+    """A SIGINT that lands while a C extension initialises (scipy.optimize's HiGHS module,
+    imported lazily in clean_skeleton) comes back as ``ImportError: initialization failed``
+    caused by the KeyboardInterrupt: the run must stop as stopped runs do (exit 130 on the
+    command line, OUT.failed/ says so), never as "an internal error"."""
+    surface, _ = tube_files
+
+    @register_filter("stop_inside_import_test", description="Fail as an interrupted import does.", parameters=[], reads=("surface",), category="test")
+    def stop_inside_import(ctx):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise ImportError("initialization failed") from exc
+
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            FilterChain(["repair_surface", "stop_inside_import_test"]).run(surface=surface, out_dir=tmp_path / "out")
+        assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".out.partial-*"))
+        assert "SIGINT" in (tmp_path / "out.failed" / "failure.log").read_text()
+    finally:
+        _REGISTRY.pop("stop_inside_import_test", None)
+
+
+def test_stop_behind_follows_causes_and_contexts():
+    from vmesh.errors import Stopped, stop_behind
+
+    try:
+        try:
+            raise Stopped("SIGTERM", signal.SIGTERM)
+        except Stopped:
+            raise ImportError("initialization failed")  # context, not cause
+    except ImportError as exc:
+        assert isinstance(stop_behind(exc), Stopped)
+    assert stop_behind(ValueError("x")) is None

@@ -40,7 +40,7 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import InputError, VmeshError
+from .errors import InputError, VmeshError, stop_behind
 from .manifest import RESERVED, Manifest, ManifestRow, expand_sweep, manifest_from_rows, read_manifest, sweep_values
 
 __all__ = ["BatchResult", "Manifest", "ManifestRow", "RESERVED", "ROW_FILE", "STAGING", "SUMMARY_COLUMNS", "expand_sweep", "manifest_from_rows", "mesh_row", "prepare", "read_manifest", "read_row", "read_summary", "run", "sweep_values", "worker_cache"]
@@ -229,6 +229,8 @@ def mesh_row(task: dict) -> dict:
         return result
     except Exception as exc:  # reported in the summary; the batch goes on
         shutil.rmtree(tmp, ignore_errors=True)
+        if stop_behind(exc) is not None:  # a stop, not this row's failure
+            raise stop_behind(exc) from None
         result["status"] = "failed"
         result["error"] = " ".join(f"{exc}".split()) if isinstance(exc, VmeshError) else " ".join(f"{type(exc).__name__}: {exc}".split())
         result["error"] = _keep_row_diagnostics(tmp, out / f"{name}.failed", result["error"])

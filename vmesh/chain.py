@@ -15,7 +15,7 @@ from pathlib import Path
 from . import __version__
 from ._toml import tomllib
 from .context import Context, StepReport
-from .errors import ChainError, InputError, ParameterError, Stopped, VmeshError
+from .errors import ChainError, InputError, ParameterError, Stopped, VmeshError, stop_behind
 from .io.atomic import replace_dir
 from .io.failed_run import OWNER_FILE, failed_dir, keep_failed, mark_owner, remove_failed, remove_stale_stages, write_diagnostics
 from .monitor import ResourceMonitor
@@ -360,6 +360,9 @@ def _run_step(ctx: Context, number: int, step: Step, say, log: Path | None) -> N
                 f"(decimate_surface.target_faces) or mesh a smaller part"
             ) from None
         except Exception as exc:
+            stop = stop_behind(exc)
+            if stop is not None:
+                raise stop from None
             raise ChainError(internal_error_text(number, step.filter, log)) from exc
     ctx._step.seconds = mon.seconds
     ctx._step.cpu_seconds = mon.cpu_seconds

@@ -17,7 +17,7 @@ import warnings
 
 from . import __version__
 from ._toml import tomllib
-from .errors import Stopped, VmeshError
+from .errors import Stopped, VmeshError, stop_behind
 
 EXIT_USAGE = 2
 #: Exit status of an unexpected (internal) error.
@@ -175,6 +175,10 @@ def main(argv=None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except Exception as exc:  # a bug: one line for the user, the traceback in a log file
+        stop = stop_behind(exc)
+        if stop is not None and not args.debug:
+            print(f"vmesh: error: {_stopped_text(stop)}", file=sys.stderr)
+            return 128 + (stop.signal_number if isinstance(stop, Stopped) else signal.SIGINT)
         if args.debug:
             raise
         log = _write_traceback(exc)

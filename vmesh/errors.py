@@ -43,3 +43,18 @@ class Stopped(BaseException):
         self.signal_name = signal_name
         self.signal_number = signal_number
         super().__init__(f"stopped by {signal_name}")
+
+
+def stop_behind(exc: BaseException) -> BaseException | None:
+    """The KeyboardInterrupt or :class:`Stopped` that caused ``exc``, if any.
+
+    A signal that lands while a C extension initialises or runs a callback comes back as
+    an ordinary error (``ImportError: initialization failed`` from a module import) with
+    the stop as its cause or context: it is still a stop, not a bug."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, (KeyboardInterrupt, Stopped)):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
