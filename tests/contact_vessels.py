@@ -37,3 +37,36 @@ def passing_vessels(folder, gap: float, cross: float = 0.0, units: str = "mm") -
     V, Tri = finish_surface(*S.contour(F, grid, False, smooth_iters=0), caps, "open", target_faces=(10_000, 10**9))
     manifest = {"name": f"passing_{gap:g}_{cross:g}", "units": units, "surface_format": "ply"}
     return write_vessel(Vessel(V, Tri, xyz, radius, tags, edges, manifest), Path(folder))
+
+
+
+def acute_fork(folder, angle: float, parallel: float = 0.0, apart: float = 1.8, radius: float = 1.4, length: float = 14.0,
+               units: str = "mm") -> dict:
+    """A parent tube along x (``radius``, 14 long) forking at the origin into two daughters
+    (0.95 ``radius``) ``angle`` degrees apart; with ``parallel`` > 0 they turn alongside
+    each other once their axes are ``apart`` apart (their walls fused when that is below
+    1.9 ``radius``), run so ``parallel`` long, then part 40 degrees apart for ``length``.
+    Writes the vessel's files into ``folder``; returns its manifest."""
+    tree = T.Tree()
+    p, r = T.straight(np.array([-length, 0, 0]), np.zeros(3), radius, radius)
+    tree.branches.append(T.Branch(p, r))
+    rd = 0.95 * radius
+    for sign in (1.0, -1.0):
+        a = np.radians(sign * angle / 2)
+        d = np.array([np.cos(a), np.sin(a), 0.0])
+        if parallel > 0:
+            turn = d * (0.5 * apart / abs(np.sin(a)))
+            ahead = turn + [parallel, 0.0, 0.0]
+            b = np.radians(sign * 20.0)
+            legs = [(np.zeros(3), turn), (turn, ahead), (ahead, ahead + length * np.array([np.cos(b), np.sin(b), 0.0]))]
+        else:
+            legs = [(np.zeros(3), length * d)]
+        q = np.concatenate([T.straight(u, v, rd, rd)[0][(0 if k == 0 else 1):] for k, (u, v) in enumerate(legs)])
+        tree.branches.append(T.Branch(q, np.full(len(q), rd), 0, len(p) - 1))
+    xyz, rad, tags, edges = T.skeleton_of(tree)
+    caps = [(e, n, rr) for _, e, n, rr in S.end_caps(tree)]
+    tag_ends(tree, xyz, tags, caps)
+    F, grid = S.implicit_field(tree, "open", rd / 2.6)
+    V, Tri = finish_surface(*S.contour(F, grid, False, smooth_iters=0), caps, "open", target_faces=(10_000, 10**9))
+    manifest = {"name": f"acute_fork_{angle:g}_{parallel:g}", "units": units, "surface_format": "ply"}
+    return write_vessel(Vessel(V, Tri, xyz, rad, tags, edges, manifest), Path(folder))

@@ -28,6 +28,9 @@ def vessels_in_contact(points: np.ndarray, radii: np.ndarray, edges: np.ndarray,
         ... and belong to different vessels when their way along the skeleton is longer than
         ``detour`` x that sum (inf when unconnected): neighbours along one vessel and the
         branches of one junction are within a few radii of each other along the skeleton.
+        Two branches of one junction that stay fused further than that (an acute fork
+        whose lumens part many radii on) are still one junction's branches, not a contact
+        (:func:`_fused_from_junction`).
 
     Notes
     -----
@@ -57,8 +60,11 @@ def vessels_in_contact(points: np.ndarray, radii: np.ndarray, edges: np.ndarray,
     both = r[a] + r[b]
     close = dist < reach * both
     a, b, dist, both = a[close], b[close], dist[close], both[close]
-    way = SkeletonWays(np.asarray(edges, np.int64), P, 0.0)(a, b, detour * both)
+    E = np.asarray(edges, np.int64)
+    way = SkeletonWays(E, P, 0.0)(a, b, detour * both)
     far = way > detour * both
+    if far.any():
+        far &= ~_fused_from_junction(a, b, E, len(P))
     a, b, gap = a[far], b[far], (dist - both)[far]
     if not len(a):
         return np.zeros((0, 3))
@@ -70,3 +76,80 @@ def vessels_in_contact(points: np.ndarray, radii: np.ndarray, edges: np.ndarray,
             kept.append(i)
     kept = np.asarray(kept, np.int64)
     return np.c_[np.minimum(a, b)[kept], np.maximum(a, b)[kept], gap[kept]]
+
+
+def _fused_from_junction(a: np.ndarray, b: np.ndarray, edges: np.ndarray, n: int) -> np.ndarray:
+    """Which close node pairs ``(a, b)`` (a < b) are a junction's fused fork: joined to a
+    pair of the junction's own first nodes (the junction and its neighbours) by close
+    pairs on two branches of that junction, each a step along one segment on either side
+    or both.
+
+    Walking back from such a pair towards the junction, the two branches never leave
+    contact: their lumens are one from the junction on (daughters a few degrees apart, or
+    a junction moved to where the centerlines part while the walls have not), which the
+    junction's half-sections take apart; a cut there runs into the junction's blocks.
+    Vessels that touch further on, after parting, are a contact whatever their branches,
+    and so are a branch curled back onto itself (both nodes on one branch) and the ends of
+    branches from two junctions that meet (a loop's broken skeleton)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    m = len(a)
+    if m == 0 or len(edges) == 0:
+        return np.zeros(m, bool)
+    deg = np.bincount(edges.ravel(), minlength=n)
+    # branch of each node: the pieces left with the junctions taken out (junctions: -1)
+    inner = (deg[edges[:, 0]] < 3) & (deg[edges[:, 1]] < 3)
+    e = edges[inner]
+    _, branch = connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)), directed=False)
+    branch[deg >= 3] = -1
+    # each branch's junction ends (up to two)
+    ends = np.full((n, 2), -1)
+    for u, v in ((edges[:, 0], edges[:, 1]), (edges[:, 1], edges[:, 0])):
+        at = (deg[u] >= 3) & (deg[v] < 3)
+        for c, l in zip(u[at].tolist(), branch[v[at]].tolist()):
+            ends[l, 0 if ends[l, 0] < 0 or ends[l, 0] == c else 1] = c
+    la, lb = branch[a], branch[b]
+    ea = np.where(la[:, None] >= 0, ends[np.maximum(la, 0)], a[:, None])  # a junction is its own end
+    eb = np.where(lb[:, None] >= 0, ends[np.maximum(lb, 0)], b[:, None])
+    shared = ((ea[:, :, None] == eb[:, None, :]) & (ea[:, :, None] >= 0)).any(axis=(1, 2))
+    # two branches of one junction, or a junction and one of its branches
+    two = (la != lb) & shared
+    # each node with its neighbours (itself included): CSR rows
+    src = np.r_[np.arange(n), edges[:, 0], edges[:, 1]]
+    dst = np.r_[np.arange(n), edges[:, 1], edges[:, 0]]
+    o = np.argsort(src * n + dst)
+    src, dst = src[o], dst[o]
+    start = np.searchsorted(src, np.arange(n + 1))
+    linked = src * n + dst  # sorted
+
+    def around(x):
+        """(row, neighbour) for every neighbour of each x[row], itself included."""
+        cnt = start[x + 1] - start[x]
+        rows = np.repeat(np.arange(len(x)), cnt)
+        offs = np.arange(len(rows)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        return rows, dst[start[x][rows] + offs]
+
+    key = a * n + b
+    order = np.argsort(key)
+    skey = key[order]
+    ia, na = around(a)
+    ib, nb = around(b[ia])  # every (neighbour of a, neighbour of b) of each pair
+    i, u, v = ia[ib], na[ib], nb
+    ok = u != v
+    i, u, v = i[ok], np.minimum(u[ok], v[ok]), np.maximum(u[ok], v[ok])
+    pos = np.clip(np.searchsorted(skey, u * n + v), 0, m - 1)
+    j = order[pos]
+    hit = (skey[pos] == u * n + v) & two[i] & two[j]
+    graph = coo_matrix((np.ones(int(hit.sum())), (i[hit], j[hit])), shape=(m, m))
+    _, label = connected_components(graph, directed=False)
+    # seeds: a junction and a node next to it, or two nodes next to one junction
+    ja, ca = around(a)
+    c_ok = deg[ca] >= 3
+    ja, ca = ja[c_ok], ca[c_ok]
+    q = ca * n + b[ja]
+    at = np.clip(np.searchsorted(linked, q), 0, len(linked) - 1)
+    seed = np.zeros(m, bool)
+    seed[ja[linked[at] == q]] = True
+    seed &= two
+    return np.isin(label, label[seed])
