@@ -43,7 +43,7 @@ def set_caps(ctx, surface: SurfaceMesh, labels: np.ndarray, inlet=None, inlet_po
     caps = pre.caps_from_labels(surface.vertices, surface.faces, labels)
     if keep_names and ctx.caps:
         names = {c.id: c.name for c in ctx.caps}
-        doubted = {c.id for c in ctx.caps if c.needs_end}
+        doubted = {c.id for c in ctx.caps if getattr(c, "needs_end", False)}
         for c in caps:
             c.name = names.get(c.id, c.name)
             c.needs_end = c.id in doubted

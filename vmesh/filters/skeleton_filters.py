@@ -346,7 +346,7 @@ def clean_skeleton(
     counts = {}
     skel, counts["welded"] = weld_coincident_nodes(skel, weld_distance)
     caps = list(ctx.caps or [])
-    if caps and any(c.needs_end for c in caps):  # before a terrace's plane could trim the centerline
+    if caps and any(getattr(c, "needs_end", False) for c in caps):  # before a terrace's plane could trim the centerline
         caps = _facets_to_wall(ctx, skel, caps)
     if extend_to_caps and caps:  # centerlines running out through an open end stop at its cap
         cap_arrays = (np.array([c.center for c in caps]), np.array([c.normal for c in caps]), np.array([c.radius for c in caps]))
@@ -485,7 +485,7 @@ def _facets_to_wall(ctx, skel, caps):
     for i, c in enumerate(caps):  # an end on the region itself (a branch grafted to it) reaches it too
         if len(ends) and np.linalg.norm(skel.points[ends] - c.center, axis=1).min() <= c.radius:
             reached.add(i)
-    facets = [i for i, c in enumerate(caps) if c.needs_end and i not in reached and on_branch_wall(c, skel.points, skel.radii)]
+    facets = [i for i, c in enumerate(caps) if getattr(c, "needs_end", False) and i not in reached and on_branch_wall(c, skel.points, skel.radii)]
     if not facets:
         return caps
     walls_not_caps(ctx, facets)
