@@ -27,6 +27,11 @@ class Cap:
         The boundary loop, in order.
     faces : (m,) int64
         Indices of the cap's triangles in the capped surface.
+    needs_end : bool
+        A flat region of a closed surface whose wall behind is no tube of its size
+        (:func:`~vmesh.preprocess.flat_caps_needing_an_end`): a part of an end face where a
+        skeleton end reaches it, else a facet of the wall (a voxel staircase's terrace),
+        which the skeleton stages turn back into wall.
     """
 
     id: int
@@ -36,6 +41,7 @@ class Cap:
     radius: float
     rim: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     faces: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    needs_end: bool = False
 
     def as_dict(self) -> dict:
         return {
@@ -46,4 +52,5 @@ class Cap:
             "radius": float(self.radius),
             "rim_points": int(len(self.rim)),
             "faces": int(len(self.faces)),
+            **({"needs_end": True} if self.needs_end else {}),
         }

@@ -235,7 +235,7 @@ def name_caps(caps: list[Cap], inlet: int | None = None, inlet_point=None) -> tu
     for new_id, c in enumerate(ordered, start=1):
         relabel[c.id] = new_id
         name = "inlet" if new_id == 1 else f"outlet_{new_id - 1}"
-        out.append(Cap(id=new_id, name=name, center=c.center, normal=c.normal, radius=c.radius, rim=c.rim, faces=c.faces))
+        out.append(Cap(id=new_id, name=name, center=c.center, normal=c.normal, radius=c.radius, rim=c.rim, faces=c.faces, needs_end=c.needs_end))
     return out, relabel
 
 
@@ -324,6 +324,67 @@ def detect_flat_caps(
         k += 1
         labels[ids] = k
     return labels
+
+
+#: The wall behind a flat end cap is the vessel's: within ``CAP_TUBE_DEPTH`` cap radii
+#: (and three rim edges) behind its plane, nine tenths of the surface reached from the
+#: cap's rim lie within ``CAP_TUBE_SPREAD`` cap radii of the cap's axis. A tube cut square
+#: keeps about 1, cut at 60 degrees 2 along its long axis; a flat region smaller than the
+#: lumen (a bevelled, decimated rim) 1.5-2. A flat facet of the wall (a voxel staircase's
+#: terrace) is met by the wall spreading along the vessel and around it (4.2 or more on
+#: the generated staircase vessels), but so is a flat part of an end face beside a parent
+#: vessel (4.6): such a region is an end only where the skeleton reaches it.
+CAP_TUBE_DEPTH = 0.5
+CAP_TUBE_SPREAD = 3.0
+
+
+def flat_caps_needing_an_end(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray) -> list[int]:
+    """The labels of flat caps (:func:`detect_flat_caps`) whose wall behind is no tube of
+    their size (``CAP_TUBE_DEPTH``, ``CAP_TUBE_SPREAD``): ends only where a skeleton end
+    reaches them, else facets of the wall."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    raw = topology.face_normals(v, f, normalize=False)
+    adjacency = None
+    out = []
+    for k in np.unique(labels[labels > 0]):
+        ids = np.flatnonzero(labels == k)
+        loops = topology.boundary_loops(f[ids])
+        if len(loops) != 1:
+            continue
+        area2 = np.linalg.norm(raw[ids], axis=1)
+        centre = (v[f[ids]].mean(axis=1) * area2[:, None]).sum(0) / max(area2.sum(), 1e-300)
+        normal = raw[ids].sum(0)
+        normal /= max(np.linalg.norm(normal), 1e-300)
+        if adjacency is None:
+            adjacency = _vertex_adjacency(len(v), f)
+        if not _tube_behind(v, adjacency, loops[0], centre, normal, np.sqrt(0.5 * area2.sum() / np.pi)):
+            out.append(int(k))
+    return out
+
+
+def _vertex_adjacency(n_vertices: int, faces: np.ndarray) -> sp.csr_matrix:
+    a, b = faces.ravel(), np.roll(faces, -1, axis=1).ravel()
+    return sp.coo_matrix((np.ones(2 * len(a)), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n_vertices, n_vertices)).tocsr()
+
+
+def _tube_behind(v, adjacency, rim, centre, normal, radius) -> bool:
+    """Whether the surface reached from ``rim`` within ``CAP_TUBE_DEPTH`` radii behind the
+    plane (``normal`` points out) stays, but for a tenth, within ``CAP_TUBE_SPREAD`` radii
+    of the axis."""
+    rel = v - centre
+    depth = -(rel @ normal)
+    radial = np.linalg.norm(rel + depth[:, None] * normal, axis=1)
+    # at least a few rim edges deep: a staircase's riser (one voxel) must not cut the slab off
+    reach = max(CAP_TUBE_DEPTH * radius, 3.0 * float(np.linalg.norm(v[rim] - v[np.roll(rim, -1)], axis=1).mean()))
+    keep = (depth >= -0.1 * radius) & (depth <= reach) & (radial <= 2.0 * CAP_TUBE_SPREAD * radius)
+    keep[rim] = True
+    ids = np.flatnonzero(keep)
+    _, piece = connected_components(adjacency[ids][:, ids], directed=False)
+    local = np.full(len(v), -1)
+    local[ids] = np.arange(len(ids))
+    reached = np.isin(piece, np.unique(piece[local[rim]]))
+    return bool(np.percentile(radial[ids[reached]], 90) <= CAP_TUBE_SPREAD * radius)
 
 
 # ---------------------------------------------------------------------------
@@ -603,6 +664,7 @@ __all__ = [
     "decimate",
     "decimate_to_tolerance",
     "detect_flat_caps",
+    "flat_caps_needing_an_end",
     "face_areas",
     "faces_near_points",
     "fill_holes",

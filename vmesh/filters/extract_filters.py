@@ -7,6 +7,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..registry import Parameter, register_filter
+from .preprocess_filters import walls_not_caps
 
 
 @register_filter(
@@ -69,7 +70,7 @@ from ..registry import Parameter, register_filter
     # duplicates: a declaration and signature like clean_skeleton's, not shared logic
     reads=("sdf",),
     optional_reads=("skeleton", "caps", "surface"),
-    writes=("skeleton",),
+    writes=("skeleton", "caps", "surface"),
     category="skeleton",
 )
 def extract_skeleton(
@@ -133,6 +134,9 @@ def extract_skeleton(
         _tag_cap_ends(skeleton, stats.pop("cap_of_node", {}), names)
     else:
         stats.pop("cap_of_node", None)
+    not_ends = stats["ends"].pop("not_ends", [])
+    if not_ends:
+        walls_not_caps(ctx, not_ends)
     ctx.skeleton = skeleton
     ctx.report.sections["skeleton_extraction"] = stats
     _report(ctx, skeleton, stats, caps, max_voxels)

@@ -43,8 +43,10 @@ def set_caps(ctx, surface: SurfaceMesh, labels: np.ndarray, inlet=None, inlet_po
     caps = pre.caps_from_labels(surface.vertices, surface.faces, labels)
     if keep_names and ctx.caps:
         names = {c.id: c.name for c in ctx.caps}
+        doubted = {c.id for c in ctx.caps if getattr(c, "needs_end", False)}
         for c in caps:
             c.name = names.get(c.id, c.name)
+            c.needs_end = c.id in doubted
         mapping = {c.id: c.id for c in caps}
     else:
         try:
@@ -58,6 +60,27 @@ def set_caps(ctx, surface: SurfaceMesh, labels: np.ndarray, inlet=None, inlet_po
     ctx.surface = surface
     ctx.caps = caps
     ctx.report.sections["caps"] = [c.as_dict() for c in caps]
+
+
+def walls_not_caps(ctx, dropped) -> None:
+    """Turn the caps ``dropped`` (indices into ``ctx.caps``: flat regions that need an end
+    and that no skeleton end reaches) back into wall: their faces lose their label; the
+    other caps keep their names and ids."""
+    names = [ctx.caps[i].name for i in dropped]
+    ctx.warn(
+        f"{len(names)} flat region(s) taken for caps ({', '.join(names[:6])}{', ...' if len(names) > 6 else ''}) "
+        "are facets of the wall, not ends: no skeleton end reaches them and the wall behind them is no tube "
+        "of their size (the terraces of a voxel staircase surface?); labelled wall"
+    )
+    ctx.report.sections["caps_turned_wall"] = names
+    gone = {ctx.caps[i].id for i in dropped}
+    if ctx.surface is None:
+        ctx.caps = [c for c in ctx.caps if c.id not in gone]
+        ctx.report.sections["caps"] = [c.as_dict() for c in ctx.caps]
+        return
+    labels = cap_labels(ctx).copy()
+    labels[np.isin(labels, list(gone))] = 0
+    set_caps(ctx, ctx.surface.copy(), labels, keep_names=True)
 
 
 def _pad_face_data(face_data: dict, n_old: int, n_new: int) -> dict:
@@ -276,11 +299,12 @@ def detect_caps(ctx, angle_tolerance, min_crease_angle, min_roundness, min_faces
     surface = s.copy()
     surface.face_data.pop(pre.CAP_LABEL, None)
     set_caps(ctx, surface, labels, inlet, inlet_point)
-    # cap normals must point out of the vessel even if the faces point inward
-    if f is not s.faces:
-        for c in ctx.caps:
+    doubted = set(pre.flat_caps_needing_an_end(s.vertices, f, surface.face_data[pre.CAP_LABEL]))
+    for c in ctx.caps:
+        c.needs_end = c.id in doubted
+        if f is not s.faces:  # cap normals must point out of the vessel even if the faces point inward
             c.normal = -c.normal
-        ctx.report.sections["caps"] = [c.as_dict() for c in ctx.caps]
+    ctx.report.sections["caps"] = [c.as_dict() for c in ctx.caps]
     ctx.count(caps=len(ctx.caps))
     if not ctx.caps:
         ctx.warn("no flat caps found (rounded ends?): the mesh's open ends will be named from the skeleton's endpoints, the widest one inlet")

@@ -311,7 +311,7 @@ def estimate_radii(ctx, overwrite, scale):
     ],
     reads=("skeleton",),
     optional_reads=("sdf", "caps", "surface"),
-    writes=("skeleton",),
+    writes=("skeleton", "caps", "surface"),
     category="skeleton",
 )
 def clean_skeleton(
@@ -346,6 +346,8 @@ def clean_skeleton(
     counts = {}
     skel, counts["welded"] = weld_coincident_nodes(skel, weld_distance)
     caps = list(ctx.caps or [])
+    if caps and any(getattr(c, "needs_end", False) for c in caps):  # before a terrace's plane could trim the centerline
+        caps = _facets_to_wall(ctx, skel, caps)
     if extend_to_caps and caps:  # centerlines running out through an open end stop at its cap
         cap_arrays = (np.array([c.center for c in caps]), np.array([c.normal for c in caps]), np.array([c.radius for c in caps]))
         skel, counts["cut_at_caps"] = sk_clean.trim_at_caps(skel, *cap_arrays)
@@ -467,6 +469,48 @@ def _overlapping_cap(caps, c: int, others) -> int | None:
         if o != c and np.linalg.norm(np.asarray(caps[o].center) - caps[c].center) < caps[o].radius + caps[c].radius:
             return o
     return None
+
+
+def _facets_to_wall(ctx, skel, caps):
+    """Turn the caps that need an end (flat regions whose wall behind is no tube) and that
+    no skeleton end reaches into wall (:func:`walls_not_caps`); returns the caps left.
+    The ends choose caps known to be ends first (``_match_caps``, as the extraction); a
+    cap off the skeleton's vessels (``on_branch_wall``) stays, to be grafted to."""
+    from ..geometry.skeleton.ends import _match_caps, on_branch_wall
+    from .preprocess_filters import walls_not_caps
+
+    ends = skel.endpoints
+    matched = _match_caps(skel.points[ends], skel.radii[ends], caps, _end_directions(skel, ends)) if len(ends) else {}
+    reached = set(matched.values())
+    for i, c in enumerate(caps):  # an end on the region itself (a branch grafted to it) reaches it too
+        if len(ends) and np.linalg.norm(skel.points[ends] - c.center, axis=1).min() <= c.radius:
+            reached.add(i)
+    facets = [i for i, c in enumerate(caps) if getattr(c, "needs_end", False) and i not in reached and on_branch_wall(c, skel.points, skel.radii)]
+    if not facets:
+        return caps
+    walls_not_caps(ctx, facets)
+    return list(ctx.caps)
+
+
+def _end_directions(skel, ends) -> np.ndarray:
+    """Outward unit directions of the branches at ``ends``: from the node about a radius
+    (at least two nodes, at most the next junction) inwards to the end."""
+    adj = skel.adjacency()
+    deg = np.diff(adj.indptr)
+    out = np.zeros((len(ends), 3))
+    for k, e in enumerate(ends):
+        prev, cur, length, steps = -1, int(e), 0.0, 0
+        while True:
+            nb = [int(n) for n in adj.indices[adj.indptr[cur] : adj.indptr[cur + 1]] if n != prev]
+            if len(nb) != 1:
+                break
+            length += float(np.linalg.norm(skel.points[nb[0]] - skel.points[cur]))
+            prev, cur, steps = cur, nb[0], steps + 1
+            if deg[cur] != 2 or (steps >= 2 and length >= float(skel.radii[e])):
+                break
+        d = skel.points[e] - skel.points[cur]
+        out[k] = d / max(np.linalg.norm(d), 1e-300)
+    return out
 
 
 def _graft_missing_branches(ctx, skel, caps, cap_distance, join):

@@ -72,11 +72,45 @@ def _to_cap(start: np.ndarray, cap, spacing: float, sdf: SdfFunction | None = No
 
 
 
-def _match_caps(ends: np.ndarray, end_radii: np.ndarray, caps) -> dict:
+#: A cap that needs an end (a flat region whose wall behind is no tube, ``Cap.needs_end``)
+#: is matched only to an end that runs into it: the end's tangent within this many degrees
+#: of its normal. The axis passes a facet of the side wall (a staircase's terrace) square.
+FACET_END_ANGLE = 45.0
+
+
+#: A flat region that needs an end and that no end reaches is a facet of the wall of a
+#: vessel the skeleton has when its centre lies within this many radii of the skeleton's
+#: axis (terraces of the generated staircase vessels: at most 1.2); beyond, the skeleton
+#: lacks what lies behind it (a branch, a stub's end face: 1.8), and it stays a cap.
+FACET_REACH = 1.5
+
+
+def on_branch_wall(cap, points: np.ndarray, radii: np.ndarray) -> bool:
+    """Whether ``cap``'s centre lies within ``FACET_REACH`` radii of one of the skeleton's
+    ``points`` (with their ``radii``): on the wall of a vessel the skeleton has."""
+    if not len(points):
+        return False
+    d = np.linalg.norm(points - np.asarray(cap.center, float), axis=1)
+    return bool(np.any(d <= FACET_REACH * np.asarray(radii, float)))
+
+
+def _graph_points(graph: BranchGraph) -> tuple[np.ndarray, np.ndarray]:
+    """The points of every branch of ``graph`` and their radii."""
+    pts, rad = [np.zeros((0, 3))], [np.zeros(0)]
+    for u, v, k in graph.graph.edges(keys=True):
+        p, r = graph.polyline(u, v, k)
+        pts.append(p)
+        rad.append(np.asarray(r, float))
+    return np.concatenate(pts), np.concatenate(rad)
+
+
+def _match_caps(ends: np.ndarray, end_radii: np.ndarray, caps, tangents: np.ndarray | None = None) -> dict:
     """Greedy one-to-one matching of skeleton ends to caps, nearest first.
 
     An end matches a cap when it lies inside the vessel behind the cap (depth up
     to a few cap radii along the inward normal) and within a cap radius of its axis.
+    Caps that need an end (``needs_end``) choose after the others, and with ``tangents``
+    (the ends' outward unit directions) only ends that run into them (``FACET_END_ANGLE``).
     """
     pairs = []
     for c, cap in enumerate(caps):
@@ -86,11 +120,14 @@ def _match_caps(ends: np.ndarray, end_radii: np.ndarray, caps) -> dict:
         lateral = np.linalg.norm(rel - depth[:, None] * normal, axis=1)
         reach = 3.0 * radius + 2.0 * end_radii
         ok = (depth > -0.5 * radius) & (depth < reach) & (lateral < 1.2 * radius)
+        doubt = bool(getattr(cap, "needs_end", False))  # the caps known to be ends choose first
+        if doubt and tangents is not None:
+            ok &= tangents @ normal >= np.cos(np.radians(FACET_END_ANGLE))
         for e in np.flatnonzero(ok):
-            pairs.append((float(np.linalg.norm(rel[e])), int(e), c))
+            pairs.append((doubt, float(np.linalg.norm(rel[e])), int(e), c))
     pairs.sort()
     matched, used_ends, used_caps = {}, set(), set()
-    for _, e, c in pairs:
+    for _, _, e, c in pairs:
         if e not in used_ends and c not in used_caps:
             matched[e] = c
             used_ends.add(e)
@@ -119,7 +156,10 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
       the medial end.
 
     Returns the number of ends of each kind (``cap``, ``flat``, ``rounded``, ``added``)
-    and, when some cap could not be reached, the list ``unreached`` of their indices.
+    and, when some cap could not be reached, the list ``unreached`` of their indices;
+    caps that need an end (``needs_end``: flat regions that may be facets of the wall) that
+    no end reaches and that lie on the wall of a branch (:func:`on_branch_wall`) get no
+    branch and are listed under ``not_ends``.
     """
     counts = {"cap": 0, "flat": 0, "rounded": 0, "added": 0}
     ends = [n for n in graph.graph.nodes if graph.degree(n) == 1]
@@ -128,7 +168,7 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
     matched = {}
     if caps and ends:
         end_pos = np.array([graph.pos(n) for n in ends])
-        matched = _match_caps(end_pos, np.array([i[2] for i in info]), caps)
+        matched = _match_caps(end_pos, np.array([i[2] for i in info]), caps, np.array([i[1] for i in info]))
     for e, (node, tangent, r_ref) in enumerate(info):
         if e in matched:
             cap = caps[matched[e]]
@@ -145,6 +185,9 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
         centre = np.asarray(caps[c].center, float)
         if any(np.linalg.norm(np.asarray(caps[o].center, float) - centre) < caps[o].radius + caps[c].radius for o in taken):
             continue  # overlaps a reached cap: two open ends cannot, it is a piece of that one
+        if getattr(caps[c], "needs_end", False) and on_branch_wall(caps[c], *_graph_points(graph)):
+            counts.setdefault("not_ends", []).append(c)  # a flat facet of the wall no end reaches
+            continue
         if _attach_cap(graph, caps[c], c, spacing, sdf):
             counts["added"] += 1
         else:
