@@ -13,9 +13,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from junction_cases import side_stub
+from junction_cases import direction, side_stub
 from vmesh.geometry.block_builder import BlockOptions, build_blocks
 from vmesh.geometry.quality import scaled_jacobian
+from vmesh.geometry.skeleton.graft import extend_to_caps
+from vmesh.skeleton import Skeleton
 from vmesh.geometry.transfinite import Refinement, mesh_blocks
 
 #: the default chain's resolution and a finer one (as ``blocks.checks.FILL_CHECKS``)
@@ -96,3 +98,49 @@ def test_stub_cut_slant_at_its_parents_wall_is_cut_not_a_lost_section():
     assert [s["cap"] for s in blocks.info["cut_stubs"]] == ["outlet_2"]
     assert "outlet_2" not in blocks.boundary_names.values()
     assert any("cut the side branch" in w for w in warnings)
+
+
+def _stub_skeleton_with_nodes(angle: float, ratio: float, length: float, n: int = 4) -> tuple:
+    """``side_stub``'s vessel with the stub's centerline in ``n`` segments, as a given
+    centerline has it (the generator's stub: nodes every stub radius or so)."""
+    case, caps = side_stub(angle, ratio, length)
+    sk = case.skeleton
+    j = int(np.flatnonzero(sk.degrees == 3)[0])
+    end = int(sk.endpoints[np.argmin(sk.radii[sk.endpoints])])
+    inner = sk.points[j] + (sk.points[end] - sk.points[j]) * np.arange(1, n)[:, None] / n
+    k = sk.n_nodes
+    keep = sk.edges[~np.all(np.sort(sk.edges, axis=1) == sorted((j, end)), axis=1)]
+    chain = [j, *range(k, k + n - 1), end]
+    edges = np.r_[keep, np.c_[chain[:-1], chain[1:]]]
+    out = Skeleton(np.r_[sk.points, inner], np.r_[sk.radii, np.full(n - 1, ratio)], edges)
+    return out, caps, j, end
+
+
+@pytest.mark.parametrize("turn", [100.0, 130.0])
+def test_a_stub_cap_fitted_askew_keeps_its_branch(turn):
+    """A stub ending against another vessel has a ragged rim whose fitted plane can face
+    away from the stub (generated seed 1 g0004: 102 degrees off its axis), so that every
+    node of the stub lies past it. ``extend_to_caps`` trimmed the whole stub and moved its
+    junction onto the cap (the parent bent out to the cap, the stub gone, the cap counted
+    as reached); the stub now stays whole and ends at its cap, the junction where it was."""
+    sk, caps, j, end = _stub_skeleton_with_nodes(70, 0.4, 1.5)
+    d = direction(70)
+    # the cap's normal turned ``turn`` degrees from the stub's axis, the end just past it
+    ez = np.array([0.0, 0.0, 1.0])
+    n = np.cos(np.radians(turn)) * d + np.sin(np.radians(turn)) * ez
+    stub_cap = caps[2]
+    centre = sk.points[end] - 0.1 * stub_cap.radius * n
+    h = (sk.points - centre) @ n
+    chain = np.flatnonzero(np.linalg.norm(np.cross(sk.points - sk.points[j], d), axis=1) < 1e-9)
+    assert np.all(h[np.setdiff1d(chain, [j])] > 1e-3 * stub_cap.radius)  # the whole stub past the plane
+    C = np.array([c.center for c in caps[:2]] + [centre])
+    N = np.array([c.normal for c in caps[:2]] + [n])
+    R = np.array([c.radius for c in caps])
+    out, matched = extend_to_caps(sk, C, N, R, [c.name for c in caps])
+    assert (matched >= 0).all()
+    assert out.n_nodes == sk.n_nodes and int((out.degrees == 3).sum()) == 1
+    np.testing.assert_allclose(out.points[out.degrees == 3][0], sk.points[j], atol=1e-12)
+    np.testing.assert_allclose(out.points[matched[2]], centre, atol=1e-9)
+    # the stub's branch still leaves the junction along its axis
+    nb = out.neighbors(int(np.flatnonzero(out.degrees == 3)[0]))
+    assert any(abs((out.points[v] - sk.points[j]) @ d - np.linalg.norm(out.points[v] - sk.points[j])) < 1e-9 for v in nb)

@@ -176,6 +176,11 @@ def extend_to_caps(
         beyond = height > 1e-3 * cap_r[c]  # on the plane to rounding is not beyond
         # trim the run of end nodes past the cap plane, never the branch's other end
         k = min(int(np.argmin(beyond)) if not beyond.all() else len(chain) - 1, len(chain) - 1)
+        if k == len(chain) - 1 and deg[chain[-1]] >= 3:
+            # the whole branch past the plane: the plane is not this branch's cut (a rim
+            # fitted askew, as a stub's ending against another vessel); trimming would drop
+            # the branch and move its junction onto the cap, so the branch stays whole
+            k = 0
         keep_end = int(chain[k])
         drop[chain[:k]] = True
         rest = chain[k:]
