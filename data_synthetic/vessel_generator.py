@@ -316,6 +316,8 @@ def stub_vessel(angle: float = 70.0, ratio: float = 0.45, length: float = 1.5, e
     d = np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle)), 0.0])
     tree.branches.append(T.Branch(*T.straight(parent[0][i], parent[0][i] + (1.0 + length * ratio) * d, ratio, ratio), 0, i, kind="stub"))
     tree.features["stub"] = 1
+    # duplicates: generate_vessel's surface pipeline without its random features, so that
+    # the stub is made as the corpus makes it
     xyz, radius, tags, edges = T.skeleton_of(tree)
     caps = [(e, n, r) for _, e, n, r in S.end_caps(tree)]
     tag_ends(tree, xyz, tags, caps)

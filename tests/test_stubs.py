@@ -184,7 +184,8 @@ def test_a_short_stubs_open_end_is_not_a_hole(tmp_path, args):
     took it for a hole; repair_surface filled it and the stub became a closed bump the builder
     could not close ("no wall found round the dome") or blocks stayed invalid at its junction.
     Past its flange the wall turns back along the stub (on one side only at 55 degrees, the
-    parent's wall): an open end, not a hole."""
+    parent's wall): an open end, not a hole, with ``wall_beyond`` (opt-in, see
+    ``repair_surface.hole_wall_beyond``)."""
     from vmesh import repair as rp
     from vmesh.geometry import topology
     from vmesh.io import read_surface
@@ -192,6 +193,24 @@ def test_a_short_stubs_open_end_is_not_a_hole(tmp_path, args):
     surface, _ = _generated_stub(tmp_path, *args)
     s = read_surface(surface)
     v, f = np.asarray(s.vertices, float), np.asarray(s.faces)
-    assert all(len(h) <= 3 for h in rp.wall_hole_loops(v, f))  # at most a triangle missing beside a pinched rim
-    _, f2, _, _ = rp.repair(v, f)
+    assert all(len(h) <= 3 for h in rp.wall_hole_loops(v, f, wall_beyond=True))  # at most a triangle beside a pinched rim
+    _, f2, _, _ = rp.repair(v, f, hole_wall_beyond=True)
     assert len(topology.boundary_loops(f2)) == 3  # both ends of the parent and the stub's
+
+
+@pytest.mark.slow
+def test_short_stub_meshes_with_its_open_end_kept(tmp_path):
+    """The generator's stub cut one radius past its parent's wall (radius 0.3, 70 degrees)
+    failed the default chain ("closed end ... no wall found round the dome": its open end
+    filled as a hole); with ``repair_surface.hole_wall_beyond`` it stays open and meshes,
+    min scaled Jacobian >= 0.3, coverage passed, its cap named."""
+    from vmesh.chain import FilterChain
+
+    surface, centerline = _generated_stub(tmp_path, 70, 0.3, 1.0)
+    chain = FilterChain.load("default").with_overrides({"repair_surface.hole_wall_beyond": True})
+    chain.steps = [s for s in chain.steps if not s.filter.startswith("write")]
+    ctx = chain.run(surface=surface, skeleton=centerline)
+    assert "filled_holes" not in ctx.report.sections["repair"] or not ctx.report.sections["repair"]["filled_holes"]
+    assert ctx.report.sections["quality"]["scaled_jacobian"]["min"] >= 0.3
+    assert ctx.report.sections["coverage"]["missing_parts"] == 0
+    assert "outlet_2" in ctx.blocks.boundary_names.values()

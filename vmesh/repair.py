@@ -247,6 +247,7 @@ def repair(
     face_data: dict | None = None,
     debris_area: float = 1e-3,
     fill_wall_holes: bool = True,
+    hole_wall_beyond: bool = False,
 ):
     """Clean a triangle surface.
 
@@ -276,6 +277,9 @@ def repair(
         the boundary loops that are holes in the wall rather than open ends (see
         :func:`wall_hole_loops`) with a faired patch (``report.filled_holes``); needs
         ``orient``. Filled faces get 0 in every face array.
+    hole_wall_beyond : bool
+        A hole must also have the wall going on past it (``wall_beyond`` of
+        :func:`wall_hole_loops`).
 
     Returns
     -------
@@ -308,7 +312,7 @@ def repair(
         f, report.flipped_faces, orientable = orient_consistently(f)
         report.non_orientable = not orientable
     if fill_wall_holes and orient and not report.non_orientable:
-        holes = wall_hole_loops(v, f)
+        holes = wall_hole_loops(v, f, wall_beyond=hole_wall_beyond)
         if holes:
             n_faces = len(f)
             v, f, report.filled_holes = fill_holes(v, f, holes)
@@ -424,7 +428,8 @@ HOLE_MAX_EDGES = 5
 #: the vessel: an end whose rim smoothing bevelled into a flange (a short stub's, a small
 #: vessel's; rims 0.4-0.9 of the radius) passes the two tests above but has no wall past the
 #: flange, or on one side only (its parent's wall beside a slanting stub). Generated corpus
-#: (2026-12-05): holes 0.81-1.12 covered, open ends 0.
+#: (2026-12-05): holes 0.81-1.12 covered, open ends 0. Opt-in (``wall_beyond``): with it
+#: two runs that passed with such an end filled fail elsewhere (docs/junctions.md, h14/stubs).
 HOLE_BEYOND = 2.0
 HOLE_SECTORS = 8
 HOLE_SECTOR_COVER = 0.5
@@ -458,10 +463,10 @@ def _wall_beyond(tree, areas, normals, centre, rim, axis) -> bool:
     return bool(np.any(np.minimum(cover[:half], cover[half:]) >= HOLE_SECTOR_COVER))
 
 
-def wall_hole_loops(vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
+def wall_hole_loops(vertices: np.ndarray, faces: np.ndarray, wall_beyond: bool = False) -> list[np.ndarray]:
     """The boundary loops of a consistently oriented surface that are holes in its wall
-    (the surface around them lies nearly in the loop's plane and goes on past it on two
-    opposite sides, or the loop has at most
+    (the surface around them lies nearly in the loop's plane, with ``wall_beyond`` also
+    going on past it on two opposite sides (:func:`_wall_beyond`), or the loop has at most
     ``HOLE_MAX_EDGES`` edges: a missing triangle beside an open end's rim lies in the end's
     plane, across the wall), not open ends of a vessel. Of a loop through a vertex twice
     (a rim pinched there) only the 3-edge parts are holes: a triangle missing beside the
@@ -492,7 +497,7 @@ def wall_hole_loops(vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]
         axis = area_vector / norm
         ring = np.unique(face_of_vertex[loop].indices)
         if (np.mean(np.abs(normals[ring] @ axis)) > HOLE_ALIGNMENT and _plane_around(tree, areas, normals, centre, rim, axis)
-                and _wall_beyond(tree, areas, normals, centre, rim, axis)):
+                and (not wall_beyond or _wall_beyond(tree, areas, normals, centre, rim, axis))):
             holes.append(loop)
         else:  # an open end; where its rim is pinched at a vertex, a triangle missing there is a hole
             holes.extend(c for c in topology.split_pinched_loop(loop) if len(c) == 3 < len(loop))
