@@ -303,6 +303,34 @@ def tag_ends(tree, xyz, tags, caps):
 # ---------------------------------------------------------------------------
 # files
 # ---------------------------------------------------------------------------
+def stub_vessel(angle: float = 70.0, ratio: float = 0.45, length: float = 1.5, end_style: str = "open",
+                half: float = 8.0, name: str = "stub") -> Vessel:
+    """A straight vessel of radius 1 mm along x (ends at +-``half``) with one stub, made as
+    :func:`~data_synthetic.vessels.tree.add_side_branch` makes a ``stub``: radius ``ratio``,
+    leaving the parent's axis at ``angle`` degrees from +x and cut ``length`` of its radii past
+    the parent's wall; surface by the generator's own pipeline (contour, ends, smoothing,
+    decimation). For sweeps over the stub's shape (issue 17)."""
+    parent = T.straight(np.array([-half, 0.0, 0.0]), np.array([half, 0.0, 0.0]), 1.0, 1.0)
+    tree = T.Tree([T.Branch(*parent)])
+    i = int(np.argmin(np.abs(parent[0][:, 0])))
+    d = np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle)), 0.0])
+    tree.branches.append(T.Branch(*T.straight(parent[0][i], parent[0][i] + (1.0 + length * ratio) * d, ratio, ratio), 0, i, kind="stub"))
+    tree.features["stub"] = 1
+    # duplicates: generate_vessel's surface pipeline without its random features, so that
+    # the stub is made as the corpus makes it
+    xyz, radius, tags, edges = T.skeleton_of(tree)
+    caps = [(e, n, r) for _, e, n, r in S.end_caps(tree)]
+    tag_ends(tree, xyz, tags, caps)
+    F, grid = S.implicit_field(tree, end_style, S.grid_spacing(tree, 2.6, 6e6))
+    V, Tri = finish_surface(*S.contour(F, grid, False, smooth_iters=0), caps, end_style)
+    manifest = {"name": name, "units": "mm", "unit_scale_per_mm": 1.0, "end_style": end_style, "surface_format": "vtp",
+                "features": {f: int(f == "stub") for f in FEATURES}, "requested": ["stub"], "closed": end_style != "open",
+                "outward": True, "consistently_oriented": True, "components": 1, "skeleton_nodes": int(len(xyz)),
+                "skeleton_edges": int(len(edges)), "faces": int(len(Tri)), "vertices": int(len(V)),
+                "stub": {"angle": angle, "ratio": ratio, "length": length}}
+    return Vessel(V, Tri, xyz, radius, tags, edges, manifest)
+
+
 def write_vessel(vessel: Vessel, folder) -> dict:
     """Write a vessel's files into ``folder``; returns its manifest (with ``files``)."""
     import pyvista as pv

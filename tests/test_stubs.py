@@ -13,9 +13,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from junction_cases import side_stub
+from junction_cases import direction, side_stub
 from vmesh.geometry.block_builder import BlockOptions, build_blocks
 from vmesh.geometry.quality import scaled_jacobian
+from vmesh.geometry.skeleton.graft import extend_to_caps
+from vmesh.skeleton import Skeleton
 from vmesh.geometry.transfinite import Refinement, mesh_blocks
 
 #: the default chain's resolution and a finer one (as ``blocks.checks.FILL_CHECKS``)
@@ -96,3 +98,119 @@ def test_stub_cut_slant_at_its_parents_wall_is_cut_not_a_lost_section():
     assert [s["cap"] for s in blocks.info["cut_stubs"]] == ["outlet_2"]
     assert "outlet_2" not in blocks.boundary_names.values()
     assert any("cut the side branch" in w for w in warnings)
+
+
+def _stub_skeleton_with_nodes(angle: float, ratio: float, length: float, n: int = 4) -> tuple:
+    """``side_stub``'s vessel with the stub's centerline in ``n`` segments, as a given
+    centerline has it (the generator's stub: nodes every stub radius or so)."""
+    case, caps = side_stub(angle, ratio, length)
+    sk = case.skeleton
+    j = int(np.flatnonzero(sk.degrees == 3)[0])
+    end = int(sk.endpoints[np.argmin(sk.radii[sk.endpoints])])
+    inner = sk.points[j] + (sk.points[end] - sk.points[j]) * np.arange(1, n)[:, None] / n
+    k = sk.n_nodes
+    keep = sk.edges[~np.all(np.sort(sk.edges, axis=1) == sorted((j, end)), axis=1)]
+    chain = [j, *range(k, k + n - 1), end]
+    edges = np.r_[keep, np.c_[chain[:-1], chain[1:]]]
+    out = Skeleton(np.r_[sk.points, inner], np.r_[sk.radii, np.full(n - 1, ratio)], edges)
+    return out, caps, j, end
+
+
+@pytest.mark.parametrize("turn", [100.0, 130.0])
+def test_a_stub_cap_fitted_askew_keeps_its_branch(turn):
+    """A stub ending against another vessel has a ragged rim whose fitted plane can face
+    away from the stub (generated seed 1 g0004: 102 degrees off its axis), so that every
+    node of the stub lies past it. ``extend_to_caps`` trimmed the whole stub and moved its
+    junction onto the cap (the parent bent out to the cap, the stub gone, the cap counted
+    as reached); the stub now stays whole and ends at its cap, the junction where it was."""
+    sk, caps, j, end = _stub_skeleton_with_nodes(70, 0.4, 1.5)
+    d = direction(70)
+    # the cap's normal turned ``turn`` degrees from the stub's axis, the end just past it
+    ez = np.array([0.0, 0.0, 1.0])
+    n = np.cos(np.radians(turn)) * d + np.sin(np.radians(turn)) * ez
+    stub_cap = caps[2]
+    centre = sk.points[end] - 0.1 * stub_cap.radius * n
+    h = (sk.points - centre) @ n
+    chain = np.flatnonzero(np.linalg.norm(np.cross(sk.points - sk.points[j], d), axis=1) < 1e-9)
+    assert np.all(h[np.setdiff1d(chain, [j])] > 1e-3 * stub_cap.radius)  # the whole stub past the plane
+    C = np.array([c.center for c in caps[:2]] + [centre])
+    N = np.array([c.normal for c in caps[:2]] + [n])
+    R = np.array([c.radius for c in caps])
+    out, matched = extend_to_caps(sk, C, N, R, [c.name for c in caps])
+    assert (matched >= 0).all()
+    assert out.n_nodes == sk.n_nodes and int((out.degrees == 3).sum()) == 1
+    np.testing.assert_allclose(out.points[out.degrees == 3][0], sk.points[j], atol=1e-12)
+    np.testing.assert_allclose(out.points[matched[2]], centre, atol=1e-9)
+    # the stub's branch still leaves the junction along its axis
+    nb = out.neighbors(int(np.flatnonzero(out.degrees == 3)[0]))
+    assert any(abs((out.points[v] - sk.points[j]) @ d - np.linalg.norm(out.points[v] - sk.points[j])) < 1e-9 for v in nb)
+
+
+def _generated_stub(tmp_path, angle, ratio, length):
+    """The generator's stub on a straight vessel (``stub_vessel``), written as the corpus
+    writes a vessel; returns the surface and centerline paths."""
+    from data_synthetic.vessel_generator import stub_vessel, write_vessel
+
+    m = write_vessel(stub_vessel(angle, ratio, length), tmp_path / "v")
+    return tmp_path / "v" / m["files"]["surface"], tmp_path / "v" / m["files"]["centerline_vtp"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("args, cut", [((70, 0.45, 2.0), False), ((90, 0.6, 1.5), False), ((55, 0.45, 1.5), True)])
+def test_generated_stub_meshes_through_the_chain(tmp_path, args, cut):
+    """The generator's stub (straight vessel, given centerline) meshes through the default
+    chain: valid, min scaled Jacobian >= 0.3, coverage passed. A stub with room keeps its
+    cap ``outlet_2``; one within its junction's half-sections (55 degrees, 1.5 radii) is cut
+    and the coverage check still measures the whole wall (the small stub stays under its
+    missing-part limit)."""
+    from vmesh.chain import FilterChain
+
+    surface, centerline = _generated_stub(tmp_path, *args)
+    chain = FilterChain.load("default")
+    chain.steps = [s for s in chain.steps if not s.filter.startswith("write")]
+    ctx = chain.run(surface=surface, skeleton=centerline)
+    assert ctx.report.sections["quality"]["scaled_jacobian"]["min"] >= 0.3
+    assert ctx.report.sections["coverage"]["missing_parts"] == 0
+    cuts = [s["cap"] for s in ctx.report.sections["blocks"]["cut_stubs"]]
+    assert cuts == (["outlet_2"] if cut else [])
+    assert ("outlet_2" in ctx.blocks.boundary_names.values()) is not cut
+
+
+@pytest.mark.parametrize("args", [(70, 0.3, 1.0), (55, 0.3, 1.0), (90, 0.6, 2.0)])
+def test_a_short_stubs_open_end_is_not_a_hole(tmp_path, args):
+    """A stub cut one or two of its radii past its parent's wall: the generator's open end
+    leaves a bevelled rim (radius 0.22 of the stub's 0.3 at 70 degrees) whose faces, and the
+    parent's wall at the stub's mouth, lie nearly in the rim's plane. ``wall_hole_loops``
+    took it for a hole; repair_surface filled it and the stub became a closed bump the builder
+    could not close ("no wall found round the dome") or blocks stayed invalid at its junction.
+    Past its flange the wall turns back along the stub (on one side only at 55 degrees, the
+    parent's wall): an open end, not a hole, with ``wall_beyond`` (opt-in, see
+    ``repair_surface.hole_wall_beyond``)."""
+    from vmesh import repair as rp
+    from vmesh.geometry import topology
+    from vmesh.io import read_surface
+
+    surface, _ = _generated_stub(tmp_path, *args)
+    s = read_surface(surface)
+    v, f = np.asarray(s.vertices, float), np.asarray(s.faces)
+    assert all(len(h) <= 3 for h in rp.wall_hole_loops(v, f, wall_beyond=True))  # at most a triangle beside a pinched rim
+    _, f2, _, _ = rp.repair(v, f, hole_wall_beyond=True)
+    assert len(topology.boundary_loops(f2)) == 3  # both ends of the parent and the stub's
+
+
+@pytest.mark.slow
+def test_short_stub_meshes_with_its_open_end_kept(tmp_path):
+    """The generator's stub cut one radius past its parent's wall (radius 0.3, 70 degrees)
+    failed the default chain ("closed end ... no wall found round the dome": its open end
+    filled as a hole); with ``repair_surface.hole_wall_beyond`` it stays open and meshes,
+    min scaled Jacobian >= 0.3, coverage passed, its cap named."""
+    from vmesh.chain import FilterChain
+
+    surface, centerline = _generated_stub(tmp_path, 70, 0.3, 1.0)
+    chain = FilterChain.load("default").with_overrides({"repair_surface.hole_wall_beyond": True})
+    chain.steps = [s for s in chain.steps if not s.filter.startswith("write")]
+    ctx = chain.run(surface=surface, skeleton=centerline)
+    assert "filled_holes" not in ctx.report.sections["repair"] or not ctx.report.sections["repair"]["filled_holes"]
+    assert ctx.report.sections["quality"]["scaled_jacobian"]["min"] >= 0.3
+    assert ctx.report.sections["coverage"]["missing_parts"] == 0
+    assert "outlet_2" in ctx.blocks.boundary_names.values()

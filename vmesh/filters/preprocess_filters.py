@@ -141,13 +141,14 @@ def _check_point(inlet_point):
         Parameter("orient", "bool", True, "Make neighbouring faces agree on orientation, then turn each piece outward (positive enclosed volume)."),
         Parameter("fill_holes", "bool", True, "Close holes in the wall (boundary loops whose surrounding faces lie nearly in the loop's plane, unlike open ends) with a patch faired into the wall, with a warning naming each; open ends are left to cap_open_ends."),
         Parameter("debris_area", "float", 1e-3, "Dropped pieces smaller than this fraction of the kept piece's area are debris: only counted, not named in a warning.", unit="× kept area", min=0.0, max=1.0),
+        Parameter("hole_wall_beyond", "bool", False, "Count a loop as a hole only when the wall also goes on past it on two opposite sides, so that a vessel's open end whose rim is bevelled into a flange (short stubs', small vessels' ends of the generated corpus) stays an open end. Off by default: on the generated corpus two runs that passed with such an end filled then fail elsewhere (docs/junctions.md, h14/stubs)."),
     ],
     reads=("surface",),
     optional_reads=("caps",),
     writes=("surface", "caps"),  # caps: cleared (they index the old faces)
     category="preprocessing",
 )
-def repair_surface(ctx, merge_tolerance, keep, orient, fill_holes, debris_area):
+def repair_surface(ctx, merge_tolerance, keep, orient, fill_holes, debris_area, hole_wall_beyond=False):
     """Repair the input surface and report what was removed or flipped.
 
     Open surfaces are oriented outward by their volume relative to the centroid (an
@@ -156,7 +157,7 @@ def repair_surface(ctx, merge_tolerance, keep, orient, fill_holes, debris_area):
     s = ctx.surface
     v, f, data, report = pre.repair(
         s.vertices, s.faces, merge_tolerance=merge_tolerance * s.diagonal, keep=keep, orient=orient, outward=orient, face_data=s.face_data,
-        debris_area=debris_area, fill_wall_holes=fill_holes,
+        debris_area=debris_area, fill_wall_holes=fill_holes, hole_wall_beyond=hole_wall_beyond,
     )
     if len(f) == 0:
         raise InputError("no faces left after removing degenerate and duplicate faces", _surface_name(ctx))

@@ -110,6 +110,17 @@ def _drop_trimmed(out: Skeleton, drop: np.ndarray, end_of_cap: dict, matched: np
     return out, matched
 
 
+def _trimmed_to(beyond: np.ndarray, key_degree: int) -> int:
+    """Index in an end chain (end first) of the node that stays its end after the run of
+    end nodes past the cap plane (``beyond``) is trimmed, never the branch's other end.
+    Nothing is trimmed when the whole branch lies past the plane and leaves a junction
+    (``key_degree`` >= 3): the plane is not this branch's cut (a rim fitted askew, as a
+    stub's ending against another vessel), and trimming would drop the branch and move its
+    junction onto the cap."""
+    k = min(int(np.argmin(beyond)) if not beyond.all() else len(beyond) - 1, len(beyond) - 1)
+    return 0 if k == len(beyond) - 1 and key_degree >= 3 else k
+
+
 def extend_to_caps(
     skeleton: Skeleton,
     centers: np.ndarray,
@@ -174,8 +185,7 @@ def extend_to_caps(
         chain = _end_chain(adj, deg, end)
         height = (skeleton.points[chain] - centers[c]) @ normals[c]
         beyond = height > 1e-3 * cap_r[c]  # on the plane to rounding is not beyond
-        # trim the run of end nodes past the cap plane, never the branch's other end
-        k = min(int(np.argmin(beyond)) if not beyond.all() else len(chain) - 1, len(chain) - 1)
+        k = _trimmed_to(beyond, int(deg[chain[-1]]))
         keep_end = int(chain[k])
         drop[chain[:k]] = True
         rest = chain[k:]
