@@ -39,7 +39,7 @@ from ..registry import Parameter, register_filter
         Parameter("check_wall_projection", "bool", True, "Also check boundary-layer blocks with their wall faces projected onto the wall, and thicken the layer (up to 0.5) where they would fold."),
         Parameter("own_territory", "bool", True, "Cut cross-section rays where they cross into a touching vessel (one whose way along the skeleton is much longer than the straight way), so that each vessel's blocks stay in its own lumen."),
         Parameter("junction_lean", "float", 1.0, "How far the half cross-sections of a junction of 4 or more branches that leave its plane unalike may lean about its axis towards the true bisector of their branches (0: half-planes).", min=0.0, max=1.5),
-        Parameter("choose_lean", "bool", False, "Where a junction of 4 or more branches leans, also build it with half-planes from the start and keep, per junction, the choice the block repairs needed fewer fixes at (twice the block-building time on such trees; off: measured as many runs lost as gained, docs/junctions.md)."),
+        Parameter("choose_lean", "bool", False, "Where a junction of 4 or more branches leans, also build it with half-planes from the start, finish both, and keep per junction the choice whose blocks there and at the junctions one branch away have the higher least corner scaled Jacobian (up to twice the block-building time on such trees; off by default, docs/junctions.md h14/trif)."),
         Parameter("cut_contacts", "bool", True, "Where two vessels pass in contact with no junction between them, mesh them apart: a planar cut on the radical plane between their axes is part of the wall for every later stage (rays, projection, optimisers); the fused neck's surface is left out (report.json: blocks.contact_cuts)."),
         Parameter("work_budget", "int", 160, "Most assemblies of the whole block structure over all fix rounds and changed skeletons (each costs time in proportion to the tree); a structure still invalid then fails with the usual error (0: no budget).", min=0, max=10000),
     ],
@@ -133,6 +133,8 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         "cut_stubs": _cut_stubs(ctx, info.get("cut_stubs", [])),
         "contact_cuts": cuts.summary() if cuts is not None else [],
     }
+    if "junction_lean" in info:  # choose_lean's scores and choice per leaning n-furcation
+        ctx.report.sections["blocks"]["junction_lean"] = info["junction_lean"]
     if cuts is not None and len(cuts):
         info["contact_cuts"] = cuts  # mesh_transfinite and compute_quality see the same domain
     if checks["boundary_components"] != 1:

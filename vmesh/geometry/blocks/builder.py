@@ -187,22 +187,25 @@ def _last_tries(options: BlockOptions) -> list:
 
 def _choose_lean(make, work) -> BlockStructure:
     """Build with leaning half-sections and, where some n-furcation leans, also with
-    half-planes there from the start (with ``choose_lean``); keep per such junction the choice the fix loop had
-    to work less for at its node (ties keep the lean).
+    half-planes there from the start (with ``choose_lean``); finish both and give such a
+    junction half-planes where their finished blocks around it score higher by both of
+    :meth:`~.repair._Repair.lean_score`'s measures (least corner scaled Jacobian and fill,
+    over its own first-segment blocks and those of the junctions one branch away); else
+    the lean stays, finished as without ``choose_lean``.
 
     ``make(planar)`` is a new :class:`_Builder` whose junctions ``planar`` keep to
-    half-planes. The raw fill of the two valid structures does not say which ends better,
-    and half-planes put in after the fix loop inherit the margins the loop gave the lean
-    (docs/junctions.md): how hard the loop had to work under each choice does.
-    Only trees with a leaning n-furcation pay, one more fix loop (two where their
-    junctions choose unalike: each junction's choice together; where that is not valid,
-    or the work budget is spent before it is built, the whole-tree variant with less work
-    at those junctions); the wall-fold steps run once, on the structure kept. The extra
-    variants build quietly: the kept one's warnings are given once it is chosen."""
+    half-planes. Neither the fix loop's work under each choice nor the raw fill before the
+    wall-fold steps says which ends better (docs/junctions.md): those steps decide much of
+    the final minimum, and a junction's choice changes its close neighbours' blocks too.
+    Only trees with a leaning n-furcation pay: one more fix loop and the wall-fold steps
+    twice (three times where their junctions choose unalike; where that combination is not
+    valid, or the work budget is spent before it is built, the whole-tree variant whose
+    worst junctions score higher by both). The extra variants build quietly: the kept one's
+    warnings are given once it is chosen."""
     lean = make(frozenset())
     if not lean.opt.junction.choose_lean:
         return lean.run()
-    said, warn = [], lean.warn
+    said, warn, tick = [], lean.warn, lean.tick
     lean.warn = lambda msg: (said.append(msg), warn(msg))
     blocks = lean.make_valid()
     nodes = sorted(c for c, j in lean.topo.junctions.items() if lean.leans(j))
@@ -225,36 +228,67 @@ def _choose_lean(make, work) -> BlockStructure:
     flat = build(frozenset(nodes))
     if flat is None or set(flat.topo.junctions) != set(lean.topo.junctions):
         # half-planes cannot be built, or the two trees' junctions do not match up
-        return _kept(variants[frozenset()], said, warn, lean.tick, work, nodes, {}, "lean", failed)
-    cost = {c: (lean.local.work_at.get(c, 0), flat.local.work_at.get(c, 0)) for c in nodes}
-    pick = frozenset(c for c in nodes if cost[c][1] < cost[c][0])
-    if pick not in variants and not work.spent:
-        build(pick)
-    if pick not in variants:
-        # not built (budget spent), or the junctions' choices interact: the whole-tree variant with less work
-        pick = frozenset(nodes) if sum(b for _, b in cost.values()) < sum(a for a, _ in cost.values()) else frozenset()
-    return _kept(variants[pick], said, warn, lean.tick, work, nodes, cost, ", ".join(f"{c}: {'half-planes' if c in pick else 'lean'}" for c in nodes), failed)
+        return _kept(variants[frozenset()], said, warn, tick, work, nodes, {}, "lean", failed, fixes={})
+    done = {p: _finished(variants[p], work, nodes) for p in list(variants)}
+    score = {c: (done[frozenset()][2][c], done[frozenset(nodes)][2][c]) for c in nodes}
+    pick = frozenset(c for c in nodes if _better(score[c][1], score[c][0]))
+    if pick not in variants and not work.spent and build(pick) is not None:
+        done[pick] = _finished(variants[pick], work, nodes)
+    if pick not in done:
+        # not built (budget spent), or the junctions' choices interact: the whole-tree variant whose worst junctions score higher
+        worst = [np.min([s[k] for s in score.values()], axis=0) for k in (0, 1)]
+        pick = frozenset(nodes) if _better(worst[1], worst[0]) else frozenset()
+    choice = ", ".join(f"{c}: {'half-planes' if c in pick else 'lean'}" for c in nodes)
+    fixes = {str(c): [variants[frozenset()][0].local.work_at.get(c, 0), flat.local.work_at.get(c, 0)] for c in nodes}
+    return _kept(variants[pick], said, warn, tick, work, nodes, score, choice, failed, done[pick], fixes)
 
 
-def _kept(variant, said, warn, tick, work, nodes, cost, choice, failed) -> BlockStructure:
-    """The finished structure of ``variant`` (builder, blocks, ``work.valid_after`` when they
-    were valid, warnings heard), with :func:`_choose_lean`'s choice in its record; the
-    warnings of a quietly built variant are given now (those in ``said``, given by the lean
-    build, are not repeated), and the steps after go to ``warn`` and ``tick``.
-    :meth:`~.repair._Repair.choose_planes` leaves the junctions ``nodes`` as chosen."""
+def _better(flat, lean) -> bool:
+    """Whether half-planes' :meth:`~.repair._Repair.lean_score` ``flat`` beats the lean's:
+    higher by both measures (else the lean, as without ``choose_lean``, stays)."""
+    return bool(np.all(np.asarray(flat) > np.asarray(lean) + 1e-9))
+
+
+def _finished(variant, work, nodes) -> tuple:
+    """``variant`` (builder, blocks, ``work.valid_after``, warnings heard) finished quietly:
+    the finished blocks, the warnings heard, and per junction of ``nodes`` its
+    :meth:`~.repair._Repair.lean_score`. The leaning variant finishes as without
+    ``choose_lean`` (:meth:`~.repair._Repair.choose_planes` may still turn its junctions to
+    half-planes), so the choice is between that result and half-planes from the start."""
     builder, blocks, valid_after, heard = variant
-    if heard is not said:  # a quiet variant
-        for msg in heard:
-            if msg not in said:
-                warn(msg)
+    quiet = list(heard)
+    builder.warn, builder.tick = quiet.append, (lambda f, m="": None)
+    work.valid_after = valid_after
+    out = builder.finish(blocks)
+    return out, quiet, {c: builder.lean_score(out, c) for c in nodes}
+
+
+def _kept(variant, said, warn, tick, work, nodes, score, choice, failed, done=None, fixes=None) -> BlockStructure:
+    """The finished structure of ``variant`` (builder, blocks, ``work.valid_after`` when they
+    were valid, warnings heard; ``done``: already finished by :func:`_finished`), with
+    :func:`_choose_lean`'s choice in its record; the warnings of a quietly built variant are
+    given now (those in ``said``, given by the lean build, are not repeated), and the steps
+    after go to ``warn`` and ``tick``. ``fixes``: per junction the fix loop's fixes at it
+    under each choice, for the record."""
+    builder, blocks, valid_after, heard = variant
+    if done is not None:
+        out, heard, _ = done
+    for msg in heard:
+        if heard is not said and msg not in said:
+            warn(msg)
     builder.warn, builder.tick = warn, tick
     work.valid_after = valid_after  # the kept variant's, not the last one built
-    builder.local.chosen = set(nodes) if cost else set()
-    out = builder.finish(blocks)
-    out.info["junction_lean"] = {"nodes": nodes, "fixes_lean_flat": {str(c): list(v) for c, v in cost.items()}, "kept": choice, "failed": failed}
-    if cost:
-        out.info["fixes"].insert(0, f"n-furcation half-sections ({choice}): the choice the fix loop needed fewer fixes at "
-                                    f"(lean / half-planes: {', '.join(f'{c}: {a} / {b}' for c, (a, b) in cost.items())})")
+    if done is None:
+        out = builder.finish(blocks)
+    else:
+        out.info["work"] = work.summary()
+    # per junction, lean then half-planes: [least corner scaled Jacobian, fill score]
+    out.info["junction_lean"] = {"nodes": nodes, "score_lean_flat": {str(c): np.round(s, 4).tolist() for c, s in score.items()},
+                                 "fixes_lean_flat": fixes, "kept": choice, "failed": failed}
+    if score:
+        out.info["fixes"].insert(0, f"n-furcation half-sections ({choice}): half-planes where their finished blocks at the junction and "
+                                    f"its neighbours score higher by corners and by fill (lean / half-planes: "
+                                    f"{', '.join(f'{c}: {np.round(a, 3).tolist()} / {np.round(b, 3).tolist()}' for c, (a, b) in score.items())})")
     return out
 
 

@@ -33,7 +33,7 @@ class JunctionOptions:
     clear_ray_factor: float = 1.8
     junction_margin: float = 0.3  # × branch radius, between half-sections and the first section
     junction_lean: float = 1.0  # how far n-furcations' half-sections may lean towards the bisector of branches leaving the plane unalike (0: planar)
-    choose_lean: bool = False  # build leaning n-furcations with half-planes too, keep per junction the one needing fewer fixes (:func:`~.builder._choose_lean`)
+    choose_lean: bool = False  # build leaning n-furcations with half-planes too, keep per junction the one whose finished blocks there and at its neighbours have the higher least corner SJ (:func:`~.builder._choose_lean`)
     junction_centre: float = 1.0  # how far half-sections' common line moves from the node to the wall's centre (0: at the node)
 
 
@@ -153,5 +153,4 @@ class _LocalFixes:
     lookahead: dict = field(default_factory=dict)  # junction node -> radii along its branches for their directions
     at_node: set = field(default_factory=set)  # junctions whose half-sections meet on their node, not the wall's centre
     planar: set = field(default_factory=set)  # n-furcations whose half-sections keep to half-planes (:meth:`_Junctions._leaned`)
-    chosen: set = field(default_factory=set)  # n-furcations whose lean :func:`~.builder._choose_lean` chose: :meth:`choose_planes` leaves them
     work_at: dict = field(default_factory=dict)  # junction node -> fixes the fix loop made at its ends (:func:`~.builder._choose_lean`)

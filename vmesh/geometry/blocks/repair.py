@@ -129,7 +129,7 @@ class _Repair:
         resolution and no worse at any, with every block valid
         (:meth:`_switch_where_better`). 3-junctions never lean
         (their axis is the normal of their branches' tips' plane: nothing to lean for)."""
-        nodes = sorted(c for c, j in self.topo.junctions.items() if self.leans(j) and c not in self.local.chosen)
+        nodes = sorted(c for c, j in self.topo.junctions.items() if self.leans(j))
         out, switch = self._switch_where_better(blocks, nodes, self.local.planar)
         if switch:
             self.fixes.append(f"half cross-sections of junction node(s) {switch} keep to half-planes, where their blocks fill better than leaning")
@@ -142,6 +142,29 @@ class _Repair:
         q = np.ones((len(FILL_CHECKS), blocks.n_blocks))
         q[:, sel] = fill_quality(blocks, sel, self.project, self.sdf, self.intersect_lines, per_resolution=True)
         return {c: np.array([fill_score(row[near[c]]) for row in q]) for c in nodes}
+
+    def lean_score(self, blocks: BlockStructure, node: int) -> np.ndarray:
+        """What :func:`~.builder._choose_lean` compares at junction ``node`` of the finished
+        ``blocks``, over the first-segment blocks at it and at the junctions one branch
+        away: their least scaled corner Jacobian, and the least over the fill resolutions
+        of their :func:`fill_score`.
+
+        A junction's half-sections move its neighbours' first sections (through the fix
+        loop's margins), so their blocks count too. Each measure alone picked the
+        better-ending choice at every measured run where the choice decides a pass, and
+        each missed others, mostly not the same ones (docs/junctions.md, h14/trif): the
+        choice changes only where both agree."""
+        from ...blocks import scaled_corner_jacobians
+
+        near = {node}
+        for bi, side in self.topo.junctions[node].ends:
+            br = self.topo.branches[bi]
+            if br.kinds[1 - side] == JUNCTION:
+                near.add(int(br.nodes[0 if side == 1 else -1]))
+        mine = self._junction_blocks(sorted(c for c in near if c in self.topo.junctions))
+        corner = scaled_corner_jacobians(blocks.vertices[blocks.hexes[mine]]).min()
+        fill = fill_quality(blocks, mine, self.project, self.sdf, self.intersect_lines, per_resolution=True)
+        return np.array([corner, min(fill_score(row) for row in fill)])
 
     def _checked_score(self, blocks: BlockStructure, near: np.ndarray) -> np.ndarray:
         """:func:`fill_score` of the blocks ``near`` per fill resolution; -inf when any block
