@@ -146,6 +146,26 @@ def test_a_stub_cap_fitted_askew_keeps_its_branch(turn):
     assert any(abs((out.points[v] - sk.points[j]) @ d - np.linalg.norm(out.points[v] - sk.points[j])) < 1e-9 for v in nb)
 
 
+@pytest.mark.parametrize("cap_x", [0.5, -0.5])
+def test_a_cap_facing_along_its_branch_trims_the_branch_past_it(cap_x):
+    """A T of straight centerlines (parent along y, junction at the origin, end branch nodes
+    at x = 1, 2, 3) whose branch cap lies at x = ``cap_x`` facing +x, along the branch: the
+    cap is the branch's cut, not fitted askew, so the nodes past it are trimmed (the whole
+    branch, even when the junction is past the plane too) and no node of the final skeleton
+    lies farther past the cap's plane than the junction, the branch's end on the plane."""
+    parent = np.c_[np.zeros(7), np.arange(-3.0, 4.0), np.zeros(7)]
+    branch = np.c_[np.arange(1.0, 4.0), np.zeros(3), np.zeros(3)]
+    edges = np.r_[np.c_[np.arange(6), np.arange(1, 7)], [[3, 7], [7, 8], [8, 9]]]
+    sk = Skeleton(np.r_[parent, branch], np.full(10, 0.4), edges)
+    C = np.array([[0.0, -3.0, 0.0], [0.0, 3.0, 0.0], [cap_x, 0.0, 0.0]])
+    N = np.array([[0.0, -1.0, 0.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+    out, matched = extend_to_caps(sk, C, N, np.full(3, 0.4), max_distance=10.0)
+    assert (matched >= 0).all()
+    height = (out.points - C[2]) @ N[2]
+    assert height.max() <= max(-cap_x, 0.0) + 1e-9
+    np.testing.assert_allclose(height[matched[2]], 0.0, atol=1e-9)
+
+
 def _generated_stub(tmp_path, angle, ratio, length):
     """The generator's stub on a straight vessel (``stub_vessel``), written as the corpus
     writes a vessel; returns the surface and centerline paths."""
