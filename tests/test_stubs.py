@@ -89,9 +89,9 @@ def test_stub_with_room_keeps_its_blocks(args):
 
 def test_stub_cut_slant_at_its_parents_wall_is_cut_not_a_lost_section():
     """A thin stub (radius 0.12) cut open at its parent's wall by a plane 55 degrees off its
-    axis (generated g0007 extracted: a 0.019 cm opening on a 0.07 vessel): its cap section
-    lies in that plane, half inside the parent, and its rays run 12 stub radii through the
-    parent's lumen without meeting the wall ("finds no wall within reach"). The stub is cut
+    axis (as a generated vessel's extracted skeleton has it: a 0.019 cm opening on a 0.07
+    vessel): its cap section lies in that plane, half inside the parent, and its rays run 12
+    stub radii through the parent's lumen without meeting the wall ("finds no wall within reach"). The stub is cut
     back into its parent instead, as any stub within its junction's half-sections."""
     case, blocks, warnings = _build(90, 0.12, 0.4, 8.0, 55)
     assert blocks.corner_jacobians().min() > 0
@@ -119,7 +119,7 @@ def _stub_skeleton_with_nodes(angle: float, ratio: float, length: float, n: int 
 @pytest.mark.parametrize("turn", [100.0, 130.0])
 def test_a_stub_cap_fitted_askew_keeps_its_branch(turn):
     """A stub ending against another vessel has a ragged rim whose fitted plane can face
-    away from the stub (generated seed 1 g0004: 102 degrees off its axis), so that every
+    away from the stub (a generated stub's: 102 degrees off its axis), so that every
     node of the stub lies past it. ``extend_to_caps`` trimmed the whole stub and moved its
     junction onto the cap (the parent bent out to the cap, the stub gone, the cap counted
     as reached); the stub now stays whole and ends at its cap, the junction where it was."""

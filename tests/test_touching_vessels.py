@@ -121,9 +121,9 @@ def bridged(gap: float = 1.6):
 
 def test_a_bridge_through_the_neck_of_touching_vessels_is_cut():
     """A skeleton that runs from one touching vessel into the other through the contact (a
-    cycle the vessel tree has not: generated g0015 extracted, where the section at such a
-    link stood in the fused neck and found no wall) loses the neck node: the two vessels'
-    skeletons are apart again, as the true one. A narrow node on a tree, whose removal
+    cycle the vessel tree has not: a generated vessel's extracted skeleton, where the
+    section at such a link stood in the fused neck and found no wall) loses the neck node:
+    the two vessels' skeletons are apart again, as the true one. A narrow node on a tree, whose removal
     would split the skeleton, stays."""
     from vmesh.geometry.skeleton.defects import cut_necks
 
@@ -153,9 +153,9 @@ def _linked(case: JunctionCase, k: int, s: int, shift: float = 0.0) -> tuple[Ske
 
 
 def test_a_short_link_between_vessels_passing_in_contact_is_cut():
-    """Generated g0000 extracted: two vessels pass each other in contact and thinning joins
-    them with a short link (an "H": 0.106 between junctions of radius 0.05-0.06, each
-    vessel straight through its junction); the blocks stayed invalid at the two close
+    """A generated vessel's extracted skeleton: two vessels pass each other in contact and
+    thinning joins them with a short link (an "H": 0.106 between junctions of radius
+    0.05-0.06, each vessel straight through its junction); the blocks stayed invalid at the two close
     junctions. The link is cut and the skeleton is the tree again. A link many radii
     long (an anastomosis) stays, and so does a link whose end is a real bend."""
     from vmesh.geometry.skeleton.defects import cut_crossing_bridges
@@ -343,9 +343,9 @@ def _fork_skeleton(corners, r: float = 1.33) -> Skeleton:
 
 def test_a_fused_fork_is_no_contact():
     """Two daughters of one junction whose walls stay fused from it for many radii (an acute
-    fork, or a junction moved to where the centerlines part while the walls have not:
-    seed 1 g0005 given) are far apart along the skeleton where their lumens are still one,
-    but they are that junction's branches, not vessels in contact: the cut on the radical
+    fork, or a junction moved to where the centerlines part while the walls have not, as on
+    a generated fork's given centerline) are far apart along the skeleton where their lumens
+    are still one, but they are that junction's branches, not vessels in contact: the cut on the radical
     plane between them ran into the junction's blocks (corner Jacobian -9). Daughters that
     part and touch again further on are a contact."""
     from vmesh.geometry.skeleton.contact import vessels_in_contact

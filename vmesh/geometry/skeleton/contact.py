@@ -4,8 +4,8 @@ Two branches far apart along the skeleton whose centerlines pass closer than the
 their radii (kissing vessels, or crossing ones, as in a whole-brain SWC tree) have lumens
 that touch or fuse in the surface while the skeleton has no junction there: each tube's
 blocks meet the other vessel's wall, and the fill may fold where no block repair or
-untangling can open it (issue 17: BraVa BG0002 given's last inverted elements, generated
-g0015 / g0017). The block builder keeps each vessel's rays in its own territory; this
+untangling can open it (issue 17: the last inverted elements of a whole-brain tree and of
+generated vessels). The block builder keeps each vessel's rays in its own territory; this
 finds the places, so that a run can name them.
 """
 
