@@ -219,15 +219,21 @@ def test_a_short_stubs_open_end_is_not_a_hole(tmp_path, args):
 
 
 @pytest.mark.slow
-def test_short_stub_meshes_with_its_open_end_kept(tmp_path):
+@pytest.mark.parametrize("wall_beyond", [
+    True,
+    # the default chain (wall_beyond off) still fills the open end as a hole: kept tracked
+    pytest.param(False, marks=pytest.mark.xfail(strict=True, reason="open (issue 17, docs/junctions.md): the default "
+                                                "chain takes the short stub's bevelled open rim for a hole and fills it")),
+])
+def test_short_stub_meshes_with_its_open_end_kept(tmp_path, wall_beyond):
     """The generator's stub cut one radius past its parent's wall (radius 0.3, 70 degrees)
-    failed the default chain ("closed end ... no wall found round the dome": its open end
+    fails the default chain ("closed end ... no wall found round the dome": its open end
     filled as a hole); with ``repair_surface.hole_wall_beyond`` it stays open and meshes,
     min scaled Jacobian >= 0.3, coverage passed, its cap named."""
     from vmesh.chain import FilterChain
 
     surface, centerline = _generated_stub(tmp_path, 70, 0.3, 1.0)
-    chain = FilterChain.load("default").with_overrides({"repair_surface.hole_wall_beyond": True})
+    chain = FilterChain.load("default").with_overrides({"repair_surface.hole_wall_beyond": wall_beyond})
     chain.steps = [s for s in chain.steps if not s.filter.startswith("write")]
     ctx = chain.run(surface=surface, skeleton=centerline)
     assert "filled_holes" not in ctx.report.sections["repair"] or not ctx.report.sections["repair"]["filled_holes"]
