@@ -1,6 +1,6 @@
 """The generator's stub on a straight vessel (``data_synthetic.vessel_generator.stub_vessel``)
 swept over its angle, radius ratio and length, each through the default chain with its true
-centerline (issue 17, docs/junctions.md h14/stubs).
+centerline (issue 17, docs/junctions.md).
 
 One row per vessel: the result (min / mean scaled Jacobian, or the failing step and error),
 the stubs the builder cut back into their parent, and the holes repair_surface filled (a

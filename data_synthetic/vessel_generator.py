@@ -309,7 +309,29 @@ def stub_vessel(angle: float = 70.0, ratio: float = 0.45, length: float = 1.5, e
     :func:`~data_synthetic.vessels.tree.add_side_branch` makes a ``stub``: radius ``ratio``,
     leaving the parent's axis at ``angle`` degrees from +x and cut ``length`` of its radii past
     the parent's wall; surface by the generator's own pipeline (contour, ends, smoothing,
-    decimation). For sweeps over the stub's shape (issue 17)."""
+    decimation). For sweeps over the stub's shape (issue 17).
+
+    Parameters
+    ----------
+    angle : float
+        Degrees between the stub's axis and the parent's (+x), in the xy plane.
+    ratio : float
+        The stub's radius, as a fraction of the parent's (1 mm).
+    length : float
+        How far the stub reaches past the parent's wall, in stub radii.
+    end_style : {"open", "flat", "round"}
+        The ends' style, as :func:`generate_vessel`'s.
+    half : float
+        Half the parent's length, mm.
+    name : str
+        The vessel's name in its manifest.
+
+    Returns
+    -------
+    Vessel
+        Surface, centerline (nodes, radii, tags, edges) and a manifest whose ``stub`` entry
+        records ``angle``, ``ratio`` and ``length``.
+    """
     parent = T.straight(np.array([-half, 0.0, 0.0]), np.array([half, 0.0, 0.0]), 1.0, 1.0)
     tree = T.Tree([T.Branch(*parent)])
     i = int(np.argmin(np.abs(parent[0][:, 0])))

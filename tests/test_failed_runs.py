@@ -195,6 +195,60 @@ def test_a_stop_inside_an_import_is_a_stop_not_a_bug(tmp_path, tube_files):
         _REGISTRY.pop("stop_inside_import_test", None)
 
 
+def test_a_stop_inside_an_import_turned_into_a_vmesh_error_is_a_stop(tmp_path, tube_files):
+    """A filter that reports an interrupted import as its own (vmesh) error still stops the
+    run as a stop, not as that step's error."""
+    from vmesh.errors import InputError
+
+    surface, _ = tube_files
+
+    @register_filter("stop_as_vmesh_error_test", description="Report an interrupted import as a vmesh error.", parameters=[], reads=("surface",), category="test")
+    def stop_as_vmesh_error(ctx):
+        try:
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as exc:
+                raise ImportError("initialization failed") from exc
+        except ImportError as exc:
+            raise InputError("a reader is missing") from exc
+
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            FilterChain(["repair_surface", "stop_as_vmesh_error_test"]).run(surface=surface, out_dir=tmp_path / "out")
+        assert not (tmp_path / "out").exists()
+    finally:
+        _REGISTRY.pop("stop_as_vmesh_error_test", None)
+
+
+@pytest.mark.parametrize("stopped", [True, False])
+def test_render_setup_passes_a_stop_inside_vtks_import_on(monkeypatch, stopped):
+    """``render._setup`` goes on without VTK's logger settings when the import fails, but a
+    stop that landed during that import is raised."""
+    import builtins
+
+    pytest.importorskip("pyvista")
+    from vmesh import render
+
+    real = builtins.__import__
+
+    def fake(name, *args, **kwargs):
+        if name == "vtk":
+            if not stopped:
+                raise ImportError("no vtk")
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as exc:
+                raise ImportError("initialization failed") from exc
+        return real(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", fake)
+    if stopped:
+        with pytest.raises(KeyboardInterrupt):
+            render._setup()
+    else:
+        assert render._setup() is not None
+
+
 def test_stop_behind_follows_causes_and_contexts():
     from vmesh.errors import Stopped, stop_behind
 

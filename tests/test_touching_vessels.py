@@ -121,9 +121,9 @@ def bridged(gap: float = 1.6):
 
 def test_a_bridge_through_the_neck_of_touching_vessels_is_cut():
     """A skeleton that runs from one touching vessel into the other through the contact (a
-    cycle the vessel tree has not: generated g0015 extracted, where the section at such a
-    link stood in the fused neck and found no wall) loses the neck node: the two vessels'
-    skeletons are apart again, as the true one. A narrow node on a tree, whose removal
+    cycle the vessel tree has not: a generated vessel's extracted skeleton, where the
+    section at such a link stood in the fused neck and found no wall) loses the neck node:
+    the two vessels' skeletons are apart again, as the true one. A narrow node on a tree, whose removal
     would split the skeleton, stays."""
     from vmesh.geometry.skeleton.defects import cut_necks
 
@@ -153,9 +153,9 @@ def _linked(case: JunctionCase, k: int, s: int, shift: float = 0.0) -> tuple[Ske
 
 
 def test_a_short_link_between_vessels_passing_in_contact_is_cut():
-    """Generated g0000 extracted: two vessels pass each other in contact and thinning joins
-    them with a short link (an "H": 0.106 between junctions of radius 0.05-0.06, each
-    vessel straight through its junction); the blocks stayed invalid at the two close
+    """A generated vessel's extracted skeleton: two vessels pass each other in contact and
+    thinning joins them with a short link (an "H": 0.106 between junctions of radius
+    0.05-0.06, each vessel straight through its junction); the blocks stayed invalid at the two close
     junctions. The link is cut and the skeleton is the tree again. A link many radii
     long (an anastomosis) stays, and so does a link whose end is a real bend."""
     from vmesh.geometry.skeleton.defects import cut_crossing_bridges
@@ -343,9 +343,9 @@ def _fork_skeleton(corners, r: float = 1.33) -> Skeleton:
 
 def test_a_fused_fork_is_no_contact():
     """Two daughters of one junction whose walls stay fused from it for many radii (an acute
-    fork, or a junction moved to where the centerlines part while the walls have not:
-    seed 1 g0005 given) are far apart along the skeleton where their lumens are still one,
-    but they are that junction's branches, not vessels in contact: the cut on the radical
+    fork, or a junction moved to where the centerlines part while the walls have not, as on
+    a generated fork's given centerline) are far apart along the skeleton where their lumens
+    are still one, but they are that junction's branches, not vessels in contact: the cut on the radical
     plane between them ran into the junction's blocks (corner Jacobian -9). Daughters that
     part and touch again further on are a contact."""
     from vmesh.geometry.skeleton.contact import vessels_in_contact
@@ -357,6 +357,49 @@ def test_a_fused_fork_is_no_contact():
     back = _fork_skeleton([[6.0, 3.46], [12.0, 0.65], [20.0, 0.65]])
     found = vessels_in_contact(back.points, back.radii, back.edges)
     assert len(found) >= 1 and (found[:, 2] < 0).all()
+
+
+def _split_junction(sk: Skeleton, step: float = 0.8, r: float = 1.33) -> Skeleton:
+    """``sk`` (a ``_fork_skeleton``) with its -y daughter moved to a second junction ``step``
+    along +x from the first, a third branch leaving that one along -z."""
+    first = [e for e in sk.edges.tolist() if 0 in e and sk.points[e[0] + e[1]][1] < 0][0]
+    d = first[0] + first[1]
+    j2 = sk.n_nodes
+    third = np.c_[np.full(8, step), np.zeros(8), -1.2 * r * np.arange(1, 9)]
+    edges = [e for e in sk.edges.tolist() if e != first] + [[0, j2], [j2, d], [j2, j2 + 1]]
+    edges += [[j2 + k, j2 + k + 1] for k in range(1, 8)]
+    pts = np.r_[sk.points, [[step, 0.0, 0.0]], third]
+    return Skeleton(pts, np.full(len(pts), r), np.array(edges))
+
+
+def test_a_fused_fork_from_a_split_junction_is_no_contact():
+    """The fused fork with one daughter leaving a second junction 0.8 from the first (a
+    branching the skeleton split into two nodes, their spheres overlapping): the two
+    junctions are one, the fused daughters its branches, no contact; daughters that part and
+    pass each other again are still one."""
+    from vmesh.geometry.skeleton.contact import vessels_in_contact
+
+    fused = _split_junction(_fork_skeleton([[1.56, 0.9], [7.56, 0.9], [20.7, 5.7]]))
+    assert int((fused.degrees == 3).sum()) == 2
+    assert len(vessels_in_contact(fused.points, fused.radii, fused.edges)) == 0
+    back = _split_junction(_fork_skeleton([[6.0, 3.46], [12.0, 0.65], [20.0, 0.65]]))
+    found = vessels_in_contact(back.points, back.radii, back.edges)
+    assert len(found) >= 1 and (found[:, 2] < 0).all()
+
+
+def test_tips_of_short_branches_from_neighbouring_junctions_are_a_contact():
+    """Two short branches (radius 0.8) leaving neighbouring junctions of a vessel (radius
+    1.37, junctions one radius apart), each one 2.9 long segment, whose tips touch 1.43
+    apart: the lumens part between the junctions and the tips, so the tips are a contact,
+    not a fused fork of the junctions taken as one."""
+    from vmesh.geometry.skeleton.contact import vessels_in_contact
+
+    parent = np.c_[1.37 * np.arange(-6, 8), np.zeros(14), np.zeros(14)]
+    tips = np.array([[0.5, 2.86, 0.0], [1.93, 2.85, 0.0]])
+    edges = np.r_[np.c_[np.arange(13), np.arange(1, 14)], [[6, 14], [7, 15]]]
+    radii = np.r_[np.full(14, 1.37), [0.78, 0.78]]
+    found = vessels_in_contact(np.r_[parent, tips], radii, edges)
+    assert found[:, :2].tolist() == [[14, 15]] and found[0, 2] < 0
 
 
 @pytest.mark.slow

@@ -353,6 +353,10 @@ def _run_step(ctx: Context, number: int, step: Step, say, log: Path | None) -> N
         try:
             f.function(ctx, **step.params)
         except VmeshError as exc:
+            # a filter may turn an interrupted import's error into its own: still a stop
+            stop = stop_behind(exc)
+            if stop is not None:
+                raise stop from None
             raise _with_message(exc, f"step {number} '{step.filter}': {exc}") from exc
         except MemoryError:
             raise ChainError(

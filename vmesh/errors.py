@@ -50,7 +50,20 @@ def stop_behind(exc: BaseException) -> BaseException | None:
 
     A signal that lands while a C extension initialises or runs a callback comes back as
     an ordinary error (``ImportError: initialization failed`` from a module import) with
-    the stop as its cause or context: it is still a stop, not a bug."""
+    the stop as its cause or context: it is still a stop, not a bug.
+
+    Parameters
+    ----------
+    exc : BaseException
+        The exception caught; its chain of causes and contexts is followed (each link
+        once, so a cycle ends the search).
+
+    Returns
+    -------
+    BaseException or None
+        ``exc`` itself or the first exception in its chain that is a KeyboardInterrupt or
+        a :class:`Stopped`; None when there is none (a real error).
+    """
     seen = set()
     while exc is not None and id(exc) not in seen:
         if isinstance(exc, (KeyboardInterrupt, Stopped)):

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, stop_behind
 from .io.atomic import atomic_path, replace_dir, write_text_atomic
 
 #: Pictures in the order the HTML page shows them, with their captions.
@@ -44,8 +44,10 @@ def _setup():
 
         vtk.vtkLogger.SetStderrVerbosity(vtk.vtkLogger.VERBOSITY_OFF)
         vtk.vtkObject.GlobalWarningDisplayOff()
-    except (ImportError, AttributeError):
-        pass
+    except (ImportError, AttributeError) as exc:
+        stop = stop_behind(exc)  # a signal during the import is a stop, not a missing module
+        if stop is not None:
+            raise stop from None
     return pv
 
 

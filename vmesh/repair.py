@@ -427,9 +427,13 @@ HOLE_MAX_EDGES = 5
 #: ``HOLE_SECTOR_COVER`` covered). Past a vessel's open end the wall has turned back along
 #: the vessel: an end whose rim smoothing bevelled into a flange (a short stub's, a small
 #: vessel's; rims 0.4-0.9 of the radius) passes the two tests above but has no wall past the
-#: flange, or on one side only (its parent's wall beside a slanting stub). Generated corpus
-#: (2026-12-05): holes 0.81-1.12 covered, open ends 0. Opt-in (``wall_beyond``): with it
-#: two runs that passed with such an end filled fail elsewhere (docs/junctions.md, h14/stubs).
+#: flange, or on one side only (its parent's wall beside a slanting stub). On the generated
+#: corpus: holes 0.81-1.12 covered, open ends 0. The ring is in loop radii, not the vessel's:
+#: on a tube of radius R the wall round the circumference leaves the slab |h| <= r before
+#: 2r for a hole wider than about R/2 (and the ring wraps round the tube), so such a hole is
+#: judged by the wall along the tube alone, which a bend or a junction within 3 hole radii
+#: can break. Opt-in (``wall_beyond``): with it two runs that passed with such an end filled
+#: fail elsewhere (docs/junctions.md).
 HOLE_BEYOND = 2.0
 HOLE_SECTORS = 8
 HOLE_SECTOR_COVER = 0.5
@@ -470,7 +474,25 @@ def wall_hole_loops(vertices: np.ndarray, faces: np.ndarray, wall_beyond: bool =
     ``HOLE_MAX_EDGES`` edges: a missing triangle beside an open end's rim lies in the end's
     plane, across the wall), not open ends of a vessel. Of a loop through a vertex twice
     (a rim pinched there) only the 3-edge parts are holes: a triangle missing beside the
-    rim, touching it at one vertex; larger parts may be lobes of the open end."""
+    rim, touching it at one vertex; larger parts may be lobes of the open end.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float array
+    faces : (m, 3) int array
+        Consistently oriented triangles.
+    wall_beyond : bool, default False
+        Also require the wall to go on past the loop on two opposite sides
+        (:data:`HOLE_BEYOND`), so that an open end whose rim was bevelled into a flange
+        (a short stub's) is not taken for a hole. Its ring is measured in loop radii: see
+        :data:`HOLE_BEYOND` for holes nearly as wide as their vessel.
+
+    Returns
+    -------
+    list of int arrays
+        The vertex loops (as :func:`topology.boundary_loops` gives them, or their 3-edge
+        parts) that are holes.
+    """
     loops = topology.boundary_loops(faces)
     if not loops:
         return []

@@ -4,8 +4,8 @@ Two branches far apart along the skeleton whose centerlines pass closer than the
 their radii (kissing vessels, or crossing ones, as in a whole-brain SWC tree) have lumens
 that touch or fuse in the surface while the skeleton has no junction there: each tube's
 blocks meet the other vessel's wall, and the fill may fold where no block repair or
-untangling can open it (issue 17: BraVa BG0002 given's last inverted elements, generated
-g0015 / g0017). The block builder keeps each vessel's rays in its own territory; this
+untangling can open it (issue 17: the last inverted elements of a whole-brain tree and of
+generated vessels). The block builder keeps each vessel's rays in its own territory; this
 finds the places, so that a run can name them.
 """
 
@@ -64,7 +64,7 @@ def vessels_in_contact(points: np.ndarray, radii: np.ndarray, edges: np.ndarray,
     way = SkeletonWays(E, P, 0.0)(a, b, detour * both)
     far = way > detour * both
     if far.any():
-        far &= ~_fused_from_junction(a, b, E, len(P))
+        far &= ~_fused_from_junction(a, b, E, P, r)
     a, b, gap = a[far], b[far], (dist - both)[far]
     if not len(a):
         return np.zeros((0, 3))
@@ -78,7 +78,7 @@ def vessels_in_contact(points: np.ndarray, radii: np.ndarray, edges: np.ndarray,
     return np.c_[np.minimum(a, b)[kept], np.maximum(a, b)[kept], gap[kept]]
 
 
-def _fused_from_junction(a: np.ndarray, b: np.ndarray, edges: np.ndarray, n: int) -> np.ndarray:
+def _fused_from_junction(a: np.ndarray, b: np.ndarray, edges: np.ndarray, points: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """Which close node pairs ``(a, b)`` (a < b) are a junction's fused fork: joined to a
     pair of the junction's own first nodes (the junction and its neighbours) by close
     pairs on two branches of that junction, each a step along one segment on either side
@@ -90,14 +90,25 @@ def _fused_from_junction(a: np.ndarray, b: np.ndarray, edges: np.ndarray, n: int
     junction's half-sections take apart; a cut there runs into the junction's blocks.
     Vessels that touch further on, after parting, are a contact whatever their branches,
     and so are a branch curled back onto itself (both nodes on one branch) and the ends of
-    branches from two junctions that meet (a loop's broken skeleton)."""
+    branches from two junctions that meet (a loop's broken skeleton).
+
+    Junction nodes joined by a segment shorter than the sum of their radii are one junction
+    (their inscribed spheres overlap: one lumen, a branching the skeleton split into two
+    nodes), so the daughters of either are that junction's branches. A first node counts
+    only when its sphere reaches its junction's (one lumen from the junction to it): the
+    touching tips of two short branches, each one long segment from its junction, are a
+    contact."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    m = len(a)
+    m, n = len(a), len(points)
     if m == 0 or len(edges) == 0:
         return np.zeros(m, bool)
     deg = np.bincount(edges.ravel(), minlength=n)
+    # one id per cluster of junction nodes joined by segments within their spheres
+    u0, v0 = edges[:, 0], edges[:, 1]
+    near = (deg[u0] >= 3) & (deg[v0] >= 3) & (np.linalg.norm(points[u0] - points[v0], axis=1) < radii[u0] + radii[v0])
+    _, cid = connected_components(coo_matrix((np.ones(int(near.sum())), (u0[near], v0[near])), shape=(n, n)), directed=False)
     # branch of each node: the pieces left with the junctions taken out (junctions: -1)
     inner = (deg[edges[:, 0]] < 3) & (deg[edges[:, 1]] < 3)
     e = edges[inner]
@@ -107,11 +118,11 @@ def _fused_from_junction(a: np.ndarray, b: np.ndarray, edges: np.ndarray, n: int
     ends = np.full((n, 2), -1)
     for u, v in ((edges[:, 0], edges[:, 1]), (edges[:, 1], edges[:, 0])):
         at = (deg[u] >= 3) & (deg[v] < 3)
-        for c, l in zip(u[at].tolist(), branch[v[at]].tolist()):
+        for c, l in zip(cid[u[at]].tolist(), branch[v[at]].tolist()):
             ends[l, 0 if ends[l, 0] < 0 or ends[l, 0] == c else 1] = c
     la, lb = branch[a], branch[b]
-    ea = np.where(la[:, None] >= 0, ends[np.maximum(la, 0)], a[:, None])  # a junction is its own end
-    eb = np.where(lb[:, None] >= 0, ends[np.maximum(lb, 0)], b[:, None])
+    ea = np.where(la[:, None] >= 0, ends[np.maximum(la, 0)], cid[a][:, None])  # a junction is its own end
+    eb = np.where(lb[:, None] >= 0, ends[np.maximum(lb, 0)], cid[b][:, None])
     shared = ((ea[:, :, None] == eb[:, None, :]) & (ea[:, :, None] >= 0)).any(axis=(1, 2))
     # two branches of one junction, or a junction and one of its branches
     two = (la != lb) & shared
@@ -121,7 +132,6 @@ def _fused_from_junction(a: np.ndarray, b: np.ndarray, edges: np.ndarray, n: int
     o = np.argsort(src * n + dst)
     src, dst = src[o], dst[o]
     start = np.searchsorted(src, np.arange(n + 1))
-    linked = src * n + dst  # sorted
 
     def around(x):
         """(row, neighbour) for every neighbour of each x[row], itself included."""
@@ -143,13 +153,17 @@ def _fused_from_junction(a: np.ndarray, b: np.ndarray, edges: np.ndarray, n: int
     hit = (skey[pos] == u * n + v) & two[i] & two[j]
     graph = coo_matrix((np.ones(int(hit.sum())), (i[hit], j[hit])), shape=(m, m))
     _, label = connected_components(graph, directed=False)
-    # seeds: a junction and a node next to it, or two nodes next to one junction
-    ja, ca = around(a)
-    c_ok = deg[ca] >= 3
-    ja, ca = ja[c_ok], ca[c_ok]
-    q = ca * n + b[ja]
-    at = np.clip(np.searchsorted(linked, q), 0, len(linked) - 1)
+    # seeds: a junction and a node next to it, or two nodes next to one junction (each
+    # node itself or a neighbour in one cluster of junction nodes), each node's sphere
+    # reaching its junction's: the lumens are one from the junction to the pair. Two short
+    # branches whose ends touch, each one long segment from its junction, are a contact.
     seed = np.zeros(m, bool)
-    seed[ja[linked[at] == q]] = True
+
+    def keys(x):
+        rows, c = around(x)
+        ok = (deg[c] >= 3) & ((c == x[rows]) | (np.linalg.norm(points[x[rows]] - points[c], axis=1) < radii[x[rows]] + radii[c]))
+        return np.unique(rows[ok] * n + cid[c[ok]])
+
+    seed[np.intersect1d(keys(a), keys(b)) // n] = True
     seed &= two
     return np.isin(label, label[seed])

@@ -110,15 +110,16 @@ def _drop_trimmed(out: Skeleton, drop: np.ndarray, end_of_cap: dict, matched: np
     return out, matched
 
 
-def _trimmed_to(beyond: np.ndarray, key_degree: int) -> int:
+def _trimmed_to(beyond: np.ndarray, key_degree: int, askew: bool) -> int:
     """Index in an end chain (end first) of the node that stays its end after the run of
     end nodes past the cap plane (``beyond``) is trimmed, never the branch's other end.
-    Nothing is trimmed when the whole branch lies past the plane and leaves a junction
-    (``key_degree`` >= 3): the plane is not this branch's cut (a rim fitted askew, as a
-    stub's ending against another vessel), and trimming would drop the branch and move its
-    junction onto the cap."""
+    Nothing is trimmed when the whole branch lies past the plane, leaves a junction
+    (``key_degree`` >= 3) and runs against the cap's outward normal (``askew``): the plane
+    is not this branch's cut (a rim fitted askew, as a stub's ending against another
+    vessel), and trimming would drop the branch and move its junction onto the cap. A
+    branch running along the normal past its cap is trimmed as any other."""
     k = min(int(np.argmin(beyond)) if not beyond.all() else len(beyond) - 1, len(beyond) - 1)
-    return 0 if k == len(beyond) - 1 and key_degree >= 3 else k
+    return 0 if k == len(beyond) - 1 and key_degree >= 3 and askew else k
 
 
 def extend_to_caps(
@@ -185,7 +186,10 @@ def extend_to_caps(
         chain = _end_chain(adj, deg, end)
         height = (skeleton.points[chain] - centers[c]) @ normals[c]
         beyond = height > 1e-3 * cap_r[c]  # on the plane to rounding is not beyond
-        k = _trimmed_to(beyond, int(deg[chain[-1]]))
+        # a cap's outward normal points along the branch it cuts, from the junction to the
+        # end; a branch running against it ends at a rim fitted askew, not past its cut
+        askew = bool((skeleton.points[chain[0]] - skeleton.points[chain[-1]]) @ normals[c] < 0)
+        k = _trimmed_to(beyond, int(deg[chain[-1]]), askew)
         keep_end = int(chain[k])
         drop[chain[:k]] = True
         rest = chain[k:]
