@@ -264,8 +264,12 @@ def _optimise_nodes(X, sub, target, ids, wall, cap_nodes, wall_normals, cap_norm
     qmin = float(linear_scaled_jacobian(X, sub[use]).min())
     delta = 1e-3 if qmin > 1e-3 else float(np.sqrt(1e-3 * (1e-3 - min(qmin, 0.0)) + 1e-6))
     scale = (1.0 / target(use)).reshape(-1, 2, 2, 2, 3)
-    prob = _Problem(sub[use], scale, ids, B, X[ids].copy(), delta)
-    Y = _minimise(X, prob, iterations, work)
+    # the problem on its own nodes, renumbered in order (the same sums in the same order): each
+    # evaluation then writes the gradient of those nodes, not of the whole piece of mesh
+    nodes, local = np.unique(sub[use], return_inverse=True)
+    prob = _Problem(local.reshape(-1, 8), scale, np.searchsorted(nodes, ids), B, X[ids].copy(), delta)
+    Y = X.copy()
+    Y[nodes] = _minimise(X[nodes], prob, iterations, work)
     if project is not None:
         w = ids[wall[ids]]
         if len(w):
