@@ -208,10 +208,13 @@ def caps_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray
 def name_caps(caps: list[Cap], inlet: int | None = None, inlet_point=None) -> tuple[list[Cap], dict]:
     """Order caps by decreasing radius, name them, and renumber their ids 1..n.
 
-    The inlet is the largest cap unless ``inlet`` (1-based position in the order of
+    The inlet is the largest cap known to be an end (not ``needs_end``; the largest of
+    all where every cap needs one) unless ``inlet`` (1-based position in the order of
     decreasing radius) or ``inlet_point`` (the cap whose centre is nearest) names
     another. It gets id 1 and name ``"inlet"``; the others ``"outlet_1"``,
-    ``"outlet_2"``, ... in order of decreasing radius.
+    ``"outlet_2"``, ... in order of decreasing radius, the caps that need an end after
+    the others (they may turn out to be facets of the wall and be dropped; the sure caps'
+    names then stay).
 
     Returns
     -------
@@ -229,8 +232,9 @@ def name_caps(caps: list[Cap], inlet: int | None = None, inlet_point=None) -> tu
             raise ValueError(f"inlet = {inlet} but there are {len(by_radius)} caps (1 = largest)")
         chosen = inlet - 1
     else:
-        chosen = 0
-    ordered = [by_radius[chosen]] + [c for i, c in enumerate(by_radius) if i != chosen]
+        chosen = next((i for i, c in enumerate(by_radius) if not c.needs_end), 0)
+    rest = [c for i, c in enumerate(by_radius) if i != chosen]
+    ordered = [by_radius[chosen]] + [c for c in rest if not c.needs_end] + [c for c in rest if c.needs_end]
     out, relabel = [], {}
     for new_id, c in enumerate(ordered, start=1):
         relabel[c.id] = new_id

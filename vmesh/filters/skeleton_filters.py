@@ -346,8 +346,8 @@ def clean_skeleton(
     counts = {}
     skel, counts["welded"] = weld_coincident_nodes(skel, weld_distance)
     caps = list(ctx.caps or [])
-    if caps and any(getattr(c, "needs_end", False) for c in caps):  # before a terrace's plane could trim the centerline
-        caps = _facets_to_wall(ctx, skel, caps)
+    if caps and any(c.needs_end for c in caps):  # before a terrace's plane could trim the centerline
+        skel, caps = _facets_to_wall(ctx, skel, caps)
     if extend_to_caps and caps:  # centerlines running out through an open end stop at its cap
         cap_arrays = (np.array([c.center for c in caps]), np.array([c.normal for c in caps]), np.array([c.radius for c in caps]))
         skel, counts["cut_at_caps"] = sk_clean.trim_at_caps(skel, *cap_arrays)
@@ -485,11 +485,24 @@ def _facets_to_wall(ctx, skel, caps):
     for i, c in enumerate(caps):  # an end on the region itself (a branch grafted to it) reaches it too
         if len(ends) and np.linalg.norm(skel.points[ends] - c.center, axis=1).min() <= c.radius:
             reached.add(i)
-    facets = [i for i, c in enumerate(caps) if getattr(c, "needs_end", False) and i not in reached and on_branch_wall(c, skel.points, skel.radii)]
+    facets = [i for i, c in enumerate(caps) if c.needs_end and i not in reached and on_branch_wall(c, skel.points, skel.radii)]
     if not facets:
-        return caps
-    walls_not_caps(ctx, facets)
-    return list(ctx.caps)
+        return skel, caps
+    renamed = {old: new for old, new in walls_not_caps(ctx, facets).items() if old != new}
+    if renamed:  # ends tagged with a cap's name follow its new name
+        skel = skel.copy(node_tags=[_renamed_end_tags(t, renamed) for t in skel.node_tags], edge_tags=[_renamed_end_tags(t, renamed) for t in skel.edge_tags])
+    return skel, list(ctx.caps)
+
+
+def _renamed_end_tags(tags: tuple, renamed: dict) -> tuple:
+    """``tags`` with a cap's old name replaced by its new one (and ``inlet`` / ``outlet`` to match)."""
+    old = next((t for t in tags if t in renamed), None)
+    if old is None:
+        return tags
+    new = renamed[old]
+    kind = "inlet" if new.startswith("inlet") else "outlet"
+    rest = [t for t in tags if t not in (old, "inlet", "outlet")]
+    return tuple(dict.fromkeys([*rest, kind] + ([new] if new != kind else [])))
 
 
 def _end_directions(skel, ends) -> np.ndarray:
