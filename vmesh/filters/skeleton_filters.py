@@ -724,8 +724,12 @@ def render_skeleton_png(path, skeleton, surface=None, size=(1200, 900), opacity=
         import vtk
 
         vtk.vtkLogger.SetStderrVerbosity(vtk.vtkLogger.VERBOSITY_OFF)
-    except (ImportError, AttributeError):
-        pass
+    except (ImportError, AttributeError) as exc:
+        from ..errors import stop_behind
+
+        stop = stop_behind(exc)  # a stop that lands while VTK imports is still a stop
+        if stop is not None:
+            raise stop from None
     path = Path(path)
     plotter = pv.Plotter(off_screen=True, window_size=list(size))
     try:
