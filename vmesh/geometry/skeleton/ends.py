@@ -120,7 +120,7 @@ def _match_caps(ends: np.ndarray, end_radii: np.ndarray, caps, tangents: np.ndar
         lateral = np.linalg.norm(rel - depth[:, None] * normal, axis=1)
         reach = 3.0 * radius + 2.0 * end_radii
         ok = (depth > -0.5 * radius) & (depth < reach) & (lateral < 1.2 * radius)
-        doubt = bool(getattr(cap, "needs_end", False))  # the caps known to be ends choose first
+        doubt = bool(cap.needs_end)  # the caps known to be ends choose first
         if doubt and tangents is not None:
             ok &= tangents @ normal >= np.cos(np.radians(FACET_END_ANGLE))
         for e in np.flatnonzero(ok):
@@ -185,7 +185,7 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
         centre = np.asarray(caps[c].center, float)
         if any(np.linalg.norm(np.asarray(caps[o].center, float) - centre) < caps[o].radius + caps[c].radius for o in taken):
             continue  # overlaps a reached cap: two open ends cannot, it is a piece of that one
-        if getattr(caps[c], "needs_end", False) and on_branch_wall(caps[c], *_graph_points(graph)):
+        if caps[c].needs_end and on_branch_wall(caps[c], *_graph_points(graph)):
             counts.setdefault("not_ends", []).append(c)  # a flat facet of the wall no end reaches
             continue
         if _attach_cap(graph, caps[c], c, spacing, sdf):
