@@ -485,7 +485,7 @@ def _facets_to_wall(ctx, skel, caps):
     for i, c in enumerate(caps):  # an end on the region itself (a branch grafted to it) reaches it too
         if len(ends) and np.linalg.norm(skel.points[ends] - c.center, axis=1).min() <= c.radius:
             reached.add(i)
-    facets = [i for i, c in enumerate(caps) if c.needs_end and i not in reached and on_branch_wall(c, skel.points, skel.radii)]
+    facets = [i for i, c in enumerate(caps) if c.needs_end and i not in reached and on_branch_wall(c, skel.points, skel.radii, skel.edges)]
     if not facets:
         return skel, caps
     renamed = {old: new for old, new in walls_not_caps(ctx, facets).items() if old != new}
