@@ -175,7 +175,7 @@ def _check_point(inlet_point):
         Parameter("orient", "bool", True, "Make neighbouring faces agree on orientation, then turn each piece outward (positive enclosed volume)."),
         Parameter("fill_holes", "bool", True, "Close holes in the wall (boundary loops whose surrounding faces lie nearly in the loop's plane, unlike open ends) with a patch faired into the wall, with a warning naming each; open ends are left to cap_open_ends."),
         Parameter("debris_area", "float", 1e-3, "Dropped pieces smaller than this fraction of the kept piece's area are debris: only counted, not named in a warning.", unit="× kept area", min=0.0, max=1.0),
-        Parameter("hole_wall_beyond", "bool", False, "Count a loop as a hole only when the wall also goes on past it on two opposite sides, so that a vessel's open end whose rim is bevelled into a flange (short stubs', small vessels' ends of the generated corpus) stays an open end. Off by default: on the generated corpus two runs that passed with such an end filled then fail elsewhere (docs/junctions.md, h14/stubs)."),
+        Parameter("hole_wall_beyond", "bool", False, "Count a loop as a hole only when the wall also goes on past it on two opposite sides, so that a vessel's open end whose rim is bevelled into a flange (the wall flaring out in the end plane, as at the ends of short or narrow vessels) stays an open end. Off by default: some surfaces that mesh with such an end filled then fail elsewhere (docs/junctions.md)."),
     ],
     reads=("surface",),
     optional_reads=("caps",),
