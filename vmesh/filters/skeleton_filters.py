@@ -508,20 +508,16 @@ def _renamed_end_tags(tags: tuple, renamed: dict) -> tuple:
 def _end_directions(skel, ends) -> np.ndarray:
     """Outward unit directions of the branches at ``ends``: from the node about a radius
     (at least two nodes, at most the next junction) inwards to the end."""
+    from ..geometry.skeleton.graft import _end_chain
+
     adj = skel.adjacency()
     deg = np.diff(adj.indptr)
     out = np.zeros((len(ends), 3))
     for k, e in enumerate(ends):
-        prev, cur, length, steps = -1, int(e), 0.0, 0
-        while True:
-            nb = [int(n) for n in adj.indices[adj.indptr[cur] : adj.indptr[cur + 1]] if n != prev]
-            if len(nb) != 1:
-                break
-            length += float(np.linalg.norm(skel.points[nb[0]] - skel.points[cur]))
-            prev, cur, steps = cur, nb[0], steps + 1
-            if deg[cur] != 2 or (steps >= 2 and length >= float(skel.radii[e])):
-                break
-        d = skel.points[e] - skel.points[cur]
+        chain = _end_chain(adj, deg, int(e))
+        arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(skel.points[chain], axis=0), axis=1))]
+        far = np.flatnonzero((np.arange(len(chain)) >= 2) & (arc >= float(skel.radii[e])))
+        d = skel.points[e] - skel.points[chain[far[0] if len(far) else -1]]
         out[k] = d / max(np.linalg.norm(d), 1e-300)
     return out
 
