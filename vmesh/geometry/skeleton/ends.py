@@ -175,7 +175,9 @@ def _match_caps(ends: np.ndarray, end_radii: np.ndarray, caps, tangents: np.ndar
         lateral = np.linalg.norm(rel - depth[:, None] * normal, axis=1)
         reach = 3.0 * radius + 2.0 * end_radii
         ok = (depth > -0.5 * radius) & (depth < reach) & (lateral < 1.2 * radius)
-        doubt = bool(cap.needs_end)  # the caps known to be ends choose first
+        # the caps known to be ends choose first; caps here are any objects with a centre,
+        # normal and radius (extract_skeleton's API), so needs_end may be absent
+        doubt = bool(getattr(cap, "needs_end", False))
         if doubt and tangents is not None:  # an end on the region itself reaches it whatever its direction
             ok &= (tangents @ normal >= np.cos(np.radians(FACET_END_ANGLE))) | (np.linalg.norm(rel, axis=1) <= radius)
         for e in np.flatnonzero(ok):
@@ -241,7 +243,7 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
         centre = np.asarray(caps[c].center, float)
         if any(np.linalg.norm(np.asarray(caps[o].center, float) - centre) < caps[o].radius + caps[c].radius for o in taken):
             continue  # overlaps a reached cap: two open ends cannot, it is a piece of that one
-        if caps[c].needs_end and on_branch_wall(caps[c], *(wall := wall or _graph_segments(graph))):
+        if getattr(caps[c], "needs_end", False) and on_branch_wall(caps[c], *(wall := wall or _graph_segments(graph))):
             counts.setdefault("not_ends", []).append(c)  # a flat facet of the wall no end reaches
             continue
         if _attach_cap(graph, caps[c], c, spacing, sdf):
