@@ -81,7 +81,7 @@ FACET_END_ANGLE = 45.0
 
 #: A flat region that needs an end and that no end reaches is a facet of the wall of a
 #: vessel the skeleton has when its centre lies within this many radii of the skeleton's
-#: axis, beside a segment (its foot on the axis not beyond an end). A facet of the wall of
+#: axis (its segments). A facet of the wall of
 #: a tube of radius r lies r from the axis plus the depth of its step, which is below the
 #: step's width, itself below the facet's radius < r: so within 2 r; on the generated
 #: staircase vessels at most 1.2 r. The end face of a branch the skeleton lacks lies a
@@ -107,25 +107,20 @@ def on_branch_wall(cap, points: np.ndarray, radii: np.ndarray, edges: np.ndarray
     -------
     bool
         True when the centre lies within ``FACET_REACH`` radii (interpolated along the
-        segment) of the nearest segment and its foot on that segment is not beyond an end
-        of the skeleton (a region beyond an end is that end's face, not the wall beside it).
+        segment) of a segment. A region just beyond a skeleton end counts too: a terraced
+        end face is many flat regions, of which one end reaches one; the others are facets
+        of that end, not ends of their own.
     """
     points, radii = np.asarray(points, float), np.asarray(radii, float)
-    if len(points) < 2:
-        return bool(len(points)) and bool(np.linalg.norm(points[0] - cap.center) <= FACET_REACH * radii[0])
-    edges = np.c_[np.arange(len(points) - 1), np.arange(1, len(points))] if edges is None else np.asarray(edges, np.int64)
-    if not len(edges):
-        return False
-    deg = np.bincount(edges.ravel(), minlength=len(points))
+    edges = np.c_[np.arange(len(points) - 1), np.arange(1, len(points))] if edges is None else np.asarray(edges, np.int64).reshape(-1, 2)
+    if not len(edges):  # single nodes: their distance
+        return bool(np.any(np.linalg.norm(points - np.asarray(cap.center, float), axis=1) <= FACET_REACH * radii))
     p0, vec = points[edges[:, 0]], points[edges[:, 1]] - points[edges[:, 0]]
     q = np.asarray(cap.center, float)
-    raw = ((q - p0) * vec).sum(1) / np.maximum((vec * vec).sum(1), 1e-300)
-    t = np.clip(raw, 0.0, 1.0)
+    t = np.clip(((q - p0) * vec).sum(1) / np.maximum((vec * vec).sum(1), 1e-300), 0.0, 1.0)
     d = np.linalg.norm(q - p0 - t[:, None] * vec, axis=1)
     r = (1 - t) * radii[edges[:, 0]] + t * radii[edges[:, 1]]
-    beyond = ((raw < 0) & (deg[edges[:, 0]] == 1)) | ((raw > 1) & (deg[edges[:, 1]] == 1))
-    j = int(np.argmin(d))  # the nearest segment: beside a branch, or beyond its end
-    return bool(d[j] <= FACET_REACH * r[j] and not beyond[j])
+    return bool(np.any(d <= FACET_REACH * r))
 
 
 def _graph_segments(graph: BranchGraph) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
