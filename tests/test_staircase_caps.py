@@ -1,6 +1,6 @@
-"""Flat caps of voxel staircase surfaces (issue 17, h14/stair): the terraces of a staircase
-wall are flat, round and creased like end caps; they are caps only where the skeleton
-reaches them (``Cap.needs_end``)."""
+"""Flat caps of voxel staircase surfaces (issue 17): the terraces of a staircase wall are
+flat, round and creased like end caps; they are caps only where the skeleton reaches them
+(``Cap.needs_end``)."""
 
 from __future__ import annotations
 
@@ -36,16 +36,33 @@ def _true_ends(ves) -> np.ndarray:
     return ves.xyz[np.bincount(ves.edges.ravel(), minlength=len(ves.xyz)) == 1]
 
 
+def _check_names(ctx, sure=()):
+    """Caps left are ``inlet``, ``outlet_1``, ... with ids 1..n matching the face labels,
+    and the caps named in ``sure`` (by centre) are among them."""
+    if ctx.caps:
+        assert [c.name for c in ctx.caps] == ["inlet"] + [f"outlet_{k}" for k in range(1, len(ctx.caps))]
+        assert [c.id for c in ctx.caps] == list(range(1, len(ctx.caps) + 1))
+    labels = ctx.surface.face_data["cap_id"]
+    assert set(np.unique(labels[labels > 0])) == {c.id for c in ctx.caps}
+    for c in ctx.caps:
+        assert np.array_equal(np.flatnonzero(labels == c.id), c.faces)
+    for centre in sure:
+        assert any(np.allclose(c.center, centre) for c in ctx.caps)
+
+
 @pytest.mark.parametrize("seed, noise", [(0, 0.0), (1, 1.0)])
 def test_the_terraces_of_a_staircase_vessel_are_wall_not_caps(seed, noise):
-    # g0010 / g0009 of seed 1 (voxel staircase surfaces, flat or closed ends): detect_caps
-    # took 78-79 terraces of the wall for end caps, and clean_skeleton, with the true
-    # skeleton given, stopped at "no skeleton end reaches cap(s)"; here (18-19 caps, 5
-    # ends) it grafted extracted branches to the terraces
+    # on larger staircase vessels (flat or closed ends) detect_caps took some 80 terraces
+    # of the wall for end caps, and clean_skeleton, with the true skeleton given, stopped
+    # at "no skeleton end reaches cap(s)"; here (18-19 caps, 5 ends) it grafted extracted
+    # branches to the terraces
     pytest.importorskip("igl")
     ves = _generated(seed, staircase=1.0, noise=noise)
     ctx = _capped(ves)
     assert sum(c.needs_end for c in ctx.caps) >= 5  # the terraces
+    sure = [c.center for c in ctx.caps if not c.needs_end]
+    assert not ctx.caps[0].needs_end or not sure  # the inlet is a sure cap; those needing an end come last
+    assert sorted(c.needs_end for c in ctx.caps) == [c.needs_end for c in ctx.caps]
     get_filter("estimate_radii")(ctx)
     get_filter("clean_skeleton")(ctx)
     ends = _true_ends(ves)
@@ -53,8 +70,7 @@ def test_the_terraces_of_a_staircase_vessel_are_wall_not_caps(seed, noise):
         assert np.linalg.norm(ends - c.center, axis=1).min() < max(c.radius, 1.5 * ves.radius.max()), c.name
     assert any("facets of the wall" in w for w in ctx.report.warnings)
     assert not ctx.report.sections.get("grafted_branches")
-    labels = ctx.surface.face_data["cap_id"]
-    assert set(np.unique(labels[labels > 0])) == {c.id for c in ctx.caps}
+    _check_names(ctx, sure)
 
 
 def test_the_terraces_get_no_branch_of_an_extracted_skeleton():
@@ -62,11 +78,35 @@ def test_the_terraces_get_no_branch_of_an_extracted_skeleton():
     pytest.importorskip("igl")
     ves = _generated(0, staircase=1.0)
     ctx = _capped(ves)
+    sure = [c.center for c in ctx.caps if not c.needs_end]
     ctx.skeleton = None
     get_filter("extract_skeleton")(ctx)
     assert not any(c.needs_end for c in ctx.caps)
     assert any("facets of the wall" in w for w in ctx.report.warnings)
     assert len(ctx.skeleton.endpoints) <= len(_true_ends(ves)) + 2
+    _check_names(ctx, sure)
+    turned = ctx.report.sections["caps_turned_wall"]
+    get_filter("clean_skeleton")(ctx)  # a second pass adds to the list of caps turned wall
+    assert ctx.report.sections["caps_turned_wall"][: len(turned)] == turned
+    _check_names(ctx, sure)
+    tagged = {t for tags in ctx.skeleton.node_tags for t in tags if t == "inlet" or t.startswith("outlet_")}
+    assert tagged <= {c.name for c in ctx.caps}  # the ends' tags name caps that are left
+
+
+def test_caps_of_an_inward_staircase_keep_outward_normals_when_terraces_turn_wall():
+    pytest.importorskip("igl")
+    from vmesh.geometry.sdf import SignedDistance
+
+    ves = _generated(0, staircase=1.0)
+    ctx = Context(surface=SurfaceMesh(ves.vertices, ves.faces[:, ::-1]), skeleton=Skeleton(ves.xyz, ves.radius, ves.edges))
+    get_filter("detect_caps")(ctx)
+    ctx.sdf = SignedDistance.from_surface(SurfaceMesh(ves.vertices, ves.faces))
+    get_filter("estimate_radii")(ctx)
+    get_filter("clean_skeleton")(ctx)
+    assert ctx.report.sections.get("caps_turned_wall")
+    for c in ctx.caps:  # out of the vessel: away from the nearest point of the centerline
+        near = ves.xyz[np.argmin(np.linalg.norm(ves.xyz - c.center, axis=1))]
+        assert np.dot(c.normal, c.center - near) > 0, c.name
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -96,3 +136,7 @@ def test_a_flat_region_that_needs_an_end_stays_where_the_vessel_runs_into_it_or_
     assert _match_caps(points[[-1]], radii[[-1]], [cap([9.5, 1.0, 0.0], [0.0, 1.0, 0.0])], tangent) == {}  # across the end
     assert on_branch_wall(terrace, points, radii)
     assert not on_branch_wall(beyond, points, radii)
+    far_apart = points[::5]  # nodes 5 apart: a terrace between them is 2.5 from either, 1.2 from the segment
+    assert on_branch_wall(cap([2.5, 1.2, 0.0], [0.0, 1.0, 0.0]), far_apart, radii[::5], np.array([[0, 1], [1, 2]]))
+    # an end on the region itself reaches it whatever its direction
+    assert _match_caps(points[[-1]], radii[[-1]], [cap([10.0, 0.3, 0.0], [0.0, 1.0, 0.0])], tangent) == {0: 0}

@@ -208,10 +208,13 @@ def caps_from_labels(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray
 def name_caps(caps: list[Cap], inlet: int | None = None, inlet_point=None) -> tuple[list[Cap], dict]:
     """Order caps by decreasing radius, name them, and renumber their ids 1..n.
 
-    The inlet is the largest cap unless ``inlet`` (1-based position in the order of
+    The inlet is the largest cap known to be an end (not ``needs_end``; the largest of
+    all where every cap needs one) unless ``inlet`` (1-based position in the order of
     decreasing radius) or ``inlet_point`` (the cap whose centre is nearest) names
     another. It gets id 1 and name ``"inlet"``; the others ``"outlet_1"``,
-    ``"outlet_2"``, ... in order of decreasing radius.
+    ``"outlet_2"``, ... in order of decreasing radius, the caps that need an end after
+    the others (they may turn out to be facets of the wall and be dropped; the sure caps'
+    names then stay).
 
     Returns
     -------
@@ -229,8 +232,9 @@ def name_caps(caps: list[Cap], inlet: int | None = None, inlet_point=None) -> tu
             raise ValueError(f"inlet = {inlet} but there are {len(by_radius)} caps (1 = largest)")
         chosen = inlet - 1
     else:
-        chosen = 0
-    ordered = [by_radius[chosen]] + [c for i, c in enumerate(by_radius) if i != chosen]
+        chosen = next((i for i, c in enumerate(by_radius) if not c.needs_end), 0)
+    rest = [c for i, c in enumerate(by_radius) if i != chosen]
+    ordered = [by_radius[chosen]] + [c for c in rest if not c.needs_end] + [c for c in rest if c.needs_end]
     out, relabel = [], {}
     for new_id, c in enumerate(ordered, start=1):
         relabel[c.id] = new_id
@@ -333,19 +337,38 @@ def detect_flat_caps(
 #: lumen (a bevelled, decimated rim) 1.5-2. A flat facet of the wall (a voxel staircase's
 #: terrace) is met by the wall spreading along the vessel and around it (4.2 or more on
 #: the generated staircase vessels), but so is a flat part of an end face beside a parent
-#: vessel (4.6): such a region is an end only where the skeleton reaches it.
+#: vessel (4.6): such a region is an end only where the skeleton reaches it. The value
+#: lies between a wall that leaves the cap's rim backwards, as a tube's does however it is
+#: cut (at most 2), and a wall that carries on past the region sideways, as around a
+#: facet (the vessel's whole girth and length within the slab: 4.2 and more).
 CAP_TUBE_DEPTH = 0.5
 CAP_TUBE_SPREAD = 3.0
 
 
 def flat_caps_needing_an_end(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray) -> list[int]:
-    """The labels of flat caps (:func:`detect_flat_caps`) whose wall behind is no tube of
-    their size (``CAP_TUBE_DEPTH``, ``CAP_TUBE_SPREAD``): ends only where a skeleton end
-    reaches them, else facets of the wall."""
+    """The flat caps whose wall behind is no tube of their size.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float array
+    faces : (m, 3) int array
+        An outward-oriented closed surface.
+    labels : (m,) int array
+        Cap labels per face (:func:`detect_flat_caps`; 0 = wall).
+
+    Returns
+    -------
+    list of int
+        The labels of the caps whose wall behind spreads beyond a tube of their size
+        (``CAP_TUBE_DEPTH``, ``CAP_TUBE_SPREAD``): ends only where a skeleton end reaches
+        them (``Cap.needs_end``), else facets of the wall.
+    """
+    from scipy.spatial import cKDTree
+
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
     raw = topology.face_normals(v, f, normalize=False)
-    adjacency = None
+    adjacency = tree = None
     out = []
     for k in np.unique(labels[labels > 0]):
         ids = np.flatnonzero(labels == k)
@@ -357,34 +380,46 @@ def flat_caps_needing_an_end(vertices: np.ndarray, faces: np.ndarray, labels: np
         normal = raw[ids].sum(0)
         normal /= max(np.linalg.norm(normal), 1e-300)
         if adjacency is None:
-            adjacency = _vertex_adjacency(len(v), f)
-        if not _tube_behind(v, adjacency, loops[0], centre, normal, np.sqrt(0.5 * area2.sum() / np.pi)):
+            adjacency, tree = _vertex_adjacency(len(v), f), cKDTree(v)
+        if not _tube_behind(v, adjacency, loops[0], centre, normal, np.sqrt(0.5 * area2.sum() / np.pi), tree):
             out.append(int(k))
     return out
 
 
 def _vertex_adjacency(n_vertices: int, faces: np.ndarray) -> sp.csr_matrix:
+    """Symmetric vertex adjacency of a triangle mesh (entries 1)."""
     a, b = faces.ravel(), np.roll(faces, -1, axis=1).ravel()
-    return sp.coo_matrix((np.ones(2 * len(a)), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n_vertices, n_vertices)).tocsr()
+    adj = sp.coo_matrix((np.ones(2 * len(a)), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n_vertices, n_vertices)).tocsr()
+    adj.data[:] = 1.0  # duplicate entries from two faces per edge
+    return adj
 
 
-def _tube_behind(v, adjacency, rim, centre, normal, radius) -> bool:
+def _tube_behind(v, adjacency, rim, centre, normal, radius, tree=None) -> bool:
     """Whether the surface reached from ``rim`` within ``CAP_TUBE_DEPTH`` radii behind the
     plane (``normal`` points out) stays, but for a tenth, within ``CAP_TUBE_SPREAD`` radii
-    of the axis."""
-    rel = v - centre
-    depth = -(rel @ normal)
-    radial = np.linalg.norm(rel + depth[:, None] * normal, axis=1)
+    of the axis. ``tree``: a KD-tree of ``v`` (only the ball around the cap is looked at)."""
     # at least a few rim edges deep: a staircase's riser (one voxel) must not cut the slab off
     reach = max(CAP_TUBE_DEPTH * radius, 3.0 * float(np.linalg.norm(v[rim] - v[np.roll(rim, -1)], axis=1).mean()))
-    keep = (depth >= -0.1 * radius) & (depth <= reach) & (radial <= 2.0 * CAP_TUBE_SPREAD * radius)
-    keep[rim] = True
-    ids = np.flatnonzero(keep)
+    # the slab is cut at twice the spread tested: wide enough that the tenth beyond the
+    # spread is still counted, bounded so that it does not run along the whole vessel
+    wide = 2.0 * CAP_TUBE_SPREAD * radius
+    # a tenth of a radius in front of the plane: the rim of a voxelised or decimated cap
+    # stands that much proud of the fitted plane; the wall of a tube never comes forward
+    front = 0.1 * radius
+    near = np.arange(len(v)) if tree is None else np.union1d(tree.query_ball_point(centre, float(np.hypot(max(reach, front), wide))), rim).astype(np.int64)
+    rel = v[near] - centre
+    depth = -(rel @ normal)
+    radial_near = np.linalg.norm(rel + depth[:, None] * normal, axis=1)
+    keep = (depth >= -front) & (depth <= reach) & (radial_near <= wide)
+    keep[np.isin(near, rim)] = True
+    ids = near[keep]
+    radial = radial_near[keep]
     _, piece = connected_components(adjacency[ids][:, ids], directed=False)
     local = np.full(len(v), -1)
     local[ids] = np.arange(len(ids))
     reached = np.isin(piece, np.unique(piece[local[rim]]))
-    return bool(np.percentile(radial[ids[reached]], 90) <= CAP_TUBE_SPREAD * radius)
+    # nine tenths: one spike of wall (a neighbouring vessel's edge touching the slab) does not decide
+    return bool(np.percentile(radial[reached], 90) <= CAP_TUBE_SPREAD * radius)
 
 
 # ---------------------------------------------------------------------------
@@ -392,9 +427,7 @@ def _tube_behind(v, adjacency, rim, centre, normal, radius) -> bool:
 # ---------------------------------------------------------------------------
 def uniform_laplacian(n_vertices: int, faces: np.ndarray) -> sp.csr_matrix:
     """Row-normalised umbrella operator ``L = A D^-1 - I`` as a sparse matrix."""
-    a, b = faces.ravel(), np.roll(faces, -1, axis=1).ravel()
-    adj = sp.coo_matrix((np.ones(2 * len(a)), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(n_vertices, n_vertices)).tocsr()
-    adj.data[:] = 1.0  # duplicate entries from two faces per edge
+    adj = _vertex_adjacency(n_vertices, faces)
     deg = np.asarray(adj.sum(axis=1)).ravel()
     inv = sp.diags(1.0 / np.maximum(deg, 1))
     return (inv @ adj - sp.identity(n_vertices, format="csr")).tocsr()

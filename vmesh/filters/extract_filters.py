@@ -129,14 +129,13 @@ def extract_skeleton(
     _check_caps_reached(stats["ends"].pop("unreached", []), caps, name)
     stats["pulled_in"], skeleton = _pull_inside(skeleton, sdf, name)
     skeleton.name = f"extracted from {name}"
+    not_ends = stats["ends"].pop("not_ends", [])
+    renamed = walls_not_caps(ctx, not_ends) if not_ends else {}  # first: the ends take the names the caps keep
     if caps:
-        names = {i: c.name for i, c in enumerate(caps)}
+        names = {i: renamed.get(c.name, c.name) for i, c in enumerate(caps) if i not in set(not_ends)}
         _tag_cap_ends(skeleton, stats.pop("cap_of_node", {}), names)
     else:
         stats.pop("cap_of_node", None)
-    not_ends = stats["ends"].pop("not_ends", [])
-    if not_ends:
-        walls_not_caps(ctx, not_ends)
     ctx.skeleton = skeleton
     ctx.report.sections["skeleton_extraction"] = stats
     _report(ctx, skeleton, stats, caps, max_voxels)

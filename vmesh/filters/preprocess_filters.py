@@ -9,6 +9,7 @@ geometry and names.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import warnings
 
@@ -38,15 +39,20 @@ def cap_labels(ctx, surface: SurfaceMesh | None = None) -> np.ndarray:
     return labels
 
 
-def set_caps(ctx, surface: SurfaceMesh, labels: np.ndarray, inlet=None, inlet_point=None, keep_names: bool = False) -> None:
-    """Compute cap geometry from face labels, name the caps, store surface and caps."""
+def set_caps(ctx, surface: SurfaceMesh, labels: np.ndarray, inlet=None, inlet_point=None, keep_names: bool = False, needs_end=None) -> None:
+    """Compute cap geometry from face labels, name the caps, store surface and caps.
+
+    ``needs_end``: the label ids of the caps that need an end (``Cap.needs_end``); by
+    default those of ``ctx.caps`` with the same ids (labels that carry ``ctx.caps``' ids)."""
     caps = pre.caps_from_labels(surface.vertices, surface.faces, labels)
+    if needs_end is None:
+        needs_end = {c.id for c in ctx.caps or [] if c.needs_end}
+    for c in caps:  # before naming: the caps that need an end are named after the sure ones
+        c.needs_end = c.id in needs_end
     if keep_names and ctx.caps:
         names = {c.id: c.name for c in ctx.caps}
-        doubted = {c.id for c in ctx.caps if getattr(c, "needs_end", False)}
         for c in caps:
             c.name = names.get(c.id, c.name)
-            c.needs_end = c.id in doubted
         mapping = {c.id: c.id for c in caps}
     else:
         try:
@@ -62,25 +68,53 @@ def set_caps(ctx, surface: SurfaceMesh, labels: np.ndarray, inlet=None, inlet_po
     ctx.report.sections["caps"] = [c.as_dict() for c in caps]
 
 
-def walls_not_caps(ctx, dropped) -> None:
-    """Turn the caps ``dropped`` (indices into ``ctx.caps``: flat regions that need an end
-    and that no skeleton end reaches) back into wall: their faces lose their label; the
-    other caps keep their names and ids."""
+def walls_not_caps(ctx, dropped) -> dict:
+    """Turn caps that need an end and that no skeleton end reaches back into wall.
+
+    Parameters
+    ----------
+    ctx : Context
+        Its ``caps`` (and the ``cap_id`` labels of its surface, if any) are updated.
+    dropped : iterable of int
+        Indices into ``ctx.caps`` of the flat regions that are facets of the wall.
+
+    Returns
+    -------
+    dict
+        Old name -> new name of every cap left. The caps left keep their geometry (an
+        inward surface's flipped normals too); they are renumbered ``inlet``,
+        ``outlet_1``, ... with ids 1..n in their former order, so that names and ids stay
+        contiguous; where the inlet was dropped, the widest cap left that is known to be an
+        end (else the widest) becomes the inlet. Their dropped names are added to the
+        report section ``caps_turned_wall``.
+    """
+    dropped = sorted(set(int(i) for i in dropped))
     names = [ctx.caps[i].name for i in dropped]
     ctx.warn(
         f"{len(names)} flat region(s) taken for caps ({', '.join(names[:6])}{', ...' if len(names) > 6 else ''}) "
         "are facets of the wall, not ends: no skeleton end reaches them and the wall behind them is no tube "
         "of their size (the terraces of a voxel staircase surface?); labelled wall"
     )
-    ctx.report.sections["caps_turned_wall"] = names
+    ctx.report.sections["caps_turned_wall"] = [*ctx.report.sections.get("caps_turned_wall", []), *names]
     gone = {ctx.caps[i].id for i in dropped}
-    if ctx.surface is None:
-        ctx.caps = [c for c in ctx.caps if c.id not in gone]
-        ctx.report.sections["caps"] = [c.as_dict() for c in ctx.caps]
-        return
-    labels = cap_labels(ctx).copy()
-    labels[np.isin(labels, list(gone))] = 0
-    set_caps(ctx, ctx.surface.copy(), labels, keep_names=True)
+    kept = sorted((c for c in ctx.caps if c.id not in gone), key=lambda c: c.id)
+    if kept and not any(c.name == "inlet" for c in kept):
+        first = max(kept, key=lambda c: (not c.needs_end, c.radius))
+        kept = [first] + [c for c in kept if c is not first]
+    ids = {c.id: k for k, c in enumerate(kept, start=1)}
+    caps = [dataclasses.replace(c, id=k, name="inlet" if k == 1 else f"outlet_{k - 1}") for c, k in zip(kept, ids.values())]
+    if ctx.surface is not None:
+        labels = cap_labels(ctx).copy()
+        labels[np.isin(labels, list(gone))] = 0
+        labels = pre.relabel(labels, ids)
+        surface = ctx.surface.copy()
+        surface.face_data[pre.CAP_LABEL] = labels.astype(np.int32)
+        for c in caps:
+            c.faces = np.flatnonzero(labels == c.id)
+        ctx.surface = surface
+    ctx.caps = caps
+    ctx.report.sections["caps"] = [c.as_dict() for c in caps]
+    return {old.name: new.name for old, new in zip(kept, caps)}
 
 
 def _pad_face_data(face_data: dict, n_old: int, n_new: int) -> dict:
@@ -141,7 +175,7 @@ def _check_point(inlet_point):
         Parameter("orient", "bool", True, "Make neighbouring faces agree on orientation, then turn each piece outward (positive enclosed volume)."),
         Parameter("fill_holes", "bool", True, "Close holes in the wall (boundary loops whose surrounding faces lie nearly in the loop's plane, unlike open ends) with a patch faired into the wall, with a warning naming each; open ends are left to cap_open_ends."),
         Parameter("debris_area", "float", 1e-3, "Dropped pieces smaller than this fraction of the kept piece's area are debris: only counted, not named in a warning.", unit="× kept area", min=0.0, max=1.0),
-        Parameter("hole_wall_beyond", "bool", False, "Count a loop as a hole only when the wall also goes on past it on two opposite sides, so that a vessel's open end whose rim is bevelled into a flange (short stubs', small vessels' ends of the generated corpus) stays an open end. Off by default: on the generated corpus two runs that passed with such an end filled then fail elsewhere (docs/junctions.md, h14/stubs)."),
+        Parameter("hole_wall_beyond", "bool", False, "Count a loop as a hole only when the wall also goes on past it on two opposite sides, so that a vessel's open end whose rim is bevelled into a flange (the wall flaring out in the end plane, as at the ends of short or narrow vessels) stays an open end. Off by default: some surfaces that mesh with such an end filled then fail elsewhere (docs/junctions.md)."),
     ],
     reads=("surface",),
     optional_reads=("caps",),
@@ -266,7 +300,8 @@ def cap_open_ends(ctx, method, rings, detect_if_closed, inlet, inlet_point):
         f = np.ascontiguousarray(f[:, ::-1])
     face_data = _pad_face_data(s.face_data, s.n_faces, len(f)) if method == "rings" else {}
     capped = SurfaceMesh(v, f, name=s.name, face_data=face_data)
-    set_caps(ctx, capped, labels, inlet, inlet_point)
+    kept = {c.id for c in ctx.caps or [] if c.needs_end} if old.any() else set()  # the earlier caps keep their ids here
+    set_caps(ctx, capped, labels, inlet, inlet_point, needs_end=kept)
     ctx.count(caps=len(ctx.caps), cap_triangles=int((labels > 0).sum()), triangles=len(f))
 
 
@@ -299,10 +334,9 @@ def detect_caps(ctx, angle_tolerance, min_crease_angle, min_roundness, min_faces
     )
     surface = s.copy()
     surface.face_data.pop(pre.CAP_LABEL, None)
-    set_caps(ctx, surface, labels, inlet, inlet_point)
-    doubted = set(pre.flat_caps_needing_an_end(s.vertices, f, surface.face_data[pre.CAP_LABEL]))
+    doubted = set(pre.flat_caps_needing_an_end(s.vertices, f, labels))  # before naming: the inlet is a sure cap
+    set_caps(ctx, surface, labels, inlet, inlet_point, needs_end=doubted)
     for c in ctx.caps:
-        c.needs_end = c.id in doubted
         if f is not s.faces:  # cap normals must point out of the vessel even if the faces point inward
             c.normal = -c.normal
     ctx.report.sections["caps"] = [c.as_dict() for c in ctx.caps]

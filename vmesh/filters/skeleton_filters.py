@@ -346,8 +346,8 @@ def clean_skeleton(
     counts = {}
     skel, counts["welded"] = weld_coincident_nodes(skel, weld_distance)
     caps = list(ctx.caps or [])
-    if caps and any(getattr(c, "needs_end", False) for c in caps):  # before a terrace's plane could trim the centerline
-        caps = _facets_to_wall(ctx, skel, caps)
+    if caps and any(c.needs_end for c in caps):  # before a terrace's plane could trim the centerline
+        skel, caps = _facets_to_wall(ctx, skel, caps)
     if extend_to_caps and caps:  # centerlines running out through an open end stop at its cap
         cap_arrays = (np.array([c.center for c in caps]), np.array([c.normal for c in caps]), np.array([c.radius for c in caps]))
         skel, counts["cut_at_caps"] = sk_clean.trim_at_caps(skel, *cap_arrays)
@@ -485,30 +485,39 @@ def _facets_to_wall(ctx, skel, caps):
     for i, c in enumerate(caps):  # an end on the region itself (a branch grafted to it) reaches it too
         if len(ends) and np.linalg.norm(skel.points[ends] - c.center, axis=1).min() <= c.radius:
             reached.add(i)
-    facets = [i for i, c in enumerate(caps) if getattr(c, "needs_end", False) and i not in reached and on_branch_wall(c, skel.points, skel.radii)]
+    facets = [i for i, c in enumerate(caps) if c.needs_end and i not in reached and on_branch_wall(c, skel.points, skel.radii, skel.edges)]
     if not facets:
-        return caps
-    walls_not_caps(ctx, facets)
-    return list(ctx.caps)
+        return skel, caps
+    renamed = {old: new for old, new in walls_not_caps(ctx, facets).items() if old != new}
+    if renamed:  # ends tagged with a cap's name follow its new name
+        skel = skel.copy(node_tags=[_renamed_end_tags(t, renamed) for t in skel.node_tags], edge_tags=[_renamed_end_tags(t, renamed) for t in skel.edge_tags])
+    return skel, list(ctx.caps)
+
+
+def _renamed_end_tags(tags: tuple, renamed: dict) -> tuple:
+    """``tags`` with a cap's old name replaced by its new one (and ``inlet`` / ``outlet`` to match)."""
+    old = next((t for t in tags if t in renamed), None)
+    if old is None:
+        return tags
+    new = renamed[old]
+    kind = "inlet" if new.startswith("inlet") else "outlet"
+    rest = [t for t in tags if t not in (old, "inlet", "outlet")]
+    return tuple(dict.fromkeys([*rest, kind] + ([new] if new != kind else [])))
 
 
 def _end_directions(skel, ends) -> np.ndarray:
     """Outward unit directions of the branches at ``ends``: from the node about a radius
     (at least two nodes, at most the next junction) inwards to the end."""
+    from ..geometry.skeleton.graft import _end_chain
+
     adj = skel.adjacency()
     deg = np.diff(adj.indptr)
     out = np.zeros((len(ends), 3))
     for k, e in enumerate(ends):
-        prev, cur, length, steps = -1, int(e), 0.0, 0
-        while True:
-            nb = [int(n) for n in adj.indices[adj.indptr[cur] : adj.indptr[cur + 1]] if n != prev]
-            if len(nb) != 1:
-                break
-            length += float(np.linalg.norm(skel.points[nb[0]] - skel.points[cur]))
-            prev, cur, steps = cur, nb[0], steps + 1
-            if deg[cur] != 2 or (steps >= 2 and length >= float(skel.radii[e])):
-                break
-        d = skel.points[e] - skel.points[cur]
+        chain = _end_chain(adj, deg, int(e))
+        arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(skel.points[chain], axis=0), axis=1))]
+        far = np.flatnonzero((np.arange(len(chain)) >= 2) & (arc >= float(skel.radii[e])))
+        d = skel.points[e] - skel.points[chain[far[0] if len(far) else -1]]
         out[k] = d / max(np.linalg.norm(d), 1e-300)
     return out
 
@@ -711,8 +720,12 @@ def render_skeleton_png(path, skeleton, surface=None, size=(1200, 900), opacity=
         import vtk
 
         vtk.vtkLogger.SetStderrVerbosity(vtk.vtkLogger.VERBOSITY_OFF)
-    except (ImportError, AttributeError):
-        pass
+    except (ImportError, AttributeError) as exc:
+        from ..errors import stop_behind
+
+        stop = stop_behind(exc)  # a stop that lands while VTK imports is still a stop
+        if stop is not None:
+            raise stop from None
     path = Path(path)
     plotter = pv.Plotter(off_screen=True, window_size=list(size))
     try:

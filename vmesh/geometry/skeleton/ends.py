@@ -73,35 +73,85 @@ def _to_cap(start: np.ndarray, cap, spacing: float, sdf: SdfFunction | None = No
 
 
 #: A cap that needs an end (a flat region whose wall behind is no tube, ``Cap.needs_end``)
-#: is matched only to an end that runs into it: the end's tangent within this many degrees
-#: of its normal. The axis passes a facet of the side wall (a staircase's terrace) square.
+#: is matched only to an end that runs into it (the end's tangent within this many degrees
+#: of its normal: the axis passes a facet of the side wall, a staircase's terrace, square)
+#: or that lies on the region itself (within its radius of its centre, whatever its angle).
 FACET_END_ANGLE = 45.0
 
 
 #: A flat region that needs an end and that no end reaches is a facet of the wall of a
 #: vessel the skeleton has when its centre lies within this many radii of the skeleton's
-#: axis (terraces of the generated staircase vessels: at most 1.2); beyond, the skeleton
-#: lacks what lies behind it (a branch, a stub's end face: 1.8), and it stays a cap.
+#: axis (its segments). A facet of the wall of
+#: a tube of radius r lies r from the axis plus the depth of its step, which is below the
+#: step's width, itself below the facet's radius < r: so within 2 r; on the generated
+#: staircase vessels at most 1.2 r. The end face of a branch the skeleton lacks lies a
+#: branch length off the axis (a stub's end face: 1.8 r and more).
 FACET_REACH = 1.5
 
 
-def on_branch_wall(cap, points: np.ndarray, radii: np.ndarray) -> bool:
-    """Whether ``cap``'s centre lies within ``FACET_REACH`` radii of one of the skeleton's
-    ``points`` (with their ``radii``): on the wall of a vessel the skeleton has."""
-    if not len(points):
-        return False
-    d = np.linalg.norm(points - np.asarray(cap.center, float), axis=1)
-    return bool(np.any(d <= FACET_REACH * np.asarray(radii, float)))
+def on_branch_wall(cap, points: np.ndarray, radii: np.ndarray, edges: np.ndarray | None = None) -> bool:
+    """Whether a flat region lies on the wall of a vessel the skeleton has.
+
+    Parameters
+    ----------
+    cap : Cap
+        The region (its ``center`` is used).
+    points : (n, 3) float array
+        Skeleton nodes.
+    radii : (n,) float array
+        Their radii.
+    edges : (e, 2) int array, optional
+        Segments between ``points``; default: consecutive points form a polyline.
+
+    Returns
+    -------
+    bool
+        True when the centre lies within ``FACET_REACH`` radii (interpolated along the
+        segment) of a segment. A region just beyond a skeleton end counts too: a terraced
+        end face is many flat regions, of which one end reaches one; the others are facets
+        of that end, not ends of their own.
+    """
+    points, radii = np.asarray(points, float), np.asarray(radii, float)
+    edges = np.c_[np.arange(len(points) - 1), np.arange(1, len(points))] if edges is None else np.asarray(edges, np.int64).reshape(-1, 2)
+    if not len(edges):  # single nodes: their distance
+        return bool(np.any(np.linalg.norm(points - np.asarray(cap.center, float), axis=1) <= FACET_REACH * radii))
+    p0, vec = points[edges[:, 0]], points[edges[:, 1]] - points[edges[:, 0]]
+    q = np.asarray(cap.center, float)
+    t = np.clip(((q - p0) * vec).sum(1) / np.maximum((vec * vec).sum(1), 1e-300), 0.0, 1.0)
+    d = np.linalg.norm(q - p0 - t[:, None] * vec, axis=1)
+    r = (1 - t) * radii[edges[:, 0]] + t * radii[edges[:, 1]]
+    return bool(np.any(d <= FACET_REACH * r))
 
 
-def _graph_points(graph: BranchGraph) -> tuple[np.ndarray, np.ndarray]:
-    """The points of every branch of ``graph`` and their radii."""
-    pts, rad = [np.zeros((0, 3))], [np.zeros(0)]
+def _graph_segments(graph: BranchGraph) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The points of every branch of ``graph``, their radii and the segments between
+    them (a branch's nodes shared with the branches that meet there, so that an end of
+    the graph is an end of the segments)."""
+    pts, rad, edges = [], [], []
+    index = {}
+    n = 0
+
+    def node_index(node):
+        nonlocal n
+        if node not in index:
+            index[node] = n
+            pts.append(np.asarray(graph.pos(node), float)[None])
+            rad.append(np.array([float(graph.radius(node))]))
+            n += 1
+        return index[node]
+
     for u, v, k in graph.graph.edges(keys=True):
-        p, r = graph.polyline(u, v, k)
-        pts.append(p)
-        rad.append(np.asarray(r, float))
-    return np.concatenate(pts), np.concatenate(rad)
+        p, r = graph.polyline(u, v, k, start=u)
+        a, b = node_index(u), node_index(v)
+        inner = np.arange(n, n + max(len(p) - 2, 0))
+        pts.append(p[1:-1])
+        rad.append(np.asarray(r, float)[1:-1])
+        n += len(inner)
+        chain = np.r_[a, inner, b]
+        edges.append(np.c_[chain[:-1], chain[1:]])
+    if not pts:
+        return np.zeros((0, 3)), np.zeros(0), np.zeros((0, 2), np.int64)
+    return np.concatenate(pts), np.concatenate(rad), np.concatenate(edges) if edges else np.zeros((0, 2), np.int64)
 
 
 def _match_caps(ends: np.ndarray, end_radii: np.ndarray, caps, tangents: np.ndarray | None = None) -> dict:
@@ -120,9 +170,11 @@ def _match_caps(ends: np.ndarray, end_radii: np.ndarray, caps, tangents: np.ndar
         lateral = np.linalg.norm(rel - depth[:, None] * normal, axis=1)
         reach = 3.0 * radius + 2.0 * end_radii
         ok = (depth > -0.5 * radius) & (depth < reach) & (lateral < 1.2 * radius)
-        doubt = bool(getattr(cap, "needs_end", False))  # the caps known to be ends choose first
-        if doubt and tangents is not None:
-            ok &= tangents @ normal >= np.cos(np.radians(FACET_END_ANGLE))
+        # the caps known to be ends choose first; caps here are any objects with a centre,
+        # normal and radius (extract_skeleton's API), so needs_end may be absent
+        doubt = bool(getattr(cap, "needs_end", False))
+        if doubt and tangents is not None:  # an end on the region itself reaches it whatever its direction
+            ok &= (tangents @ normal >= np.cos(np.radians(FACET_END_ANGLE))) | (np.linalg.norm(rel, axis=1) <= radius)
         for e in np.flatnonzero(ok):
             pairs.append((doubt, float(np.linalg.norm(rel[e])), int(e), c))
     pairs.sort()
@@ -181,11 +233,12 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
         counts_free = _extend_to_wall(graph, sdf, free, spacing, end_depth, caps, taken)
         for key, value in counts_free.items():
             counts[key] += value
+    wall = None  # the skeleton's segments, once, for the caps that may be facets of its wall
     for c in sorted(set(range(len(caps))) - taken):
         centre = np.asarray(caps[c].center, float)
         if any(np.linalg.norm(np.asarray(caps[o].center, float) - centre) < caps[o].radius + caps[c].radius for o in taken):
             continue  # overlaps a reached cap: two open ends cannot, it is a piece of that one
-        if getattr(caps[c], "needs_end", False) and on_branch_wall(caps[c], *_graph_points(graph)):
+        if getattr(caps[c], "needs_end", False) and on_branch_wall(caps[c], *(wall := wall or _graph_segments(graph))):
             counts.setdefault("not_ends", []).append(c)  # a flat facet of the wall no end reaches
             continue
         if _attach_cap(graph, caps[c], c, spacing, sdf):
