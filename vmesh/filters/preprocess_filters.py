@@ -59,13 +59,17 @@ def set_caps(ctx, surface: SurfaceMesh, labels: np.ndarray, inlet=None, inlet_po
             caps, mapping = pre.name_caps(caps, inlet=inlet, inlet_point=inlet_point)
         except ValueError as exc:
             raise ParameterError(str(exc)) from None
-    labels = pre.relabel(labels, mapping) if mapping else labels
+    _store_cap_labels(ctx, surface, pre.relabel(labels, mapping) if mapping else labels, caps)
+    ctx.caps = caps
+    ctx.report.sections["caps"] = [c.as_dict() for c in caps]
+
+
+def _store_cap_labels(ctx, surface: SurfaceMesh, labels: np.ndarray, caps) -> None:
+    """Put the cap labels on ``surface`` (the context's surface from now on) and each cap's faces."""
     surface.face_data[pre.CAP_LABEL] = labels.astype(np.int32)
     for c in caps:
         c.faces = np.flatnonzero(labels == c.id)
     ctx.surface = surface
-    ctx.caps = caps
-    ctx.report.sections["caps"] = [c.as_dict() for c in caps]
 
 
 def walls_not_caps(ctx, dropped) -> dict:
@@ -106,12 +110,7 @@ def walls_not_caps(ctx, dropped) -> dict:
     if ctx.surface is not None:
         labels = cap_labels(ctx).copy()
         labels[np.isin(labels, list(gone))] = 0
-        labels = pre.relabel(labels, ids)
-        surface = ctx.surface.copy()
-        surface.face_data[pre.CAP_LABEL] = labels.astype(np.int32)
-        for c in caps:
-            c.faces = np.flatnonzero(labels == c.id)
-        ctx.surface = surface
+        _store_cap_labels(ctx, ctx.surface.copy(), pre.relabel(labels, ids), caps)
     ctx.caps = caps
     ctx.report.sections["caps"] = [c.as_dict() for c in caps]
     return {old.name: new.name for old, new in zip(kept, caps)}
