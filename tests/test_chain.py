@@ -101,6 +101,16 @@ def test_missing_layer_detected_before_running():
         FilterChain(["mesh_transfinite"]).run(surface=tube())
 
 
+def test_a_layer_a_filter_only_updates_is_not_provided_by_it():
+    """clean_skeleton relabels the surface and caps when they are there, but makes neither:
+    a chain given only a skeleton must fail its check at a later step that reads the
+    surface, not at run time."""
+    with pytest.raises(ChainError, match="'build_sdf' needs the surface layer"):
+        FilterChain(["clean_skeleton", "build_sdf"]).check_layers(["skeleton"])
+    FilterChain(["clean_skeleton", "build_sdf"]).check_layers(["skeleton", "surface"])
+    FilterChain(["build_sdf", "extract_skeleton", "clean_skeleton"]).check_layers(["surface"])  # extraction makes a skeleton
+
+
 def test_failed_run_leaves_no_output(tmp_path):
     chain = FilterChain([("write_surface_layer", {"filename": "x.ply"}), ("surface_info", {"require_closed": True})])
     surf = tube()

@@ -165,7 +165,7 @@ class FilterChain:
                     f"nor an earlier step provides"
                     + (" (give --skeleton FILE or add extract_skeleton)" if "skeleton" in missing else "")
                 )
-            have.update(f.writes)
+            have.update(layer for layer in f.writes if layer not in f.updates or layer in have)
 
     # -- files -----------------------------------------------------------
     def to_dict(self) -> dict:

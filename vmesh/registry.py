@@ -145,7 +145,9 @@ class Filter:
 
     The function is called as ``function(ctx, **params)`` with every parameter
     validated and filled in. ``reads`` are the context layers it needs, ``optional_reads``
-    the ones it uses when present, ``writes`` the ones it produces.
+    the ones it uses when present, ``writes`` the ones it produces or changes, and
+    ``updates`` those of ``writes`` it only changes when they are present (a chain's
+    check does not count them as provided by the filter).
     """
 
     name: str
@@ -155,6 +157,7 @@ class Filter:
     reads: tuple[str, ...] = ()
     optional_reads: tuple[str, ...] = ()
     writes: tuple[str, ...] = ()
+    updates: tuple[str, ...] = ()
     category: str = "misc"
     doc: str = ""
     check: Callable | None = None
@@ -195,7 +198,8 @@ class Filter:
             f"  category: {self.category}",
             f"  reads:    {', '.join(self.reads) or '-'}"
             + (f" (optional: {', '.join(self.optional_reads)})" if self.optional_reads else ""),
-            f"  writes:   {', '.join(self.writes) or '-'}",
+            f"  writes:   {', '.join(self.writes) or '-'}"
+            + (f" (only when present: {', '.join(self.updates)})" if self.updates else ""),
             "",
         ]
         if not self.parameters:
@@ -222,6 +226,7 @@ def register_filter(
     reads=(),
     optional_reads=(),
     writes=(),
+    updates=(),
     category: str = "misc",
     check: Callable | None = None,
 ):
@@ -247,6 +252,8 @@ def register_filter(
         for layer in (*reads, *optional_reads, *writes):
             if layer not in LAYERS:
                 raise ValueError(f"filter '{fname}': unknown layer {layer!r}")
+        if not set(updates) <= set(writes) & set(optional_reads):
+            raise ValueError(f"filter '{fname}': 'updates' must be layers it writes and optionally reads")
         names = [p.name for p in parameters]
         if len(set(names)) != len(names):
             raise ValueError(f"filter '{fname}': duplicate parameter names")
@@ -260,6 +267,7 @@ def register_filter(
             reads=tuple(reads),
             optional_reads=tuple(optional_reads),
             writes=tuple(writes),
+            updates=tuple(updates),
             category=category,
             doc=doc if doc != description else "",
             check=check,

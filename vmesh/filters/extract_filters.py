@@ -71,6 +71,7 @@ from .preprocess_filters import walls_not_caps
     reads=("sdf",),
     optional_reads=("skeleton", "caps", "surface"),
     writes=("skeleton", "caps", "surface"),
+    updates=("caps", "surface"),
     category="skeleton",
 )
 def extract_skeleton(

@@ -40,6 +40,7 @@ def surface_info(ctx, require_closed, require_manifold):
     reads=("surface",),
     optional_reads=("skeleton",),
     writes=("surface", "skeleton"),
+    updates=("skeleton",),
     category="input",
 )
 def transform_surface(ctx, scale, translate):

@@ -179,6 +179,7 @@ def _check_point(inlet_point):
     reads=("surface",),
     optional_reads=("caps",),
     writes=("surface", "caps"),  # caps: cleared (they index the old faces)
+    updates=("caps",),
     category="preprocessing",
 )
 def repair_surface(ctx, merge_tolerance, keep, orient, fill_holes, debris_area, hole_wall_beyond=False):
@@ -443,6 +444,7 @@ def smooth_loop(ctx, iterations, region, junction_distance, edge_threshold, weig
     reads=("surface",),
     optional_reads=("caps",),
     writes=("coarse_surface", "surface", "caps"),  # surface and caps with output="surface"
+    updates=("caps",),
     category="preprocessing",
 )
 def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary, preserve_topology, quality_threshold, aggressiveness, output, max_error):

@@ -312,6 +312,7 @@ def estimate_radii(ctx, overwrite, scale):
     reads=("skeleton",),
     optional_reads=("sdf", "caps", "surface"),
     writes=("skeleton", "caps", "surface"),
+    updates=("caps", "surface"),
     category="skeleton",
 )
 def clean_skeleton(

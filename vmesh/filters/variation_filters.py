@@ -22,6 +22,7 @@ from ..registry import Parameter, register_filter
     reads=("surface",),
     optional_reads=("skeleton",),
     writes=("surface", "skeleton"),
+    updates=("skeleton",),
     category="input",
 )
 def scale_radius(ctx, scale, blend, end_extension):
