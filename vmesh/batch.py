@@ -229,8 +229,9 @@ def mesh_row(task: dict) -> dict:
         return result
     except Exception as exc:  # reported in the summary; the batch goes on
         shutil.rmtree(tmp, ignore_errors=True)
-        if stop_behind(exc) is not None:  # a stop, not this row's failure
-            raise stop_behind(exc) from None
+        stop = stop_behind(exc)
+        if stop is not None:  # a stop, not this row's failure
+            raise stop from None
         result["status"] = "failed"
         result["error"] = " ".join(f"{exc}".split()) if isinstance(exc, VmeshError) else " ".join(f"{type(exc).__name__}: {exc}".split())
         result["error"] = _keep_row_diagnostics(tmp, out / f"{name}.failed", result["error"])

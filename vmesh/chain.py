@@ -352,21 +352,19 @@ def _run_step(ctx: Context, number: int, step: Step, say, log: Path | None) -> N
     with ResourceMonitor() as mon, _Heartbeat(say, step.filter):
         try:
             f.function(ctx, **step.params)
-        except VmeshError as exc:
-            # a filter may turn an interrupted import's error into its own: still a stop
-            stop = stop_behind(exc)
-            if stop is not None:
-                raise stop from None
-            raise _with_message(exc, f"step {number} '{step.filter}': {exc}") from exc
-        except MemoryError:
-            raise ChainError(
-                f"step {number} '{step.filter}' ran out of memory: decimate the surface "
-                f"(decimate_surface.target_faces) or mesh a smaller part"
-            ) from None
         except Exception as exc:
+            # a signal inside a C extension's import comes back as its error (a filter may
+            # also turn that error into its own): still a stop
             stop = stop_behind(exc)
             if stop is not None:
                 raise stop from None
+            if isinstance(exc, VmeshError):
+                raise _with_message(exc, f"step {number} '{step.filter}': {exc}") from exc
+            if isinstance(exc, MemoryError):
+                raise ChainError(
+                    f"step {number} '{step.filter}' ran out of memory: decimate the surface "
+                    f"(decimate_surface.target_faces) or mesh a smaller part"
+                ) from None
             raise ChainError(internal_error_text(number, step.filter, log)) from exc
     ctx._step.seconds = mon.seconds
     ctx._step.cpu_seconds = mon.cpu_seconds

@@ -169,16 +169,14 @@ def main(argv=None) -> int:
     except (KeyboardInterrupt, Stopped) as exc:
         if args.debug:
             raise
-        print(f"vmesh: error: {one_line(getattr(exc, 'message', None) or _stopped_text(exc))}", file=sys.stderr)
-        return 128 + (exc.signal_number if isinstance(exc, Stopped) else signal.SIGINT)
+        return _report_stop(exc)
     except BrokenPipeError:  # output piped into `head` and the like
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except Exception as exc:  # a bug: one line for the user, the traceback in a log file
         stop = stop_behind(exc)
         if stop is not None and not args.debug:
-            print(f"vmesh: error: {_stopped_text(stop)}", file=sys.stderr)
-            return 128 + (stop.signal_number if isinstance(stop, Stopped) else signal.SIGINT)
+            return _report_stop(stop)
         if args.debug:
             raise
         log = _write_traceback(exc)
@@ -213,6 +211,12 @@ def _unraisable_hook(default, debug: bool):
 
 def one_line(text: str) -> str:
     return " ".join(text.split())
+
+
+def _report_stop(exc) -> int:
+    """Print the one line for a stopped run; its exit status (128 + the signal)."""
+    print(f"vmesh: error: {one_line(getattr(exc, 'message', None) or _stopped_text(exc))}", file=sys.stderr)
+    return 128 + (exc.signal_number if isinstance(exc, Stopped) else signal.SIGINT)
 
 
 def _stopped_text(exc) -> str:
