@@ -415,9 +415,8 @@ def _tube_behind(v, adjacency, rim, centre, normal, radius, tree=None) -> bool:
     ids = near[keep]
     radial = radial_near[keep]
     _, piece = connected_components(adjacency[ids][:, ids], directed=False)
-    local = np.full(len(v), -1)
-    local[ids] = np.arange(len(ids))
-    reached = np.isin(piece, np.unique(piece[local[rim]]))
+    # ids is sorted and holds the rim: its pieces by search, no per-cap array over all vertices
+    reached = np.isin(piece, np.unique(piece[np.searchsorted(ids, rim)]))
     # nine tenths: one spike of wall (a neighbouring vessel's edge touching the slab) does not decide
     return bool(np.percentile(radial[reached], 90) <= CAP_TUBE_SPREAD * radius)
 

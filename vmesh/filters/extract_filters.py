@@ -133,7 +133,8 @@ def extract_skeleton(
     not_ends = stats["ends"].pop("not_ends", [])
     renamed = walls_not_caps(ctx, not_ends) if not_ends else {}  # first: the ends take the names the caps keep
     if caps:
-        names = {i: renamed.get(c.name, c.name) for i, c in enumerate(caps) if i not in set(not_ends)}
+        gone = set(not_ends)
+        names = {i: renamed.get(c.name, c.name) for i, c in enumerate(caps) if i not in gone}
         _tag_cap_ends(skeleton, stats.pop("cap_of_node", {}), names)
     else:
         stats.pop("cap_of_node", None)

@@ -336,8 +336,8 @@ def detect_caps(ctx, angle_tolerance, min_crease_angle, min_roundness, min_faces
     surface.face_data.pop(pre.CAP_LABEL, None)
     doubted = set(pre.flat_caps_needing_an_end(s.vertices, f, labels))  # before naming: the inlet is a sure cap
     set_caps(ctx, surface, labels, inlet, inlet_point, needs_end=doubted)
-    for c in ctx.caps:
-        if f is not s.faces:  # cap normals must point out of the vessel even if the faces point inward
+    if f is not s.faces:  # cap normals must point out of the vessel even if the faces point inward
+        for c in ctx.caps:
             c.normal = -c.normal
     ctx.report.sections["caps"] = [c.as_dict() for c in ctx.caps]
     ctx.count(caps=len(ctx.caps))

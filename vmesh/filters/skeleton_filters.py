@@ -712,21 +712,10 @@ def render_skeleton_png(path, skeleton, surface=None, size=(1200, 900), opacity=
     The camera looks along the direction in which the skeleton is thinnest (its least
     principal axis), so planar trees are seen face-on.
     """
-    import pyvista as pv
-
     from ..io.atomic import atomic_path
+    from ..render import _setup
 
-    pv.OFF_SCREEN = True
-    try:  # VTK tries an X display before falling back to EGL/OSMesa; the attempt is not an error
-        import vtk
-
-        vtk.vtkLogger.SetStderrVerbosity(vtk.vtkLogger.VERBOSITY_OFF)
-    except (ImportError, AttributeError) as exc:
-        from ..errors import stop_behind
-
-        stop = stop_behind(exc)  # a stop that lands while VTK imports is still a stop
-        if stop is not None:
-            raise stop from None
+    pv = _setup()  # off screen, VTK's display fallback quiet
     path = Path(path)
     plotter = pv.Plotter(off_screen=True, window_size=list(size))
     try:

@@ -127,31 +127,22 @@ def _graph_segments(graph: BranchGraph) -> tuple[np.ndarray, np.ndarray, np.ndar
     """The points of every branch of ``graph``, their radii and the segments between
     them (a branch's nodes shared with the branches that meet there, so that an end of
     the graph is an end of the segments)."""
-    pts, rad, edges = [], [], []
-    index = {}
-    n = 0
-
-    def node_index(node):
-        nonlocal n
-        if node not in index:
-            index[node] = n
-            pts.append(np.asarray(graph.pos(node), float)[None])
-            rad.append(np.array([float(graph.radius(node))]))
-            n += 1
-        return index[node]
-
+    nodes = [u for u in graph.graph.nodes if graph.degree(u) > 0]  # the nodes on segments first
+    if not nodes:
+        return np.zeros((0, 3)), np.zeros(0), np.zeros((0, 2), np.int64)
+    index = {u: i for i, u in enumerate(nodes)}
+    pts = [np.array([graph.pos(u) for u in nodes], float).reshape(-1, 3)]
+    rad = [np.array([graph.radius(u) for u in nodes], float)]
+    edges, n = [], len(nodes)
     for u, v, k in graph.graph.edges(keys=True):
         p, r = graph.polyline(u, v, k, start=u)
-        a, b = node_index(u), node_index(v)
         inner = np.arange(n, n + max(len(p) - 2, 0))
         pts.append(p[1:-1])
         rad.append(np.asarray(r, float)[1:-1])
         n += len(inner)
-        chain = np.r_[a, inner, b]
+        chain = np.r_[index[u], inner, index[v]]
         edges.append(np.c_[chain[:-1], chain[1:]])
-    if not pts:
-        return np.zeros((0, 3)), np.zeros(0), np.zeros((0, 2), np.int64)
-    return np.concatenate(pts), np.concatenate(rad), np.concatenate(edges) if edges else np.zeros((0, 2), np.int64)
+    return np.concatenate(pts), np.concatenate(rad), np.concatenate(edges)
 
 
 def _match_caps(ends: np.ndarray, end_radii: np.ndarray, caps, tangents: np.ndarray | None = None) -> dict:
