@@ -319,7 +319,8 @@ def optimise_linear(
     info = _linear_info(q)
     if not len(q) or q.min() >= max(untangle_below, smooth_below):
         return X, {**info, "after": info["before"], "seconds": time.perf_counter() - t0}
-    constraints = (wall, project, wall_normals, cap_nodes, cap_normals, boundary, keep_first_layer)
+    constraints = dict(wall=wall, project=project, wall_normals=wall_normals, cap_nodes=cap_nodes, cap_normals=cap_normals,
+                       boundary=boundary, keep_first_layer=keep_first_layer)
     fixed, run, untangled, smoothed = _linear_run(X, sub, n, constraints, keep_partial_free_layer and q.min() > 0, untangle_patience)
     bad = q < untangle_below
     if bad.any():
@@ -333,12 +334,11 @@ def optimise_linear(
 
 def _linear_run(X, sub, n, constraints, keep_partial, ring_patience):
     """The fixed nodes, the state :func:`optimise_linear`'s passes share (how each node moves,
-    :func:`_node_kinds` of ``constraints``; the update count; the initial points) and the
+    :func:`_node_kinds` of ``constraints``, its keyword arguments; the update count; the initial points) and the
     masks of the nodes each pass moved (untangling, smoothing), empty."""
-    kind, normal, height = _node_kinds(sub, n, *constraints)
-    project, wall_normals = constraints[1], constraints[2]
+    kind, normal, height = _node_kinds(sub, n, **constraints)
     run = dict(
-        kind=kind, normal=normal, project=project, wall_normals=wall_normals, stats={"updates": 0}, height=height,
+        kind=kind, normal=normal, project=constraints["project"], wall_normals=constraints["wall_normals"], stats={"updates": 0}, height=height,
         X0=X.copy(), keep_partial=keep_partial, ring_patience=ring_patience,
     )
     return kind == K.FIXED, run, np.zeros(n, bool), np.zeros(n, bool)
