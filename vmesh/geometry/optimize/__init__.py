@@ -319,8 +319,7 @@ def optimise_linear(
     info = _linear_info(q)
     if not len(q) or q.min() >= max(untangle_below, smooth_below):
         return X, {**info, "after": info["before"], "seconds": time.perf_counter() - t0}
-    constraints = dict(wall=wall, project=project, wall_normals=wall_normals, cap_nodes=cap_nodes, cap_normals=cap_normals,
-                       boundary=boundary, keep_first_layer=keep_first_layer)
+    constraints = dict(wall=wall, project=project, wall_normals=wall_normals, cap_nodes=cap_nodes, cap_normals=cap_normals, boundary=boundary, keep_first_layer=keep_first_layer)
     fixed, run, untangled, smoothed = _linear_run(X, sub, n, constraints, keep_partial_free_layer and q.min() > 0, untangle_patience)
     bad = q < untangle_below
     if bad.any():
