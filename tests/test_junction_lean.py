@@ -15,7 +15,7 @@ import types
 import numpy as np
 import pytest
 
-from junction_cases import direction, trifurcation, trifurcation_out_of_plane
+from junction_cases import direction, trifurcation_out_of_plane
 from vmesh.geometry import cross_sections as cs
 from vmesh.geometry import skeleton_ops as ops
 from vmesh.geometry.block_builder import BlockOptions, build_blocks
@@ -184,10 +184,7 @@ def test_choose_lean_with_the_budget_spent_keeps_the_whole_tree_variant_scoring_
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("make", [
-    pytest.param(lambda: trifurcation(60, 2), id="trif_60_2"),
-    pytest.param(trifurcation_out_of_plane, id="trif_out"),
-])
+@pytest.mark.parametrize("make", [pytest.param(trifurcation_out_of_plane, id="trif_out")])
 def test_trifurcation_with_choose_lean_ends_no_worse(make):
     """With ``choose_lean`` both trifurcations keep the lean: the finished half-planes' blocks
     have better corners (least scaled corner Jacobian 0.116 against 0.027, 0.160 against
@@ -196,7 +193,9 @@ def test_trifurcation_with_choose_lean_ends_no_worse(make):
     13 (fewer fixes: 3 leaning, 1 with half-planes) took half-planes, which end worse after
     untangling and the light pass (0.386 against 0.408); at the 60-degree one half-planes end
     a little better (0.347 against 0.339), a choice the rule leaves to the lean. Either way the
-    result is the default's (``choose_lean`` off builds the lean alone)."""
+    result is the default's (``choose_lean`` off builds the lean alone). The 60-degree
+    trifurcation (``trifurcation(60, 2)``) behaves alike; it stays out of the suite for time
+    (``choose_lean`` is opt-in): ``benchmarks/junction_sweep.py --set choose_lean=True``."""
     from benchmarks.junction_sweep import optimised
     from test_junctions import DEFAULT
 
@@ -208,5 +207,7 @@ def test_trifurcation_with_choose_lean_ends_no_worse(make):
     assert chosen.info["junction_lean"]["kept"] == "0: lean"
     lean = build_blocks(sk, case.distance, None, BlockOptions(), project=case.project)
     assert "junction_lean" not in lean.info
-    final = [optimised(case, b, DEFAULT)[1] for b in (chosen, lean)]
-    assert final[0].min() > 0.3 and final[0].min() >= final[1].min() - 1e-3
+    # the same blocks as the default's, so the same mesh: only one is filled and optimised
+    np.testing.assert_array_equal(chosen.hexes, lean.hexes)
+    np.testing.assert_allclose(chosen.vertices, lean.vertices, rtol=0, atol=1e-12)
+    assert optimised(case, chosen, DEFAULT)[1].min() > 0.3
