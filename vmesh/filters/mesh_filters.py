@@ -38,6 +38,7 @@ from ..registry import Parameter, register_filter
         Parameter("light_pass_tol", "float", 0.01, "Light pass: a node that moves less than this fraction of half its longest edge does not send its neighbours back to work (converged regions stop early; 0 = every move does; docs/speed.md).", min=0.0, max=0.5),
         Parameter("curved_sections", "bool", True, "Curve the core/ring and ring/boundary-layer interfaces of the cross-sections so that the element angles at their corners balance (120° at core corners instead of 90°/135°/135°; docs/optimiser.md)."),
         Parameter("smooth_below", "float", 0.5, "Light pass after untangling (optimiser = local): nodes of elements below this move only where their elements' minimum and mean scaled Jacobian do not drop; 0 = off.", min=0.0, max=0.95),
+        Parameter("worst_pass_sweeps", "int", 20, "After the light pass (optimiser = local, p = 1, a valid mesh): the nodes of elements still below smooth_below take max-min steps judged by their worst incident element alone (wall nodes on the wall, first boundary-layer heights kept), then the light pass runs again; most sweeps, 0 = off (docs/optimiser.md).", min=0, max=200),
         Parameter("exact_first_layer", "bool", True, "With first_layer_height (or y_plus): after the optimisers (untangling and the light pass), re-place the nodes of every boundary-layer line so that the first element is that height along the wall normal; with boundary_layer_thickness: before untangling, put the layer's inner nodes at that thickness along the wall normal (docs/cfd.md)."),
     ],
     reads=("blocks", "surface"),
@@ -49,7 +50,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
                      first_layer_height, boundary_layer_thickness, y_plus, flow_velocity, flow_density, flow_viscosity, reference_length,
                      order, node_distribution, project_to, untangle, untangle_below, untangle_restart_below,
                      optimiser="local", smooth_below=0.5, curved_sections=True, light_pass_below=0.95, light_pass_sweeps=8,
-                     exact_first_layer=True, light_pass_tol=0.01):
+                     exact_first_layer=True, light_pass_tol=0.01, worst_pass_sweeps=20):
     """Edge nodes are projected onto the wall and re-spaced by arc length; Coons patches fill
     block faces (wall faces projected again) and transfinite interpolation fills the blocks.
     The boundary layer is resolved by grading, never by extra element layers: the element
@@ -97,6 +98,15 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         _untangle(ctx, sm, projector, sdf, untangle_below, untangle_restart_below, optimiser, smooth_below, node_distribution)
         if optimiser == "local" and light_pass_below > 0:
             _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps, light_pass_tol)
+        lifted = optimiser == "local" and worst_pass_sweeps > 0 and smooth_below > 0 and _worst_pass(ctx, sm, projector, sdf, smooth_below, worst_pass_sweeps)
+        if lifted and light_pass_below > 0:
+            # the max-min steps let better elements give way: the light pass again restores
+            # the mean (it never lowers an element's neighbourhood minimum)
+            first = ctx.report.sections.get("light_pass")
+            _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps, light_pass_tol)
+            ctx.report.sections["light_pass_after_worst"] = ctx.report.sections.pop("light_pass")
+            if first is not None:
+                ctx.report.sections["light_pass"] = first
     if exact_first_layer and layer["first_layer_absolute"]:  # after the optimisers, which move layer nodes
         from ..geometry.boundary_layer import exact_first_layer as place_first_layer
 
@@ -255,6 +265,35 @@ def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol
     info["kept"] = True
     ctx.report.sections["light_pass"] = info
     ctx.count(light_pass_nodes=info["smoothed_nodes"])
+
+
+def _worst_pass(ctx, sm, projector, sdf, below, sweeps):
+    """Max-min steps for the nodes of the elements the light pass left below ``below``
+    (:func:`vmesh.geometry.optimize.worst.lift_worst`; linear, valid meshes only): the light
+    pass keeps each node's sum of qualities from dropping and climbs one corner at a time,
+    so where an untangler left several poor elements balanced around a node it stops.
+    Returns whether a node moved."""
+    import time
+
+    from ..geometry.optimize import _node_kinds
+    from ..geometry.optimize.worst import lift_worst
+    from ..geometry.quality import hex8_scaled_jacobian
+
+    if sm.order != 1:
+        return False
+    q = hex8_scaled_jacobian(sm.points, sm.cells)
+    if q.min() >= below or q.min() <= 0:
+        return False
+    t0 = time.perf_counter()
+    cap_nodes, cap_normals, wall, boundary = _constraints(sm)
+    kind, normal, height = _node_kinds(sm.cells, len(sm.points), wall, projector, sdf.gradient, cap_nodes, cap_normals, boundary, True)
+    moved, sweeps_run = lift_worst(sm.points, sm.cells, below, kind, normal, height, projector, sdf.gradient, sweeps=sweeps)
+    after = hex8_scaled_jacobian(sm.points, sm.cells)
+    ctx.report.sections["worst_pass"] = {
+        "before": {"min": float(q.min()), "mean": float(q.mean())}, "after": {"min": float(after.min()), "mean": float(after.mean())},
+        "moved": moved, "sweeps": sweeps_run, "seconds": round(time.perf_counter() - t0, 3),
+    }
+    return moved > 0
 
 
 def _keep_untangled(ctx, sm, X, info, changed, **counts):
