@@ -291,7 +291,7 @@ def side_sac(angle: float = 62.0, ratio: float = 1.4, length: float = 2.1, spaci
     from +x, its skeleton ending ``length`` parent radii from the junction, inside the
     sac's rounded end (a capsule whose axis ends half a sac radius short of the skeleton's
     end, so the dome reaches half a sac radius beyond it), with nodes every ``spacing``
-    parent radii.
+    parent radii (one segment where ``length`` is under 1.5 ``spacing``).
 
     As the generator's ``aneurysm_side`` with ``radius_jump`` leaves one beside a junction
     (g0008 extracted, junction 17: a closed branch of 2.1 times the junction's radius with
@@ -304,7 +304,7 @@ def side_sac(angle: float = 62.0, ratio: float = 1.4, length: float = 2.1, spaci
     j = int(np.argmin(np.abs(x)))
     x[j] = 0.0
     n = len(x)
-    m = max(2, int(round(length / spacing)))
+    m = max(1, int(round(length / spacing)))
     sac = np.outer(np.arange(1, m + 1) * (length / m), d)
     pts = np.r_[np.c_[x, np.zeros((n, 2))], sac]
     edges = np.r_[np.c_[np.arange(n - 1), np.arange(1, n)], [[j, n]], np.c_[np.arange(n, n + m - 1), np.arange(n + 1, n + m)]]

@@ -278,10 +278,11 @@ class _Sections:
             ends = br.arc.copy()
             ends[0] += self.placed.retreat.get((bi, 0), 0.0)
             ends[-1] -= self.placed.retreat.get((bi, 1), 0.0)
-            if br.kinds == [JUNCTION, CLOSED] and len(br.nodes) > 2 and ends[-1] - 0.3 * rb <= lo:
+            if br.kinds == [JUNCTION, CLOSED] and ends[-1] - 0.3 * rb <= lo:
                 # a short closed branch (an aneurysm sac on its parent): the junction's
                 # half-sections need the room the dome's retreat took; the dome gets flatter
-                # rather than the sections between them standing inside the half-sections
+                # rather than the sections between them standing inside the half-sections.
+                # A one-segment branch too: its dome's section is the only one there is
                 ends[-1] = min(br.arc[-1], lo + (0.3 + DOME_YIELD_ROOM) * rb)
                 self.placed.retreat[(bi, 1)] = float(br.arc[-1] - ends[-1])
             if br.kinds[1] in (OPEN, CLOSED):
