@@ -161,17 +161,84 @@ def pull_inside(
         return skeleton.copy(), 0, 0
     deg = skeleton.degrees
     points = skeleton.points.copy()
-    pull = outside & ((mode == "pull") | (deg >= 3))
     n_pulled = 0
+    cut = np.zeros(len(points), bool)
+    if mode == "pull":
+        n_pulled, cut = _ends_back_along_branch(skeleton, distance, d, scale, outside & (deg == 1), points)
+        outside &= ~cut
+        ends = np.flatnonzero(outside & (deg == 1))
+        outside[ends] = np.asarray(distance(points[ends]), float) < -tolerance * scale[ends]
+    pull = outside & ((mode == "pull") | (deg >= 3))
     if pull.any():
         idx = np.flatnonzero(pull)
         new, dn = ascend_distance(points[idx], scale[idx], distance, gradient)
         ok = dn >= 0
         points[idx[ok]] = new[ok]
-        n_pulled = int(ok.sum())
+        n_pulled += int(ok.sum())
         outside[idx[ok]] = False
         # a junction that cannot be brought inside still stays (its branches hang on it)
         outside[idx[~ok & (deg[idx] >= 3)]] = False
     moved = skeleton.copy(points=points)
     n_dropped = int(outside.sum())
-    return (remove_nodes(moved, outside) if n_dropped else moved), n_pulled, n_dropped
+    drop = outside | cut
+    return (remove_nodes(moved, drop) if drop.any() else moved), n_pulled, n_dropped
+
+
+def _ends_back_along_branch(skeleton: Skeleton, distance, d, scale, ends, points) -> tuple[int, np.ndarray]:
+    """Move end nodes that lie outside back along their branch to the last full
+    cross-section behind where the branch leaves the surface, as the extraction places
+    an end behind a flat end face (:func:`~.end_faces.flat_end_sections`: a quarter radius
+    behind a clean face, up to a radius behind a rough, terraced or rounded one), centred.
+
+    An end just past a closed end walked up the signed distance to its radius' depth
+    stops a radius short of an end face no cap was found on (a terraced one), and the
+    mesh with it. ``points`` is updated in place; the branch nodes the new end passes are
+    returned in the mask (to be removed, bridged). Ends whose branch has no node inside,
+    or whose new place would pass the branch's other end, are left to the walk up the
+    signed distance.
+    """
+    from .end_faces import flat_end_sections
+
+    cut = np.zeros(len(points), bool)
+    idx = np.flatnonzero(ends)
+    if len(idx) == 0:
+        return 0, cut
+    paths = {}  # end node -> its branch, from the end
+    for q in branch_paths(skeleton.n_nodes, skeleton.edges):
+        if q[0] != q[-1]:
+            paths[int(q[0])], paths[int(q[-1])] = q, q[::-1]
+    picked, faces, normals = [], [], []
+    for e in idx.tolist():
+        path = paths.get(e)
+        inside = np.flatnonzero(d[path] > 0) if path is not None else []
+        if len(inside) == 0:
+            continue
+        k = int(inside[0])
+        a, b = points[path[k - 1]], points[path[k]]  # outside, inside: the branch leaves the surface between
+        t = np.linspace(0.0, 1.0, 17)
+        ds = np.asarray(distance(b + t[:, None] * (a - b)), float)
+        j = int(np.argmax(ds <= 0))
+        face = b + (t[j - 1] + (t[j] - t[j - 1]) * ds[j - 1] / max(ds[j - 1] - ds[j], 1e-300)) * (a - b)
+        far = np.linalg.norm(points[path[k:]] - face, axis=1) >= scale[e]  # the axis over about a radius
+        axis = face - points[path[k + int(np.argmax(far)) if far.any() else -1]]
+        norm = np.linalg.norm(axis)
+        if norm > 0:
+            picked.append((e, path))
+            faces.append(face)
+            normals.append(axis / norm)
+    if not picked:
+        return 0, cut
+    faces, normals = np.array(faces), np.array(normals)
+    r = scale[[p[0] for p in picked]]
+    centres, section, _ = flat_end_sections(distance, faces, normals, normals, r)
+    n = 0
+    for i, (e, path) in enumerate(picked):
+        end = centres[i]
+        beyond = (points[path] - end) @ normals[i] > -1e-9 * r[i]
+        if beyond[-1] or not np.isfinite(section[i]) or distance(end[None])[0] <= 0:
+            continue  # the branch is shorter than the way back, or no section there
+        first = int(np.argmin(beyond[1:])) + 1  # the first node behind the new end stays
+        cut[path[1:first]] = True
+        points[e] = end
+        n += 1
+    return n, cut
