@@ -144,8 +144,9 @@ def pull_inside(
     ``-tolerance`` x radius).
 
     ``mode="pull"`` walks them up the signed distance towards the medial ridge (towards
-    their own radius as depth) and drops those still outside; ``"drop"`` removes them
-    straight away. Junctions are never dropped (they are pulled). Removed stretches of a
+    their own radius as depth) and drops those still outside; an end node goes back along
+    its branch instead (:func:`_ends_back_along_branch`), where it can. ``"drop"`` removes
+    them straight away. Junctions are never dropped (they are pulled). Removed stretches of a
     branch are bridged so the graph stays connected.
 
     Returns
