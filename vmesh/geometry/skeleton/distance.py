@@ -138,15 +138,16 @@ def fill_missing_along_branches(n_nodes: int, edges: np.ndarray, points: np.ndar
 
 
 def pull_inside(
-    skeleton: Skeleton, distance, gradient=None, tolerance: float = 0.02, mode: str = "pull"
+    skeleton: Skeleton, distance, gradient=None, tolerance: float = 0.02, mode: str = "pull", keep=None
 ) -> tuple[Skeleton, int, int]:
     """Bring back nodes that lie outside the domain (signed distance below
     ``-tolerance`` x radius).
 
     ``mode="pull"`` walks them up the signed distance towards the medial ridge (towards
-    their own radius as depth) and drops those still outside; an end node goes back along
-    its branch instead (:func:`_ends_back_along_branch`), where it can. ``"drop"`` removes
-    them straight away. Junctions are never dropped (they are pulled). Removed stretches of a
+    their own radius as depth) and drops those still outside; an end node outside, or
+    within ``GRAZE`` radii of a wall its branch runs into, goes back along its branch
+    instead (:func:`_ends_back_along_branch`), where it can, unless ``keep`` (a node
+    mask: ends at caps) holds it. ``"drop"`` removes them straight away. Junctions are never dropped (they are pulled). Removed stretches of a
     branch are bridged so the graph stays connected.
 
     Returns
@@ -158,14 +159,15 @@ def pull_inside(
     scale = np.where(np.isfinite(r) & (r > 0), r, np.nanmedian(r) if np.isfinite(r).any() else 1.0)
     d = np.asarray(distance(skeleton.points), float)
     outside = d < -tolerance * scale
-    if not outside.any():
-        return skeleton.copy(), 0, 0
     deg = skeleton.degrees
+    graze = (deg == 1) & (d < GRAZE * scale) & (np.ones(len(d), bool) if keep is None else ~np.asarray(keep, bool))
+    if not outside.any() and not (mode == "pull" and graze.any()):
+        return skeleton.copy(), 0, 0
     points = skeleton.points.copy()
     n_pulled = 0
     cut = np.zeros(len(points), bool)
     if mode == "pull":
-        n_pulled, cut = _ends_back_along_branch(skeleton, distance, d, scale, outside & (deg == 1), points)
+        n_pulled, cut = _ends_back_along_branch(skeleton, distance, d, scale, (outside & (deg == 1)) | graze, points)
         outside &= ~cut
         ends = np.flatnonzero(outside & (deg == 1))
         outside[ends] = np.asarray(distance(points[ends]), float) < -tolerance * scale[ends]
@@ -185,9 +187,28 @@ def pull_inside(
     return (remove_nodes(moved, drop) if drop.any() else moved), n_pulled, n_dropped
 
 
+#: An end within this many radii of the wall grazes it: on a closed end face no cap was
+#: found on (a terraced one), its end section's boundary layer lies on the face.
+GRAZE = 0.1
+
+
+def _wall_ahead(distance, path_points: np.ndarray, radius: float):
+    """Where the branch's axis, continued past its end (``path_points[0]``), meets the wall
+    within half a radius (an end face ahead); None when it does not (a side wall)."""
+    from .probe import distance_to_wall
+
+    far = np.linalg.norm(path_points - path_points[0], axis=1) >= radius
+    axis = path_points[0] - path_points[int(np.argmax(far)) if far.any() else -1]
+    norm = np.linalg.norm(axis)
+    if norm == 0:
+        return None
+    hit = float(distance_to_wall(distance, path_points[:1], axis[None] / norm, 0.5 * radius, samples=8)[0])
+    return path_points[0] + hit * axis / norm if np.isfinite(hit) else None
+
+
 def _ends_back_along_branch(skeleton: Skeleton, distance, d, scale, ends, points) -> tuple[int, np.ndarray]:
-    """Move end nodes that lie outside back along their branch to the last full
-    cross-section behind where the branch leaves the surface, as the extraction places
+    """Move end nodes that lie outside (or graze an end face ahead) back along their branch
+    to the last full cross-section behind where the branch leaves the surface, as the extraction places
     an end behind a flat end face (:func:`~.end_faces.flat_end_sections`: a quarter radius
     behind a clean face, up to a radius behind a rough, terraced or rounded one), centred.
 
@@ -215,11 +236,16 @@ def _ends_back_along_branch(skeleton: Skeleton, distance, d, scale, ends, points
         if len(inside) == 0:
             continue
         k = int(inside[0])
-        a, b = points[path[k - 1]], points[path[k]]  # outside, inside: the branch leaves the surface between
-        t = np.linspace(0.0, 1.0, 17)
-        ds = np.asarray(distance(b + t[:, None] * (a - b)), float)
-        j = int(np.argmax(ds <= 0))
-        face = b + (t[j - 1] + (t[j] - t[j - 1]) * ds[j - 1] / max(ds[j - 1] - ds[j], 1e-300)) * (a - b)
+        if k == 0:  # grazing the wall: the face ahead along the branch, if it is there
+            face = _wall_ahead(distance, points[path], scale[e])
+            if face is None:
+                continue
+        else:
+            a, b = points[path[k - 1]], points[path[k]]  # outside, inside: the branch leaves the surface between
+            t = np.linspace(0.0, 1.0, 17)
+            ds = np.asarray(distance(b + t[:, None] * (a - b)), float)
+            j = int(np.argmax(ds <= 0))
+            face = b + (t[j - 1] + (t[j] - t[j - 1]) * ds[j - 1] / max(ds[j - 1] - ds[j], 1e-300)) * (a - b)
         far = np.linalg.norm(points[path[k:]] - face, axis=1) >= scale[e]  # the axis over about a radius
         axis = face - points[path[k + int(np.argmax(far)) if far.any() else -1]]
         norm = np.linalg.norm(axis)
