@@ -357,7 +357,9 @@ def clean_skeleton(
             ctx.warn("no sdf layer: nodes outside the wall are not checked")
         else:
             distance, gradient = _sdf_functions(ctx.sdf)
-            skel, counts["pulled"], counts["dropped"] = sk_distance.pull_inside(skel, distance, gradient, outside_tolerance, outside)
+            at_cap = [np.linalg.norm(skel.points - np.asarray(c.center, float), axis=1) <= 1.5 * c.radius for c in caps]
+            at_cap = np.any(at_cap, axis=0) if caps else None  # those ends go to their caps later
+            skel, counts["pulled"], counts["dropped"] = sk_distance.pull_inside(skel, distance, gradient, outside_tolerance, outside, at_cap)
             if neck > 0:  # before reconnecting and merging, which would take the bridge for a junction
                 skel, counts["necks_cut"] = cut_necks(skel, distance, neck)
     ctx.tick(0.25, "reconnect")

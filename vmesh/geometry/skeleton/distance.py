@@ -138,14 +138,16 @@ def fill_missing_along_branches(n_nodes: int, edges: np.ndarray, points: np.ndar
 
 
 def pull_inside(
-    skeleton: Skeleton, distance, gradient=None, tolerance: float = 0.02, mode: str = "pull"
+    skeleton: Skeleton, distance, gradient=None, tolerance: float = 0.02, mode: str = "pull", keep=None
 ) -> tuple[Skeleton, int, int]:
     """Bring back nodes that lie outside the domain (signed distance below
     ``-tolerance`` x radius).
 
     ``mode="pull"`` walks them up the signed distance towards the medial ridge (towards
-    their own radius as depth) and drops those still outside; ``"drop"`` removes them
-    straight away. Junctions are never dropped (they are pulled). Removed stretches of a
+    their own radius as depth) and drops those still outside; an end node outside, or
+    within ``GRAZE`` radii of a wall its branch runs into, goes back along its branch
+    instead (:func:`_ends_back_along_branch`), where it can, unless ``keep`` (a node
+    mask: ends at caps) holds it. ``"drop"`` removes them straight away. Junctions are never dropped (they are pulled). Removed stretches of a
     branch are bridged so the graph stays connected.
 
     Returns
@@ -157,21 +159,113 @@ def pull_inside(
     scale = np.where(np.isfinite(r) & (r > 0), r, np.nanmedian(r) if np.isfinite(r).any() else 1.0)
     d = np.asarray(distance(skeleton.points), float)
     outside = d < -tolerance * scale
-    if not outside.any():
-        return skeleton.copy(), 0, 0
     deg = skeleton.degrees
+    graze = (deg == 1) & (d < GRAZE * scale) & (np.ones(len(d), bool) if keep is None else ~np.asarray(keep, bool))
+    if not outside.any() and not (mode == "pull" and graze.any()):
+        return skeleton.copy(), 0, 0
     points = skeleton.points.copy()
-    pull = outside & ((mode == "pull") | (deg >= 3))
     n_pulled = 0
+    cut = np.zeros(len(points), bool)
+    if mode == "pull":
+        n_pulled, cut = _ends_back_along_branch(skeleton, distance, d, scale, (outside & (deg == 1)) | graze, points)
+        outside &= ~cut
+        ends = np.flatnonzero(outside & (deg == 1))
+        outside[ends] = np.asarray(distance(points[ends]), float) < -tolerance * scale[ends]
+    pull = outside & ((mode == "pull") | (deg >= 3))
     if pull.any():
         idx = np.flatnonzero(pull)
         new, dn = ascend_distance(points[idx], scale[idx], distance, gradient)
         ok = dn >= 0
         points[idx[ok]] = new[ok]
-        n_pulled = int(ok.sum())
+        n_pulled += int(ok.sum())
         outside[idx[ok]] = False
         # a junction that cannot be brought inside still stays (its branches hang on it)
         outside[idx[~ok & (deg[idx] >= 3)]] = False
     moved = skeleton.copy(points=points)
     n_dropped = int(outside.sum())
-    return (remove_nodes(moved, outside) if n_dropped else moved), n_pulled, n_dropped
+    drop = outside | cut
+    return (remove_nodes(moved, drop) if drop.any() else moved), n_pulled, n_dropped
+
+
+#: An end within this many radii of the wall grazes it: on a closed end face no cap was
+#: found on (a terraced one), its end section's boundary layer lies on the face.
+GRAZE = 0.1
+
+
+def _wall_ahead(distance, path_points: np.ndarray, radius: float):
+    """Where the branch's axis, continued past its end (``path_points[0]``), meets the wall
+    within half a radius (an end face ahead); None when it does not (a side wall)."""
+    from .probe import distance_to_wall
+
+    far = np.linalg.norm(path_points - path_points[0], axis=1) >= radius
+    axis = path_points[0] - path_points[int(np.argmax(far)) if far.any() else -1]
+    norm = np.linalg.norm(axis)
+    if norm == 0:
+        return None
+    hit = float(distance_to_wall(distance, path_points[:1], axis[None] / norm, 0.5 * radius, samples=8)[0])
+    return path_points[0] + hit * axis / norm if np.isfinite(hit) else None
+
+
+def _ends_back_along_branch(skeleton: Skeleton, distance, d, scale, ends, points) -> tuple[int, np.ndarray]:
+    """Move end nodes that lie outside (or graze an end face ahead) back along their branch
+    to the last full cross-section behind where the branch leaves the surface, as the extraction places
+    an end behind a flat end face (:func:`~.end_faces.flat_end_sections`: a quarter radius
+    behind a clean face, up to a radius behind a rough, terraced or rounded one), centred.
+
+    An end just past a closed end walked up the signed distance to its radius' depth
+    stops a radius short of an end face no cap was found on (a terraced one), and the
+    mesh with it. ``points`` is updated in place; the branch nodes the new end passes are
+    returned in the mask (to be removed, bridged). Ends whose branch has no node inside,
+    or whose new place would pass the branch's other end, are left to the walk up the
+    signed distance.
+    """
+    from .end_faces import flat_end_sections
+
+    cut = np.zeros(len(points), bool)
+    idx = np.flatnonzero(ends)
+    if len(idx) == 0:
+        return 0, cut
+    paths = {}  # end node -> its branch, from the end
+    for q in branch_paths(skeleton.n_nodes, skeleton.edges):
+        if q[0] != q[-1]:
+            paths[int(q[0])], paths[int(q[-1])] = q, q[::-1]
+    picked, faces, normals = [], [], []
+    for e in idx.tolist():
+        path = paths.get(e)
+        inside = np.flatnonzero(d[path] > 0) if path is not None else []
+        if len(inside) == 0:
+            continue
+        k = int(inside[0])
+        if k == 0:  # grazing the wall: the face ahead along the branch, if it is there
+            face = _wall_ahead(distance, points[path], scale[e])
+            if face is None:
+                continue
+        else:
+            a, b = points[path[k - 1]], points[path[k]]  # outside, inside: the branch leaves the surface between
+            t = np.linspace(0.0, 1.0, 17)
+            ds = np.asarray(distance(b + t[:, None] * (a - b)), float)
+            j = int(np.argmax(ds <= 0))
+            face = b + (t[j - 1] + (t[j] - t[j - 1]) * ds[j - 1] / max(ds[j - 1] - ds[j], 1e-300)) * (a - b)
+        far = np.linalg.norm(points[path[k:]] - face, axis=1) >= scale[e]  # the axis over about a radius
+        axis = face - points[path[k + int(np.argmax(far)) if far.any() else -1]]
+        norm = np.linalg.norm(axis)
+        if norm > 0:
+            picked.append((e, path))
+            faces.append(face)
+            normals.append(axis / norm)
+    if not picked:
+        return 0, cut
+    faces, normals = np.array(faces), np.array(normals)
+    r = scale[[p[0] for p in picked]]
+    centres, section, _ = flat_end_sections(distance, faces, normals, normals, r)
+    n = 0
+    for i, (e, path) in enumerate(picked):
+        end = centres[i]
+        beyond = (points[path] - end) @ normals[i] > -1e-9 * r[i]
+        if beyond[-1] or not np.isfinite(section[i]) or distance(end[None])[0] <= 0:
+            continue  # the branch is shorter than the way back, or no section there
+        first = int(np.argmin(beyond[1:])) + 1  # the first node behind the new end stays
+        cut[path[1:first]] = True
+        points[e] = end
+        n += 1
+    return n, cut
