@@ -415,3 +415,26 @@ def test_a_fused_fork_meshes_without_a_cut(tmp_path):
     assert ctx.report.sections["blocks"]["vessels_in_contact"] == []
     assert not ctx.blocks.info.get("contact_cuts")
     assert ctx.mesh.cell_data["scaled_jacobian"].min() > 0.3
+
+
+def test_a_section_ray_through_a_neck_into_another_lumen_stops_at_the_neck():
+    """A tube (radius 1, along z) whose wall fuses through a narrow neck with the end of a
+    vessel (radius 0.7) that runs away from it along x, longer than a section ray's reach
+    (a generated vessel's extracted skeleton: a kissing branch's section beside the contact).
+    The middle section's ray along x slipped through the neck and ran along the other lumen
+    with no wall within reach, which stopped the build; it now ends at the neck, and every
+    block stays on this side of it."""
+    from vmesh.geometry.rays import cut_at_necks
+
+    z = np.linspace(-6.0, 6.0, 17)
+    sk = Skeleton(np.c_[np.zeros(17), np.zeros(17), z], np.ones(17), np.c_[np.arange(16), np.arange(1, 17)])
+    x0 = 1.0 + 0.7 + 0.05  # the end's dome 0.05 from the tube's wall: fused into a neck
+    case = JunctionCase("neck", np.array([[0, 0, -6.0], [x0, 0, 0]]), np.array([[0, 0, 6.0], [x0 + 14.0, 0, 0]]),
+                        np.array([1.0, 0.7]), sk)
+    # the ray itself: the neck 1.0 out; a ray along the open lumen has no neck
+    t = cut_at_necks(case.distance, np.zeros((2, 3)), np.array([[1.0, 0, 0], [0, 0, 1.0]]), np.ones(2))
+    assert t[0] == pytest.approx(1.0, abs=0.2) and np.isnan(t[1])
+    blocks = build_blocks(sk, case.distance, None, BlockOptions())
+    checks = block_structure_checks(blocks)
+    assert checks["invalid_blocks"] == checks["face_use_errors"] == 0 and checks["boundary_euler"] == 2
+    assert blocks.vertices[:, 0].max() < 1.0 + 0.05
