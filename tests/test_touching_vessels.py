@@ -438,3 +438,33 @@ def test_a_section_ray_through_a_neck_into_another_lumen_stops_at_the_neck():
     checks = block_structure_checks(blocks)
     assert checks["invalid_blocks"] == checks["face_use_errors"] == 0 and checks["boundary_euler"] == 2
     assert blocks.vertices[:, 0].max() < 1.0 + 0.05
+
+
+def test_a_bent_link_between_vessels_in_contact_is_cut_by_its_junctions_distance():
+    """The "H" link of :func:`test_a_short_link_between_vessels_passing_in_contact_is_cut`
+    bent through a middle node, as thinning's path through the neck runs (a generated
+    vessel's extracted skeleton: 2.07 along a link between junctions 1.54 apart, radii 0.61
+    and 0.97, so that a section between it and the next junction found no wall): longer
+    along itself than the two radii allow, its junctions closer. It is cut; a link that
+    wanders farther from its junctions than that stays."""
+    from vmesh.geometry.skeleton.defects import cut_crossing_bridges
+
+    case, k, s = touching(1.2)
+    sk, length = _linked(case, k, s)
+    a, b = sk.edges[-1]
+    limit = 1.25 * (0.7 + 1.0)
+
+    def bent(h):
+        # the link a -> m -> b, its middle node h off the chord's midpoint, square to it
+        chord = sk.points[b] - sk.points[a]
+        side = np.cross(chord, [1.0, 0.0, 0.0])
+        m = 0.5 * (sk.points[a] + sk.points[b]) + h * side / np.linalg.norm(side)
+        n = sk.n_nodes
+        return Skeleton(np.r_[sk.points, m[None]], np.r_[sk.radii, 0.5], np.r_[sk.edges[:-1], [[a, n], [n, b]]])
+
+    h = np.sqrt((0.55 * limit) ** 2 - (0.5 * length) ** 2)  # 1.1 x the limit along the link
+    out, n = cut_crossing_bridges(bent(h))
+    assert n == 1 and out.summary()["cycles"] == 0 and out.n_components == 1
+    np.testing.assert_allclose(out.points, case.skeleton.points)
+    far = bent(1.2 * limit)  # its middle node beyond the limit from both junctions
+    assert cut_crossing_bridges(far)[1] == 0
