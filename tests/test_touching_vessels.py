@@ -415,3 +415,56 @@ def test_a_fused_fork_meshes_without_a_cut(tmp_path):
     assert ctx.report.sections["blocks"]["vessels_in_contact"] == []
     assert not ctx.blocks.info.get("contact_cuts")
     assert ctx.mesh.cell_data["scaled_jacobian"].min() > 0.3
+
+
+def test_a_section_ray_through_a_neck_into_another_lumen_stops_at_the_neck():
+    """A tube (radius 1, along z) whose wall fuses through a narrow neck with the end of a
+    vessel (radius 0.7) that runs away from it along x, longer than a section ray's reach
+    (a generated vessel's extracted skeleton: a kissing branch's section beside the contact).
+    The middle section's ray along x slipped through the neck and ran along the other lumen
+    with no wall within reach, which stopped the build; it now ends at the neck, and every
+    block stays on this side of it."""
+    from vmesh.geometry.rays import cut_at_necks
+
+    z = np.linspace(-6.0, 6.0, 17)
+    sk = Skeleton(np.c_[np.zeros(17), np.zeros(17), z], np.ones(17), np.c_[np.arange(16), np.arange(1, 17)])
+    x0 = 1.0 + 0.7 + 0.05  # the end's dome 0.05 from the tube's wall: fused into a neck
+    case = JunctionCase("neck", np.array([[0, 0, -6.0], [x0, 0, 0]]), np.array([[0, 0, 6.0], [x0 + 14.0, 0, 0]]),
+                        np.array([1.0, 0.7]), sk)
+    # the ray itself: the neck 1.0 out; a ray along the open lumen has no neck
+    t = cut_at_necks(case.distance, np.zeros((2, 3)), np.array([[1.0, 0, 0], [0, 0, 1.0]]), np.ones(2))
+    assert t[0] == pytest.approx(1.0, abs=0.2) and np.isnan(t[1])
+    blocks = build_blocks(sk, case.distance, None, BlockOptions())
+    checks = block_structure_checks(blocks)
+    assert checks["invalid_blocks"] == checks["face_use_errors"] == 0 and checks["boundary_euler"] == 2
+    assert blocks.vertices[:, 0].max() < 1.0 + 0.05
+
+
+def test_a_bent_link_between_vessels_in_contact_is_cut_by_its_junctions_distance():
+    """The "H" link of :func:`test_a_short_link_between_vessels_passing_in_contact_is_cut`
+    bent through a middle node, as thinning's path through the neck runs (a generated
+    vessel's extracted skeleton: 2.07 along a link between junctions 1.54 apart, radii 0.61
+    and 0.97, so that a section between it and the next junction found no wall): longer
+    along itself than the two radii allow, its junctions closer. It is cut; a link that
+    wanders farther from its junctions than that stays."""
+    from vmesh.geometry.skeleton.defects import cut_crossing_bridges
+
+    case, k, s = touching(1.2)
+    sk, length = _linked(case, k, s)
+    a, b = sk.edges[-1]
+    limit = 1.25 * (0.7 + 1.0)
+
+    def bent(h):
+        # the link a -> m -> b, its middle node h off the chord's midpoint, square to it
+        chord = sk.points[b] - sk.points[a]
+        side = np.cross(chord, [1.0, 0.0, 0.0])
+        m = 0.5 * (sk.points[a] + sk.points[b]) + h * side / np.linalg.norm(side)
+        n = sk.n_nodes
+        return Skeleton(np.r_[sk.points, m[None]], np.r_[sk.radii, 0.5], np.r_[sk.edges[:-1], [[a, n], [n, b]]])
+
+    h = np.sqrt((0.55 * limit) ** 2 - (0.5 * length) ** 2)  # 1.1 x the limit along the link
+    out, n = cut_crossing_bridges(bent(h))
+    assert n == 1 and out.summary()["cycles"] == 0 and out.n_components == 1
+    np.testing.assert_allclose(out.points, case.skeleton.points)
+    far = bent(1.2 * limit)  # its middle node beyond the limit from both junctions
+    assert cut_crossing_bridges(far)[1] == 0

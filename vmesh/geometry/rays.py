@@ -368,3 +368,38 @@ def clip_to_territory(
         a, b = np.where(inside, a, mid), np.where(inside, mid, b)
     out[rays] = 0.5 * (a + b)
     return out
+
+
+def cut_at_necks(distance, origins: np.ndarray, directions: np.ndarray, scale: np.ndarray, reach: float = 12.0,
+                 step: float = 0.2, neck: float = 0.5) -> np.ndarray:
+    """Where rays that find no wall within reach pass through a neck, the neck's distance.
+
+    Where two lumens fuse (vessels in contact, a bulge beside a branch), a section ray can
+    slip through the narrow passage between them and run along the other lumen past any
+    reach: it never meets the wall, yet it passed within a hair of it. Its section belongs
+    on this side of the passage. Along each ray (samples ``step x scale`` apart up to
+    ``reach x scale``), the passage is the sample nearest the wall; it is a neck when the
+    signed distance there is below ``neck`` times both the distance at the origin and the
+    largest distance beyond it (the same half as :func:`~vmesh.geometry.skeleton.defects.cut_necks`
+    takes for a node narrower than its neighbours). A ray running along an open lumen
+    has no such dip and stays ``nan``.
+
+    Returns
+    -------
+    (n,) float: the distance along each ray to its neck, ``nan`` where it has none.
+    """
+    o = np.asarray(origins, float).reshape(-1, 3)
+    d = np.asarray(directions, float).reshape(-1, 3)
+    sc = np.broadcast_to(np.asarray(scale, float), (len(o),))
+    out = np.full(len(o), np.nan)
+    if len(o) == 0:
+        return out
+    ts = sc[:, None] * step * np.arange(1, int(np.ceil(reach / step)) + 1)[None, :]
+    f = np.asarray(distance((o[:, None, :] + ts[:, :, None] * d[:, None, :]).reshape(-1, 3))).reshape(ts.shape)
+    f0 = np.asarray(distance(o))
+    m = np.argmin(f, axis=1)
+    rows = np.arange(len(o))
+    beyond = np.where(np.arange(f.shape[1])[None, :] > m[:, None], f, -np.inf).max(axis=1)
+    ok = (f[rows, m] > 0) & (f[rows, m] < neck * f0) & (f[rows, m] < neck * beyond)
+    out[ok] = ts[rows[ok], m[ok]]
+    return out

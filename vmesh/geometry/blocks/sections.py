@@ -12,7 +12,7 @@ from .options import CLOSED, CYCLE, JUNCTION, OPEN, _Branch
 from ..skeleton.graph import polyline_at
 from ..skeleton.pairs import PAIR_REACH
 from .prep import Territory, endpoint_caps, redistribute_sections
-from ..rays import clip_to_territory
+from ..rays import clip_to_territory, cut_at_necks
 
 
 #: How far (× radius) inside an open end's section its rays start (a flat cap gives the
@@ -431,6 +431,7 @@ class _Sections:
         dirs = cs.ray_directions(E1, E2, ang)
         R = self.cast(np.repeat(origin, len(ang), axis=0), dirs.reshape(-1, 3), np.repeat(rad, len(ang))).reshape(len(idx), -1)
         R = self._own_territory(idx, origin, dirs, R, rad)
+        R = self._through_necks(origin, dirs, R, rad)
         if np.any(~np.isfinite(R)):
             lost = np.flatnonzero(~np.all(np.isfinite(R), axis=1))
             b, k = idx[int(lost[0])]
@@ -493,6 +494,17 @@ class _Sections:
             prev = self.frames.X[b, 1 if k == 0 else k - 1]
             back[n] = min(need, 0.5 * abs(float((C[n] - prev) @ out[n])))
         return back
+
+
+    def _through_necks(self, origin, dirs, R, rad) -> np.ndarray:
+        """Rays with no wall within reach cut where they slip through a neck into a fused
+        lumen (:func:`~vmesh.geometry.rays.cut_at_necks`); others stay as they are."""
+        lost = np.argwhere(~np.isfinite(R))
+        if len(lost) == 0:
+            return R
+        R = R.copy()
+        R[lost[:, 0], lost[:, 1]] = cut_at_necks(self.sdf, origin[lost[:, 0]], dirs[lost[:, 0], lost[:, 1]], rad[lost[:, 0]])
+        return R
 
 
     def _own_territory(self, idx, origin, dirs, R, rad) -> np.ndarray:
