@@ -38,7 +38,7 @@ from ..registry import Parameter, register_filter
         Parameter("light_pass_tol", "float", 0.01, "Light pass: a node that moves less than this fraction of half its longest edge does not send its neighbours back to work (converged regions stop early; 0 = every move does; docs/speed.md).", min=0.0, max=0.5),
         Parameter("curved_sections", "bool", True, "Curve the core/ring and ring/boundary-layer interfaces of the cross-sections so that the element angles at their corners balance (120° at core corners instead of 90°/135°/135°; docs/optimiser.md)."),
         Parameter("smooth_below", "float", 0.5, "Light pass after untangling (optimiser = local): nodes of elements below this move only where their elements' minimum and mean scaled Jacobian do not drop; 0 = off.", min=0.0, max=0.95),
-        Parameter("worst_pass_sweeps", "int", 20, "After the light pass (optimiser = local, p = 1, a valid mesh): the nodes of elements still below smooth_below take max-min steps judged by their worst incident element alone (wall nodes on the wall, first boundary-layer heights kept), then the light pass runs again; most sweeps, 0 = off (docs/optimiser.md).", min=0, max=200),
+        Parameter("worst_pass_sweeps", "int", 20, "After the light pass, only with untangle = true, optimiser = local and light_pass_below > 0 (p = 1, a valid mesh): the nodes of elements still below smooth_below (its threshold) take max-min steps judged by their worst incident element alone (wall nodes on the wall, first boundary-layer heights kept), then the light pass runs again; most sweeps, 0 = off (docs/optimiser.md).", min=0, max=200),
         Parameter("exact_first_layer", "bool", True, "With first_layer_height (or y_plus): after the optimisers (untangling and the light pass), re-place the nodes of every boundary-layer line so that the first element is that height along the wall normal; with boundary_layer_thickness: before untangling, put the layer's inner nodes at that thickness along the wall normal (docs/cfd.md)."),
     ],
     reads=("blocks", "surface"),
@@ -98,10 +98,13 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         _untangle(ctx, sm, projector, sdf, untangle_below, untangle_restart_below, optimiser, smooth_below, node_distribution)
         if optimiser == "local" and light_pass_below > 0:
             _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps, light_pass_tol)
-        lifted = optimiser == "local" and worst_pass_sweeps > 0 and smooth_below > 0 and _worst_pass(ctx, sm, projector, sdf, smooth_below, worst_pass_sweeps)
-        if lifted and light_pass_below > 0:
-            # the max-min steps let better elements give way: the light pass again restores
-            # the mean (it never lowers an element's neighbourhood minimum)
+        # the max-min steps let better elements give way: only with the light pass on, which
+        # then restores the mean (it never lowers an element's neighbourhood minimum)
+        if optimiser == "local" and light_pass_below > 0 and worst_pass_sweeps > 0 and smooth_below > 0:
+            lifted = _worst_pass(ctx, sm, projector, sdf, smooth_below, worst_pass_sweeps)
+        else:
+            lifted = False
+        if lifted:
             first = ctx.report.sections.get("light_pass")
             _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps, light_pass_tol)
             ctx.report.sections["light_pass_after_worst"] = ctx.report.sections.pop("light_pass")
