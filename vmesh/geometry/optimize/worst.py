@@ -36,7 +36,9 @@ _EDGES = np.stack(
 #: corners within this much of a node's worst corner count as its worst (the active set of
 #: the max-min direction; a scaled-Jacobian difference, not a quality target)
 ACTIVE = 0.01
-#: trial steps: the first is this fraction of the node's shortest incident edge, then halved
+#: trial steps: the first is this fraction of the node's longest incident edge (as the light
+#: pass's step caps, ``kernels.step_caps``; the shortest is the first-layer height for wall and
+#: first-layer nodes, which then barely move sideways), then halved
 STEP, TRIALS = 0.25, 8
 
 
@@ -183,7 +185,7 @@ def _step(X, hexes, ptr, inc, group, kind, normal, height, project, wall_normals
     d = d / np.maximum(np.sqrt(dn), 1e-300)[:, None]
     ci, vi = np.arange(c)[:, None], np.arange(V)[None, :]
     ends = P[ci[..., None], vi[..., None], _EDGES[local, :, 1]] - P[ci[..., None], vi[..., None], _EDGES[local, :, 0]]  # the node's corner's edges
-    edge = np.where(real[..., None], np.linalg.norm(ends, axis=-1), np.inf).min(axis=(1, 2))
+    edge = np.where(real[..., None], np.linalg.norm(ends, axis=-1), 0.0).max(axis=(1, 2))
     T = X[group][:, None] + (STEP * edge[:, None] * 0.5 ** np.arange(TRIALS))[..., None] * d[:, None]  # (c, TRIALS, 3)
     w = np.flatnonzero(k == K.WALL)
     if len(w):
