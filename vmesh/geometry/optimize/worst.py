@@ -201,6 +201,7 @@ def _step(X, hexes, ptr, inc, group, kind, normal, height, project, wall_normals
     Pt[ci, :, vi, local] = T[:, None]  # (indexed as (c, V, TRIALS, 3): the advanced indices first)
     sjt, _ = _corner_sj(Pt)  # (c, TRIALS, V, 8)
     qt = np.where(mine[:, None], sjt, np.inf).min(axis=(2, 3))
+    qt = np.where(np.isnan(qt), -np.inf, qt)  # a degenerate trial is no candidate
     qt[~go] = -np.inf
     b = np.argmax(qt, axis=1)
     rose = qt[np.arange(c), b] > q0[:, 0] + 1e-9
