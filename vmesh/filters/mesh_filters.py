@@ -105,11 +105,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         else:
             lifted = False
         if lifted:
-            first = ctx.report.sections.get("light_pass")
-            _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps, light_pass_tol)
-            ctx.report.sections["light_pass_after_worst"] = ctx.report.sections.pop("light_pass")
-            if first is not None:
-                ctx.report.sections["light_pass"] = first
+            _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps, light_pass_tol, name="light_pass_after_worst")
     if exact_first_layer and layer["first_layer_absolute"]:  # after the optimisers, which move layer nodes
         from ..geometry.boundary_layer import exact_first_layer as place_first_layer
 
@@ -239,11 +235,12 @@ def _polish(X, sm, info, goals, constraints):
 LIGHT_PASS_PATIENCE = 3
 
 
-def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol=0.0):
+def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol=0.0, name="light_pass"):
     """The default light pass of :mod:`vmesh.geometry.optimize` over every element below
     ``below`` (no untangling): raises the mean without lowering any element's neighbourhood
     minimum. For p > 1 the corners move and the other nodes follow, which can lower the
-    order-p quality: the result is kept only when it does not."""
+    order-p quality: the result is kept only when it does not. ``name``: its report section
+    (and ``<name>_nodes`` count)."""
     from ..geometry.optimize import optimise
     from ..geometry.quality import scaled_jacobian
     from ..geometry.transfinite import reference_points
@@ -251,7 +248,7 @@ def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol
     p = sm.order
     cap_nodes, cap_normals, wall, boundary = _constraints(sm)
     ref_nodes = reference_points(p, node_distribution)
-    ctx.tick(0.97, "light pass")
+    ctx.tick(0.97, name.replace("_", " "))
     X, info = optimise(
         sm.points, sm.cells, p, ref_nodes=ref_nodes, wall=wall, wall_normals=sdf.gradient, project=projector, cap_nodes=cap_nodes, cap_normals=cap_normals,
         boundary=boundary, untangle_below=0.0, smooth_below=below, smooth_sweeps=sweeps, smooth_tol=tol, untangle_patience=LIGHT_PASS_PATIENCE,
@@ -262,12 +259,12 @@ def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol
         info["order_p"] = {"before": {"min": float(before.min()), "mean": float(before.mean())}, "after": {"min": float(after.min()), "mean": float(after.mean())}}
         if after.min() < before.min() or after.mean() <= before.mean():
             info["kept"] = False
-            ctx.report.sections["light_pass"] = info
+            ctx.report.sections[name] = info
             return
     sm.points[:] = X
     info["kept"] = True
-    ctx.report.sections["light_pass"] = info
-    ctx.count(light_pass_nodes=info["smoothed_nodes"])
+    ctx.report.sections[name] = info
+    ctx.count(**{f"{name}_nodes": info["smoothed_nodes"]})
 
 
 def _worst_pass(ctx, sm, projector, sdf, below, sweeps):
@@ -287,6 +284,7 @@ def _worst_pass(ctx, sm, projector, sdf, below, sweeps):
     q = hex8_scaled_jacobian(sm.points, sm.cells)
     if q.min() >= below or q.min() <= 0:
         return False
+    ctx.tick(0.98, "worst pass")
     t0 = time.perf_counter()
     cap_nodes, cap_normals, wall, boundary = _constraints(sm)
     kind, normal, height = _node_kinds(sm.cells, len(sm.points), wall, projector, sdf.gradient, cap_nodes, cap_normals, boundary, True)
@@ -296,6 +294,7 @@ def _worst_pass(ctx, sm, projector, sdf, below, sweeps):
         "before": {"min": float(q.min()), "mean": float(q.mean())}, "after": {"min": float(after.min()), "mean": float(after.mean())},
         "moved": moved, "sweeps": sweeps_run, "seconds": round(time.perf_counter() - t0, 3),
     }
+    ctx.count(worst_pass_nodes=moved)
     return moved > 0
 
 
