@@ -2,7 +2,8 @@
 
 Runs the default chain through ``build_block_structure`` (its context pickled to ``--prefix``
 and reused when that file exists), then ``mesh_transfinite`` with hooks that record, for the
-raw fill (before any optimiser), after the untanglers and after the light pass: the inverted
+raw fill (before any optimiser), after the untanglers, after the light pass, the worst pass and
+the second light pass ("light pass 2", when the worst pass moved a node): the inverted
 elements, their blocks, skeleton nodes and block layers (0 core, 1 ring, 2 boundary layer),
 how many lie in the blocks the builder flagged ("may fold when their faces are projected onto
 the wall", ``blocks.info["wall_fold_blocks"]``), how many have wall nodes, and how many have
@@ -51,19 +52,25 @@ def stage_row(ctx, sm, sdf) -> dict:
 
 
 def prefix_context(surface, skeleton, path: Path):
-    """The context after the steps before ``mesh_transfinite`` (pickled to ``path``)."""
+    """The context after the steps before ``mesh_transfinite`` (pickled to ``path`` with the
+    input paths; a pickle written for other inputs is refused)."""
     from vmesh.chain import FilterChain
     from vmesh.context import Context
     from vmesh.io.skeleton import read_skeleton
     from vmesh.io.surface import read_surface
 
+    inputs = {"surface": str(Path(surface).resolve()), "skeleton": str(Path(skeleton).resolve()) if skeleton else None}
     if path.is_file():
-        return pickle.loads(path.read_bytes())
+        saved = pickle.loads(path.read_bytes())
+        if not isinstance(saved, dict) or saved.get("inputs") != inputs:
+            got = saved.get("inputs") if isinstance(saved, dict) else "unknown (an older pickle)"
+            raise SystemExit(f"--prefix {path} was written for other inputs ({got}); not {inputs}: remove it or pass another --prefix")
+        return saved["context"]
     chain = FilterChain.load("default").with_overrides(C.BENCH_OVERRIDES)
     chain.steps = chain.steps[: [s.filter for s in chain.steps].index("mesh_transfinite")]
     ctx = Context()
     chain.run(surface=read_surface(surface), skeleton=read_skeleton(skeleton) if skeleton else None, out_dir=None, context=ctx)
-    path.write_bytes(pickle.dumps(ctx))
+    path.write_bytes(pickle.dumps({"inputs": inputs, "context": ctx}))
     return ctx
 
 
@@ -80,7 +87,7 @@ def main(argv=None) -> int:
 
     ctx = prefix_context(args.surface, args.skeleton, Path(args.prefix))
     rows = {}
-    untangle, light = mf._untangle, mf._light_pass
+    untangle, light, worst = mf._untangle, mf._light_pass, mf._worst_pass
 
     def hooked_untangle(ctx_, sm, projector, sdf, *a, **kw):
         rows["raw fill"] = stage_row(ctx_, sm, sdf)
@@ -90,18 +97,23 @@ def main(argv=None) -> int:
 
     def hooked_light(ctx_, sm, projector, sdf, *a, **kw):
         out = light(ctx_, sm, projector, sdf, *a, **kw)
-        rows["light pass"] = stage_row(ctx_, sm, sdf)
+        rows["light pass 2" if "light pass" in rows else "light pass"] = stage_row(ctx_, sm, sdf)
         return out
 
-    mf._untangle, mf._light_pass = hooked_untangle, hooked_light
+    def hooked_worst(ctx_, sm, projector, sdf, *a, **kw):
+        out = worst(ctx_, sm, projector, sdf, *a, **kw)
+        rows["worst pass"] = stage_row(ctx_, sm, sdf)
+        return out
+
+    mf._untangle, mf._light_pass, mf._worst_pass = hooked_untangle, hooked_light, hooked_worst
     try:
         step = next(s for s in FilterChain.load("default").steps if s.filter == "mesh_transfinite")
         t0 = time.perf_counter()
         get_filter("mesh_transfinite")(ctx, **step.params)
     finally:
-        mf._untangle, mf._light_pass = untangle, light
+        mf._untangle, mf._light_pass, mf._worst_pass = untangle, light, worst
     for name, row in rows.items():
-        print(f"{name:11s} {json.dumps(row)}")
+        print(f"{name:12s} {json.dumps(row)}")
     section = ctx.report.sections.get("untangle", {})
     n = len(ctx.mesh.points)
     print(f"mesh_transfinite {time.perf_counter() - t0:.1f} s; {n} nodes; untangle: moved {section.get('moved')} "
@@ -109,7 +121,8 @@ def main(argv=None) -> int:
           f"{section.get('after_local_min')}, restart {section.get('restart')}, work {section.get('work')}")
     if args.json:
         Path(args.json).write_text(json.dumps({"stages": rows, "nodes": n, "untangle": section,
-                                               "light_pass": ctx.report.sections.get("light_pass")}, indent=1, default=str))
+                                               "light_pass": ctx.report.sections.get("light_pass"), "worst_pass": ctx.report.sections.get("worst_pass"),
+                                               "light_pass_after_worst": ctx.report.sections.get("light_pass_after_worst")}, indent=1, default=str))
     return 0
 
 

@@ -186,16 +186,12 @@ def test_choose_lean_with_the_budget_spent_keeps_the_whole_tree_variant_scoring_
 @pytest.mark.slow
 @pytest.mark.parametrize("make", [pytest.param(trifurcation_out_of_plane, id="trif_out")])
 def test_trifurcation_with_choose_lean_ends_no_worse(make):
-    """With ``choose_lean`` both trifurcations keep the lean: the finished half-planes' blocks
-    have better corners (least scaled corner Jacobian 0.116 against 0.027, 0.160 against
-    0.003) but fill worse (fill scores -0.32 against -0.19, -1.18 against -0.85), and half-planes
-    need both. At g0018's shape (a daughter 33 degrees out of the plane) the rule of session
-    13 (fewer fixes: 3 leaning, 1 with half-planes) took half-planes, which end worse after
-    untangling and the light pass (0.386 against 0.408); at the 60-degree one half-planes end
-    a little better (0.347 against 0.339), a choice the rule leaves to the lean. Either way the
-    result is the default's (``choose_lean`` off builds the lean alone). The 60-degree
-    trifurcation (``trifurcation(60, 2)``) behaves alike; it stays out of the suite for time
-    (``choose_lean`` is opt-in): ``benchmarks/junction_sweep.py --set choose_lean=True``."""
+    """With ``choose_lean`` the out-of-plane trifurcation (g0018's shape: a daughter 33
+    degrees out of the plane) keeps the lean: the finished half-planes' blocks have better
+    corners but fill worse. The rule of session 13 (fewer fixes: 3 leaning, 1 with
+    half-planes) took half-planes, which end worse after untangling and the light pass (0.386
+    against 0.408). The result is the default's (``choose_lean`` off builds the lean alone),
+    above 0.3 after the optimisers."""
     from benchmarks.junction_sweep import optimised
     from test_junctions import DEFAULT
 

@@ -6,7 +6,7 @@ import types
 import numpy as np
 import pytest
 
-from test_optimize import R, check_boundary, cylinder, first_layer_nodes
+from test_optimize import check_boundary, cylinder, first_layer_nodes
 from vmesh.geometry.optimize import _node_kinds, optimise
 from vmesh.geometry.optimize.worst import lift_worst
 from vmesh.geometry.quality import hex8_scaled_jacobian
@@ -66,14 +66,16 @@ def test_worst_pass_never_lowers_the_minimum_and_leaves_inverted_meshes_alone(li
 @pytest.mark.slow
 def test_worst_pass_lifts_a_trifurcation_crotch():
     """The generated trifurcation (60 degrees, daughters half the parent's radius) fills
-    validly but poorly at its crotch (0.09); the light pass alone leaves its minimum below
-    0.2. ``mesh_transfinite``'s worst pass and the light pass after it lift the minimum by
-    more than 0.1 without lowering the mean; wall nodes stay on the wall."""
+    validly but poorly at its crotch; the light pass alone leaves its minimum below 0.2.
+    ``mesh_transfinite``'s worst pass and the light pass after it lift the minimum by more
+    than 0.1 without lowering the mean; wall nodes stay on the wall, first-layer nodes at
+    their height above it, rims fixed."""
     from junction_cases import trifurcation
     from test_junctions import DEFAULT
 
-    from vmesh.filters.mesh_filters import _light_pass, _worst_pass
+    from vmesh.filters.mesh_filters import _constraints, _light_pass, _worst_pass
     from vmesh.geometry.blocks import BlockOptions, build_blocks
+    from vmesh.geometry.optimize import kernels as K
     from vmesh.geometry.transfinite import mesh_blocks
 
     case = trifurcation(60, 2)
@@ -84,11 +86,59 @@ def test_worst_pass_lifts_a_trifurcation_crotch():
     sdf = types.SimpleNamespace(gradient=case.gradient)
     _light_pass(ctx, sm, case.project, sdf, 0.95, "gauss_lobatto")
     q1 = hex8_scaled_jacobian(sm.points, sm.cells)
+    assert q1.min() < 0.2
     X1 = sm.points.copy()
+    cap_nodes, cap_normals, wall, boundary = _constraints(sm)
+    kind, _, _ = _node_kinds(sm.cells, len(X1), wall, case.project, case.gradient, cap_nodes, cap_normals, boundary, True)
     assert _worst_pass(ctx, sm, case.project, sdf, 0.5, 20)
+    X2 = sm.points.copy()
     _light_pass(ctx, sm, case.project, sdf, 0.95, "gauss_lobatto")
     q2 = hex8_scaled_jacobian(sm.points, sm.cells)
-    print(q1.min(), q1.mean(), q2.min(), q2.mean())
     assert q2.min() > q1.min() + 0.1 and q2.mean() >= q1.mean() - 1e-3
-    moved = np.any(sm.points != X1, axis=1) & sm.on_wall
-    assert np.abs(case.distance(sm.points[moved])).max(initial=0.0) < 1e-6
+    moved = np.any(sm.points != X1, axis=1)
+    assert np.abs(case.distance(sm.points[moved & sm.on_wall])).max(initial=0.0) < 1e-6
+    assert np.array_equal(sm.points[kind == K.FIXED], X1[kind == K.FIXED])
+    # the worst pass keeps each first-layer node's height above the wall
+    top = np.flatnonzero((kind == K.OFFSET) & np.any(X2 != X1, axis=1))
+    assert len(top)
+    h1 = np.linalg.norm(X1[top] - case.project(X1[top]), axis=1)
+    h2 = np.linalg.norm(X2[top] - case.project(X2[top]), axis=1)
+    np.testing.assert_allclose(h2, h1, rtol=0, atol=1e-7)  # the projection's tolerance
+
+
+def test_mesh_transfinite_reports_the_worst_pass():
+    """The straight tube at a coarse length with ``smooth_below`` 0.95 (so its O-grid's
+    corners, about 0.8, are below it): the worst pass runs between the two light passes and
+    each reports its own section and count; with ``worst_pass_sweeps`` 0, or with the light
+    pass off (nothing would restore the mean), it does not run."""
+    import copy
+
+    import vmesh
+    from conftest import synthetic_case
+    from vmesh.context import Context
+    from vmesh.io.skeleton import read_skeleton
+    from vmesh.io.surface import read_surface
+    from vmesh.registry import get_filter
+
+    surface, skeleton = synthetic_case("straight_tube")
+    chain = vmesh.FilterChain.load("default")
+    names = [s.filter for s in chain.steps]
+    step = chain.steps[names.index("mesh_transfinite")]
+    chain.steps = chain.steps[: names.index("mesh_transfinite")]
+    ctx0 = Context()
+    chain.run(surface=read_surface(surface), skeleton=read_skeleton(skeleton), out_dir=None, context=ctx0)
+
+    def run(**kw):
+        ctx = copy.deepcopy(ctx0)
+        get_filter("mesh_transfinite")(ctx, **{**step.params, "element_length": 1.0, "smooth_below": 0.95, "worst_pass_sweeps": 2, **kw})
+        return ctx.report
+
+    report = run()
+    assert {"light_pass", "worst_pass", "light_pass_after_worst"} <= set(report.sections)
+    assert report.sections["worst_pass"]["moved"] > 0 and report.sections["worst_pass"]["after"]["min"] > report.sections["worst_pass"]["before"]["min"]
+    assert report.counts["worst_pass_nodes"] == report.sections["worst_pass"]["moved"]
+    assert report.counts["light_pass_nodes"] == report.sections["light_pass"]["smoothed_nodes"]
+    assert report.counts["light_pass_after_worst_nodes"] == report.sections["light_pass_after_worst"]["smoothed_nodes"]
+    for kw in ({"worst_pass_sweeps": 0}, {"light_pass_below": 0.0}):
+        report = run(**kw)
+        assert "worst_pass" not in report.sections and "light_pass_after_worst" not in report.sections

@@ -38,7 +38,7 @@ from ..registry import Parameter, register_filter
         Parameter("light_pass_tol", "float", 0.01, "Light pass: a node that moves less than this fraction of half its longest edge does not send its neighbours back to work (converged regions stop early; 0 = every move does; docs/speed.md).", min=0.0, max=0.5),
         Parameter("curved_sections", "bool", True, "Curve the core/ring and ring/boundary-layer interfaces of the cross-sections so that the element angles at their corners balance (120° at core corners instead of 90°/135°/135°; docs/optimiser.md)."),
         Parameter("smooth_below", "float", 0.5, "Light pass after untangling (optimiser = local): nodes of elements below this move only where their elements' minimum and mean scaled Jacobian do not drop; 0 = off.", min=0.0, max=0.95),
-        Parameter("worst_pass_sweeps", "int", 20, "After the light pass (optimiser = local, p = 1, a valid mesh): the nodes of elements still below smooth_below take max-min steps judged by their worst incident element alone (wall nodes on the wall, first boundary-layer heights kept), then the light pass runs again; most sweeps, 0 = off (docs/optimiser.md).", min=0, max=200),
+        Parameter("worst_pass_sweeps", "int", 20, "After the light pass, only with untangle = true, optimiser = local and light_pass_below > 0 (p = 1, a valid mesh): the nodes of elements still below smooth_below (its threshold) take max-min steps judged by their worst incident element alone (wall nodes on the wall, first boundary-layer heights kept), then the light pass runs again; most sweeps, 0 = off (docs/optimiser.md).", min=0, max=200),
         Parameter("exact_first_layer", "bool", True, "With first_layer_height (or y_plus): after the optimisers (untangling and the light pass), re-place the nodes of every boundary-layer line so that the first element is that height along the wall normal; with boundary_layer_thickness: before untangling, put the layer's inner nodes at that thickness along the wall normal (docs/cfd.md)."),
     ],
     reads=("blocks", "surface"),
@@ -98,15 +98,14 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         _untangle(ctx, sm, projector, sdf, untangle_below, untangle_restart_below, optimiser, smooth_below, node_distribution)
         if optimiser == "local" and light_pass_below > 0:
             _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps, light_pass_tol)
-        lifted = optimiser == "local" and worst_pass_sweeps > 0 and smooth_below > 0 and _worst_pass(ctx, sm, projector, sdf, smooth_below, worst_pass_sweeps)
-        if lifted and light_pass_below > 0:
-            # the max-min steps let better elements give way: the light pass again restores
-            # the mean (it never lowers an element's neighbourhood minimum)
-            first = ctx.report.sections.get("light_pass")
-            _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps, light_pass_tol)
-            ctx.report.sections["light_pass_after_worst"] = ctx.report.sections.pop("light_pass")
-            if first is not None:
-                ctx.report.sections["light_pass"] = first
+        # the max-min steps let better elements give way: only with the light pass on, which
+        # then restores the mean (it never lowers an element's neighbourhood minimum)
+        if optimiser == "local" and light_pass_below > 0 and worst_pass_sweeps > 0 and smooth_below > 0:
+            lifted = _worst_pass(ctx, sm, projector, sdf, smooth_below, worst_pass_sweeps)
+        else:
+            lifted = False
+        if lifted:
+            _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps, light_pass_tol, name="light_pass_after_worst")
     if exact_first_layer and layer["first_layer_absolute"]:  # after the optimisers, which move layer nodes
         from ..geometry.boundary_layer import exact_first_layer as place_first_layer
 
@@ -236,11 +235,12 @@ def _polish(X, sm, info, goals, constraints):
 LIGHT_PASS_PATIENCE = 3
 
 
-def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol=0.0):
+def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol=0.0, name="light_pass"):
     """The default light pass of :mod:`vmesh.geometry.optimize` over every element below
     ``below`` (no untangling): raises the mean without lowering any element's neighbourhood
     minimum. For p > 1 the corners move and the other nodes follow, which can lower the
-    order-p quality: the result is kept only when it does not."""
+    order-p quality: the result is kept only when it does not. ``name``: its report section
+    (and ``<name>_nodes`` count)."""
     from ..geometry.optimize import optimise
     from ..geometry.quality import scaled_jacobian
     from ..geometry.transfinite import reference_points
@@ -248,7 +248,7 @@ def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol
     p = sm.order
     cap_nodes, cap_normals, wall, boundary = _constraints(sm)
     ref_nodes = reference_points(p, node_distribution)
-    ctx.tick(0.97, "light pass")
+    ctx.tick(0.97, name.replace("_", " "))
     X, info = optimise(
         sm.points, sm.cells, p, ref_nodes=ref_nodes, wall=wall, wall_normals=sdf.gradient, project=projector, cap_nodes=cap_nodes, cap_normals=cap_normals,
         boundary=boundary, untangle_below=0.0, smooth_below=below, smooth_sweeps=sweeps, smooth_tol=tol, untangle_patience=LIGHT_PASS_PATIENCE,
@@ -259,12 +259,12 @@ def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol
         info["order_p"] = {"before": {"min": float(before.min()), "mean": float(before.mean())}, "after": {"min": float(after.min()), "mean": float(after.mean())}}
         if after.min() < before.min() or after.mean() <= before.mean():
             info["kept"] = False
-            ctx.report.sections["light_pass"] = info
+            ctx.report.sections[name] = info
             return
     sm.points[:] = X
     info["kept"] = True
-    ctx.report.sections["light_pass"] = info
-    ctx.count(light_pass_nodes=info["smoothed_nodes"])
+    ctx.report.sections[name] = info
+    ctx.count(**{f"{name}_nodes": info["smoothed_nodes"]})
 
 
 def _worst_pass(ctx, sm, projector, sdf, below, sweeps):
@@ -284,6 +284,7 @@ def _worst_pass(ctx, sm, projector, sdf, below, sweeps):
     q = hex8_scaled_jacobian(sm.points, sm.cells)
     if q.min() >= below or q.min() <= 0:
         return False
+    ctx.tick(0.98, "worst pass")
     t0 = time.perf_counter()
     cap_nodes, cap_normals, wall, boundary = _constraints(sm)
     kind, normal, height = _node_kinds(sm.cells, len(sm.points), wall, projector, sdf.gradient, cap_nodes, cap_normals, boundary, True)
@@ -293,6 +294,7 @@ def _worst_pass(ctx, sm, projector, sdf, below, sweeps):
         "before": {"min": float(q.min()), "mean": float(q.mean())}, "after": {"min": float(after.min()), "mean": float(after.mean())},
         "moved": moved, "sweeps": sweeps_run, "seconds": round(time.perf_counter() - t0, 3),
     }
+    ctx.count(worst_pass_nodes=moved)
     return moved > 0
 
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import _offset
 from . import kernels as K
 
 # corner c = i + 2 j + 4 k: its edges along +i, +j, +k, as (tail, head) local node ids
@@ -36,27 +37,29 @@ _EDGES = np.stack(
 #: corners within this much of a node's worst corner count as its worst (the active set of
 #: the max-min direction; a scaled-Jacobian difference, not a quality target)
 ACTIVE = 0.01
-#: trial steps: the first is this fraction of the node's shortest incident edge, then halved
+#: trial steps: the first is this fraction of the node's longest incident edge (as the light
+#: pass's step caps, ``kernels.step_caps``; the shortest is the first-layer height for wall and
+#: first-layer nodes, which then barely move sideways), then halved
 STEP, TRIALS = 0.25, 8
 
 
 def _corner_sj(P):
-    """Scaled Jacobians ``(..., 8)`` and the edges ``(..., 8, 3, 3)`` of hexahedra ``P (..., 8, 3)``."""
+    """Scaled Jacobians ``(..., 8)``, the edges ``(..., 8, 3, 3)`` and the products of the
+    edge lengths ``(..., 8)`` (floored) of hexahedra ``P (..., 8, 3)``."""
     E = P[..., _EDGES[:, :, 1], :] - P[..., _EDGES[:, :, 0], :]
     u, v, w = E[..., 0, :], E[..., 1, :], E[..., 2, :]
     det = np.einsum("...i,...i->...", u, np.cross(v, w))
-    ln = np.sqrt((u * u).sum(-1) * (v * v).sum(-1) * (w * w).sum(-1))
-    return det / np.maximum(ln, 1e-300), E
+    ln = np.maximum(np.sqrt((u * u).sum(-1) * (v * v).sum(-1) * (w * w).sum(-1)), 1e-300)
+    return det / ln, E, ln
 
 
 def _gradients(P, local):
     """Scaled Jacobians ``(..., 8)`` of the hexahedra ``P (..., 8, 3)``, their gradients
     ``(..., 8, 3)`` with respect to the node at local ids ``local (...)``, and which corners
     that node belongs to ``(..., 8)``."""
-    sj, E = _corner_sj(P)
+    sj, E, ln = _corner_sj(P)
     u, v, w = E[..., 0, :], E[..., 1, :], E[..., 2, :]
-    ln = np.sqrt((u * u).sum(-1) * (v * v).sum(-1) * (w * w).sum(-1))
-    ln = np.maximum(ln, 1e-300)[..., None]
+    ln = ln[..., None]
     d_e = np.stack([np.cross(v, w), np.cross(w, u), np.cross(u, v)], -2) / ln[..., None]
     d_e -= sj[..., None, None] * E / np.maximum((E * E).sum(-1, keepdims=True), 1e-300)
     lid = local[..., None, None]
@@ -98,6 +101,11 @@ def _least_norm(G, ok):
     return best, bn
 
 
+#: most nodes of a colour stepped at once: the trial arrays are (nodes, TRIALS, V, 8, 3) with
+#: V the largest valence among them, so one irregular node pads every row
+CHUNK = 2048
+
+
 def lift_worst(X, hexes, below, kind, normal, height, project=None, wall_normals=None, sweeps=10, X0=None):
     """Raise the worst elements of a valid linear mesh in place: every node of an element
     below ``below`` takes max-min steps (see the module), Gauss-Seidel over a colouring of
@@ -106,10 +114,14 @@ def lift_worst(X, hexes, below, kind, normal, height, project=None, wall_normals
     drops; other elements may give way (the caller's light pass restores the mean). Returns
     ``(nodes moved, sweeps run)``.
 
-    ``kind``, ``normal``, ``height``: :func:`vmesh.geometry.optimize._node_kinds` (a NaN height
-    is measured on ``X0``, default ``X``, when a first-layer node is first reached)."""
+    ``kind``, ``normal``, ``height``: :func:`vmesh.geometry.optimize._node_kinds`. Missing
+    (NaN) heights of the nodes that may move are measured up front on ``X0`` (default ``X``)
+    and written into the caller's ``height`` array. ``hexes`` must be linear (8 columns)."""
     from ..quality import hex8_scaled_jacobian
 
+    hexes = np.asarray(hexes)
+    if hexes.ndim != 2 or hexes.shape[1] != 8:
+        raise ValueError(f"lift_worst needs linear hexahedra (8 nodes per cell), got cells of shape {hexes.shape}")
     q = hex8_scaled_jacobian(X, hexes)
     low = q < below
     if not low.any() or q.min() <= 0:  # an inverted element is the untanglers' to fix
@@ -128,30 +140,38 @@ def lift_worst(X, hexes, below, kind, normal, height, project=None, wall_normals
         height[todo] = np.linalg.norm(X0[todo] - np.asarray(project(X0[todo]), float), axis=1)
     colour = K.colour_nodes(hexes, ptr, inc, nodes, n)
     colours = [nodes[colour == c] for c in range(colour.max() + 1)]
+    onwall = nodes[(kind[nodes] == K.WALL) | (kind[nodes] == K.OFFSET)]
+    nrm = np.zeros((n, 3))
     moved = np.zeros(n, bool)
     dirty = np.ones(n, bool)
     sweep = 0
     for sweep in range(1, sweeps + 1):
+        # a node moves only in its own colour's step, so its wall normal at the sweep's start
+        # is the one at its step
+        if len(onwall):
+            nrm[onwall] = np.asarray(wall_normals(X[onwall]), float)
         changed = 0
         for group in colours:
             group = group[dirty[group]]
-            if not len(group):
-                continue
-            ok = _step(X, hexes, ptr, inc, group, kind, normal, height, project, wall_normals)
-            dirty[group[~ok]] = False
-            if ok.any():
-                moved[group[ok]] = True
-                changed += int(ok.sum())
-                for v in group[ok]:
-                    dirty[hexes[inc[ptr[v] : ptr[v + 1]] >> 3].ravel()] = True
+            for s in range(0, len(group), CHUNK):  # a colour's nodes are independent
+                part = group[s : s + CHUNK]
+                ok = _step(X, hexes, ptr, inc, part, kind, normal, height, project, nrm)
+                dirty[part[~ok]] = False
+                if ok.any():
+                    up = part[ok]
+                    moved[up] = True
+                    changed += len(up)
+                    cnt = ptr[up + 1] - ptr[up]
+                    t = np.repeat(ptr[up] - np.cumsum(cnt) + cnt, cnt) + np.arange(cnt.sum())
+                    dirty[np.unique(hexes[inc[t] >> 3])] = True
         if not changed:
             break
     return int(moved.sum()), sweep
 
 
-def _step(X, hexes, ptr, inc, group, kind, normal, height, project, wall_normals):
+def _step(X, hexes, ptr, inc, group, kind, normal, height, project, wall_nrm):
     """One max-min step of each node of ``group`` (one colour); returns which moved (their
-    incident minimum rose)."""
+    incident minimum rose). ``wall_nrm (n, 3)``: the wall nodes' normals."""
     c = len(group)
     val = ptr[group + 1] - ptr[group]
     V = int(val.max())
@@ -172,8 +192,7 @@ def _step(X, hexes, ptr, inc, group, kind, normal, height, project, wall_normals
     plane = k == K.PLANE
     nrm[plane] = normal[group[plane]]
     onwall = (k == K.WALL) | (k == K.OFFSET)
-    if onwall.any():
-        nrm[onwall] = np.asarray(wall_normals(X[group[onwall]]), float)
+    nrm[onwall] = wall_nrm[group[onwall]]
     nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
     G = G - np.einsum("crd,cd->cr", G, nrm)[..., None] * nrm[:, None]
     d, dn = _least_norm(G, ok)
@@ -183,22 +202,19 @@ def _step(X, hexes, ptr, inc, group, kind, normal, height, project, wall_normals
     d = d / np.maximum(np.sqrt(dn), 1e-300)[:, None]
     ci, vi = np.arange(c)[:, None], np.arange(V)[None, :]
     ends = P[ci[..., None], vi[..., None], _EDGES[local, :, 1]] - P[ci[..., None], vi[..., None], _EDGES[local, :, 0]]  # the node's corner's edges
-    edge = np.where(real[..., None], np.linalg.norm(ends, axis=-1), np.inf).min(axis=(1, 2))
+    edge = np.where(real[..., None], np.linalg.norm(ends, axis=-1), 0.0).max(axis=(1, 2))
     T = X[group][:, None] + (STEP * edge[:, None] * 0.5 ** np.arange(TRIALS))[..., None] * d[:, None]  # (c, TRIALS, 3)
     w = np.flatnonzero(k == K.WALL)
     if len(w):
         T[w] = np.asarray(project(T[w].reshape(-1, 3)), float).reshape(len(w), TRIALS, 3)
     o = np.flatnonzero(k == K.OFFSET)
     if len(o):
-        flat_t = T[o].reshape(-1, 3)
-        foot = np.asarray(project(flat_t), float)
-        up = flat_t - foot
-        h = np.repeat(height[group[o]], TRIALS)
-        T[o] = (foot + up * (h / np.maximum(np.linalg.norm(up, axis=1), 1e-300))[:, None]).reshape(len(o), TRIALS, 3)
+        T[o] = _offset(project, T[o].reshape(-1, 3), np.repeat(height[group[o]], TRIALS)).reshape(len(o), TRIALS, 3)
     Pt = np.repeat(P[:, None], TRIALS, axis=1)  # (c, TRIALS, V, 8, 3)
     Pt[ci, :, vi, local] = T[:, None]  # (indexed as (c, V, TRIALS, 3): the advanced indices first)
-    sjt, _ = _corner_sj(Pt)  # (c, TRIALS, V, 8)
+    sjt = _corner_sj(Pt)[0]  # (c, TRIALS, V, 8)
     qt = np.where(mine[:, None], sjt, np.inf).min(axis=(2, 3))
+    qt = np.where(np.isnan(qt), -np.inf, qt)  # a degenerate trial is no candidate
     qt[~go] = -np.inf
     b = np.argmax(qt, axis=1)
     rose = qt[np.arange(c), b] > q0[:, 0] + 1e-9
