@@ -145,10 +145,11 @@ def pull_inside(
 
     ``mode="pull"`` walks them up the signed distance towards the medial ridge (towards
     their own radius as depth) and drops those still outside; an end node outside, or
-    within ``GRAZE`` radii of a wall its branch runs into, goes back along its branch
-    instead (:func:`_ends_back_along_branch`), where it can, unless ``keep`` (a node
-    mask: ends at caps) holds it. ``"drop"`` removes them straight away. Junctions are never dropped (they are pulled). Removed stretches of a
-    branch are bridged so the graph stays connected.
+    within ``tolerance`` x radius inside a wall its branch runs into (on the end face),
+    goes back along its branch instead (:func:`_ends_back_along_branch`), where it can,
+    unless ``keep`` (a node mask: ends at caps) holds it. ``"drop"`` removes them straight
+    away. Junctions are never dropped (they are pulled). Removed stretches of a branch are
+    bridged so the graph stays connected.
 
     Returns
     -------
@@ -160,7 +161,10 @@ def pull_inside(
     d = np.asarray(distance(skeleton.points), float)
     outside = d < -tolerance * scale
     deg = skeleton.degrees
-    graze = (deg == 1) & (d < GRAZE * scale) & (np.ones(len(d), bool) if keep is None else ~np.asarray(keep, bool))
+    # an end on a closed end face no cap was found on (a terraced one): its end section's
+    # boundary layer would lie on the face. The same band as outside: an end farther
+    # inside is left where it is (moving it shifts the branch's whole resampling)
+    graze = (deg == 1) & (d < tolerance * scale) & (np.ones(len(d), bool) if keep is None else ~np.asarray(keep, bool))
     if not outside.any() and not (mode == "pull" and graze.any()):
         return skeleton.copy(), 0, 0
     points = skeleton.points.copy()
@@ -187,9 +191,6 @@ def pull_inside(
     return (remove_nodes(moved, drop) if drop.any() else moved), n_pulled, n_dropped
 
 
-#: An end within this many radii of the wall grazes it: on a closed end face no cap was
-#: found on (a terraced one), its end section's boundary layer lies on the face.
-GRAZE = 0.1
 
 
 def _wall_ahead(distance, path_points: np.ndarray, radius: float):
