@@ -49,7 +49,7 @@ def test_end_outside_a_flat_closed_end_stays_at_the_end_face():
     distance = closed_tube(rounded=False)
     skel = axis_skeleton(L + 0.13 * R)
     out, n_pulled, n_dropped = pull_inside(skel, distance)
-    assert n_pulled == 1 and n_dropped == 0
+    assert n_pulled == 1 and n_dropped == skel.n_nodes - out.n_nodes  # the nodes it went back past
     end = out.points[out.degrees == 1][np.argmax(out.points[out.degrees == 1, 2])]
     # before: up the signed distance to a radius' depth, z = L - R
     assert L - 0.3 * R < end[2] < L and np.hypot(*end[:2]) < 0.05 * R
@@ -117,9 +117,22 @@ def test_end_grazing_a_flat_closed_end_goes_behind_it_unless_kept():
     # boundary layer lay on the face (a terraced one: the worst elements of a generated run)
     distance = closed_tube(rounded=False)
     skel = axis_skeleton(L - 0.01 * R)
-    out, n_pulled, n_dropped = pull_inside(skel, distance)
+    out, n_pulled, n_dropped = pull_inside(skel, distance, keep=np.zeros(skel.n_nodes, bool))
     end = out.points[np.argmax(out.points[:, 2])]
-    assert n_pulled == 1 and n_dropped == 0 and L - 0.3 * R < end[2] < L - 0.2 * R
+    assert n_pulled == 1 and n_dropped == skel.n_nodes - out.n_nodes and L - 0.3 * R < end[2] < L - 0.2 * R
     keep = skel.degrees == 1  # an end at a cap: left to extend_to_caps
     same, n_pulled, _ = pull_inside(skel, distance, keep=keep)
     assert n_pulled == 0 and np.array_equal(same.points, skel.points)
+    # no caps known (keep=None): the face may be an open end's, the end stays on it
+    same, n_pulled, _ = pull_inside(skel, distance)
+    assert n_pulled == 0 and np.array_equal(same.points, skel.points)
+
+
+def test_an_end_at_a_cap_outside_it_is_not_moved_back_along_its_branch():
+    distance = closed_tube(rounded=False)
+    skel = axis_skeleton(L + 0.13 * R)
+    keep = skel.degrees == 1
+    keep[0] = False  # the end at z = 1 is inside anyway
+    out, n_pulled, _ = pull_inside(skel, distance, keep=keep)
+    # walked up the signed distance as before (not cut back along the branch)
+    assert out.n_nodes == skel.n_nodes and n_pulled == 1

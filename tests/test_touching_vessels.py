@@ -468,3 +468,20 @@ def test_a_bent_link_between_vessels_in_contact_is_cut_by_its_junctions_distance
     np.testing.assert_allclose(out.points, case.skeleton.points)
     far = bent(1.2 * limit)  # its middle node beyond the limit from both junctions
     assert cut_crossing_bridges(far)[1] == 0
+
+
+def test_a_neck_cut_never_lands_past_a_thin_gap():
+    """Two lumens 0.1 apart (not fused) with the ray's coarse samples on both sides of the
+    gap: the cut is the wall crossing between them, not the sample beyond; a fused neck is
+    cut at its narrowest point."""
+    from vmesh.geometry.rays import cut_at_necks
+
+    def spheres(c2):
+        def distance(p):
+            p = np.asarray(p, float)
+            return np.maximum(1 - np.linalg.norm(p, axis=1), 1 - np.linalg.norm(p - [c2, 0, 0], axis=1))
+        return distance
+
+    origin, ray = np.array([[-0.05, 0, 0]]), np.array([[1.0, 0, 0]])
+    assert cut_at_necks(spheres(2.1), origin, ray, np.ones(1), reach=2.5)[0] == pytest.approx(1.05, abs=0.01)
+    assert cut_at_necks(spheres(1.9), origin, ray, np.ones(1), reach=2.5)[0] == pytest.approx(1.0, abs=0.02)

@@ -206,10 +206,11 @@ def estimate_radii(ctx, overwrite, scale):
             "str",
             "pull",
             "Nodes outside the wall: pull them up the signed distance towards the vessel axis (dropping those that "
-            "cannot be brought in), drop them, or keep them. Needs the sdf layer.",
+            "cannot be brought in; an end outside, or on a closed end face no cap was found on, goes back along its "
+            "branch to the last full cross-section instead), drop them, or keep them. Needs the sdf layer.",
             choices=("pull", "drop", "keep"),
         ),
-        Parameter("outside_tolerance", "float", 0.02, "A node is outside when its signed distance is below minus this.", unit="× radius", min=0.0),
+        Parameter("outside_tolerance", "float", 0.02, "A node is outside when its signed distance is below minus this; an end within this inside a closed end face (no cap there) counts as on it.", unit="× radius", min=0.0),
         Parameter(
             "reconnect_distance",
             "float",
@@ -357,8 +358,13 @@ def clean_skeleton(
             ctx.warn("no sdf layer: nodes outside the wall are not checked")
         else:
             distance, gradient = _sdf_functions(ctx.sdf)
-            at_cap = [np.linalg.norm(skel.points - np.asarray(c.center, float), axis=1) <= 1.5 * c.radius for c in caps]
-            at_cap = np.any(at_cap, axis=0) if caps else None  # those ends go to their caps later
+            # ends that belong to a cap stay for trim/extend_to_caps; with no caps layer at all
+            # (None) no end is moved back along its branch: an open end's face may be the end
+            at_cap = None
+            if ctx.caps is not None:
+                at_cap = np.zeros(skel.n_nodes, bool)
+                for c in caps:
+                    at_cap |= np.linalg.norm(skel.points - np.asarray(c.center, float), axis=1) <= cap_distance * c.radius
             skel, counts["pulled"], counts["dropped"] = sk_distance.pull_inside(skel, distance, gradient, outside_tolerance, outside, at_cap)
             if neck > 0:  # before reconnecting and merging, which would take the bridge for a junction
                 skel, counts["necks_cut"] = cut_necks(skel, distance, neck)

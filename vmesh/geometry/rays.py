@@ -378,7 +378,8 @@ def cut_at_necks(distance, origins: np.ndarray, directions: np.ndarray, scale: n
     slip through the narrow passage between them and run along the other lumen past any
     reach: it never meets the wall, yet it passed within a hair of it. Its section belongs
     on this side of the passage. Along each ray (samples ``step x scale`` apart up to
-    ``reach x scale``), the passage is the sample nearest the wall; it is a neck when the
+    ``reach x scale``), the passage is the sample nearest the wall (refined between its
+    neighbouring samples, where a wall crossing a coarse step missed ends it); it is a neck when the
     signed distance there is below ``neck`` times both the distance at the origin and the
     largest distance beyond it (the same half as :func:`~vmesh.geometry.skeleton.defects.cut_necks`
     takes for a node narrower than its neighbours). A ray running along an open lumen
@@ -401,5 +402,21 @@ def cut_at_necks(distance, origins: np.ndarray, directions: np.ndarray, scale: n
     rows = np.arange(len(o))
     beyond = np.where(np.arange(f.shape[1])[None, :] > m[:, None], f, -np.inf).max(axis=1)
     ok = (f[rows, m] > 0) & (f[rows, m] < neck * f0) & (f[rows, m] < neck * beyond)
-    out[ok] = ts[rows[ok], m[ok]]
+    if not ok.any():
+        return out
+    # the coarse samples can straddle a gap thinner than a step (two lumens apart, not
+    # fused): look between the neighbouring samples; the first wall crossing there is the
+    # wall, else the finest sample nearest it
+    r = rows[ok]
+    lo = np.where(m[r] > 0, ts[r, np.maximum(m[r] - 1, 0)], 0.0)
+    hi = ts[r, np.minimum(m[r] + 1, f.shape[1] - 1)]
+    tf = lo[:, None] + (hi - lo)[:, None] * np.linspace(0.0, 1.0, 17)[None, :]
+    ff = np.asarray(distance((o[r, None, :] + tf[:, :, None] * d[r, None, :]).reshape(-1, 3))).reshape(tf.shape)
+    crossed = ff <= 0
+    j = np.where(crossed.any(axis=1), np.argmax(crossed, axis=1), np.argmin(ff, axis=1))
+    k = np.maximum(j - 1, 0)
+    # linear interpolation to the crossing between the last sample inside and the first outside
+    frac = np.where(crossed.any(axis=1) & (j > 0), ff[np.arange(len(r)), k] / np.maximum(ff[np.arange(len(r)), k] - ff[np.arange(len(r)), j], 1e-300), 0.0)
+    at = np.where(crossed.any(axis=1), tf[np.arange(len(r)), k] + frac * (tf[np.arange(len(r)), j] - tf[np.arange(len(r)), k]), tf[np.arange(len(r)), j])
+    out[r] = at
     return out

@@ -431,7 +431,7 @@ class _Sections:
         dirs = cs.ray_directions(E1, E2, ang)
         R = self.cast(np.repeat(origin, len(ang), axis=0), dirs.reshape(-1, 3), np.repeat(rad, len(ang))).reshape(len(idx), -1)
         R = self._own_territory(idx, origin, dirs, R, rad)
-        R = self._through_necks(origin, dirs, R, rad)
+        R = self._through_necks(idx, origin, dirs, R, rad, is_open)
         if np.any(~np.isfinite(R)):
             lost = np.flatnonzero(~np.all(np.isfinite(R), axis=1))
             b, k = idx[int(lost[0])]
@@ -496,10 +496,15 @@ class _Sections:
         return back
 
 
-    def _through_necks(self, origin, dirs, R, rad) -> np.ndarray:
+    def _through_necks(self, idx, origin, dirs, R, rad, is_open) -> np.ndarray:
         """Rays with no wall within reach cut where they slip through a neck into a fused
-        lumen (:func:`~vmesh.geometry.rays.cut_at_necks`); others stay as they are."""
+        lumen (:func:`~vmesh.geometry.rays.cut_at_necks`); others stay as they are. Not at
+        open ends, whose rays start just inside the cap (no lumen's depth to compare the
+        neck with), nor on a stub's branch, whose cap section lies in its parent's wall:
+        the builder cuts the stub instead."""
         lost = np.argwhere(~np.isfinite(R))
+        stub = {b: self.stub_of(b) is not None for b in {idx[n][0] for n in lost[:, 0].tolist()}}
+        lost = lost[[not is_open[n] and not stub[idx[n][0]] for n in lost[:, 0].tolist()]] if len(lost) else lost
         if len(lost) == 0:
             return R
         R = R.copy()

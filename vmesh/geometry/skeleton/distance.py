@@ -147,7 +147,8 @@ def pull_inside(
     their own radius as depth) and drops those still outside; an end node outside, or
     within ``tolerance`` x radius inside a wall its branch runs into (on the end face),
     goes back along its branch instead (:func:`_ends_back_along_branch`), where it can,
-    unless ``keep`` (a node mask: ends at caps) holds it. ``"drop"`` removes them straight
+    unless ``keep`` (a node mask: ends that belong to caps) holds it; with ``keep=None`` (no
+    caps known) only ends outside go back. ``"drop"`` removes them straight
     away. Junctions are never dropped (they are pulled). Removed stretches of a branch are
     bridged so the graph stays connected.
 
@@ -164,14 +165,15 @@ def pull_inside(
     # an end on a closed end face no cap was found on (a terraced one): its end section's
     # boundary layer would lie on the face. The same band as outside: an end farther
     # inside is left where it is (moving it shifts the branch's whole resampling)
-    graze = (deg == 1) & (d < tolerance * scale) & (np.ones(len(d), bool) if keep is None else ~np.asarray(keep, bool))
+    held = np.zeros(len(d), bool) if keep is None else np.asarray(keep, bool)
+    graze = (deg == 1) & (d < tolerance * scale) & (keep is not None) & ~held
     if not outside.any() and not (mode == "pull" and graze.any()):
         return skeleton.copy(), 0, 0
     points = skeleton.points.copy()
     n_pulled = 0
     cut = np.zeros(len(points), bool)
     if mode == "pull":
-        n_pulled, cut = _ends_back_along_branch(skeleton, distance, d, scale, (outside & (deg == 1)) | graze, points)
+        n_pulled, cut = _ends_back_along_branch(skeleton, distance, d, scale, ((outside & (deg == 1)) | graze) & ~held, points)
         outside &= ~cut
         ends = np.flatnonzero(outside & (deg == 1))
         outside[ends] = np.asarray(distance(points[ends]), float) < -tolerance * scale[ends]
@@ -186,7 +188,7 @@ def pull_inside(
         # a junction that cannot be brought inside still stays (its branches hang on it)
         outside[idx[~ok & (deg[idx] >= 3)]] = False
     moved = skeleton.copy(points=points)
-    n_dropped = int(outside.sum())
+    n_dropped = int(outside.sum()) + int(cut.sum())  # the branch nodes an end went back past too
     drop = outside | cut
     return (remove_nodes(moved, drop) if drop.any() else moved), n_pulled, n_dropped
 
@@ -217,8 +219,10 @@ def _ends_back_along_branch(skeleton: Skeleton, distance, d, scale, ends, points
     stops a radius short of an end face no cap was found on (a terraced one), and the
     mesh with it. ``points`` is updated in place; the branch nodes the new end passes are
     returned in the mask (to be removed, bridged). Ends whose branch has no node inside,
-    or whose new place would pass the branch's other end, are left to the walk up the
-    signed distance.
+    or whose new place would pass the branch's other end, are left as they are: outside
+    ones to the walk up the signed distance, grazing ones where they lie. The branch's axis
+    stands in for the face normal (a tilted face is set back along the axis), and the end
+    keeps its radius (the builder measures its section).
     """
     from .end_faces import flat_end_sections
 
