@@ -112,20 +112,15 @@ def test_given_end_past_a_terraced_end_stays_at_it():
     assert (ctx.sdf.distance(new_ends) > 0).all()
 
 
-def test_end_grazing_a_flat_closed_end_goes_behind_it_unless_kept():
-    # an end on the end face itself (inside the outside tolerance): its end section's
-    # boundary layer lay on the face (a terraced one: the worst elements of a generated run)
+def test_an_end_on_its_end_face_stays():
+    # an end on the end face itself (inside, within the outside tolerance) stays: moved back
+    # a quarter radius, it left the slab behind it out of the mesh where the face is a
+    # filled open end (seed 0 g0000 given failed coverage so, session 15)
     distance = closed_tube(rounded=False)
     skel = axis_skeleton(L - 0.01 * R)
-    out, n_pulled, n_dropped = pull_inside(skel, distance, keep=np.zeros(skel.n_nodes, bool))
-    end = out.points[np.argmax(out.points[:, 2])]
-    assert n_pulled == 1 and n_dropped == skel.n_nodes - out.n_nodes and L - 0.3 * R < end[2] < L - 0.2 * R
-    keep = skel.degrees == 1  # an end at a cap: left to extend_to_caps
-    same, n_pulled, _ = pull_inside(skel, distance, keep=keep)
-    assert n_pulled == 0 and np.array_equal(same.points, skel.points)
-    # no caps known (keep=None): the face may be an open end's, the end stays on it
-    same, n_pulled, _ = pull_inside(skel, distance)
-    assert n_pulled == 0 and np.array_equal(same.points, skel.points)
+    for keep in (None, np.zeros(skel.n_nodes, bool)):
+        same, n_pulled, n_dropped = pull_inside(skel, distance, keep=keep)
+        assert n_pulled == n_dropped == 0 and np.array_equal(same.points, skel.points)
 
 
 def test_an_end_at_a_cap_outside_it_is_not_moved_back_along_its_branch():

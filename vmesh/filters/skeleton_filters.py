@@ -206,11 +206,11 @@ def estimate_radii(ctx, overwrite, scale):
             "str",
             "pull",
             "Nodes outside the wall: pull them up the signed distance towards the vessel axis (dropping those that "
-            "cannot be brought in; an end outside, or on a closed end face no cap was found on, goes back along its "
-            "branch to the last full cross-section instead), drop them, or keep them. Needs the sdf layer.",
+            "cannot be brought in; an end outside goes back along its branch to the last full cross-section instead), "
+            "drop them, or keep them. Needs the sdf layer.",
             choices=("pull", "drop", "keep"),
         ),
-        Parameter("outside_tolerance", "float", 0.02, "A node is outside when its signed distance is below minus this; an end within this inside a closed end face (no cap there) counts as on it.", unit="× radius", min=0.0),
+        Parameter("outside_tolerance", "float", 0.02, "A node is outside when its signed distance is below minus this.", unit="× radius", min=0.0),
         Parameter(
             "reconnect_distance",
             "float",
@@ -358,8 +358,7 @@ def clean_skeleton(
             ctx.warn("no sdf layer: nodes outside the wall are not checked")
         else:
             distance, gradient = _sdf_functions(ctx.sdf)
-            # ends that belong to a cap stay for trim/extend_to_caps; with no caps layer at all
-            # (None) no end is moved back along its branch: an open end's face may be the end
+            # ends that belong to a cap stay for trim/extend_to_caps
             at_cap = None
             if ctx.caps is not None:
                 at_cap = np.zeros(skel.n_nodes, bool)

@@ -144,11 +144,9 @@ def pull_inside(
     ``-tolerance`` x radius).
 
     ``mode="pull"`` walks them up the signed distance towards the medial ridge (towards
-    their own radius as depth) and drops those still outside; an end node outside, or
-    within ``tolerance`` x radius inside a wall its branch runs into (on the end face),
-    goes back along its branch instead (:func:`_ends_back_along_branch`), where it can,
-    unless ``keep`` (a node mask: ends that belong to caps) holds it; with ``keep=None`` (no
-    caps known) only ends outside go back. ``"drop"`` removes them straight
+    their own radius as depth) and drops those still outside; an end node outside goes
+    back along its branch instead (:func:`_ends_back_along_branch`), where it can, unless
+    ``keep`` (a node mask: ends that belong to caps) holds it. ``"drop"`` removes them straight
     away. Junctions are never dropped (they are pulled). Removed stretches of a branch are
     bridged so the graph stays connected.
 
@@ -162,18 +160,16 @@ def pull_inside(
     d = np.asarray(distance(skeleton.points), float)
     outside = d < -tolerance * scale
     deg = skeleton.degrees
-    # an end on a closed end face no cap was found on (a terraced one): its end section's
-    # boundary layer would lie on the face. The same band as outside: an end farther
-    # inside is left where it is (moving it shifts the branch's whole resampling)
+    # An end inside, even on its end face, stays: moved back, it left the slab behind it
+    # out of the mesh where the face is a filled open end (session 15, docs/coverage.md)
     held = np.zeros(len(d), bool) if keep is None else np.asarray(keep, bool)
-    graze = (deg == 1) & (d < tolerance * scale) & (keep is not None) & ~held
-    if not outside.any() and not (mode == "pull" and graze.any()):
+    if not outside.any():
         return skeleton.copy(), 0, 0
     points = skeleton.points.copy()
     n_pulled = 0
     cut = np.zeros(len(points), bool)
     if mode == "pull":
-        n_pulled, cut = _ends_back_along_branch(skeleton, distance, d, scale, ((outside & (deg == 1)) | graze) & ~held, points)
+        n_pulled, cut = _ends_back_along_branch(skeleton, distance, d, scale, outside & (deg == 1) & ~held, points)
         outside &= ~cut
         ends = np.flatnonzero(outside & (deg == 1))
         outside[ends] = np.asarray(distance(points[ends]), float) < -tolerance * scale[ends]
@@ -193,24 +189,8 @@ def pull_inside(
     return (remove_nodes(moved, drop) if drop.any() else moved), n_pulled, n_dropped
 
 
-
-
-def _wall_ahead(distance, path_points: np.ndarray, radius: float):
-    """Where the branch's axis, continued past its end (``path_points[0]``), meets the wall
-    within half a radius (an end face ahead); None when it does not (a side wall)."""
-    from .probe import distance_to_wall
-
-    far = np.linalg.norm(path_points - path_points[0], axis=1) >= radius
-    axis = path_points[0] - path_points[int(np.argmax(far)) if far.any() else -1]
-    norm = np.linalg.norm(axis)
-    if norm == 0:
-        return None
-    hit = float(distance_to_wall(distance, path_points[:1], axis[None] / norm, 0.5 * radius, samples=8)[0])
-    return path_points[0] + hit * axis / norm if np.isfinite(hit) else None
-
-
 def _ends_back_along_branch(skeleton: Skeleton, distance, d, scale, ends, points) -> tuple[int, np.ndarray]:
-    """Move end nodes that lie outside (or graze an end face ahead) back along their branch
+    """Move end nodes that lie outside back along their branch
     to the last full cross-section behind where the branch leaves the surface, as the extraction places
     an end behind a flat end face (:func:`~.end_faces.flat_end_sections`: a quarter radius
     behind a clean face, up to a radius behind a rough, terraced or rounded one), centred.
@@ -219,8 +199,8 @@ def _ends_back_along_branch(skeleton: Skeleton, distance, d, scale, ends, points
     stops a radius short of an end face no cap was found on (a terraced one), and the
     mesh with it. ``points`` is updated in place; the branch nodes the new end passes are
     returned in the mask (to be removed, bridged). Ends whose branch has no node inside,
-    or whose new place would pass the branch's other end, are left as they are: outside
-    ones to the walk up the signed distance, grazing ones where they lie. The branch's axis
+    or whose new place would pass the branch's other end, are left to the walk up the
+    signed distance. The branch's axis
     stands in for the face normal (a tilted face is set back along the axis), and the end
     keeps its radius (the builder measures its section).
     """
@@ -240,17 +220,12 @@ def _ends_back_along_branch(skeleton: Skeleton, distance, d, scale, ends, points
         inside = np.flatnonzero(d[path] > 0) if path is not None else []
         if len(inside) == 0:
             continue
-        k = int(inside[0])
-        if k == 0:  # grazing the wall: the face ahead along the branch, if it is there
-            face = _wall_ahead(distance, points[path], scale[e])
-            if face is None:
-                continue
-        else:
-            a, b = points[path[k - 1]], points[path[k]]  # outside, inside: the branch leaves the surface between
-            t = np.linspace(0.0, 1.0, 17)
-            ds = np.asarray(distance(b + t[:, None] * (a - b)), float)
-            j = int(np.argmax(ds <= 0))
-            face = b + (t[j - 1] + (t[j] - t[j - 1]) * ds[j - 1] / max(ds[j - 1] - ds[j], 1e-300)) * (a - b)
+        k = int(inside[0])  # >= 1: the end itself is outside
+        a, b = points[path[k - 1]], points[path[k]]  # outside, inside: the branch leaves the surface between
+        t = np.linspace(0.0, 1.0, 17)
+        ds = np.asarray(distance(b + t[:, None] * (a - b)), float)
+        j = int(np.argmax(ds <= 0))
+        face = b + (t[j - 1] + (t[j] - t[j - 1]) * ds[j - 1] / max(ds[j - 1] - ds[j], 1e-300)) * (a - b)
         far = np.linalg.norm(points[path[k:]] - face, axis=1) >= scale[e]  # the axis over about a radius
         axis = face - points[path[k + int(np.argmax(far)) if far.any() else -1]]
         norm = np.linalg.norm(axis)
