@@ -358,12 +358,7 @@ def clean_skeleton(
             ctx.warn("no sdf layer: nodes outside the wall are not checked")
         else:
             distance, gradient = _sdf_functions(ctx.sdf)
-            # ends that belong to a cap stay for trim/extend_to_caps
-            at_cap = None
-            if ctx.caps is not None:
-                at_cap = np.zeros(skel.n_nodes, bool)
-                for c in caps:
-                    at_cap |= np.linalg.norm(skel.points - np.asarray(c.center, float), axis=1) <= cap_distance * c.radius
+            at_cap = None if ctx.caps is None else _near_caps(skel, caps, cap_distance)  # left to extend_to_caps
             skel, counts["pulled"], counts["dropped"] = sk_distance.pull_inside(skel, distance, gradient, outside_tolerance, outside, at_cap)
             if neck > 0:  # before reconnecting and merging, which would take the bridge for a junction
                 skel, counts["necks_cut"] = cut_necks(skel, distance, neck)
@@ -528,6 +523,14 @@ def _end_directions(skel, ends) -> np.ndarray:
         d = skel.points[e] - skel.points[chain[far[0] if len(far) else -1]]
         out[k] = d / max(np.linalg.norm(d), 1e-300)
     return out
+
+
+def _near_caps(skel, caps, cap_distance) -> np.ndarray:
+    """Nodes within ``cap_distance`` cap radii of a cap's centre (ends that belong to it)."""
+    near = np.zeros(skel.n_nodes, bool)
+    for c in caps:
+        near |= np.linalg.norm(skel.points - np.asarray(c.center, float), axis=1) <= cap_distance * c.radius
+    return near
 
 
 def _graft_missing_branches(ctx, skel, caps, cap_distance, join):
