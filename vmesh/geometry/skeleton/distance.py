@@ -160,8 +160,6 @@ def pull_inside(
     d = np.asarray(distance(skeleton.points), float)
     outside = d < -tolerance * scale
     deg = skeleton.degrees
-    # An end inside, even on its end face, stays: moved back, it left the slab behind it
-    # out of the mesh where the face is a filled open end (session 15, docs/coverage.md)
     held = np.zeros(len(d), bool) if keep is None else np.asarray(keep, bool)
     if not outside.any():
         return skeleton.copy(), 0, 0
@@ -169,6 +167,8 @@ def pull_inside(
     n_pulled = 0
     cut = np.zeros(len(points), bool)
     if mode == "pull":
+        # only ends outside: an end inside, even on its end face, stays (moved back, it left
+        # the slab behind it out of the mesh where the face is a filled open end; docs/coverage.md)
         n_pulled, cut = _ends_back_along_branch(skeleton, distance, d, scale, outside & (deg == 1) & ~held, points)
         outside &= ~cut
         ends = np.flatnonzero(outside & (deg == 1))
@@ -190,9 +190,9 @@ def pull_inside(
 
 
 def _ends_back_along_branch(skeleton: Skeleton, distance, d, scale, ends, points) -> tuple[int, np.ndarray]:
-    """Move end nodes that lie outside back along their branch
-    to the last full cross-section behind where the branch leaves the surface, as the extraction places
-    an end behind a flat end face (:func:`~.end_faces.flat_end_sections`: a quarter radius
+    """Move end nodes that lie outside back along their branch to the last full
+    cross-section behind where the branch leaves the surface, as the extraction places an
+    end behind a flat end face (:func:`~.end_faces.flat_end_sections`: a quarter radius
     behind a clean face, up to a radius behind a rough, terraced or rounded one), centred.
 
     An end just past a closed end walked up the signed distance to its radius' depth
@@ -200,9 +200,8 @@ def _ends_back_along_branch(skeleton: Skeleton, distance, d, scale, ends, points
     mesh with it. ``points`` is updated in place; the branch nodes the new end passes are
     returned in the mask (to be removed, bridged). Ends whose branch has no node inside,
     or whose new place would pass the branch's other end, are left to the walk up the
-    signed distance. The branch's axis
-    stands in for the face normal (a tilted face is set back along the axis), and the end
-    keeps its radius (the builder measures its section).
+    signed distance. The branch's axis stands in for the face normal (a tilted face is set
+    back along the axis), and the end keeps its radius (the builder measures its section).
     """
     from .end_faces import flat_end_sections
 
