@@ -360,7 +360,8 @@ def end_face_ahead(sdf: SdfFunction, origin: np.ndarray, tangent: np.ndarray, r_
 
 
 def spurs_at_flat_ends(
-    graph: BranchGraph, sdf: SdfFunction, spacing: float, spurs, rays: int = 16, max_half_chord: float = 1.6, max_wall_angle: float = 30.0
+    graph: BranchGraph, sdf: SdfFunction, spacing: float, spurs, caps=(), rays: int = 16, max_half_chord: float = 1.6,
+    max_wall_angle: float = 30.0,
 ) -> np.ndarray:
     """Which terminal branches end at a flat end face of a tube of their own: a vessel's
     end, however short past its junction, not a bulge, a saddle, a sac or a terrace.
@@ -375,7 +376,10 @@ def spurs_at_flat_ends(
     ``max_wall_angle`` of parallel to the axis, as :func:`~.end_faces.flat_end_sections`
     tells side wall) within ``max_half_chord`` radii: a tube closed by the face. A terrace
     or facet on a wider vessel's side wall leaves rays running along that vessel; a bulge
-    or a sac's dome meets its rays at a slant. Returns a bool array.
+    or a sac's dome meets its rays at a slant. A face on one of ``caps`` is left out: every
+    cap gets its end from :func:`place_ends` (matched, or a branch attached), as before, and
+    a branch kept there besides (two stubs from one junction) can leave the builder a
+    junction it cannot block. Returns a bool array.
     """
     if not spurs:
         return np.zeros(0, bool)
@@ -389,7 +393,8 @@ def spurs_at_flat_ends(
         junctions.append(pts[0])
         junction_radii.append(rad[0])
     radii = np.array(radii)
-    *_, normal, centre, _, flat = end_face_ahead(sdf, np.array(tips), np.array(tangents), radii, spacing)
+    *_, wall_point, normal, centre, _, flat = end_face_ahead(sdf, np.array(tips), np.array(tangents), radii, spacing)
+    free = np.array([not any(_on_cap_face(w, cap) for cap in caps) for w in wall_point], bool)
     own = np.linalg.norm(centre - np.array(junctions), axis=1) > np.array(junction_radii)
     e1, e2 = plane_basis(normal)
     ang = 2 * np.pi * np.arange(rays) / rays
@@ -401,7 +406,7 @@ def spurs_at_flat_ends(
     wall = sdf_gradient(sdf, origins + (np.where(found, chord, 0.0) - back)[:, None] * dirs, back)
     along = np.abs(np.einsum("ij,ij->i", wall, np.repeat(normal, rays, axis=0)))
     tube = (found & (along < np.sin(np.radians(max_wall_angle)))).reshape(len(spurs), rays).all(axis=1)
-    return flat & own & tube
+    return flat & own & tube & free
 
 
 def _extend_to_wall(graph: BranchGraph, sdf: SdfFunction, free, spacing: float, end_depth: float, caps=(), taken=None) -> dict:
