@@ -147,7 +147,7 @@ class BranchGraph:
                 removed += 1
         return removed
 
-    def prune_spurs(self, ratio: float) -> int:
+    def prune_spurs(self, ratio: float, keep=None) -> int:
         """Remove terminal branches that barely stick out of the vessel they leave.
 
         A terminal branch from junction ``j`` to tip ``t`` is a spur when
@@ -159,6 +159,10 @@ class BranchGraph:
         two branches leaving a wide vessel) or a bulge. A real side branch reaches
         well beyond. The least salient spurs go first; a junction keeps at least
         one branch: both cleanings choose with :func:`~.clean.select_spurs`.
+
+        ``keep``, optional, ``keep([(u, v, key, tip, base), ...]) -> bool array``: the
+        candidates that stay whatever their length (the extraction passes the ends at a
+        flat end face, :func:`~.ends.spurs_at_flat_ends`).
         """
         removed = 0
         while True:
@@ -173,6 +177,9 @@ class BranchGraph:
                 if score >= 1.5 * ratio or (score >= ratio and self.ends_in_bulb(u, v, k, base)):
                     continue
                 candidates.append((score, u, v, k, tip, base))
+            if candidates and keep is not None:
+                held = keep([c[1:] for c in candidates])
+                candidates = [c for c, h in zip(candidates, held) if not h]
             if not candidates:
                 return removed
             degree = {c[5]: self.degree(c[5]) for c in candidates}

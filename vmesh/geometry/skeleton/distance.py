@@ -8,6 +8,7 @@ import numpy as np
 
 from ...skeleton import Skeleton
 from .graph import arc_length, branch_paths, component_labels, remove_nodes
+from .probe import distance_to_wall
 
 
 def distance_gradient(distance, points: np.ndarray, step: np.ndarray | float) -> np.ndarray:
@@ -214,34 +215,50 @@ def _ends_back_along_branch(skeleton: Skeleton, distance, d, scale, ends, points
         if q[0] != q[-1]:
             paths[int(q[0])], paths[int(q[-1])] = q, q[::-1]
     picked, faces, normals = [], [], []
+    starts, steps = [], []  # per end: the branch's first node inside and the way out to its node outside
     for e in idx.tolist():
         path = paths.get(e)
         inside = np.flatnonzero(d[path] > 0) if path is not None else []
         if len(inside) == 0:
             continue
         k = int(inside[0])  # >= 1: the end itself is outside
-        a, b = points[path[k - 1]], points[path[k]]  # outside, inside: the branch leaves the surface between
-        t = np.linspace(0.0, 1.0, 17)
-        ds = np.asarray(distance(b + t[:, None] * (a - b)), float)
-        j = int(np.argmax(ds <= 0))
-        face = b + (t[j - 1] + (t[j] - t[j - 1]) * ds[j - 1] / max(ds[j - 1] - ds[j], 1e-300)) * (a - b)
+        picked.append((e, path, k))
+        starts.append(points[path[k]])
+        steps.append(points[path[k - 1]] - points[path[k]])
+    if not picked:
+        return 0, cut
+    # where each branch leaves the surface: one ray from its first node inside to its last
+    # outside, sampled at 16 steps with a linear interpolation at the crossing
+    starts, steps = np.array(starts), np.array(steps)
+    span = np.linalg.norm(steps, axis=1)
+    ways = steps / np.maximum(span, 1e-300)[:, None]
+    leave = distance_to_wall(distance, starts, ways, span, samples=16, bisections=0)
+    kept = []
+    for (e, path, k), start, way, t in zip(picked, starts, ways, leave):
+        if not np.isfinite(t):
+            continue
+        face = start + t * way
         far = np.linalg.norm(points[path[k:]] - face, axis=1) >= scale[e]  # the axis over about a radius
         axis = face - points[path[k + int(np.argmax(far)) if far.any() else -1]]
         norm = np.linalg.norm(axis)
         if norm > 0:
-            picked.append((e, path))
+            kept.append((e, path))
             faces.append(face)
             normals.append(axis / norm)
+    picked = kept
     if not picked:
         return 0, cut
     faces, normals = np.array(faces), np.array(normals)
     r = scale[[p[0] for p in picked]]
     centres, section, _ = flat_end_sections(distance, faces, normals, normals, r)
+    depth = np.full(len(centres), -np.inf)  # the signed distance at each new end
+    finite = np.isfinite(centres).all(axis=1)
+    depth[finite] = np.asarray(distance(centres[finite]), float)
     n = 0
     for i, (e, path) in enumerate(picked):
         end = centres[i]
         beyond = (points[path] - end) @ normals[i] > -1e-9 * r[i]
-        if beyond[-1] or not np.isfinite(section[i]) or distance(end[None])[0] <= 0:
+        if beyond[-1] or not np.isfinite(section[i]) or depth[i] <= 0:
             continue  # the branch is shorter than the way back, or no section there
         first = int(np.argmin(beyond[1:])) + 1  # the first node behind the new end stays
         cut[path[1:first]] = True

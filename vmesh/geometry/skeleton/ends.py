@@ -14,7 +14,7 @@ import numpy as np
 
 from .branch_graph import BranchGraph
 from .end_faces import end_face_normals, flat_end_sections
-from .probe import SdfFunction, center_in_cross_sections, distance_to_wall, evaluate_sdf
+from .probe import SdfFunction, center_in_cross_sections, distance_to_wall, evaluate_sdf, plane_basis, sdf_gradient
 
 
 def _end_tangent(pts: np.ndarray, window: float) -> np.ndarray:
@@ -302,15 +302,35 @@ def _extend(graph: BranchGraph, node: int, target: np.ndarray, radius: float, sp
 
 
 
-def _extend_to_wall(graph: BranchGraph, sdf: SdfFunction, free, spacing: float, end_depth: float, caps=(), taken=None) -> dict:
-    """Extend free ends along their tangent: to just behind a flat end face, or into a rounded end.
+def end_face_ahead(sdf: SdfFunction, origin: np.ndarray, tangent: np.ndarray, r_ref: np.ndarray, spacing: float):
+    """Where the axis of the vessel ahead of each end point meets the wall, and whether
+    it meets a flat end face there.
 
-    An end whose axis meets the wall on a cap not matched yet (its branch bent away
-    from the cap's axis) goes to that cap's centre; ``taken`` collects such caps."""
-    nodes = [f[0] for f in free]
-    origin = np.array([graph.pos(n) for n in nodes])
-    tangent = np.array([f[1] for f in free])
-    r_ref = np.array([f[2] for f in free])
+    The axis is re-fitted through the centres of two cross-sections a radius apart; the
+    wall is looked for up to ``4 x r_ref + 2 x spacing`` ahead. A flat end: the wall's
+    face (a plane through many ray hits, :func:`end_face_normals`) faces the axis
+    (within 45 degrees) and the section a quarter radius inside it is still full
+    (``>= 0.8 x r_ref``); a rounded end (a dome, a bulge, a sac) narrows there, and a
+    saddle's wall does not face the axis.
+
+    Returns
+    -------
+    origin, tangent : (n, 3)
+        The centred end points and the re-fitted axes.
+    hit : (n,)
+        Distance along the axis to the wall (0 where ``has_hit`` is false).
+    has_hit : (n,) bool
+    wall_point, normal, centre : (n, 3)
+        Where the axis meets the wall, the face's outward normal, the centre of the
+        section a quarter radius inside.
+    section : (n,)
+        That section's radius.
+    flat : (n,) bool
+        The end faces a flat end face.
+    """
+    origin = np.asarray(origin, float).reshape(-1, 3)
+    tangent = np.asarray(tangent, float).reshape(-1, 3)
+    r_ref = np.asarray(r_ref, float).reshape(-1)
     # the axis near the end: through the centres of two sections a radius apart
     origin, _ = center_in_cross_sections(sdf, origin, tangent, r_ref)
     behind, _ = center_in_cross_sections(sdf, origin - r_ref[:, None] * tangent, tangent, r_ref)
@@ -336,6 +356,69 @@ def _extend_to_wall(graph: BranchGraph, sdf: SdfFunction, free, spacing: float, 
     centre, section = center_in_cross_sections(sdf, probe, normal, r_ref)
     facing = np.einsum("ij,ij->i", normal, tangent) > np.cos(np.radians(45))
     flat = has_hit & facing & (section >= 0.8 * r_ref)
+    return origin, tangent, hit, has_hit, wall_point, normal, centre, section, flat
+
+
+def spurs_at_flat_ends(
+    graph: BranchGraph, sdf: SdfFunction, spacing: float, spurs, caps=(), rays: int = 16, max_half_chord: float = 1.6,
+    max_wall_angle: float = 30.0,
+) -> np.ndarray:
+    """Which terminal branches end at a flat end face of a tube of their own: a vessel's
+    end, however short past its junction, not a bulge, a saddle, a sac or a terrace.
+
+    ``spurs`` lists ``(u, v, key, tip, base)``; the end's radius is the largest along the
+    branch past its junction, its axis the branch's last stretch (as :func:`_trim_end`
+    measures an end). A spur is such an end when (1) its axis meets a flat end face
+    (:func:`end_face_ahead`), (2) the section a quarter radius inside that face lies
+    outside the junction's inscribed ball (the vessel has a cross-section of its own past
+    the junction; the fan of the medial axis towards the rim of a flat end forks inside
+    it) and (3) all ``rays`` in-plane rays of that section meet side wall (within
+    ``max_wall_angle`` of parallel to the axis, as :func:`~.end_faces.flat_end_sections`
+    tells side wall) within ``max_half_chord`` radii: a tube closed by the face. A terrace
+    or facet on a wider vessel's side wall leaves rays running along that vessel; a bulge
+    or a sac's dome meets its rays at a slant. A face on one of ``caps`` is left out: every
+    cap gets its end from :func:`place_ends` (matched, or a branch attached), as before, and
+    a branch kept there besides (two stubs from one junction) can leave the builder a
+    junction it cannot block. Returns a bool array.
+    """
+    if not spurs:
+        return np.zeros(0, bool)
+    tips, tangents, radii, junctions, junction_radii = [], [], [], [], []
+    for u, v, key, tip, base in spurs:
+        pts, rad = graph.polyline(u, v, key, start=base)
+        r_ref = float(rad[1:].max())
+        tips.append(pts[-1])
+        radii.append(r_ref)
+        tangents.append(_end_tangent(pts, max(2.5 * r_ref, 4 * spacing)))
+        junctions.append(pts[0])
+        junction_radii.append(rad[0])
+    radii = np.array(radii)
+    *_, wall_point, normal, centre, _, flat = end_face_ahead(sdf, np.array(tips), np.array(tangents), radii, spacing)
+    free = np.array([not any(_on_cap_face(w, cap) for cap in caps) for w in wall_point], bool)
+    own = np.linalg.norm(centre - np.array(junctions), axis=1) > np.array(junction_radii)
+    e1, e2 = plane_basis(normal)
+    ang = 2 * np.pi * np.arange(rays) / rays
+    dirs = (np.cos(ang)[None, :, None] * e1[:, None, :] + np.sin(ang)[None, :, None] * e2[:, None, :]).reshape(-1, 3)
+    origins = np.repeat(centre, rays, axis=0)
+    chord = distance_to_wall(sdf, origins, dirs, np.repeat(max_half_chord * radii, rays))
+    found = np.isfinite(chord) & (chord > 0)
+    back = np.repeat(0.05 * radii, rays)  # the wall normal just inside the hit
+    wall = sdf_gradient(sdf, origins + (np.where(found, chord, 0.0) - back)[:, None] * dirs, back)
+    along = np.abs(np.einsum("ij,ij->i", wall, np.repeat(normal, rays, axis=0)))
+    tube = (found & (along < np.sin(np.radians(max_wall_angle)))).reshape(len(spurs), rays).all(axis=1)
+    return flat & own & tube & free
+
+
+def _extend_to_wall(graph: BranchGraph, sdf: SdfFunction, free, spacing: float, end_depth: float, caps=(), taken=None) -> dict:
+    """Extend free ends along their tangent: to just behind a flat end face, or into a rounded end.
+
+    An end whose axis meets the wall on a cap not matched yet (its branch bent away
+    from the cap's axis) goes to that cap's centre; ``taken`` collects such caps."""
+    nodes = [f[0] for f in free]
+    r_ref = np.array([f[2] for f in free])
+    origin, tangent, hit, has_hit, wall_point, normal, centre, section, flat = end_face_ahead(
+        sdf, np.array([graph.pos(n) for n in nodes]), np.array([f[1] for f in free]), r_ref, spacing
+    )
     to_face = distance_to_wall(sdf, centre, normal, 0.5 * r_ref + 2 * spacing)
     face = centre + np.where(np.isfinite(to_face), to_face, 0.25 * r_ref)[:, None] * normal
     # the end itself is the last full cross-section behind the face

@@ -43,7 +43,7 @@ import numpy as np
 
 from ...skeleton import Skeleton
 from .branch_graph import BranchGraph
-from .ends import place_ends
+from .ends import place_ends, spurs_at_flat_ends
 from .probe import SdfFunction, evaluate_sdf
 from .resample import resample_branches
 from .thin import voxel_skeleton
@@ -149,14 +149,29 @@ def _voxel_branch_graph(sdf, bounds, spacing: float, tick, stats: dict, timings:
     return graph
 
 
-def clean_branch_graph(graph: BranchGraph, settings: ExtractionSettings, expected_cycles: int | None) -> dict:
+def clean_branch_graph(
+    graph: BranchGraph, settings: ExtractionSettings, expected_cycles: int | None, sdf=None, spacing=None, caps=()
+) -> dict:
     """Stage 4: clean a raw branch graph until nothing changes (at most 20 rounds).
 
     One round drops specks, cuts the cycles beyond ``expected_cycles`` (or, when it
     is unknown, collapses short cycles), merges close junctions and prunes spurs;
     removing one defect can expose another (a spur left after a merge), hence the
-    rounds. Returns how many of each were removed.
+    rounds. Returns how many of each were removed. With ``sdf`` (and the voxel
+    ``spacing``), a short terminal branch that ends at a flat end face (on none of
+    ``caps``) is a vessel's end, not a spur, and stays (:func:`~.ends.spurs_at_flat_ends`).
     """
+    keep = None
+    if sdf is not None:
+        seen = {}  # the test per branch (tip and junction positions), over the rounds
+
+        def keep(spurs):
+            key = [tuple(np.r_[graph.pos(tip), graph.pos(base)].round(12)) for _, _, _, tip, base in spurs]
+            todo = [i for i, k in enumerate(key) if k not in seen]
+            for i, flat in zip(todo, spurs_at_flat_ends(graph, sdf, spacing, [spurs[i] for i in todo], list(caps or ()))):
+                seen[key[i]] = bool(flat)
+            return [seen[k] for k in key]
+
     removed = {"specks": 0, "spurs": 0, "merged_junctions": 0, "small_cycles": 0, "bridges": 0}
     graph.dissolve_all()
     for _ in range(20):
@@ -165,7 +180,7 @@ def clean_branch_graph(graph: BranchGraph, settings: ExtractionSettings, expecte
             "bridges": graph.break_extra_cycles(expected_cycles) if expected_cycles is not None else 0,
             "merged_junctions": graph.merge_junctions(settings.merge_ratio),
             "small_cycles": graph.collapse_small_cycles(settings.cycle_ratio) if expected_cycles is None else 0,
-            "spurs": graph.prune_spurs(settings.spur_ratio),
+            "spurs": graph.prune_spurs(settings.spur_ratio, keep),
         }
         graph.dissolve_all()
         for key, value in step.items():
@@ -232,7 +247,7 @@ def extract_skeleton(
         if expected_cycles is None and surface is not None:
             expected_cycles = surface_genus(*surface)
         stats["expected_cycles"] = expected_cycles
-        stats.update(clean_branch_graph(graph, settings, expected_cycles))
+        stats.update(clean_branch_graph(graph, settings, expected_cycles, sdf, spacing, caps))
         stats["centred_junctions"] = graph.center_junctions(sdf, spacing)
     with _timed(timings, "ends"):
         tick(0.85, "placing the ends")
