@@ -305,6 +305,12 @@ _escobar_sums = nb.njit(cache=True)(_escobar_sums_py)
 #: are judged by the scaled Jacobians alone, which this does not touch
 _escobar_sums_fused = nb.njit(cache=True, fastmath={"contract", "reassoc"})(_variant(_escobar_sums_py, "_escobar_sums_fused"))
 
+#: flags passed to :func:`node_eval` as plain booleans: numba types a ``True`` / ``False``
+#: written in a call as a literal and compiles the callee once per combination (4 copies
+#: of node_eval and 2 of each functional sum on a cold cache, ~3 s CPU); one copy branching
+#: on them gives the same bits at the same speed (docs/speed.md, session 16)
+_NO, _YES = np.bool_(False), np.bool_(True)
+
 
 @nb.njit(cache=True)
 def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, buf, row, fused):
@@ -316,6 +322,9 @@ def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, bu
     change when an edge is scaled); each hexahedron's other four corners come from the
     frame. With ``want_q``, the moved corners' values go to ``buf[row]`` (``row >= 0``; in
     the order of :func:`_moved`) or straight into ``cq`` (``row == -2``).
+
+    ``fused`` (the light pass's Newton direction only, so always with ``hessian``) sums the
+    functional with :func:`_escobar_sums_fused`.
 
     Returns ``(f, g0, g1, g2, H00, H01, H02, H11, H12, H22, qmin, qsum)``: the minimum and
     sum over the incident hexahedra of their scaled Jacobian (``want_q``).
@@ -370,8 +379,8 @@ def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, bu
                 L[r, k + 5], L[r, k + 6], L[r, k + 7], L[r, k + 8] = S * gx, S * gy, S * gz, diag
         qsum += hmin
         qmin = min(qmin, hmin)
-    if want_f and fused:
-        f, g0, g1, g2, h00, h01, h02, h11, h12, h22 = _escobar_sums_fused(L, ptr[v + 1] - ptr[v], d2, hessian)
+    if want_f and fused:  # only the Hessian's call fuses: a literal True keeps its contractions
+        f, g0, g1, g2, h00, h01, h02, h11, h12, h22 = _escobar_sums_fused(L, ptr[v + 1] - ptr[v], d2, True)
     elif want_f:
         f, g0, g1, g2, h00, h01, h02, h11, h12, h22 = _escobar_sums(L, ptr[v + 1] - ptr[v], d2, hessian)
     return f, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin, qsum
@@ -458,7 +467,7 @@ def _moved(X, hexes, ptr, inc, cq, v, L, y0, y1, y2, dirty, buf, row, least):
     step = np.sqrt(z0 * z0 + z1 * z1 + z2 * z2)
     X[v, 0], X[v, 1], X[v, 2] = y0, y1, y2
     if row < 0:
-        node_eval(L, ptr, inc, cq, v, z0, z1, z2, 0.0, False, False, True, buf, np.int64(-2), False)
+        node_eval(L, ptr, inc, cq, v, z0, z1, z2, 0.0, _NO, _NO, _YES, buf, np.int64(-2), _NO)
     else:
         for t in range(ptr[v], ptr[v + 1]):
             e = inc[t] >> 3
@@ -484,7 +493,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
     # the start's quality from the frame, as every trial's: the cache's values of the moved
     # corners (computed in other frames) differ in the last bits, enough to refuse the short
     # steps that climb the worst element
-    f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin0, qsum0 = node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, delta, True, True, True, buf, np.int64(-1), mode == SMOOTH)
+    f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin0, qsum0 = node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, delta, _YES, _YES, _YES, buf, np.int64(-1), mode == SMOOTH)
     if mode == ESCOBAR and not on_wall:
         qmin0, qsum0 = np.inf, 0.0
     state[j, 0], state[j, 1], state[j, 2] = f0, qmin0, qsum0
@@ -506,7 +515,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
             trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2
             state[j, 3] = 1.0
             return
-        r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, False, not smooth, judge or smooth, buf, np.int64(j), False)
+        r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, not smooth, judge or smooth, buf, np.int64(j), _NO)
         if (r[0] < f0) if not smooth else _acceptable(mode, r[0], r[10], r[11], f0, qmin0, qsum0):
             if on_wall:  # judged again after the projection
                 trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2
@@ -536,7 +545,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
                 state[j, 0] = np.inf  # the functional is not asked for
                 state[j, 3] = 1.0
                 return
-            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, False, False, True, buf, np.int64(j), False)
+            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, _NO, _YES, buf, np.int64(j), _NO)
             if _acceptable(mode, np.inf, r[10], r[11], np.inf, qmin0, qsum0):
                 # a climb raises a worst element: however short, the neighbours try again
                 _moved(X, hexes, ptr, inc, cq, v, L, X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2, dirty, buf, np.int64(j), 0.0)
@@ -587,7 +596,7 @@ def _accept_trials(X, hexes, scale, ptr, inc, cq, nodes, projected, delta, mode,
             v = nodes[j]
             frame(X, hexes, scale, ptr, inc, cq, v, L)
             z0, z1, z2 = projected[j, 0] - X[v, 0], projected[j, 1] - X[v, 1], projected[j, 2] - X[v, 2]
-            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, False, mode != SMOOTH, True, buf, np.int64(j), False)
+            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, mode != SMOOTH, _YES, buf, np.int64(j), _NO)
             if _acceptable(mode, r[0], r[10], r[11], state[j, 0], state[j, 1], state[j, 2]):
                 _moved(X, hexes, ptr, inc, cq, v, L, projected[j, 0], projected[j, 1], projected[j, 2], dirty, buf, np.int64(j), 0.0 if state[j, 0] == np.inf or r[10] > state[j, 1] else tol * step_cap[v])
             else:
