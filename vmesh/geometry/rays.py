@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .skeleton.probe import distance_to_wall
-
 
 def cast_rays(
     distance,
@@ -412,13 +410,13 @@ def cut_at_necks(distance, origins: np.ndarray, directions: np.ndarray, scale: n
     r = rows[ok]
     lo = np.where(m[r] > 0, ts[r, np.maximum(m[r] - 1, 0)], 0.0)
     hi = ts[r, np.minimum(m[r] + 1, f.shape[1] - 1)]
-    # 16 steps from lo to hi, linear interpolation at the first crossing (no bisection)
-    at = lo + distance_to_wall(distance, o[r] + lo[:, None] * d[r], d[r], hi - lo, samples=16, bisections=0)
-    missed = ~np.isfinite(at)
-    if missed.any():  # no crossing between them: the finest sample nearest the wall
-        rm = r[missed]
-        tf = lo[missed, None] + (hi - lo)[missed, None] * np.linspace(0.0, 1.0, 17)[None, :]
-        ff = np.asarray(distance((o[rm, None, :] + tf[:, :, None] * d[rm, None, :]).reshape(-1, 3))).reshape(tf.shape)
-        at[missed] = tf[np.arange(len(rm)), np.argmin(ff, axis=1)]
+    tf = lo[:, None] + (hi - lo)[:, None] * np.linspace(0.0, 1.0, 17)[None, :]
+    ff = np.asarray(distance((o[r, None, :] + tf[:, :, None] * d[r, None, :]).reshape(-1, 3))).reshape(tf.shape)
+    crossed = ff <= 0
+    j = np.where(crossed.any(axis=1), np.argmax(crossed, axis=1), np.argmin(ff, axis=1))
+    k = np.maximum(j - 1, 0)
+    # linear interpolation to the crossing between the last sample inside and the first outside
+    frac = np.where(crossed.any(axis=1) & (j > 0), ff[np.arange(len(r)), k] / np.maximum(ff[np.arange(len(r)), k] - ff[np.arange(len(r)), j], 1e-300), 0.0)
+    at = np.where(crossed.any(axis=1), tf[np.arange(len(r)), k] + frac * (tf[np.arange(len(r)), j] - tf[np.arange(len(r)), k]), tf[np.arange(len(r)), j])
     out[r] = at
     return out

@@ -8,7 +8,7 @@ import numpy as np
 
 from ...skeleton import Skeleton
 from .graph import arc_length, branch_paths, component_labels, remove_nodes
-from .probe import distance_to_wall
+from .probe import distance_to_wall, evaluate_sdf
 
 
 def distance_gradient(distance, points: np.ndarray, step: np.ndarray | float) -> np.ndarray:
@@ -251,9 +251,7 @@ def _ends_back_along_branch(skeleton: Skeleton, distance, d, scale, ends, points
     faces, normals = np.array(faces), np.array(normals)
     r = scale[[p[0] for p in picked]]
     centres, section, _ = flat_end_sections(distance, faces, normals, normals, r)
-    depth = np.full(len(centres), -np.inf)  # the signed distance at each new end
-    finite = np.isfinite(centres).all(axis=1)
-    depth[finite] = np.asarray(distance(centres[finite]), float)
+    depth = evaluate_sdf(distance, centres)  # the signed distance at each new end
     n = 0
     for i, (e, path) in enumerate(picked):
         end = centres[i]

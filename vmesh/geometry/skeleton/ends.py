@@ -379,7 +379,9 @@ def spurs_at_flat_ends(
     or a sac's dome meets its rays at a slant. A face on one of ``caps`` is left out: every
     cap gets its end from :func:`place_ends` (matched, or a branch attached), as before, and
     a branch kept there besides (two stubs from one junction) can leave the builder a
-    junction it cannot block. Returns a bool array.
+    junction it cannot block. Two or more branches of one junction held at one face (within
+    half a radius) are the medial axis's fan towards the face's rim: none is held. Returns a
+    bool array.
     """
     if not spurs:
         return np.zeros(0, bool)
@@ -406,7 +408,13 @@ def spurs_at_flat_ends(
     wall = sdf_gradient(sdf, origins + (np.where(found, chord, 0.0) - back)[:, None] * dirs, back)
     along = np.abs(np.einsum("ij,ij->i", wall, np.repeat(normal, rays, axis=0)))
     tube = (found & (along < np.sin(np.radians(max_wall_angle)))).reshape(len(spurs), rays).all(axis=1)
-    return flat & own & tube & free
+    held = flat & own & tube & free
+    # Several branches of one junction at one face are the medial axis's fan towards the
+    # face's rim, not vessels of their own: none of them is held.
+    base = np.array([s[4] for s in spurs])
+    near = np.linalg.norm(centre[:, None, :] - centre[None, :, :], axis=2) < 0.5 * radii[:, None]
+    fan = ((base[:, None] == base[None, :]) & near & held[None, :]).sum(axis=1) > 1
+    return held & ~fan
 
 
 def _extend_to_wall(graph: BranchGraph, sdf: SdfFunction, free, spacing: float, end_depth: float, caps=(), taken=None) -> dict:
