@@ -142,3 +142,60 @@ def test_mesh_transfinite_reports_the_worst_pass():
     for kw in ({"worst_pass_sweeps": 0}, {"light_pass_below": 0.0}):
         report = run(**kw)
         assert "worst_pass" not in report.sections and "light_pass_after_worst" not in report.sections
+
+
+def _node_corners_bruteforce(X, hexes, v):
+    """Scaled Jacobians of node ``v``'s corners (the corners of its hexahedra whose three
+    edges it is an end of), straight from the definition."""
+    out = []
+    for e in np.flatnonzero((hexes == v).any(axis=1)):
+        loc = int(np.flatnonzero(hexes[e] == v)[0])
+        for c in range(8):
+            if bin(c ^ loc).count("1") > 1:
+                continue
+            i, j, k = c & 1, (c >> 1) & 1, (c >> 2) & 1
+            P = X[hexes[e]]
+            u, w_, t = P[2 * j + 4 * k + 1] - P[2 * j + 4 * k], P[i + 2 + 4 * k] - P[i + 4 * k], P[i + 2 * j + 4] - P[i + 2 * j]
+            out.append(np.dot(u, np.cross(w_, t)) / (np.linalg.norm(u) * np.linalg.norm(w_) * np.linalg.norm(t)))
+    return np.sort(out)
+
+
+def test_worst_pass_kernels_match_the_definition():
+    """The compiled corner kernels of the max-min pass on a jittered 3x3x3 block of cubes:
+    each node's three worst corners and its longest/shortest edge, the gradients (against
+    central differences) and the trial minima (against the corners recomputed with the node
+    moved)."""
+    from vmesh.geometry.optimize import kernels as K
+    from vmesh.geometry.optimize.kernels_worst import trial_minima, worst_corners
+
+    g = np.stack(np.meshgrid(*[np.arange(4.0)] * 3, indexing="ij"), -1).transpose(2, 1, 0, 3).reshape(-1, 3)
+    X = g + np.random.default_rng(5).normal(size=g.shape) * 0.12
+    ids = np.arange(64).reshape(4, 4, 4)  # [k, j, i]
+    hexes = np.array([[ids[k + (c >> 2), j + ((c >> 1) & 1), i + (c & 1)] for c in range(8)]
+                      for k in range(3) for j in range(3) for i in range(3)], np.int64)
+    ptr, inc = K.incidence(hexes, len(X))
+    nodes = np.array([0, 5, 21, 42, 63], np.int64)  # a corner, edge, face and interior nodes
+    q, G, longest, shortest = worst_corners(X, hexes, ptr, inc, nodes)
+    for a, v in enumerate(nodes):
+        ref = _node_corners_bruteforce(X, hexes, v)
+        np.testing.assert_allclose(q[a, : min(3, len(ref))], ref[:3], atol=1e-12)
+        edges = [np.linalg.norm(X[w] - X[v]) for w in np.unique(hexes[(hexes == v).any(axis=1)]) if
+                 np.isclose(np.abs(g[w] - g[v]).sum(), 1)]
+        assert np.isclose(longest[a], max(edges)) and np.isclose(shortest[a], min(edges))
+        for r in range(min(3, len(ref))):  # each worst corner's gradient, by central differences
+            fd = np.zeros(3)
+            for d in range(3):
+                Y = X.copy()
+                Y[v, d] += 1e-6
+                up = worst_corners(Y, hexes, ptr, inc, nodes[a : a + 1])[0][0]
+                Y[v, d] -= 2e-6
+                down = worst_corners(Y, hexes, ptr, inc, nodes[a : a + 1])[0][0]
+                fd[d] = (up[r] - down[r]) / 2e-6
+            np.testing.assert_allclose(G[a, r], fd, atol=1e-5)
+    T = X[nodes][:, None] + np.random.default_rng(6).normal(size=(len(nodes), 4, 3)) * 0.2
+    qt = trial_minima(X, hexes, ptr, inc, nodes, np.ascontiguousarray(T))
+    for a, v in enumerate(nodes):
+        for t in range(4):
+            Y = X.copy()
+            Y[v] = T[a, t]
+            assert np.isclose(qt[a, t], _node_corners_bruteforce(Y, hexes, v)[0], atol=1e-12)

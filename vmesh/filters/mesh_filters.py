@@ -38,7 +38,7 @@ from ..registry import Parameter, register_filter
         Parameter("light_pass_tol", "float", 0.01, "Light pass: a node that moves less than this fraction of half its longest edge does not send its neighbours back to work (converged regions stop early; 0 = every move does; docs/speed.md).", min=0.0, max=0.5),
         Parameter("curved_sections", "bool", True, "Curve the core/ring and ring/boundary-layer interfaces of the cross-sections so that the element angles at their corners balance (120° at core corners instead of 90°/135°/135°; docs/optimiser.md)."),
         Parameter("smooth_below", "float", 0.5, "Light pass after untangling (optimiser = local): nodes of elements below this move only where their elements' minimum and mean scaled Jacobian do not drop; 0 = off.", min=0.0, max=0.95),
-        Parameter("worst_pass_sweeps", "int", 20, "After the light pass, only with untangle = true, optimiser = local and light_pass_below > 0 (p = 1, a valid mesh): the nodes of elements still below smooth_below (its threshold) take max-min steps judged by their worst incident element alone (wall nodes on the wall, first boundary-layer heights kept), then the light pass runs again; most sweeps, 0 = off (docs/optimiser.md).", min=0, max=200),
+        Parameter("worst_pass_sweeps", "int", 60, "After the light pass, only with untangle = true, optimiser = local and light_pass_below > 0 (p = 1, a valid mesh): the nodes of elements still below smooth_below (its threshold) take max-min steps judged by their worst incident element alone (wall nodes on the wall, first boundary-layer heights kept), then the light pass runs again; most sweeps, 0 = off (docs/optimiser.md).", min=0, max=200),
         Parameter("exact_first_layer", "bool", True, "With first_layer_height (or y_plus): after the optimisers (untangling and the light pass), re-place the nodes of every boundary-layer line so that the first element is that height along the wall normal; with boundary_layer_thickness: before untangling, put the layer's inner nodes at that thickness along the wall normal (docs/cfd.md)."),
     ],
     reads=("blocks", "surface"),
@@ -50,7 +50,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
                      first_layer_height, boundary_layer_thickness, y_plus, flow_velocity, flow_density, flow_viscosity, reference_length,
                      order, node_distribution, project_to, untangle, untangle_below, untangle_restart_below,
                      optimiser="local", smooth_below=0.5, curved_sections=True, light_pass_below=0.95, light_pass_sweeps=8,
-                     exact_first_layer=True, light_pass_tol=0.01, worst_pass_sweeps=20):
+                     exact_first_layer=True, light_pass_tol=0.01, worst_pass_sweeps=60):
     """Edge nodes are projected onto the wall and re-spaced by arc length; Coons patches fill
     block faces (wall faces projected again) and transfinite interpolation fills the blocks.
     The boundary layer is resolved by grading, never by extra element layers: the element

@@ -8,7 +8,8 @@ untangler leaves at a junction crotch), the one-corner step lowers another corne
 refused; a step that lifts the worst corner at some cost to the sum is refused too. Here
 each node takes the steepest ascent of the minimum over *all* its nearly-worst corners
 (Freitag and Ollivier-Gooch's max-min smoothing: the direction is the least-norm point of
-the convex hull of their gradients), judged by the minimum alone.
+the convex hull of their gradients), judged by the minimum alone. The corners and their gradients are compiled
+(:mod:`vmesh.geometry.optimize.kernels_worst`).
 
 Constraints are the light pass's (:func:`vmesh.geometry.optimize._node_kinds`): wall nodes
 step in their tangent plane and are projected onto the wall, first-layer nodes keep their
@@ -21,50 +22,18 @@ import numpy as np
 
 from . import _offset
 from . import kernels as K
-
-# corner c = i + 2 j + 4 k: its edges along +i, +j, +k, as (tail, head) local node ids
-_C = np.arange(8)
-_I, _J, _KK = _C & 1, (_C >> 1) & 1, (_C >> 2) & 1
-_EDGES = np.stack(
-    [
-        np.stack([2 * _J + 4 * _KK, 1 + 2 * _J + 4 * _KK], 1),
-        np.stack([_I + 4 * _KK, _I + 2 + 4 * _KK], 1),
-        np.stack([_I + 2 * _J, _I + 2 * _J + 4], 1),
-    ],
-    1,
-)  # (8 corners, 3 edges, tail/head)
+from . import kernels_worst as KW
 
 #: corners within this much of a node's worst corner count as its worst (the active set of
 #: the max-min direction; a scaled-Jacobian difference, not a quality target)
 ACTIVE = 0.01
 #: trial steps: the first is this fraction of the node's longest incident edge (as the light
 #: pass's step caps, ``kernels.step_caps``; the shortest is the first-layer height for wall and
-#: first-layer nodes, which then barely move sideways), then halved
+#: first-layer nodes, which would then barely move sideways), then halved until TRIALS halvings
+#: of that fraction of the node's shortest edge are tried too
 STEP, TRIALS = 0.25, 8
-
-
-def _corner_sj(P):
-    """Scaled Jacobians ``(..., 8)``, the edges ``(..., 8, 3, 3)`` and the products of the
-    edge lengths ``(..., 8)`` (floored) of hexahedra ``P (..., 8, 3)``."""
-    E = P[..., _EDGES[:, :, 1], :] - P[..., _EDGES[:, :, 0], :]
-    u, v, w = E[..., 0, :], E[..., 1, :], E[..., 2, :]
-    det = np.einsum("...i,...i->...", u, np.cross(v, w))
-    ln = np.maximum(np.sqrt((u * u).sum(-1) * (v * v).sum(-1) * (w * w).sum(-1)), 1e-300)
-    return det / ln, E, ln
-
-
-def _gradients(P, local):
-    """Scaled Jacobians ``(..., 8)`` of the hexahedra ``P (..., 8, 3)``, their gradients
-    ``(..., 8, 3)`` with respect to the node at local ids ``local (...)``, and which corners
-    that node belongs to ``(..., 8)``."""
-    sj, E, ln = _corner_sj(P)
-    u, v, w = E[..., 0, :], E[..., 1, :], E[..., 2, :]
-    ln = ln[..., None]
-    d_e = np.stack([np.cross(v, w), np.cross(w, u), np.cross(u, v)], -2) / ln[..., None]
-    d_e -= sj[..., None, None] * E / np.maximum((E * E).sum(-1, keepdims=True), 1e-300)
-    lid = local[..., None, None]
-    sign = (_EDGES[:, :, 1] == lid).astype(float) - (_EDGES[:, :, 0] == lid)  # (..., 8, 3)
-    return sj, np.einsum("...ce,...ced->...cd", sign, d_e), sign.any(axis=-1)
+#: at most this many halvings more, down from the longest edge's step past the shortest's
+MORE = 8
 
 
 #: faces of the hull of three gradients (the least-norm point of a 3-D hull lies in one)
@@ -99,11 +68,6 @@ def _least_norm(G, ok):
         valid = (lam >= -1e-12).all(1) & ok[:, list(face)].all(1) & (seen | ~ok).all(1) & (pn < bn)
         best[valid], bn[valid] = p[valid], pn[valid]
     return best, bn
-
-
-#: most nodes of a colour stepped at once: the trial arrays are (nodes, TRIALS, V, 8, 3) with
-#: V the largest valence among them, so one irregular node pads every row
-CHUNK = 2048
 
 
 def lift_worst(X, hexes, below, kind, normal, height, project=None, wall_normals=None, sweeps=10, X0=None):
@@ -153,17 +117,17 @@ def lift_worst(X, hexes, below, kind, normal, height, project=None, wall_normals
         changed = 0
         for group in colours:
             group = group[dirty[group]]
-            for s in range(0, len(group), CHUNK):  # a colour's nodes are independent
-                part = group[s : s + CHUNK]
-                ok = _step(X, hexes, ptr, inc, part, kind, normal, height, project, nrm)
-                dirty[part[~ok]] = False
-                if ok.any():
-                    up = part[ok]
-                    moved[up] = True
-                    changed += len(up)
-                    cnt = ptr[up + 1] - ptr[up]
-                    t = np.repeat(ptr[up] - np.cumsum(cnt) + cnt, cnt) + np.arange(cnt.sum())
-                    dirty[np.unique(hexes[inc[t] >> 3])] = True
+            if not len(group):
+                continue
+            ok = _step(X, hexes, ptr, inc, group, kind, normal, height, project, nrm)  # a colour's nodes are independent
+            dirty[group[~ok]] = False
+            if ok.any():
+                up = group[ok]
+                moved[up] = True
+                changed += len(up)
+                cnt = ptr[up + 1] - ptr[up]
+                t = np.repeat(ptr[up] - np.cumsum(cnt) + cnt, cnt) + np.arange(cnt.sum())
+                dirty[np.unique(hexes[inc[t] >> 3])] = True
         if not changed:
             break
     return int(moved.sum()), sweep
@@ -173,20 +137,8 @@ def _step(X, hexes, ptr, inc, group, kind, normal, height, project, wall_nrm):
     """One max-min step of each node of ``group`` (one colour); returns which moved (their
     incident minimum rose). ``wall_nrm (n, 3)``: the wall nodes' normals."""
     c = len(group)
-    val = ptr[group + 1] - ptr[group]
-    V = int(val.max())
-    slot = np.minimum(np.arange(V)[None], val[:, None] - 1)  # padding repeats the last element
-    t = inc[ptr[group][:, None] + slot]
-    real = np.arange(V)[None] < val[:, None]
-    H, local = hexes[t >> 3], t & 7  # (c, V, 8), (c, V)
-    P = X[H]
-    sj, g, mine = _gradients(P, local)
-    mine &= real[..., None]
-    flat = np.where(mine, sj, np.inf).reshape(c, -1)
-    worst = np.argsort(flat, axis=1)[:, :3]
-    q0 = np.take_along_axis(flat, worst, 1)
+    q0, G, edge, short = KW.worst_corners(X, hexes, ptr, inc, group)
     ok = q0 <= q0[:, :1] + ACTIVE
-    G = np.take_along_axis(g.reshape(c, -1, 3), worst[..., None], 1)  # (c, 3, 3)
     k = kind[group]
     nrm = np.zeros((c, 3))
     plane = k == K.PLANE
@@ -200,21 +152,19 @@ def _step(X, hexes, ptr, inc, group, kind, normal, height, project, wall_nrm):
     if not go.any():
         return go
     d = d / np.maximum(np.sqrt(dn), 1e-300)[:, None]
-    ci, vi = np.arange(c)[:, None], np.arange(V)[None, :]
-    ends = P[ci[..., None], vi[..., None], _EDGES[local, :, 1]] - P[ci[..., None], vi[..., None], _EDGES[local, :, 0]]  # the node's corner's edges
-    edge = np.where(real[..., None], np.linalg.norm(ends, axis=-1), 0.0).max(axis=(1, 2))
-    T = X[group][:, None] + (STEP * edge[:, None] * 0.5 ** np.arange(TRIALS))[..., None] * d[:, None]  # (c, TRIALS, 3)
+    # halvings from the longest edge's step down past TRIALS halvings of the shortest's, so a
+    # wall or first-layer node (shortest edge: the first-layer height) still tries short steps
+    extra = np.clip(np.ceil(np.log2(np.maximum(edge, 1e-300) / np.maximum(short, 1e-300))), 0, MORE).astype(np.int64)
+    halvings = np.minimum(np.arange(TRIALS + int(extra.max()))[None], TRIALS - 1 + extra[:, None])  # (c, trials)
+    trials = halvings.shape[1]
+    T = X[group][:, None] + (STEP * edge[:, None] * 0.5**halvings)[..., None] * d[:, None]  # (c, trials, 3)
     w = np.flatnonzero(k == K.WALL)
     if len(w):
-        T[w] = np.asarray(project(T[w].reshape(-1, 3)), float).reshape(len(w), TRIALS, 3)
+        T[w] = np.asarray(project(T[w].reshape(-1, 3)), float).reshape(len(w), trials, 3)
     o = np.flatnonzero(k == K.OFFSET)
     if len(o):
-        T[o] = _offset(project, T[o].reshape(-1, 3), np.repeat(height[group[o]], TRIALS)).reshape(len(o), TRIALS, 3)
-    Pt = np.repeat(P[:, None], TRIALS, axis=1)  # (c, TRIALS, V, 8, 3)
-    Pt[ci, :, vi, local] = T[:, None]  # (indexed as (c, V, TRIALS, 3): the advanced indices first)
-    sjt = _corner_sj(Pt)[0]  # (c, TRIALS, V, 8)
-    qt = np.where(mine[:, None], sjt, np.inf).min(axis=(2, 3))
-    qt = np.where(np.isnan(qt), -np.inf, qt)  # a degenerate trial is no candidate
+        T[o] = _offset(project, T[o].reshape(-1, 3), np.repeat(height[group[o]], trials)).reshape(len(o), trials, 3)
+    qt = KW.trial_minima(X, hexes, ptr, inc, group, np.ascontiguousarray(T))
     qt[~go] = -np.inf
     b = np.argmax(qt, axis=1)
     rose = qt[np.arange(c), b] > q0[:, 0] + 1e-9

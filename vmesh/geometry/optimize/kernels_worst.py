@@ -1,0 +1,120 @@
+"""Compiled kernels of the max-min pass (:mod:`vmesh.geometry.optimize.worst`).
+
+A node's corners are the corners of its incident (linear, tensor-order) hexahedra whose
+three edges (along +i, +j, +k) it is an end of: the node's own corner and the three corners
+one edge away (corner ids differing in at most one bit). Scaled Jacobian of a corner:
+``det[u, v, w] / (|u| |v| |w|)`` (the product floored at 1e-300), as ``quality.hex8_scaled_jacobian``.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from .kernels import PARALLEL_FROM, _variant
+
+
+@nb.njit(cache=True, inline="always")
+def _corner(X, hexes, e, c, v, y):
+    """Edges ``(3, 3)``, scaled Jacobian and edge-length product of corner ``c`` of hexahedron
+    ``e``, with the node ``v`` placed at ``y``."""
+    E = np.empty((3, 3))
+    i, j, k = c & 1, (c >> 1) & 1, (c >> 2) & 1
+    ends = ((2 * j + 4 * k, 1 + 2 * j + 4 * k), (i + 4 * k, i + 2 + 4 * k), (i + 2 * j, i + 2 * j + 4))
+    for a in range(3):
+        t, h = hexes[e, ends[a][0]], hexes[e, ends[a][1]]
+        for d in range(3):
+            E[a, d] = (y[d] if h == v else X[h, d]) - (y[d] if t == v else X[t, d])
+    det = (E[0, 0] * (E[1, 1] * E[2, 2] - E[1, 2] * E[2, 1]) + E[0, 1] * (E[1, 2] * E[2, 0] - E[1, 0] * E[2, 2])
+           + E[0, 2] * (E[1, 0] * E[2, 1] - E[1, 1] * E[2, 0]))
+    ln = np.sqrt((E[0] ** 2).sum() * (E[1] ** 2).sum() * (E[2] ** 2).sum())
+    ln = max(ln, 1e-300)
+    return E, det / ln, ln
+
+
+def _worst_corners(X, hexes, ptr, inc, group):
+    """For each node of ``group``: the scaled Jacobians ``(c, 3)`` of its three worst corners
+    (ascending; +inf where it has fewer), their gradients ``(c, 3, 3)`` with respect to the
+    node, and the longest and shortest of its incident edges ``(c,)``."""
+    c = len(group)
+    q = np.full((c, 3), np.inf)
+    G = np.zeros((c, 3, 3))
+    longest = np.zeros(c)
+    shortest = np.full(c, np.inf)
+    for a in nb.prange(c):
+        v = group[a]
+        y = X[v]
+        for s in range(ptr[v], ptr[v + 1]):
+            e, loc = inc[s] >> 3, inc[s] & 7
+            for cc in range(8):
+                x = cc ^ loc
+                if x & (x - 1):  # more than one bit apart: not one of the node's corners
+                    continue
+                E, sj, ln = _corner(X, hexes, e, cc, v, y)
+                if cc == loc:
+                    for b in range(3):
+                        el = np.sqrt((E[b] ** 2).sum())
+                        longest[a] = max(longest[a], el)
+                        shortest[a] = min(shortest[a], el)
+                if not sj < q[a, 2]:
+                    continue
+                g = np.zeros(3)
+                i, j, k = cc & 1, (cc >> 1) & 1, (cc >> 2) & 1
+                ends = ((2 * j + 4 * k, 1 + 2 * j + 4 * k), (i + 4 * k, i + 2 + 4 * k), (i + 2 * j, i + 2 * j + 4))
+                for b in range(3):
+                    sign = (1.0 if ends[b][1] == loc else 0.0) - (1.0 if ends[b][0] == loc else 0.0)
+                    if sign == 0.0:
+                        continue
+                    p, r = E[(b + 1) % 3], E[(b + 2) % 3]
+                    cross = np.array([p[1] * r[2] - p[2] * r[1], p[2] * r[0] - p[0] * r[2], p[0] * r[1] - p[1] * r[0]])
+                    g += sign * (cross / ln - sj * E[b] / max((E[b] ** 2).sum(), 1e-300))
+                m = 2  # insert in the ascending three
+                while m > 0 and sj < q[a, m - 1]:
+                    q[a, m] = q[a, m - 1]
+                    G[a, m] = G[a, m - 1]
+                    m -= 1
+                q[a, m] = sj
+                G[a, m] = g
+    return q, G, longest, shortest
+
+
+def _trial_minima(X, hexes, ptr, inc, group, T):
+    """``(c, trials)``: with node ``group[a]`` at ``T[a, t]``, the least scaled Jacobian of its
+    corners (-inf where one is NaN: a degenerate trial is no candidate)."""
+    c, nt = T.shape[0], T.shape[1]
+    out = np.full((c, nt), np.inf)
+    for a in nb.prange(c):
+        v = group[a]
+        for t in range(nt):
+            y = T[a, t]
+            best = np.inf
+            for s in range(ptr[v], ptr[v + 1]):
+                e, loc = inc[s] >> 3, inc[s] & 7
+                for cc in range(8):
+                    x = cc ^ loc
+                    if x & (x - 1):
+                        continue
+                    sj = _corner(X, hexes, e, cc, v, y)[1]
+                    if sj != sj:
+                        best = -np.inf
+                    elif sj < best:
+                        best = sj
+            out[a, t] = best
+    return out
+
+
+#: parallel versions for large colours, serial ones for small colours (as ``kernels``)
+_worst_corners_parallel = nb.njit(parallel=True, cache=True)(_variant(_worst_corners, "worst_corners_parallel"))
+_worst_corners_serial = nb.njit(cache=True)(_variant(_worst_corners, "worst_corners_serial"))
+_trial_minima_parallel = nb.njit(parallel=True, cache=True)(_variant(_trial_minima, "trial_minima_parallel"))
+_trial_minima_serial = nb.njit(cache=True)(_variant(_trial_minima, "trial_minima_serial"))
+
+
+def worst_corners(X, hexes, ptr, inc, group):
+    """:func:`_worst_corners`, in parallel for ``PARALLEL_FROM`` nodes or more."""
+    return (_worst_corners_parallel if len(group) >= PARALLEL_FROM else _worst_corners_serial)(X, hexes, ptr, inc, group)
+
+
+def trial_minima(X, hexes, ptr, inc, group, T):
+    """:func:`_trial_minima`, in parallel for ``PARALLEL_FROM`` nodes or more."""
+    return (_trial_minima_parallel if len(group) >= PARALLEL_FROM else _trial_minima_serial)(X, hexes, ptr, inc, group, T)
