@@ -160,13 +160,10 @@ def _node_corners_bruteforce(X, hexes, v):
     return np.sort(out)
 
 
-def test_worst_pass_kernels_match_the_definition():
-    """The compiled corner kernels of the max-min pass on a jittered 3x3x3 block of cubes:
-    each node's three worst corners and its longest/shortest edge, the gradients (against
-    central differences) and the trial minima (against the corners recomputed with the node
-    moved)."""
+def _jittered_block():
+    """A jittered 3x3x3 block of unit cubes: lattice points, nodes, hexahedra, incidence and
+    five nodes to test (a corner, edge, face and interior nodes)."""
     from vmesh.geometry.optimize import kernels as K
-    from vmesh.geometry.optimize.kernels_worst import trial_minima, worst_corners
 
     g = np.stack(np.meshgrid(*[np.arange(4.0)] * 3, indexing="ij"), -1).transpose(2, 1, 0, 3).reshape(-1, 3)
     X = g + np.random.default_rng(5).normal(size=g.shape) * 0.12
@@ -174,7 +171,17 @@ def test_worst_pass_kernels_match_the_definition():
     hexes = np.array([[ids[k + (c >> 2), j + ((c >> 1) & 1), i + (c & 1)] for c in range(8)]
                       for k in range(3) for j in range(3) for i in range(3)], np.int64)
     ptr, inc = K.incidence(hexes, len(X))
-    nodes = np.array([0, 5, 21, 42, 63], np.int64)  # a corner, edge, face and interior nodes
+    return g, X, hexes, ptr, inc, np.array([0, 5, 21, 42, 63], np.int64)
+
+
+def test_worst_pass_kernels_match_the_definition():
+    """The compiled corner kernels of the max-min pass on a jittered 3x3x3 block of cubes:
+    each node's three worst corners and its longest/shortest edge, the gradients (against
+    central differences) and the trial minima (against the corners recomputed with the node
+    moved)."""
+    from vmesh.geometry.optimize.kernels_worst import trial_minima, worst_corners
+
+    g, X, hexes, ptr, inc, nodes = _jittered_block()
     q, G, longest, shortest = worst_corners(X, hexes, ptr, inc, nodes)
     for a, v in enumerate(nodes):
         ref = _node_corners_bruteforce(X, hexes, v)
@@ -199,3 +206,20 @@ def test_worst_pass_kernels_match_the_definition():
             Y = X.copy()
             Y[v] = T[a, t]
             assert np.isclose(qt[a, t], _node_corners_bruteforce(Y, hexes, v)[0], atol=1e-12)
+
+
+@pytest.mark.slow
+def test_worst_pass_parallel_kernels_match_the_serial_ones():
+    """The parallel variants (for large colours) give the serial ones' answers bit for bit,
+    and a NaN trial is no candidate (-inf). Slow: it compiles the parallel variants where
+    ``vmesh compile`` has not."""
+    from vmesh.geometry.optimize import kernels_worst as W
+
+    _, X, hexes, ptr, inc, nodes = _jittered_block()
+    for a, b in zip(W._worst_corners_parallel(X, hexes, ptr, inc, nodes), W._worst_corners_serial(X, hexes, ptr, inc, nodes)):
+        np.testing.assert_array_equal(a, b)
+    T = X[nodes][:, None] + np.random.default_rng(6).normal(size=(len(nodes), 4, 3)) * 0.2
+    T[2, 1] = np.nan
+    qp = W._trial_minima_parallel(X, hexes, ptr, inc, nodes, T)
+    np.testing.assert_array_equal(qp, W._trial_minima_serial(X, hexes, ptr, inc, nodes, T))
+    assert qp[2, 1] == -np.inf and np.isfinite(np.delete(qp.ravel(), 2 * 4 + 1)).all()

@@ -4,6 +4,8 @@ A node's corners are the corners of its incident (linear, tensor-order) hexahedr
 three edges (along +i, +j, +k) it is an end of: the node's own corner and the three corners
 one edge away (corner ids differing in at most one bit). Scaled Jacobian of a corner:
 ``det[u, v, w] / (|u| |v| |w|)`` (the product floored at 1e-300), as ``quality.hex8_scaled_jacobian``.
+The kernels assume an element holds each node once (``lift_worst`` stops on a mesh with a
+degenerate or inverted element).
 """
 
 from __future__ import annotations
