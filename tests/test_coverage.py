@@ -156,26 +156,22 @@ def test_wall_left_over_an_opening_is_named_the_skeletons(cylinder_mesh):
 
 
 @pytest.mark.slow
-def test_generated_vessel_end_left_out_is_named_the_skeletons(tmp_path):
+def test_generated_vessel_end_past_a_kissing_junction_is_meshed(tmp_path):
     """Generated g0000 (seed 0, preset mixed), skeleton extracted: a vessel ends 0.8 radii
-    past the junction where a thinner, kissing vessel leaves it; the extracted skeleton turns
-    into the thin vessel and leaves the end out. The boundary-layer faces at the turn span the
-    end's mouth, the mesher leaves their middle nodes off the wall, and the check used to name
-    a folded boundary layer moved off the wall (``wall_off`` 1.0). Now: the skeleton's."""
+    past the junction where a thinner, kissing vessel leaves it, at a closed end no cap was
+    found on. Its short branch was pruned as a spur, the skeleton turned into the thin vessel
+    and the end was left out (0.84 % of the wall uncovered, named the skeleton's; the naming
+    is ``test_wall_left_over_an_opening_is_named_the_skeletons``). Since session 16 the
+    extraction keeps a short branch that ends at a flat end face of a tube of its own
+    (``ends.spurs_at_flat_ends``): the end is meshed and nothing is missing."""
     from data_synthetic.vessel_generator import generate_one
 
     m = generate_one(tmp_path, 0, 0, "mixed")
     ctx = _chain(**{"check_coverage.fail_on_missing": False}).run(surface=str(Path(m["folder"]) / m["files"]["surface"]))
     cov = ctx.report.sections["coverage"]
-    assert cov["missing_parts"] >= 1 and cov["wall_nodes_over_openings"] > 0
-    part = cov["missing"][0]
-    assert part["wall_off_rel"] < 0.3 and part["nodes_over_opening"] > 0
-    line = next(w for w in ctx.report.warnings if "leaves out part of the vessel" in w)
-    assert "spans its mouth" in line and "moved off the wall" not in line
-    # every wall node the mesher put on the wall is on it; over all wall nodes, those left off count
-    assert cov["wall_node_max_rel_placed"] < 1e-6
-    assert cov["wall_node_max_rel"] == cov["over_openings_max_rel"] > 0
-    assert part["over_opening_max_rel"] > 0
+    assert cov["missing_parts"] == 0
+    assert cov["uncovered_share"] <= 0.01
+    assert not [w for w in ctx.report.warnings if "leaves out part of the vessel" in w]
 
 
 def test_rounded_closed_end_is_allowed(cylinder_mesh):
