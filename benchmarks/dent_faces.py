@@ -22,7 +22,6 @@ docs/optimiser.md, "Dents under the flagged boundary-layer blocks" (h16/dents).
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -30,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fold_stages import prefix_context  # noqa: E402
+from fold_stages import prefix_arguments, prefix_context  # noqa: E402
 
 #: the builder's sampling of a wall face (``projected_wall_quality``'s ``samples``)
 SAMPLES = 4
@@ -101,13 +100,7 @@ def flagged_faces(ctx) -> dict:
 
 
 def main(argv=None) -> int:
-    # duplicates: fold_stages' command line, on purpose (the same inputs name the same prefix pickle)
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("surface")
-    ap.add_argument("--skeleton", help="a given centerline (default: extracted)")
-    ap.add_argument("--prefix", required=True, help="fold_stages' pickle of the chain's context before mesh_transfinite")
-    ap.add_argument("--json", help="write the rows here")
-    args = ap.parse_args(argv)
+    args = prefix_arguments(__doc__.splitlines()[0], "write the rows here").parse_args(argv)
     out = flagged_faces(prefix_context(args.surface, args.skeleton, Path(args.prefix)))
     rows = out["faces"]
     cols = ["block", "skeleton_node", "radius", "projected_quality", "layer", "chord_min", "inner_min", "landed_min", "dip", "on_cap"]

@@ -74,13 +74,19 @@ def prefix_context(surface, skeleton, path: Path):
     return ctx
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def prefix_arguments(description: str, json_help: str) -> argparse.ArgumentParser:
+    """The command line of the scripts that work on a chain's context before
+    ``mesh_transfinite``: a surface, an optional centerline, the prefix pickle, a JSON output."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("surface")
     ap.add_argument("--skeleton", help="a given centerline (default: extracted)")
     ap.add_argument("--prefix", required=True, help="pickle of the chain's context before mesh_transfinite (written once)")
-    ap.add_argument("--json", help="write the stages and the untangle section here")
-    args = ap.parse_args(argv)
+    ap.add_argument("--json", help=json_help)
+    return ap
+
+
+def main(argv=None) -> int:
+    args = prefix_arguments(__doc__.splitlines()[0], "write the stages and the untangle section here").parse_args(argv)
     import vmesh.filters.mesh_filters as mf
     from vmesh.chain import FilterChain
     from vmesh.registry import get_filter
