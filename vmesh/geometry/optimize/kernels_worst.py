@@ -34,6 +34,28 @@ def _corner(X, hexes, e, c, v, y):
     return E, det / ln, ln
 
 
+@nb.njit(cache=True, inline="always")
+def _corner_sj(X, hexes, e, c, v, y0, y1, y2):
+    """:func:`_corner`'s scaled Jacobian alone, on scalars (no array per call: the trial
+    minima evaluate it per trial and corner); the same operations in the same order."""
+    i, j, k = c & 1, (c >> 1) & 1, (c >> 2) & 1
+    t, h = hexes[e, 2 * j + 4 * k], hexes[e, 1 + 2 * j + 4 * k]
+    a0 = (y0 if h == v else X[h, 0]) - (y0 if t == v else X[t, 0])
+    a1 = (y1 if h == v else X[h, 1]) - (y1 if t == v else X[t, 1])
+    a2 = (y2 if h == v else X[h, 2]) - (y2 if t == v else X[t, 2])
+    t, h = hexes[e, i + 4 * k], hexes[e, i + 2 + 4 * k]
+    b0 = (y0 if h == v else X[h, 0]) - (y0 if t == v else X[t, 0])
+    b1 = (y1 if h == v else X[h, 1]) - (y1 if t == v else X[t, 1])
+    b2 = (y2 if h == v else X[h, 2]) - (y2 if t == v else X[t, 2])
+    t, h = hexes[e, i + 2 * j], hexes[e, i + 2 * j + 4]
+    c0 = (y0 if h == v else X[h, 0]) - (y0 if t == v else X[t, 0])
+    c1 = (y1 if h == v else X[h, 1]) - (y1 if t == v else X[t, 1])
+    c2 = (y2 if h == v else X[h, 2]) - (y2 if t == v else X[t, 2])
+    det = a0 * (b1 * c2 - b2 * c1) + a1 * (b2 * c0 - b0 * c2) + a2 * (b0 * c1 - b1 * c0)
+    ln = np.sqrt((((0.0 + a0 ** 2) + a1 ** 2) + a2 ** 2) * (((0.0 + b0 ** 2) + b1 ** 2) + b2 ** 2) * (((0.0 + c0 ** 2) + c1 ** 2) + c2 ** 2))
+    return det / max(ln, 1e-300)
+
+
 def _worst_corners(X, hexes, ptr, inc, group):
     """For each node of ``group``: the scaled Jacobians ``(c, 3)`` of its three worst corners
     (ascending; +inf where it has fewer), their gradients ``(c, 3, 3)`` with respect to the
@@ -88,7 +110,7 @@ def _trial_minima(X, hexes, ptr, inc, group, T):
     for a in nb.prange(c):
         v = group[a]
         for t in range(nt):
-            y = T[a, t]
+            y0, y1, y2 = T[a, t, 0], T[a, t, 1], T[a, t, 2]
             best = np.inf
             for s in range(ptr[v], ptr[v + 1]):
                 e, loc = inc[s] >> 3, inc[s] & 7
@@ -96,7 +118,7 @@ def _trial_minima(X, hexes, ptr, inc, group, T):
                     x = cc ^ loc
                     if x & (x - 1):
                         continue
-                    sj = _corner(X, hexes, e, cc, v, y)[1]
+                    sj = _corner_sj(X, hexes, e, cc, v, y0, y1, y2)
                     if sj != sj:
                         best = -np.inf
                     elif sj < best:
