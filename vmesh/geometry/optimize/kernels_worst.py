@@ -17,43 +17,37 @@ from .kernels import PARALLEL_FROM, _variant
 
 
 @nb.njit(cache=True, inline="always")
-def _corner(X, hexes, e, c, v, y):
-    """Edges ``(3, 3)``, scaled Jacobian and edge-length product of corner ``c`` of hexahedron
-    ``e``, with the node ``v`` placed at ``y``."""
-    E = np.empty((3, 3))
-    i, j, k = c & 1, (c >> 1) & 1, (c >> 2) & 1
-    ends = ((2 * j + 4 * k, 1 + 2 * j + 4 * k), (i + 4 * k, i + 2 + 4 * k), (i + 2 * j, i + 2 * j + 4))
-    for a in range(3):
-        t, h = hexes[e, ends[a][0]], hexes[e, ends[a][1]]
-        for d in range(3):
-            E[a, d] = (y[d] if h == v else X[h, d]) - (y[d] if t == v else X[t, d])
-    det = (E[0, 0] * (E[1, 1] * E[2, 2] - E[1, 2] * E[2, 1]) + E[0, 1] * (E[1, 2] * E[2, 0] - E[1, 0] * E[2, 2])
-           + E[0, 2] * (E[1, 0] * E[2, 1] - E[1, 1] * E[2, 0]))
-    ln = np.sqrt((E[0] ** 2).sum() * (E[1] ** 2).sum() * (E[2] ** 2).sum())
-    ln = max(ln, 1e-300)
-    return E, det / ln, ln
+def _edge_at(X, hexes, e, tail, head, v, y0, y1, y2):
+    """The edge from local node ``tail`` to ``head`` of hexahedron ``e``, with the node ``v``
+    placed at ``(y0, y1, y2)``."""
+    t, h = hexes[e, tail], hexes[e, head]
+    return ((y0 if h == v else X[h, 0]) - (y0 if t == v else X[t, 0]), (y1 if h == v else X[h, 1]) - (y1 if t == v else X[t, 1]),
+            (y2 if h == v else X[h, 2]) - (y2 if t == v else X[t, 2]))
 
 
 @nb.njit(cache=True, inline="always")
-def _corner_sj(X, hexes, e, c, v, y0, y1, y2):
-    """:func:`_corner`'s scaled Jacobian alone, on scalars (no array per call: the trial
-    minima evaluate it per trial and corner); the same operations in the same order."""
+def _corner_edges(X, hexes, e, c, v, y0, y1, y2):
+    """The edges of corner ``c`` of hexahedron ``e`` along +i, +j, +k (9 scalars, row by row),
+    its scaled Jacobian and its edge-length product (floored), with the node ``v`` at ``y``;
+    on scalars, so the trial minima make no array per trial and corner."""
     i, j, k = c & 1, (c >> 1) & 1, (c >> 2) & 1
-    t, h = hexes[e, 2 * j + 4 * k], hexes[e, 1 + 2 * j + 4 * k]
-    a0 = (y0 if h == v else X[h, 0]) - (y0 if t == v else X[t, 0])
-    a1 = (y1 if h == v else X[h, 1]) - (y1 if t == v else X[t, 1])
-    a2 = (y2 if h == v else X[h, 2]) - (y2 if t == v else X[t, 2])
-    t, h = hexes[e, i + 4 * k], hexes[e, i + 2 + 4 * k]
-    b0 = (y0 if h == v else X[h, 0]) - (y0 if t == v else X[t, 0])
-    b1 = (y1 if h == v else X[h, 1]) - (y1 if t == v else X[t, 1])
-    b2 = (y2 if h == v else X[h, 2]) - (y2 if t == v else X[t, 2])
-    t, h = hexes[e, i + 2 * j], hexes[e, i + 2 * j + 4]
-    c0 = (y0 if h == v else X[h, 0]) - (y0 if t == v else X[t, 0])
-    c1 = (y1 if h == v else X[h, 1]) - (y1 if t == v else X[t, 1])
-    c2 = (y2 if h == v else X[h, 2]) - (y2 if t == v else X[t, 2])
+    a0, a1, a2 = _edge_at(X, hexes, e, 2 * j + 4 * k, 1 + 2 * j + 4 * k, v, y0, y1, y2)
+    b0, b1, b2 = _edge_at(X, hexes, e, i + 4 * k, i + 2 + 4 * k, v, y0, y1, y2)
+    c0, c1, c2 = _edge_at(X, hexes, e, i + 2 * j, i + 2 * j + 4, v, y0, y1, y2)
     det = a0 * (b1 * c2 - b2 * c1) + a1 * (b2 * c0 - b0 * c2) + a2 * (b0 * c1 - b1 * c0)
     ln = np.sqrt((((0.0 + a0 ** 2) + a1 ** 2) + a2 ** 2) * (((0.0 + b0 ** 2) + b1 ** 2) + b2 ** 2) * (((0.0 + c0 ** 2) + c1 ** 2) + c2 ** 2))
-    return det / max(ln, 1e-300)
+    ln = max(ln, 1e-300)
+    return a0, a1, a2, b0, b1, b2, c0, c1, c2, det / ln, ln
+
+
+@nb.njit(cache=True, inline="always")
+def _corner(X, hexes, e, c, v, y):
+    """:func:`_corner_edges` with the edges as a ``(3, 3)`` array (for the gradients):
+    edges, scaled Jacobian and edge-length product."""
+    r = _corner_edges(X, hexes, e, c, v, y[0], y[1], y[2])
+    E = np.empty((3, 3))
+    E[0, 0], E[0, 1], E[0, 2], E[1, 0], E[1, 1], E[1, 2], E[2, 0], E[2, 1], E[2, 2] = r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8]
+    return E, r[9], r[10]
 
 
 def _worst_corners(X, hexes, ptr, inc, group):
@@ -118,7 +112,7 @@ def _trial_minima(X, hexes, ptr, inc, group, T):
                     x = cc ^ loc
                     if x & (x - 1):
                         continue
-                    sj = _corner_sj(X, hexes, e, cc, v, y0, y1, y2)
+                    sj = _corner_edges(X, hexes, e, cc, v, y0, y1, y2)[9]
                     if sj != sj:
                         best = -np.inf
                     elif sj < best:
