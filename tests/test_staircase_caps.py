@@ -140,3 +140,29 @@ def test_a_flat_region_that_needs_an_end_stays_where_the_vessel_runs_into_it_or_
     assert on_branch_wall(cap([2.5, 1.2, 0.0], [0.0, 1.0, 0.0]), far_apart, radii[::5], np.array([[0, 1], [1, 2]]))
     # an end on the region itself reaches it whatever its direction
     assert _match_caps(points[[-1]], radii[[-1]], [cap([10.0, 0.3, 0.0], [0.0, 1.0, 0.0])], tangent) == {0: 0}
+
+
+def test_a_wide_terrace_beside_an_extracted_end_does_not_pull_the_end_onto_it():
+    """s1 g0010 extracted (staircase, kissing): the only flat region kept as a cap was a
+    terrace of the side wall 0.50 from the traced end (its radius 0.504, the vessel's
+    0.54), its normal 88 degrees off the end's tangent. Taken for an end "on the region",
+    it pulled the end onto the side wall (a 78 degree kink in the last segment) and the
+    builder's blocks there stayed invalid. An end on its axis stands a radius from its
+    side wall, so such a terrace is wall; the end runs on to the flat end face."""
+    from vmesh.geometry.skeleton.branch_graph import BranchGraph
+    from vmesh.geometry.skeleton.ends import place_ends
+
+    def sdf(p):  # a flat-ended cylinder along x, radius 1, x in [-10, 10]
+        return np.minimum(1.0 - np.hypot(p[:, 1], p[:, 2]), np.minimum(p[:, 0] + 10.0, 10.0 - p[:, 0]))
+
+    terrace = Cap(id=1, name="inlet", center=np.array([9.1, 0.95, 0.0]), normal=np.array([0.0, 1.0, 0.0]), radius=1.0, needs_end=True)
+    graph = BranchGraph()
+    a, b = graph.add_node([-9.0, 0.0, 0.0], 1.0), graph.add_node([9.0, 0.0, 0.0], 1.0)
+    xs = np.arange(-8.75, 9.0, 0.25)
+    graph.add_branch(a, b, np.c_[xs, 0 * xs, 0 * xs], np.ones(len(xs)))
+    # the traced end lies within the terrace's radius of its centre: it reached the terrace before
+    assert np.linalg.norm(graph.pos(b) - terrace.center) < terrace.radius
+    counts = place_ends(graph, sdf, 0.25, caps=[terrace])
+    assert counts["cap"] == 0 and counts.get("not_ends") == [0]
+    end = graph.pos(b)
+    assert abs(end[1]) < 1e-6 and abs(end[2]) < 1e-6 and end[0] > 9.0  # on the axis, towards the end face

@@ -75,8 +75,14 @@ def _to_cap(start: np.ndarray, cap, spacing: float, sdf: SdfFunction | None = No
 #: A cap that needs an end (a flat region whose wall behind is no tube, ``Cap.needs_end``)
 #: is matched only to an end that runs into it (the end's tangent within this many degrees
 #: of its normal: the axis passes a facet of the side wall, a staircase's terrace, square)
-#: or that lies on the region itself (within its radius of its centre, whatever its angle).
+#: or that lies on the region itself (see ``ON_REGION``; whatever its angle).
 FACET_END_ANGLE = 45.0
+
+#: An end lies on such a region (and reaches it whatever its angle) when it is within the
+#: region's radius of its centre and within this fraction of its own radius: an end on
+#: its vessel's axis stands a radius from every facet of its side wall (less the depth of
+#: a step), so a terrace beside it is never "under" it, however wide the terrace.
+ON_REGION = 0.5
 
 
 #: A flat region that needs an end and that no end reaches is a facet of the wall of a
@@ -151,7 +157,8 @@ def _match_caps(ends: np.ndarray, end_radii: np.ndarray, caps, tangents: np.ndar
     An end matches a cap when it lies inside the vessel behind the cap (depth up
     to a few cap radii along the inward normal) and within a cap radius of its axis.
     Caps that need an end (``needs_end``) choose after the others, and with ``tangents``
-    (the ends' outward unit directions) only ends that run into them (``FACET_END_ANGLE``).
+    (the ends' outward unit directions) only ends that run into them (``FACET_END_ANGLE``)
+    or lie on them (``ON_REGION``).
     """
     pairs = []
     for c, cap in enumerate(caps):
@@ -165,7 +172,8 @@ def _match_caps(ends: np.ndarray, end_radii: np.ndarray, caps, tangents: np.ndar
         # normal and radius (extract_skeleton's API), so needs_end may be absent
         doubt = bool(getattr(cap, "needs_end", False))
         if doubt and tangents is not None:  # an end on the region itself reaches it whatever its direction
-            ok &= (tangents @ normal >= np.cos(np.radians(FACET_END_ANGLE))) | (np.linalg.norm(rel, axis=1) <= radius)
+            on_region = np.linalg.norm(rel, axis=1) <= np.minimum(radius, ON_REGION * end_radii)
+            ok &= (tangents @ normal >= np.cos(np.radians(FACET_END_ANGLE))) | on_region
         for e in np.flatnonzero(ok):
             pairs.append((doubt, float(np.linalg.norm(rel[e])), int(e), c))
     pairs.sort()
