@@ -19,7 +19,8 @@ one module a stage:
    drop specks, prune spurs that are short relative to the radius of the vessel they
    sprout from, merge junctions closer than about a radius (a 5-furcation becomes
    one degree-5 node), collapse tiny cycles made by voxel noise (true cycles are
-   long compared to the radius).
+   long compared to the radius); split side sacs the parent's path runs through off
+   it as branches of their own (:mod:`.sacs`).
 5. **Place the ends** (:mod:`.ends`): an end is moved to the centre of the cap it
    belongs to when caps are known, otherwise the branch is extended along its end
    tangent to the surface: to the last full cross-section behind a flat end face
@@ -46,6 +47,7 @@ from .branch_graph import BranchGraph
 from .ends import place_ends, spurs_at_flat_ends
 from .probe import SdfFunction, evaluate_sdf
 from .resample import resample_branches
+from .sacs import split_side_sacs
 from .thin import voxel_skeleton
 from .trace import build_branch_graph, trace_branches, voxel_adjacency
 from .voxelize import choose_spacing, estimate_min_radius, grid_for_bounds, inside_mask
@@ -159,7 +161,9 @@ def clean_branch_graph(
     removing one defect can expose another (a spur left after a merge), hence the
     rounds. Returns how many of each were removed. With ``sdf`` (and the voxel
     ``spacing``), a short terminal branch that ends at a flat end face (on none of
-    ``caps``) is a vessel's end, not a spur, and stays (:func:`~.ends.spurs_at_flat_ends`).
+    ``caps``) is a vessel's end, not a spur, and stays (:func:`~.ends.spurs_at_flat_ends`),
+    and a side sac the cleaned path runs through is split off it as a branch
+    (:func:`~.sacs.split_side_sacs`; counted as ``side_sacs``).
     """
     keep = None
     if sdf is not None:
@@ -187,6 +191,8 @@ def clean_branch_graph(
             removed[key] += value
         if not any(step.values()):
             break
+    if sdf is not None:
+        removed["side_sacs"] = split_side_sacs(graph, sdf, spacing)
     return removed
 
 
