@@ -237,6 +237,26 @@ def test_a_merged_pair_takes_a_sibling_fused_with_the_link_from_where_it_parts()
 
 
 @pytest.mark.slow
+def test_a_merge_that_leaves_out_the_fused_branchs_wall_is_judged_so():
+    """The backwards branch at 2.6 radii: merged with the branch re-rooted where it parts
+    from the link, the blocks are valid, but its first segment runs from the pair's middle,
+    not from its own junction, so the outer side of its fused stretch is left out (0.45
+    radii, as real sv_rpa given's 0.57 in the mesh): the builder does not take that merge
+    (``wall_left_out`` over ``MERGE_COVER_DEPTH``); at 2.2 radii the same merge covers it."""
+    from vmesh.geometry.block_builder import merge_junction_pair
+    from vmesh.geometry.blocks.checks import wall_left_out
+    from vmesh.geometry.blocks.prep import MERGE_COVER_DEPTH, pair_wall
+
+    case = retrograde_branch(2.6)
+    sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
+    a, b = (int(c) for c in sk.junctions)
+    own, _ = merge_junction_pair(sk, a, b, own_lumen=True)
+    blocks = build_blocks(own, case.distance, None, BlockOptions(), project=case.project)
+    assert blocks.corner_jacobians().min() > 0
+    assert wall_left_out(blocks, case.project, *pair_wall(sk, a, b, case.project)).max() > MERGE_COVER_DEPTH
+
+
+@pytest.mark.slow
 def test_the_last_try_ends_a_junctions_clearance_at_its_own_stretch():
     """g0016 extracted's junction 0: a daughter that bends right after the junction and
     bulges past the bend. The bulge's long rays kept the junction's clearance scan unclean
