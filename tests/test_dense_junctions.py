@@ -50,9 +50,11 @@ def test_generated_vessel_has_a_dense_junction(gap, azimuth, elevation):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("gap,azimuth,elevation", DENSE)
-@pytest.mark.xfail(strict=True, raises=MeshingError, reason="dense junction: blocks stay invalid (issue 17)")
+@pytest.mark.parametrize("gap,azimuth,elevation", [pytest.param(*DENSE[0], marks=pytest.mark.xfail(strict=True, raises=MeshingError, reason="dense junction: blocks stay invalid (issue 17)")),
+                                                   DENSE[1]])
 def test_dense_junction_blocks_valid(gap, azimuth, elevation):
+    """Since h16/pair the 0.6 gap builds: merged, the side branch leaves the 4-junction
+    where it parts from the link (``merge_junction_pair``), not along it; 1.0 still fails."""
     case = close_junctions(gap, side=(azimuth, elevation))
     blocks = build_blocks(_skeleton(case), case.distance, None, BlockOptions(), project=case.project)
     assert blocks.corner_jacobians().min() > 0

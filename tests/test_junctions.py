@@ -179,8 +179,7 @@ def test_a_branch_leaving_its_parent_backwards_builds_valid_blocks():
     assert blocks.corner_jacobians().min() > 0
 
 
-@pytest.mark.parametrize("gap", [pytest.param(2.2, marks=[pytest.mark.slow, pytest.mark.xfail(strict=True, raises=MeshingError, reason="issue 17: no room on the short branch")]),
-                                 pytest.param(3.0, marks=pytest.mark.slow), pytest.param(4.0, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("gap", [pytest.param(2.2, marks=pytest.mark.slow), pytest.param(3.0, marks=pytest.mark.slow), pytest.param(4.0, marks=pytest.mark.slow)])
 def test_a_backwards_branch_next_to_another_junction(gap):
     """g0016 given's node 50: a branch leaving 45 degrees from upstream, ``gap`` parent
     radii after the junction before it. At the second junction the separator between the
@@ -188,14 +187,73 @@ def test_a_backwards_branch_next_to_another_junction(gap):
     branch, so its half-planes run about r / tan(22.5) = 2.4 r along it; with the first
     junction's half-sections at its other end, 2.2 radii leave no room for the sections
     between them (blocks at -0.1 to -1.2), 4 radii do. Strict xfail until issue 17 gives
-    such branches a scheme (a merged 4-junction fails too). At 3 radii the sections between
+    such branches a scheme. At 2.2 radii the backwards branch runs fused with the link past
+    the link's middle: the pair merged with that branch leaving the 4-junction from where it
+    parts (``merge_junction_pair(own_lumen=True)``, then split) builds, and its blocks still
+    cover the pair's wall (h16/pair, h17/pair). At 3 radii the sections between
     stay at their nodes, inside the half-sections, through every fix and changed skeleton
     (15 blocks invalid, -0.56); the builder's last try spreads them between the two
     junctions' reaches (valid blocks; the raw fill still folds there, left to the untangler)."""
+    from vmesh.geometry.blocks.checks import wall_left_out
+    from vmesh.geometry.blocks.prep import MERGE_COVER_DEPTH, pair_wall
+
     case = retrograde_branch(gap)
     blocks = build(case)
     assert blocks.corner_jacobians().min() > 0
     assert len(blocks.info["junctions"]) == 2
+    if gap == 2.2:
+        assert any("leaving from where it parts" in note for note in blocks.info["fixes"])
+        sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
+        a, b = (int(c) for c in sk.junctions)
+        assert wall_left_out(blocks, case.project, *pair_wall(sk, a, b, case.project)).max() <= MERGE_COVER_DEPTH
+
+
+def test_a_merged_pair_takes_a_sibling_fused_with_the_link_from_where_it_parts():
+    """``merge_junction_pair`` on the backwards branch's pair (2.2 radii): the backwards
+    branch runs in one lumen with the link past the link's middle, so merged, it leaves
+    the 4-junction from its first node whose tube has parted from the link's (its
+    nodes before that go into the junction); the other branches keep their first nodes.
+    At 4 radii it parts before the link's middle and the merge is as before."""
+    from vmesh.geometry.block_builder import merge_junction_pair
+
+    for gap, dropped in ((2.2, True), (4.0, False)):
+        sk, _ = ops.separate_parallel_branches(retrograde_branch(gap).skeleton, 30.0, 60.0)
+        a, b = (int(c) for c in sk.junctions)
+        link = [n for n in range(sk.n_nodes) if sk.degrees[n] == 2 and all(m in (a, b) or sk.degrees[m] == 2 for m in sk.neighbors(n))
+                and np.linalg.norm(sk.points[n] - sk.points[a]) + np.linalg.norm(sk.points[n] - sk.points[b]) < 1.01 * np.linalg.norm(sk.points[b] - sk.points[a])]
+        out, node = merge_junction_pair(sk, a, b, own_lumen=True)
+        assert out.degrees[node] == 4
+        removed = sk.n_nodes - out.n_nodes - (len(link) + 1)
+        first = out.points[out.neighbors(node)]
+        P0, P1 = sk.points[a], sk.points[b]
+        t = np.clip((first - P0) @ (P1 - P0) / np.sum((P1 - P0) ** 2), 0, 1)
+        off = np.linalg.norm(first - (P0 + t[:, None] * (P1 - P0)), axis=1)
+        if dropped:
+            assert removed > 0
+            back = int(np.argmax(off))  # the backwards branch's new first node: clear of the link's tube
+            assert off[back] >= 0.8 + 0.8 * 0.75 * 0.999
+        else:
+            assert removed == 0
+
+
+@pytest.mark.slow
+def test_a_merge_that_leaves_out_the_fused_branchs_wall_is_judged_so():
+    """The backwards branch at 2.6 radii: merged with the branch re-rooted where it parts
+    from the link, the blocks are valid, but its first segment runs from the pair's middle,
+    not from its own junction, so the outer side of its fused stretch is left out (0.45
+    radii, as real sv_rpa given's 0.57 in the mesh): the builder does not take that merge
+    (``wall_left_out`` over ``MERGE_COVER_DEPTH``); at 2.2 radii the same merge covers it."""
+    from vmesh.geometry.block_builder import merge_junction_pair
+    from vmesh.geometry.blocks.checks import wall_left_out
+    from vmesh.geometry.blocks.prep import MERGE_COVER_DEPTH, pair_wall
+
+    case = retrograde_branch(2.6)
+    sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
+    a, b = (int(c) for c in sk.junctions)
+    own, _ = merge_junction_pair(sk, a, b, own_lumen=True)
+    blocks = build_blocks(own, case.distance, None, BlockOptions(), project=case.project)
+    assert blocks.corner_jacobians().min() > 0
+    assert wall_left_out(blocks, case.project, *pair_wall(sk, a, b, case.project)).max() > MERGE_COVER_DEPTH
 
 
 @pytest.mark.slow

@@ -124,8 +124,8 @@ def test_retopology_does_not_merge_back_what_a_split_made():
     four = _Failure("x", None, [], sk, [0], [], "")
     options = _retopology_options(four, [], None, BlockOptions())
     assert len(options) == 6  # every pairing of four branches
-    split, _, made, cut = options[0]
-    assert cut == []  # no stubs: nothing cut
+    split, _, made, cut, wall = options[0]
+    assert cut == [] and wall is None  # no stubs: nothing cut; no fused branch merged: no wall to judge
     assert len(split.junctions) == 2 and len(made) == 1
     (a, b), = made
     crowded = _Failure("x", None, [], split, [], [(a, b)], "")

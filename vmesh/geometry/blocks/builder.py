@@ -44,10 +44,10 @@ from ...errors import MeshingError
 from ...skeleton import Skeleton
 from .. import cross_sections as cs
 from .assemble import _Assembly
-from .checks import _Failure
+from .checks import _Failure, wall_left_out
 from .junctions import _Junctions
 from .options import BlockOptions, _LocalFixes
-from .prep import merge_junction_pair, split_nonplanar_junctions
+from .prep import MERGE_COVER_DEPTH, merge_junction_pair, pair_wall, split_nonplanar_junctions
 from .repair import _Repair
 from .sections import _Sections
 from .stubs import _Stubs, cut_stubs, label_ostia, stub_note
@@ -111,12 +111,12 @@ def build_blocks(
     # junctions whose branches part early); only then is the skeleton changed (:func:`_fallback`).
     at_node = options.replace(junction_centre=0.0)
     flat = {id(options): options.replace(junction_lean=0.0), id(at_node): at_node.replace(junction_lean=0.0)}  # :func:`_fallback`
-    queue = [(skeleton, [], options, frozenset(), [])]  # + the junction pairs a split made, the stubs cut
+    queue = [(skeleton, [], options, frozenset(), [], None)]  # + the junction pairs a split made, the stubs cut, the wall to cover
     first = None
     tries = 0
     seen = set()  # merging two junctions and splitting the result again can give a skeleton back
     while queue and (tries < options.repair.max_retopology_tries or queue[0][2] is not options) and not work.spent:
-        sk, notes, opts, made, cut = queue.pop(0)
+        sk, notes, opts, made, cut, wall = queue.pop(0)
         key = (_skeleton_key(sk), opts.junction.junction_centre, opts.junction.junction_lean)
         if key in seen:
             continue
@@ -126,18 +126,22 @@ def build_blocks(
             blocks = _choose_lean(lambda planar: _Builder(sk, distance, caps, opts, warn, progress, project, intersect_lines, work, planar), work)
         except _Failure as failure:
             if (nxt := _fallback(opts, options, at_node, flat, failure.leaned, work)) is not None:
-                queue.insert(0, (sk, notes, nxt, made, cut))
+                queue.insert(0, (sk, notes, nxt, made, cut, wall))
                 continue
             first = first or failure
-            queue[:0] = [(s, n, options, m, cut + c) for s, n, m, c in _retopology_options(failure, notes, distance, options, made)]
+            queue[:0] = [(s, n, options, m, cut + c, w or wall) for s, n, m, c, w in _retopology_options(failure, notes, distance, options, made, project)]
             continue
         except MeshingError:
             if (nxt := _fallback(opts, options, at_node, flat, False, work)) is not None:
-                queue.insert(0, (sk, notes, nxt, made, cut))
+                queue.insert(0, (sk, notes, nxt, made, cut, wall))
                 continue
             if first is None:
                 raise  # the skeleton as given is beyond the scheme: say why
             continue  # a changed skeleton that does not work either
+        if wall is not None and (depth := float(wall_left_out(blocks, project, *wall).max())) > MERGE_COVER_DEPTH:
+            # valid blocks that leave out the wall a merge took into its junction: the next try
+            first.hint += f"; a merge that left out {depth:.2f} radii of the wall was not taken"
+            continue
         notes = notes + _fallback_notes(opts, options)
         for note in notes:
             if warn:
@@ -323,30 +327,43 @@ def _skeleton_key(sk: Skeleton) -> bytes:
     return np.unique(seg, axis=0).tobytes()
 
 
-def _retopology_options(failure: "_Failure", notes: list, distance, options: BlockOptions, made=frozenset()) -> list:
+def _retopology_options(failure: "_Failure", notes: list, distance, options: BlockOptions, made=frozenset(), project=None) -> list:
     """Skeletons to try after ``failure``, most promising first: without the side-branch
     stubs too short for a block (:mod:`.stubs`), with two junctions merged (when the branch
     between them has no room for their half-sections), or with the failing n-furcations
     split into 3-junctions, one pairing of branches after another. Each comes with the
     junction pairs its splits made (``made``): those are not merged again, which would only
-    give back the n-furcation just split; and with the stubs it cut."""
+    give back the n-furcation just split; with the stubs it cut; and with the wall its
+    blocks must still cover (:func:`.prep.pair_wall`, for a merge that took a fused branch's
+    first nodes into the junction, offered only with ``project``; else None)."""
     out = []
     sk = failure.skeleton
     if failure.stubs:
         # the node numbers change: the pairs a split made are forgotten (a merge may come back)
-        out.append((cut_stubs(sk, failure.stubs), notes + [stub_note(s) for s in failure.stubs], frozenset(), failure.stubs))
+        out.append((cut_stubs(sk, failure.stubs), notes + [stub_note(s) for s in failure.stubs], frozenset(), failure.stubs, None))
     if options.repair.split_nonplanar:
         for a, b in failure.crowded:
             if (a, b) in made:
                 continue
             merged, node = merge_junction_pair(sk, a, b)
-            out.append((merged, notes + [f"merged junction nodes {a} and {b} (their half cross-sections left the branch between them no room) into node {node}"], frozenset(), []))
+            note = f"merged junction nodes {a} and {b} (their half cross-sections left the branch between them no room) into node {node}"
+            own, _ = merge_junction_pair(sk, a, b, own_lumen=True) if not notes and project is not None else (merged, node)
+            if own.n_nodes < merged.n_nodes:
+                # a sibling fused with the link past its middle leaves the merged junction from
+                # where it parts from the link, tried first; only on the skeleton as given:
+                # its failed subtree can spend the budget that a merge of a changed skeleton
+                # needs (s0 g0002 extracted); taken only where its blocks still cover the
+                # pair's wall: its first segment can cut the corner of the fused stretch
+                # (real sv_rpa given, docs/junctions.md h16/pair, h17/pair)
+                out.append((own, notes + [note + ", a branch fused with the branch between them leaving from where it parts from it"], frozenset(), [],
+                            pair_wall(sk, a, b, project)))
+            out.append((merged, notes + [note], frozenset(), [], None))
         if failure.nfurcations:
             degree = int(max(sk.degrees[c] for c in failure.nfurcations))
             for rank in range(degree * (degree - 1) // 2):
                 split = split_nonplanar_junctions(sk, failure.nfurcations, distance=distance, rank=rank)
                 new = frozenset(tuple(sorted(e)) for e in split.edges[sk.n_edges:].tolist())
-                out.append((split, notes + [f"split junction node(s) {failure.nfurcations} into 3-junctions (pairing {rank + 1}) after their blocks stayed invalid"], made | new, []))
+                out.append((split, notes + [f"split junction node(s) {failure.nfurcations} into 3-junctions (pairing {rank + 1}) after their blocks stayed invalid"], made | new, [], None))
     return out
 
 

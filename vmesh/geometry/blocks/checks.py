@@ -60,6 +60,39 @@ def projected_wall_quality(blocks: BlockStructure, project, samples: int = 4, la
     return out
 
 
+def wall_left_out(blocks: BlockStructure, project, points: np.ndarray, radii: np.ndarray, samples: int = 8) -> np.ndarray:
+    """How far wall ``points`` stand from the blocks' wall, × ``radii``: the mesh's wall as
+    the wall faces sampled bilinearly on a ``samples × samples`` grid and projected onto the
+    wall with ``project`` (as the mesher puts its wall nodes), so that only wall the blocks
+    cut across (a corner of the vessel between two of their faces) counts, not the faces'
+    sag. Only the faces within their own size and the largest radius of the points'
+    bounding box are sampled."""
+    from ..bvh import TriangleBVH
+
+    b, f = np.nonzero(blocks.face_boundary == FACE_WALL)
+    quads = blocks.vertices[blocks.hexes[b[:, None], HEX_FACES[f]]]  # (m, 4, 3)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    reach = np.linalg.norm(quads - quads.mean(axis=1, keepdims=True), axis=2).max(axis=1) + radii.max()
+    near = np.all((quads.min(axis=1) <= hi + reach[:, None]) & (quads.max(axis=1) >= lo - reach[:, None]), axis=1)
+    quads = quads[near]
+    if len(quads) == 0:
+        return np.full(len(points), np.inf)
+    grid = np.asarray(project(np.einsum("abc,mcd->mabd", _bilinear_weights(samples), quads).reshape(-1, 3)))
+    k = np.arange((samples + 1) ** 2).reshape(samples + 1, samples + 1)
+    corner = [k[:-1, :-1].ravel(), k[1:, :-1].ravel(), k[1:, 1:].ravel(), k[:-1, 1:].ravel()]
+    tri = np.r_[np.c_[corner[0], corner[1], corner[2]], np.c_[corner[0], corner[2], corner[3]]]
+    tri = (tri[None] + (np.arange(len(quads)) * (samples + 1) ** 2)[:, None, None]).reshape(-1, 3)
+    sq = TriangleBVH(grid, tri).closest(points)[0]
+    return np.sqrt(sq) / radii
+
+
+def _bilinear_weights(samples: int) -> np.ndarray:
+    """(n+1, n+1, 4) weights of a quad's four corners on a ``samples × samples`` grid."""
+    s = np.linspace(0.0, 1.0, samples + 1)
+    U, V = np.meshgrid(s, s, indexing="ij")
+    return np.stack([(1 - U) * (1 - V), U * (1 - V), U * V, (1 - U) * V], axis=-1)
+
+
 #: per wall face (0..3) of a block, the opposite face's corners matched to its own
 _OPPOSITE = np.array([[1, 5, 6, 2], [0, 3, 7, 4], [3, 2, 6, 7], [0, 4, 5, 1]])
 
@@ -71,9 +104,7 @@ def _face_quality(wall: np.ndarray, inner: np.ndarray, project, samples: int) ->
 
     if len(wall) == 0:
         return np.zeros(0)
-    s = np.linspace(0.0, 1.0, samples + 1)
-    U, V = np.meshgrid(s, s, indexing="ij")
-    w = np.stack([(1 - U) * (1 - V), U * (1 - V), U * V, (1 - U) * V], axis=-1)  # (n+1, n+1, 4)
+    w = _bilinear_weights(samples)
     outer_grid = np.einsum("abc,mcd->mabd", w, wall)
     inner_grid = np.einsum("abc,mcd->mabd", w, inner)
     shape = outer_grid.shape

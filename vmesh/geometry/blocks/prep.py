@@ -88,11 +88,14 @@ def split_nonplanar_junctions(skeleton: Skeleton, nodes, length: float = 1.2, di
     return Skeleton(np.asarray(pts), np.asarray(rad), np.asarray(edges), ntags, etags, name=sk.name)
 
 
-def merge_junction_pair(skeleton: Skeleton, a: int, b: int) -> tuple[Skeleton, int]:
+def merge_junction_pair(skeleton: Skeleton, a: int, b: int, own_lumen: bool = False) -> tuple[Skeleton, int]:
     """Merge junctions ``a`` and ``b`` and the branch between them into one junction.
 
     The merged junction sits at the mean of the two with the larger radius; the other
-    nodes keep their order.
+    nodes keep their order. With ``own_lumen``, a branch of either junction that runs
+    fused with the link past the link's middle (:func:`_fused_along_link`) leaves the
+    merged junction from where it parts from the link: its nodes inside that stretch go
+    into the junction (else it would still leave the junction along the link, inside it).
 
     Returns
     -------
@@ -103,15 +106,102 @@ def merge_junction_pair(skeleton: Skeleton, a: int, b: int) -> tuple[Skeleton, i
     from ..skeleton.graph import branch_paths, contract_nodes
 
     sk = skeleton
-    path = next(p for p in branch_paths(sk.n_nodes, sk.edges) if {int(p[0]), int(p[-1])} == {a, b})
+    paths = branch_paths(sk.n_nodes, sk.edges)
+    path = next(p for p in paths if {int(p[0]), int(p[-1])} == {a, b})
     keep = min(a, b)
     group = np.arange(sk.n_nodes)
     group[np.asarray(path)] = keep
+    if own_lumen:
+        group[_fused_along_link(sk, paths, path)] = keep
     labels = np.unique(group)
     positions = sk.points[labels].copy()
     positions[np.searchsorted(labels, keep)] = 0.5 * (sk.points[a] + sk.points[b])
     merged = contract_nodes(sk, group, positions)
     return merged, int(np.searchsorted(labels, keep))
+
+
+def _fused_along_link(sk: Skeleton, paths: list, link: np.ndarray) -> np.ndarray:
+    """Nodes of the link's sibling branches that lie in one lumen with the link past its middle.
+
+    Two 3-junctions closer than their half-sections reach fail where, at one of them, a
+    sibling of the link leaves at a narrow angle (or backwards along it): the two tubes
+    overlap (axes closer than the sum of the radii) beyond the link's middle, so the
+    half-section between them reaches past the other junction (docs/junctions.md, h16/pair).
+    Merged, such a sibling would still leave the junction along the link, inside it. Per
+    sibling: the run of its first nodes (from the junction; never its last node) whose
+    tubes overlap the link's, when that run reaches past the link's middle; else none.
+    """
+    P = sk.points[link]
+    seg = P[1:] - P[:-1]
+    seg_len = np.maximum(np.linalg.norm(seg, axis=1), 1e-300)
+    arc = np.r_[0.0, np.cumsum(seg_len)]
+    ends = {int(link[0]): 0.0, int(link[-1]): arc[-1]}
+    out = []
+    for p in paths:
+        if p is link or len(p) < 3:
+            continue
+        for end, from_end in ends.items():
+            if int(p[0]) != end and int(p[-1]) != end:
+                continue
+            nodes = (p if int(p[0]) == end else p[::-1])[1:-1]
+            if len(nodes) == 0:
+                continue
+            X = sk.points[nodes]
+            t = np.clip(np.einsum("nmk,mk->nm", X[:, None, :] - P[None, :-1], seg) / seg_len**2, 0.0, 1.0)  # (n, segments)
+            d = np.linalg.norm(X[:, None, :] - (P[None, :-1] + t[..., None] * seg[None]), axis=2)
+            k = np.argmin(d, axis=1)
+            rows = np.arange(len(nodes))
+            r_link = sk.radii[link[k]] + t[rows, k] * (sk.radii[link[k + 1]] - sk.radii[link[k]])
+            fused = d[rows, k] < sk.radii[nodes] + r_link
+            run = len(nodes) if fused.all() else int(np.argmin(fused))
+            along = np.abs(arc[k[:run]] + t[rows[:run], k[:run]] * seg_len[k[:run]] - from_end)
+            if run and along.max() > 0.5 * arc[-1]:
+                out.extend(nodes[:run].tolist())
+    return np.asarray(out, np.int64)
+
+
+#: how far (× local radius) the wall may stand from the blocks around a merged pair: the
+#: depth from which ``check_coverage`` calls an uncovered patch a missing part (its default)
+MERGE_COVER_DEPTH = 0.3
+
+
+def pair_wall(skeleton: Skeleton, a: int, b: int, project, around: int = 16) -> tuple[np.ndarray, np.ndarray]:
+    """Wall points around junctions ``a`` and ``b`` and the branches they start, and the
+    local radius at each: the wall that merging the pair must still cover.
+
+    Each branch at ``a`` or ``b`` (the link between them included) is sampled up to the
+    second node past its run fused with the link (:func:`_fused_along_link`; the first
+    node where there is none): a ring of ``around`` points one radius from the axis, at each
+    node and half way to the next, projected onto the wall with ``project``.
+    """
+    from ..skeleton.graph import branch_paths
+
+    sk = skeleton
+    paths = branch_paths(sk.n_nodes, sk.edges)
+    link = next(p for p in paths if {int(p[0]), int(p[-1])} == {a, b})
+    fused = set(_fused_along_link(sk, paths, link).tolist())
+    starts, ends = [], []
+    for p in paths:
+        for end in {a, b} & {int(p[0]), int(p[-1])}:
+            q = p if int(p[0]) == end else p[::-1]
+            j = 1 + sum(int(n) in fused for n in q[1:]) if p is not link else len(q) - 1
+            stop = min(j + 1, len(q) - 1)
+            starts.extend(q[:stop].tolist())
+            ends.extend(q[1:stop + 1].tolist())
+    seg0, seg1 = np.asarray(starts), np.asarray(ends)
+    tangent = sk.points[seg1] - sk.points[seg0]
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
+    helper = np.where(np.abs(tangent[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    e1 = np.cross(tangent, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(tangent, e1)
+    angle = np.linspace(0.0, 2.0 * np.pi, around, endpoint=False)
+    ring = np.cos(angle)[None, :, None] * e1[:, None] + np.sin(angle)[None, :, None] * e2[:, None]  # (segments, around, 3)
+    w = np.array([0.0, 0.5])[:, None]  # at the node and half way along the segment
+    centre = sk.points[seg0][None] + w[..., None] * (sk.points[seg1] - sk.points[seg0])[None]  # (2, segments, 3)
+    radius = sk.radii[seg0][None] + w * (sk.radii[seg1] - sk.radii[seg0])[None]  # (2, segments)
+    points = centre[:, :, None] + radius[..., None, None] * ring[None]
+    return np.asarray(project(points.reshape(-1, 3))), np.repeat(radius.ravel(), around)
 
 
 def endpoint_caps(points: np.ndarray, radii: np.ndarray, endpoints: np.ndarray, caps, cap_distance: float = 1.0) -> dict:
