@@ -140,7 +140,8 @@ def build_blocks(
             continue  # a changed skeleton that does not work either
         if wall is not None and (depth := float(wall_left_out(blocks, project, *wall).max())) > MERGE_COVER_DEPTH:
             # valid blocks that leave out the wall a merge took into its junction: the next try
-            first.hint += f"; a merge that left out {depth:.2f} radii of the wall was not taken"
+            if "was not taken" not in first.hint:  # said once, however many of its descendants are refused
+                first.hint += f"; a merge that left out {depth:.2f} radii of the wall was not taken"
             continue
         notes = notes + _fallback_notes(opts, options)
         for note in notes:

@@ -7,6 +7,7 @@ import numpy as np
 
 from ...skeleton import Skeleton
 from .. import cross_sections as cs
+from ..variation import closest_on_segments
 
 
 # ---------------------------------------------------------------------------
@@ -133,7 +134,7 @@ def _fused_along_link(sk: Skeleton, paths: list, link: np.ndarray) -> np.ndarray
     """
     P = sk.points[link]
     seg = P[1:] - P[:-1]
-    seg_len = np.maximum(np.linalg.norm(seg, axis=1), 1e-300)
+    seg_len = np.linalg.norm(seg, axis=1)
     arc = np.r_[0.0, np.cumsum(seg_len)]
     ends = {int(link[0]): 0.0, int(link[-1]): arc[-1]}
     out = []
@@ -147,8 +148,9 @@ def _fused_along_link(sk: Skeleton, paths: list, link: np.ndarray) -> np.ndarray
             if len(nodes) == 0:
                 continue
             X = sk.points[nodes]
-            t = np.clip(np.einsum("nmk,mk->nm", X[:, None, :] - P[None, :-1], seg) / seg_len**2, 0.0, 1.0)  # (n, segments)
-            d = np.linalg.norm(X[:, None, :] - (P[None, :-1] + t[..., None] * seg[None]), axis=2)
+            shape = (len(nodes), len(seg))
+            _, t, d = closest_on_segments(X, np.broadcast_to(P[:-1], shape + (3,)), np.broadcast_to(P[1:], shape + (3,)),
+                                          np.zeros(shape), np.ones(shape))  # (n, segments); a repeated link point is safe
             k = np.argmin(d, axis=1)
             rows = np.arange(len(nodes))
             r_link = sk.radii[link[k]] + t[rows, k] * (sk.radii[link[k + 1]] - sk.radii[link[k]])
@@ -175,6 +177,7 @@ def pair_wall(skeleton: Skeleton, a: int, b: int, project, around: int = 16) -> 
     node and half way to the next, projected onto the wall with ``project``.
     """
     from ..skeleton.graph import branch_paths
+    from ..skeleton.probe import plane_basis
 
     sk = skeleton
     paths = branch_paths(sk.n_nodes, sk.edges)
@@ -190,11 +193,9 @@ def pair_wall(skeleton: Skeleton, a: int, b: int, project, around: int = 16) -> 
             ends.extend(q[1:stop + 1].tolist())
     seg0, seg1 = np.asarray(starts), np.asarray(ends)
     tangent = sk.points[seg1] - sk.points[seg0]
-    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
-    helper = np.where(np.abs(tangent[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    e1 = np.cross(tangent, helper)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = np.cross(tangent, e1)
+    length = np.linalg.norm(tangent, axis=1)
+    seg0, seg1, tangent = seg0[length > 0], seg1[length > 0], tangent[length > 0] / length[length > 0, None]  # a repeated point has no ring
+    e1, e2 = plane_basis(tangent)
     angle = np.linspace(0.0, 2.0 * np.pi, around, endpoint=False)
     ring = np.cos(angle)[None, :, None] * e1[:, None] + np.sin(angle)[None, :, None] * e2[:, None]  # (segments, around, 3)
     w = np.array([0.0, 0.5])[:, None]  # at the node and half way along the segment

@@ -32,8 +32,8 @@ def _side_radius(rad: np.ndarray, s: np.ndarray, start: int, step: int, reach: f
     """Median inscribed radius along the path from index ``start`` outwards (``step`` +-1),
     over an arclength of ``reach``; the vessel's radius beside the sac."""
     idx = np.arange(start, -1 if step < 0 else len(rad), step)
-    within = idx[np.abs(s[idx] - s[start]) <= reach]
-    return float(np.median(rad[within if len(within) else idx[:1]]))
+    within = idx[np.abs(s[idx] - s[start]) <= reach]  # holds ``start`` itself
+    return float(np.median(rad[within]))
 
 
 def _sac_on_path(pts: np.ndarray, rad: np.ndarray, sdf: SdfFunction, spacing: float, rise: float, peaks: int = 4):
@@ -74,7 +74,10 @@ def _sac_at(pts, rad, s, peak, outside, sdf, spacing, rise):
     if r_sac < rise * r_vessel:
         return None
     chord = pts[b] - pts[a]
-    t = float(np.clip(np.dot(centre - pts[a], chord) / max(np.dot(chord, chord), 1e-24), 0.0, 1.0))
+    length = float(np.linalg.norm(chord))
+    t = float(np.dot(centre - pts[a], chord)) / max(length, 1e-12) ** 2
+    if min(t, 1.0 - t) * length < spacing:
+        return None  # the centre is not beside the chord (within a voxel of an end or past it): no junction there
     foot = pts[a] + t * chord
     if np.linalg.norm(centre - foot) < r_vessel:
         return None  # the ball's centre lies in the vessel's tube: a fusiform widening, not a side sac
@@ -100,16 +103,13 @@ def split_side_sacs(graph: BranchGraph, sdf: SdfFunction, spacing: float, rise: 
     distance. Returns the number of sacs split off.
     """
     split = 0
-    for _ in range(32):  # a split branch may hold a second sac
-        for u, v, k in graph.branches():
-            if u == v:
-                continue
-            pts, rad = graph.polyline(u, v, k, start=u)
-            found = _sac_on_path(pts, rad, sdf, spacing, rise)
-            if found is not None:
-                break
-        else:
-            break
+    todo = [branch for branch in graph.branches() if branch[0] != branch[1]]
+    while todo:  # each branch once; a split branch's two pieces again (one may hold a second sac)
+        u, v, k = todo.pop(0)
+        pts, rad = graph.polyline(u, v, k, start=u)
+        found = _sac_on_path(pts, rad, sdf, spacing, rise)
+        if found is None:
+            continue
         a, peak, b, foot, _ = found
         before, after = _segment(pts[a], foot, spacing), _segment(foot, pts[b], spacing)
         into = _segment(foot, pts[peak], spacing)
@@ -118,8 +118,9 @@ def split_side_sacs(graph: BranchGraph, sdf: SdfFunction, spacing: float, rise: 
         graph.graph.remove_edge(u, v, k)
         junction = graph.add_node(foot, depth[-1])
         sac = graph.add_node(pts[peak], rad[peak])
-        graph.add_branch(u, junction, np.concatenate([pts[1 : a + 1], before]), np.concatenate([rad[1 : a + 1], d1]))
-        graph.add_branch(junction, v, np.concatenate([after, pts[b:-1]]), np.concatenate([d2, rad[b:-1]]))
+        first = graph.add_branch(u, junction, np.concatenate([pts[1 : a + 1], before]), np.concatenate([rad[1 : a + 1], d1]))
+        second = graph.add_branch(junction, v, np.concatenate([after, pts[b:-1]]), np.concatenate([d2, rad[b:-1]]))
         graph.add_branch(junction, sac, into, d3)
+        todo += [(u, junction, first), (junction, v, second)]
         split += 1
     return split
