@@ -11,7 +11,7 @@ in the middle of the block's skeleton segment follows the wall there instead.
 structure again on that skeleton. The projected quality alone does not say whether the
 mesh gets better (on seed 0 g0007 extracted it fell while the fill's folds halved), so the
 judge is the fill (:func:`~.checks.fill_quality`, both resolutions, no untangling): only
-the halvings whose own segment's blocks fill better are kept (building once more with
+the halvings whose own segment's blocks fold in the fill and fill better are kept (building once more with
 those alone where some did not), and the result is taken only where the blocks of the
 halved segments and of the segments next to them fill better together. Each round is at
 most two builds and two fills of that stretch; ``dent_sections`` bounds the rounds.
@@ -69,7 +69,8 @@ def add_dent_sections(blocks: BlockStructure, build, fill, distance, project, ro
             break
         before = _Stretch(blocks, sk, split, fill)
         after = before.scores(trial[0], split, fill)
-        better = split[after > before.per_segment + 1e-9]
+        # where the fill already holds, a section only moves what works (s0 g0017 extracted)
+        better = split[(after > before.per_segment + 1e-9) & (before.per_segment < 0)]
         if 0 < len(better) < len(split):
             before, trial, split = _Stretch(blocks, sk, better, fill), _try(build, sk, better), better
         if len(better) == 0 or trial is None or before.scores(trial[0], split, fill, whole=True) <= before.whole + 1e-9:
