@@ -14,7 +14,7 @@ judge is the fill (:func:`~.checks.fill_quality`, both resolutions, no untanglin
 the halvings whose own segment's blocks fold in the fill and fill better are kept (building once more with
 those alone where some did not), and the result is taken only where the blocks of the
 halved segments and of the segments next to them fill better together. Each round is at
-most two builds and two fills of that stretch; ``dent_sections`` bounds the rounds.
+most two builds and four fills of that stretch; ``dent_sections`` bounds the rounds.
 """
 
 from __future__ import annotations
