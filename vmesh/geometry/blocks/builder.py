@@ -44,7 +44,8 @@ from ...errors import MeshingError
 from ...skeleton import Skeleton
 from .. import cross_sections as cs
 from .assemble import _Assembly
-from .checks import _Failure, wall_left_out
+from .checks import _Failure, fill_quality, wall_left_out
+from .dents import add_dent_sections
 from .junctions import _Junctions
 from .options import BlockOptions, _LocalFixes
 from .prep import MERGE_COVER_DEPTH, merge_junction_pair, pair_wall, split_nonplanar_junctions
@@ -102,6 +103,23 @@ def build_blocks(
         With ``info`` holding ``max_twist_deg``, ``fixes`` and per-junction details.
     """
     options = options or BlockOptions()
+    blocks = _build_blocks(skeleton, distance, caps, options, bad_blocks_path, warn, progress, project, intersect_lines, work)
+    if project is None or options.repair.dent_sections <= 0:
+        return blocks
+
+    def rebuild(sk):
+        heard = []
+        return _build_blocks(sk, distance, caps, options, None, heard.append, None, project, intersect_lines), heard
+
+    def fill(b, subset):
+        return fill_quality(b, subset, project, distance, intersect_lines)
+
+    return add_dent_sections(blocks, rebuild, fill, distance, project, options.repair.dent_sections, warn)
+
+
+def _build_blocks(skeleton, distance, caps, options: BlockOptions, bad_blocks_path=None, warn=None, progress=None, project=None,
+                  intersect_lines=None, work: WorkBudget | None = None) -> BlockStructure:
+    """:func:`build_blocks` without :func:`~.dents.add_dent_sections`."""
     work = work or WorkBudget(options.repair.work_budget)
     # Each try either succeeds or fails with what might help: splitting n-furcations
     # (alternative pairings in turn) or merging two junctions too close for their own
@@ -164,7 +182,7 @@ def _last_resort(skeleton, distance, caps, options: BlockOptions, hooks: tuple, 
         if work.spent:
             break
         try:
-            blocks = build_blocks(skeleton, distance, caps, last, None, *hooks, work)
+            blocks = _build_blocks(skeleton, distance, caps, last, None, *hooks, work)
         except MeshingError:
             continue
         if last.repair.spread_tight:
