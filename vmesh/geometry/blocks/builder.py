@@ -114,7 +114,11 @@ def build_blocks(
     def fill(b, subset):
         return fill_quality(b, subset, project, distance, intersect_lines)
 
-    return add_dent_sections(blocks, rebuild, fill, distance, project, options.repair.dent_sections, warn)
+    dented = add_dent_sections(blocks, rebuild, fill, distance, project, options.repair.dent_sections, warn)
+    if dented is not blocks:  # built again on the changed skeleton: what the first build did to the skeleton still holds
+        dented.info["fixes"][:0] = dented.info["skeleton_fixes"] = blocks.info.get("skeleton_fixes", [])
+        dented.info["cut_stubs"] = label_ostia(dented, blocks.info.get("cut_stubs", []))
+    return dented
 
 
 def _build_blocks(skeleton, distance, caps, options: BlockOptions, bad_blocks_path=None, warn=None, progress=None, project=None,
@@ -166,6 +170,7 @@ def _build_blocks(skeleton, distance, caps, options: BlockOptions, bad_blocks_pa
             if warn:
                 warn(note)
         blocks.info["fixes"][:0], blocks.info["cut_stubs"] = notes, label_ostia(blocks, cut)
+        blocks.info["skeleton_fixes"] = list(notes)  # the retopology's notes (a rebuild by :func:`~.dents.add_dent_sections` keeps them)
         return blocks
     # every try failed: the skeleton as given once more with a last resort (builds that
     # succeed without it stay as they are)
