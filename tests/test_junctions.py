@@ -280,7 +280,7 @@ def test_the_last_try_ends_a_junctions_clearance_at_its_own_stretch():
     assert first[True] <= first[False]
 
 
-@pytest.mark.parametrize("angle", [15.0, pytest.param(10.0, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("angle", [pytest.param(15.0, marks=pytest.mark.slow), pytest.param(10.0, marks=pytest.mark.slow)])
 def test_a_junction_inside_a_fused_acute_pair_moves_to_where_the_pair_ends(angle):
     """g0006 given's junction 2: daughters ``angle`` degrees apart share one lumen, and the
     shorter ends in a junction of its own before the two part. No point of the pair is
