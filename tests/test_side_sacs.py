@@ -75,6 +75,26 @@ def test_a_widening_on_the_axis_or_a_path_off_it_stays(offset, via):
     assert graph.graph.number_of_edges() == 1
 
 
+@pytest.mark.parametrize("chord_depth", [None, -1e9])
+def test_a_path_bent_through_a_ball_over_a_gap_stays(chord_depth, monkeypatch):
+    # the vessel is two tubes whose ends meet only through the ball: the path's detour is
+    # the vessel's course and the chord past the ball leaves the vessel (signed distance
+    # -0.1 at its middle), so it is a bend, not a sac (``CHORD_DEPTH``); without that check
+    # the same path is split
+    from test_spur_ends import closed_cylinder as cyl
+    from vmesh.geometry.skeleton import sacs
+
+    def sdf(p):
+        p = np.asarray(p, float).reshape(-1, 3)
+        ball = SAC - np.linalg.norm(p - [0.0, OFFSET, 0], axis=1)
+        return np.maximum.reduce([cyl(p, [-8.0, 0, 0], [-1.0, 0, 0], 1.0), cyl(p, [1.0, 0, 0], [8.0, 0, 0], 1.0), ball])
+
+    if chord_depth is not None:
+        monkeypatch.setattr(sacs, "CHORD_DEPTH", chord_depth)
+    graph = path_graph(sdf, np.array([0.0, OFFSET, 0.0]))
+    assert split_side_sacs(graph, sdf, 0.3) == (0 if chord_depth is None else 1)
+
+
 @pytest.mark.slow
 def test_a_generated_side_sac_keeps_its_branch():
     # generator seed 14 (clean preset, aneurysm_side and noise only): the sac's branch
