@@ -71,27 +71,32 @@ def expected_blocks(skeleton, blocks_around=8, caps=None):
     return skeleton.n_edges * (2 * blocks_around + a * b) + closed * (3 * a * b + 2 * blocks_around)
 
 
-@pytest.fixture(scope="module")
-def synthetic():
-    """Build (once) the block structure of every synthetic case with its caps and SDF."""
+def synthetic_inputs(case):
+    """A synthetic case's surface context (caps detected), signed distance and skeleton."""
     from vmesh.context import Context
-    from vmesh.geometry.projection import wall_projector
     from vmesh.geometry.sdf import SignedDistance
     from vmesh.io.skeleton import read_skeleton
     from vmesh.io.surface import read_surface
     from vmesh.registry import get_filter
 
+    surface_path, skeleton_path = synthetic_case(case)
+    if not surface_path.exists():
+        pytest.skip(f"synthetic case {case} not generated")
+    ctx = Context(surface=read_surface(surface_path))
+    get_filter("detect_caps")(ctx)
+    return ctx, SignedDistance.from_surface(ctx.surface), read_skeleton(skeleton_path)
+
+
+@pytest.fixture(scope="module")
+def synthetic():
+    """Build (once) the block structure of every synthetic case with its caps and SDF."""
+    from vmesh.geometry.projection import wall_projector
+
     cache = {}
 
     def get(case):
         if case not in cache:
-            surface_path, skeleton_path = synthetic_case(case)
-            if not surface_path.exists():
-                pytest.skip(f"synthetic case {case} not generated")
-            ctx = Context(surface=read_surface(surface_path))
-            get_filter("detect_caps")(ctx)
-            sdf = SignedDistance.from_surface(ctx.surface)
-            skeleton = read_skeleton(skeleton_path)
+            ctx, sdf, skeleton = synthetic_inputs(case)
             project = wall_projector(ctx.surface, ctx.caps)
             blocks = build_blocks(skeleton, sdf.distance, ctx.caps, BlockOptions(), project=project)
             cache[case] = (ctx, sdf, skeleton, blocks)
@@ -446,18 +451,7 @@ def test_node_outside_fails_naming_it():
 
 
 def test_invalid_blocks_are_written_and_named(tmp_path):
-    from vmesh.context import Context
-    from vmesh.geometry.sdf import SignedDistance
-    from vmesh.io.skeleton import read_skeleton
-    from vmesh.io.surface import read_surface
-    from vmesh.registry import get_filter
-
-    surface_path, skeleton_path = synthetic_case("trifurcation")  # its inputs only: the fixture's full build is not needed here
-    if not surface_path.exists():
-        pytest.skip("synthetic case trifurcation not generated")
-    ctx = Context(surface=read_surface(surface_path))
-    get_filter("detect_caps")(ctx)
-    sdf, skeleton = SignedDistance.from_surface(ctx.surface), read_skeleton(skeleton_path)
+    ctx, sdf, skeleton = synthetic_inputs("trifurcation")  # its inputs only: the fixture's full build is not needed here
     path = tmp_path / "bad.vtu"
     with pytest.raises(MeshingError, match=r"skeleton node \d+.*bad\.vtu") as err:
         build_blocks(skeleton, sdf.distance, ctx.caps, BlockOptions(max_fix_rounds=0, junction_centre=0.0), bad_blocks_path=path)

@@ -413,10 +413,12 @@ def cut_at_necks(distance, origins: np.ndarray, directions: np.ndarray, scale: n
     tf = lo[:, None] + (hi - lo)[:, None] * np.linspace(0.0, 1.0, 17)[None, :]
     ff = np.asarray(distance((o[r, None, :] + tf[:, :, None] * d[r, None, :]).reshape(-1, 3))).reshape(tf.shape)
     crossed = ff <= 0
-    j = np.where(crossed.any(axis=1), np.argmax(crossed, axis=1), np.argmin(ff, axis=1))
+    hit = crossed.any(axis=1)
+    j = np.where(hit, np.argmax(crossed, axis=1), np.argmin(ff, axis=1))
     k = np.maximum(j - 1, 0)
+    row = np.arange(len(r))
     # linear interpolation to the crossing between the last sample inside and the first outside
-    frac = np.where(crossed.any(axis=1) & (j > 0), ff[np.arange(len(r)), k] / np.maximum(ff[np.arange(len(r)), k] - ff[np.arange(len(r)), j], 1e-300), 0.0)
-    at = np.where(crossed.any(axis=1), tf[np.arange(len(r)), k] + frac * (tf[np.arange(len(r)), j] - tf[np.arange(len(r)), k]), tf[np.arange(len(r)), j])
+    frac = np.where(hit & (j > 0), ff[row, k] / np.maximum(ff[row, k] - ff[row, j], 1e-300), 0.0)
+    at = np.where(hit, tf[row, k] + frac * (tf[row, j] - tf[row, k]), tf[row, j])
     out[r] = at
     return out
