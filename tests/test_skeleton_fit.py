@@ -78,6 +78,19 @@ def test_centerline_of_another_vessel_is_detected_before_cleaning():
             get_filter(step)(context(beside))
 
 
+def test_a_given_centerline_that_does_not_fit_is_named_by_its_file():
+    """The two fit errors start with the centerline's file (a new user gives two files
+    and has to know which one is wrong)."""
+    _, _, truth = vessel()
+    beside = truth.copy(points=truth.points + [0.0, 0.0, 6.0 * truth.radii.max()])
+    in_cm = truth.copy(points=truth.points * 0.1, radii=truth.radii * 0.1)
+    for skeleton in (beside, in_cm):
+        ctx = context(skeleton)
+        ctx.inputs["skeleton"] = "other/centerline.vtp"
+        with pytest.raises(InputError, match=r"^other/centerline\.vtp: .*(centerline of this vessel|other units)"):
+            get_filter("estimate_radii")(ctx)
+
+
 # ---------------------------------------------------------------------------
 # radii
 # ---------------------------------------------------------------------------

@@ -368,7 +368,10 @@ def run(manifest, chain="default", out=None, *, client=None, scheduler: str | No
     out = Path(out).resolve()
     if out.exists() and not out.is_dir():
         raise InputError("output folder is a file", out)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # no permission, a read-only or virtual file system
+        raise InputError(f"cannot create the output folder: {exc.strerror or exc}", out) from None
 
     t_start = time.perf_counter()
     rows: dict[str, dict] = {}

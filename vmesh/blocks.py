@@ -89,6 +89,9 @@ class BlockStructure:
     #: free-form diagnostics (twist angles, fixes applied...)
     info: dict = field(default_factory=dict)
 
+    def __repr__(self) -> str:  # counts, not the arrays
+        return f"BlockStructure({len(self.hexes)} blocks, {len(self.vertices)} corners, boundaries {list(self.boundary_names.values())})"
+
     def __post_init__(self):
         self.vertices = np.asarray(self.vertices, np.float64).reshape(-1, 3)
         self.hexes = np.asarray(self.hexes, np.int64).reshape(-1, 8)

@@ -95,7 +95,9 @@ class FilterChain:
         else:
             fname, params = s
             step = Step(fname, dict(params or {}))
-        get_filter(step.filter)  # unknown names fail here, with a suggestion
+        f = get_filter(step.filter)  # unknown names fail here, with a suggestion
+        for key in step.params:  # so do unknown parameters: a chain file names its line
+            f.parameter(key)
         self.steps.append(step)
 
     def append(self, filter_name: str, params: dict | None = None, /, **kw) -> "FilterChain":
@@ -211,10 +213,13 @@ class FilterChain:
             if extra:
                 raise InputError(f"step {i + 1}: unknown key(s) {', '.join(sorted(extra))} (use a [step.params] table)", source or None)
             steps.append(Step(s["filter"], dict(s.get("params", {}))))
-        try:
-            return cls(steps, name=meta.get("name", ""), description=meta.get("description", ""))
-        except ParameterError as exc:
-            raise InputError(str(exc), source or None) from None
+        chain = cls(name=meta.get("name", ""), description=meta.get("description", ""))
+        for i, step in enumerate(steps):
+            try:
+                chain._add(step)
+            except ParameterError as exc:
+                raise InputError(f"step {i + 1}: {exc}", source or None) from None
+        return chain
 
     @classmethod
     def from_toml(cls, text: str, source: str = "") -> "FilterChain":
@@ -333,9 +338,12 @@ def _read_inputs(ctx: Context, surface, skeleton) -> list[str]:
 
 def _open_stage(ctx: Context, out_dir: Path) -> Path:
     """The hidden staging folder beside ``out_dir`` that the steps write into."""
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale_stages(out_dir)  # left by killed runs
-    stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=out_dir.parent))
+    try:
+        out_dir.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_stages(out_dir)  # left by killed runs
+        stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=out_dir.parent))
+    except OSError as exc:  # a read-only or virtual file system, where even root cannot write
+        raise InputError(f"cannot create the output folder: {exc.strerror or exc}", out_dir) from None
     mark_owner(stage)
     ctx.stage_dir, ctx.out_dir = stage, out_dir
     return stage
@@ -499,6 +507,8 @@ def check_out_dir(out_dir: Path) -> None:
         if parent.exists():
             if not parent.is_dir():
                 raise InputError(f"{parent} is not a folder", out_dir)
+            if not os.access(parent, os.W_OK | os.X_OK):
+                raise InputError(f"cannot write in {parent} (no permission)", out_dir)
             break
 
 

@@ -106,6 +106,8 @@ def cmd_run(args) -> int:
             print(f"warning: {w}")
         if args.out:
             print(f"results in {args.out}/")
+        else:  # a dry run: the quality is printed, no file is written
+            print("no output folder given (-o OUT): nothing was written")
     return 0
 
 
@@ -135,7 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-i", "--input", required=False, help="input surface (stl, obj, ply, vtp, vtk, vtu, off)")
     s.add_argument("-s", "--skeleton", help="centerline file (json, swc, vtp, vtk, csv); extracted when absent")
     s.add_argument("--set", action="append", metavar="FILTER.PARAM=VALUE", help="override a parameter (repeatable)")
-    s.add_argument("-o", "--out", help="output folder")
+    s.add_argument("-o", "--out", help="output folder (without it the chain runs and prints its quality, but writes nothing)")
     s.add_argument("--units", choices=("mm", "cm", "m"), help="length unit of the input (default: m if the surface's diagonal is below 2, else mm; stated in report.json)")
     s.add_argument("-q", "--quiet", action="store_true", help="no progress or summary")
     s.set_defaults(func=cmd_run)

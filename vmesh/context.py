@@ -155,6 +155,21 @@ class Context:
     def has(self, layer: str) -> bool:
         return getattr(self, layer) is not None
 
+    def __repr__(self) -> str:
+        """The layers present, each by its own short repr (caps and quality by their counts)."""
+        parts = []
+        for layer in ("surface", "coarse_surface", "caps", "sdf", "skeleton", "blocks", "mesh", "quality"):
+            value = getattr(self, layer)
+            if value is None:
+                continue
+            if layer == "caps":
+                value = f"[{len(value)} caps]"
+            elif layer == "quality":
+                value = {k: value.get("summary", {}).get(k) for k in ("min", "mean", "n_invalid")}
+            parts.append(f"{layer}={value!r}" if not isinstance(value, str) else f"{layer}={value}")
+        parts.append(f"out_dir={None if self.out_dir is None else str(self.out_dir)!r}")
+        return f"Context({', '.join(parts)})"
+
     def output_path(self, name: str) -> Path | None:
         """Where a filter should write output file ``name``; ``None`` when the run has no output folder."""
         if self.stage_dir is None:

@@ -97,6 +97,12 @@ class HexMesh:
     def n_cells(self) -> int:
         return len(self.cells)
 
+    def __repr__(self) -> str:  # counts, not the arrays: a mesh printed at the prompt stays one line
+        return (
+            f"HexMesh({self.n_cells} hexahedra of order {self.order}, {self.n_points} nodes, units {self.units}, "
+            f"labels {list(self.label_names.values())}, boundaries {list(self.boundary_names.values())})"
+        )
+
     def corner_cells(self) -> np.ndarray:
         """(m, 8) corner node ids in VTK linear-hexahedron order."""
         p = self.order

@@ -170,9 +170,8 @@ class Filter:
         for p in self.parameters:
             if p.name == name:
                 return p
-        raise ParameterError(
-            f"filter '{self.name}' has no parameter '{name}'" + suggest(name, self.parameter_names)
-        )
+        hint = suggest(name, self.parameter_names) or f" (its parameters: {', '.join(self.parameter_names) or 'none'})"
+        raise ParameterError(f"filter '{self.name}' has no parameter '{name}'" + hint)
 
     def resolve(self, params: dict | None = None) -> dict:
         """Validate ``params`` and return them complete, defaults filled in."""

@@ -82,6 +82,9 @@ class SurfaceMesh:
         self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float64).reshape(-1, 3)
         self.faces = np.ascontiguousarray(self.faces, dtype=np.int64).reshape(-1, 3)
 
+    def __repr__(self) -> str:  # counts, not the arrays
+        return f"SurfaceMesh({self.name!r}: {self.n_vertices} vertices, {self.n_faces} triangles)"
+
     @property
     def n_vertices(self) -> int:
         return len(self.vertices)

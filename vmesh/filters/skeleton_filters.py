@@ -128,12 +128,14 @@ def _check_fit(ctx, skel) -> bool:
         raise InputError(
             f"the centerline is in other units than the surface {sizes}: multiplied by {fit.scale:g} it spans "
             f"the surface with {100 * fit.details['inside_when_scaled'][fit.scale]:.0f} % of its nodes inside; "
-            f"rerun with --set estimate_radii.scale={fit.scale:g}"
+            f"rerun with --set estimate_radii.scale={fit.scale:g}",
+            ctx.inputs.get("skeleton"),  # the given centerline's file, named first
         )
     if fit.far_outside > 0.5:
         raise InputError(
             f"{100 * fit.far_outside:.0f} % of centerline nodes lie outside the surface (farther than their radius "
-            f"from the wall) {sizes}: is this the centerline of this vessel? Give its own centerline, or none to extract one"
+            f"from the wall) {sizes}: is this the centerline of this vessel? Give its own centerline, or none to extract one",
+            ctx.inputs.get("skeleton"),
         )
     r = skel.radii[np.isfinite(skel.radii) & (skel.radii > 0)]
     depth = np.asarray(ctx.sdf.distance(skel.points), float)

@@ -7,6 +7,8 @@ import os
 import tempfile
 from pathlib import Path
 
+from ..errors import InputError
+
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path):
@@ -17,8 +19,11 @@ def atomic_path(path: str | Path):
     ``path`` is left untouched, so a failed write never leaves a partial file.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".partial" + path.suffix, dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".partial" + path.suffix, dir=path.parent)
+    except OSError as exc:  # no permission, a read-only or virtual file system, a file in the way
+        raise InputError(f"cannot write here: {exc.strerror or exc}", path) from None
     os.close(fd)
     tmp = Path(tmp)
     try:

@@ -1,0 +1,89 @@
+"""What a new user trips over (docs/inputs_and_failures.md, session 18 walkthrough): a
+chain file's unknown parameter, an output folder that cannot be written, objects printed
+at the prompt. Each error is one line naming the file and the problem, exit status 2,
+nothing written."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hostile_inputs import _write_ply, tube
+from vmesh.chain import FilterChain
+from vmesh.cli import main
+from vmesh.context import Context
+from vmesh.errors import InputError, ParameterError
+from vmesh.io.atomic import atomic_path
+from vmesh.mesh import HexMesh
+from vmesh.registry import get_filter
+from vmesh.surface import SurfaceMesh
+
+CHAIN_WITH_A_WRONG_NAME = """
+[[step]]
+filter = "repair_surface"
+
+[[step]]
+filter = "export_mesh"
+[step.params]
+path = "mesh.msh"
+"""
+
+
+def test_a_chain_files_unknown_parameter_names_the_file_and_the_step(tmp_path):
+    """It used to surface at run time as 'step 2: filter ... has no parameter' with no
+    file named and no list of what the filter takes."""
+    path = tmp_path / "my_chain.toml"
+    path.write_text(CHAIN_WITH_A_WRONG_NAME)
+    with pytest.raises(InputError) as err:
+        FilterChain.load(path)
+    message = str(err.value)
+    assert message.startswith(f"{path}: step 2: filter 'export_mesh' has no parameter 'path'")
+    assert "its parameters: filename, format, linearize" in message
+
+
+def test_an_unknown_parameter_is_refused_when_the_step_is_added():
+    with pytest.raises(ParameterError, match=r"no parameter 'target_face' \(did you mean 'target_faces'\?\)"):
+        FilterChain(["repair_surface"]).append("decimate_surface", target_face=1000)
+    with pytest.raises(ParameterError, match=r"\(its parameters: "):
+        get_filter("build_sdf").parameter("zzz")
+
+
+def test_an_output_folder_that_cannot_be_created_is_one_line_and_nothing_is_written(tmp_path, monkeypatch, capsys):
+    """A read-only or virtual file system (/proc, /sys; even root cannot write there) used
+    to stop the run as an internal error ('a bug in vmesh')."""
+    import vmesh.chain
+
+    surface = _write_ply(tmp_path / "tube.ply", *tube(n_around=12, n_along=8))
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(vmesh.chain.tempfile, "mkdtemp", refuse)
+    out = tmp_path / "out"
+    code = main(["run", "default", "-q", "-i", str(surface), "-o", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err == f"vmesh: error: {out}: cannot create the output folder: Permission denied"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tube.ply"]
+
+
+def test_a_file_that_cannot_be_written_is_an_input_error(tmp_path):
+    (tmp_path / "a_file").write_text("")
+    target = tmp_path / "a_file" / "mesh.msh"
+    with pytest.raises(InputError, match=r"mesh\.msh: cannot write here: "):
+        with atomic_path(target):
+            pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+
+
+def test_layers_print_as_one_line_of_counts():
+    """Printing the context of a run (or its mesh) at the prompt used to dump every array."""
+    v, f = tube(n_around=12, n_along=8)
+    surface = SurfaceMesh(v, f, name="tube.ply")
+    cube = np.array([[x, y, z] for z in (0, 1) for y in (0, 1) for x in (0, 1)], float)
+    mesh = HexMesh(cube, np.arange(8)[None], units="mm", label_names={0: "vessel"})
+    ctx = Context(surface=surface, mesh=mesh, quality={"summary": {"min": 1.0, "mean": 1.0, "n_invalid": 0}})
+    assert repr(surface) == f"SurfaceMesh('tube.ply': {len(v)} vertices, {len(f)} triangles)"
+    assert repr(mesh) == "HexMesh(1 hexahedra of order 1, 8 nodes, units mm, labels ['vessel'], boundaries ['wall'])"
+    text = repr(ctx)
+    assert "\n" not in text and "array" not in text
+    assert text.startswith("Context(surface=SurfaceMesh('tube.ply'") and "quality={'min': 1.0, 'mean': 1.0, 'n_invalid': 0}" in text
