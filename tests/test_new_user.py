@@ -87,3 +87,12 @@ def test_layers_print_as_one_line_of_counts():
     text = repr(ctx)
     assert "\n" not in text and "array" not in text
     assert text.startswith("Context(surface=SurfaceMesh('tube.ply'") and "quality={'min': 1.0, 'mean': 1.0, 'n_invalid': 0}" in text
+
+
+def test_a_set_value_given_after_a_space_is_explained(capsys):
+    """``--set a.b 3`` (a space where ``=`` belongs): the error shows the one-word form."""
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "default", "--set", "mesh_transfinite.refinement", "2"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "--set mesh_transfinite.refinement=2" in err

@@ -149,10 +149,21 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _unrecognized(args, extra: list[str]) -> str:
+    """argparse's message for stray arguments, with the likely cause: ``--set a.b 3`` (a space for ``=``)."""
+    msg = f"unrecognized arguments: {' '.join(extra)}"
+    loose = [s for s in (getattr(args, "set", None) or []) if "=" not in s]
+    if loose:
+        msg += f" (--set takes FILTER.PARAM=VALUE in one word: --set {loose[0]}={extra[0]})"
+    return msg
+
+
 def main(argv=None) -> int:
     _load_extra_commands()
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        parser.error(_unrecognized(args, extra))
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_USAGE
