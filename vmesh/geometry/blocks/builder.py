@@ -131,7 +131,8 @@ class _Rebuilds:
     so the same skeleton gets a copy of the first build. The same up to numbering gets that
     build relabelled (segments and nodes mapped by their exact points; the block order is
     the first build's), marked ``info["relabelled"]``: good for judging it, and built for
-    real (:meth:`exact`) where the dent step keeps it, so the structure kept is the one built.
+    real (:meth:`exact`) where the dent step keeps it, so the structure kept is the one built
+    (a failed build is remembered for its own skeleton only).
     The builds share the first build's :class:`~vmesh.geometry.rays.RayCache` (bit for bit
     the same rays; sections away from the halvings do not move); each ``info["work"]``
     counts its own rays.
@@ -153,12 +154,10 @@ class _Rebuilds:
 
     def __call__(self, sk: Skeleton):
         exact = _exact_key(sk)
-        if exact not in self.done and (first := self.shapes.get(_skeleton_key(sk))) is not None:
-            got = self.done[first]
-            if isinstance(got, MeshingError):
-                raise got
-            if (out := _relabelled(got, sk)) is not None:
-                return out
+        first = self.shapes.get(_skeleton_key(sk)) if exact not in self.done else None
+        # a failure is not relabelled: whether a build fails may hang on its numbering
+        if first is not None and not isinstance(self.done[first], MeshingError) and (out := _relabelled(self.done[first], sk)) is not None:
+            return out
         return self.exact(sk)
 
     def exact(self, sk: Skeleton):
