@@ -82,3 +82,45 @@ def test_halve_segments_keeps_ids_and_shared_tags():
     assert out.edges.tolist() == [[0, 1], [1, 3], [3, 2]]
     assert np.allclose(out.points[3], [3, 0, 0]) and out.radii[3] == 1.5
     assert out.node_tags[3] == ("a",) and out.edge_tags == [("x",), ("y",), ("y",)]
+
+
+def _rebuilds(case):
+    from vmesh.geometry.blocks.builder import _build_blocks, _Rebuilds
+    from vmesh.geometry.rays import RayCache
+
+    calls = []
+
+    def build(sk, heard, work):
+        calls.append(sk.n_edges)
+        return _build_blocks(sk, case.distance, None, BlockOptions(), None, heard.append, None, case.project, None, work)
+
+    return _Rebuilds(build, 0, RayCache()), calls
+
+
+def test_rebuilds_remember_a_skeleton_and_relabel_a_renumbered_one():
+    """The dent step's rebuilds (builder._Rebuilds): the same skeleton is built once (each
+    caller gets its own copy); the same skeleton with the new nodes numbered otherwise (round
+    2 halving on top of round 1's kept halving) gets that build relabelled, the same blocks
+    with the same segments by position as its own build, and ``exact`` builds it."""
+    case, sk = dented_tube(3.0, 0.6, 1.5)
+    rebuild, calls = _rebuilds(case)
+    first = halve_segments(sk, np.array([0, 2]))
+    a, _ = rebuild(first)
+    a.info["fixes"].append("changed by its caller")
+    b, _ = rebuild(halve_segments(sk, np.array([0, 2])))
+    assert len(calls) == 1 and "changed by its caller" not in b.info["fixes"]
+    assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.hexes, b.hexes)
+    renumbered = halve_segments(halve_segments(sk, np.array([2])), np.array([0]))
+    relabelled, _ = rebuild(renumbered)
+    assert len(calls) == 1 and relabelled.info["relabelled"] and relabelled.info["skeleton"] is renumbered
+    own, _ = rebuild.exact(renumbered)
+    assert len(calls) == 2 and "relabelled" not in own.info
+
+    def by_corners(blocks):  # blocks in corner order, with their segments' end points
+        corners = blocks.vertices[blocks.hexes].reshape(blocks.n_blocks, -1)
+        order = np.lexsort(corners.T[::-1])
+        ends = np.sort(renumbered.points[renumbered.edges[blocks.block_segment[order]]].reshape(len(order), -1), axis=1)
+        return corners[order], ends, renumbered.points[blocks.block_node[order]]
+
+    for got, want in zip(by_corners(relabelled), by_corners(own)):
+        assert np.array_equal(got, want)

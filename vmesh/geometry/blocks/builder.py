@@ -103,22 +103,111 @@ def build_blocks(
         With ``info`` holding ``max_twist_deg``, ``fixes`` and per-junction details.
     """
     options = options or BlockOptions()
+    work = work or WorkBudget(options.repair.work_budget)
     blocks = _build_blocks(skeleton, distance, caps, options, bad_blocks_path, warn, progress, project, intersect_lines, work)
     if project is None or options.repair.dent_sections <= 0:
         return blocks
 
-    def rebuild(sk):
-        heard = []
-        return _build_blocks(sk, distance, caps, options, None, heard.append, None, project, intersect_lines), heard
-
     def fill(b, subset):
         return fill_quality(b, subset, project, distance, intersect_lines)
 
+    rebuild = _Rebuilds(lambda sk, heard, w: _build_blocks(sk, distance, caps, options, None, heard.append, None, project, intersect_lines, w),
+                        options.repair.work_budget, work.rays)
     dented = add_dent_sections(blocks, rebuild, fill, distance, project, options.repair.dent_sections, warn)
     if dented is not blocks:  # built again on the changed skeleton: what the first build did to the skeleton still holds
         dented.info["fixes"][:0] = dented.info["skeleton_fixes"] = blocks.info.get("skeleton_fixes", [])
         dented.info["cut_stubs"] = label_ostia(dented, blocks.info.get("cut_stubs", []))
     return dented
+
+
+class _Rebuilds:
+    """:func:`~.dents.add_dent_sections`' ``build``: the whole build on another skeleton, each
+    with its own work budget, remembered by the skeleton.
+
+    Two rounds of halving often ask for the same skeleton: round 1 tries the flagged set and
+    keeps a part, round 2 flags the rest, and halving it on round 1's skeleton gives round
+    1's first trial again (s0 g0019 given), or the same up to the new nodes' numbering (s0
+    g0007 extracted, g0008 extracted). A build depends on its skeleton and options alone,
+    so the same skeleton gets a copy of the first build. The same up to numbering gets that
+    build relabelled (segments and nodes mapped by their exact points; the block order is
+    the first build's), marked ``info["relabelled"]``: good for judging it, and built for
+    real (:meth:`exact`) where the dent step keeps it, so the structure kept is the one built
+    (a failed build is remembered for its own skeleton only).
+    The builds share the first build's :class:`~vmesh.geometry.rays.RayCache` (bit for bit
+    the same rays; sections away from the halvings do not move); each ``info["work"]``
+    counts its own rays.
+
+    Parameters
+    ----------
+    build : callable
+        ``build(skeleton, heard (list), work) -> BlockStructure``; raises :class:`MeshingError`.
+    budget : int
+        Each build's work budget (assemblies).
+    rays : RayCache
+        The cache the builds share.
+    """
+
+    def __init__(self, build, budget: int, rays):
+        self.build, self.budget, self.rays = build, budget, rays
+        self.done: dict = {}  # exact skeleton -> (blocks, warnings) or the MeshingError raised
+        self.shapes: dict = {}  # _skeleton_key -> the exact key of a skeleton built
+
+    def __call__(self, sk: Skeleton):
+        exact = _exact_key(sk)
+        first = self.shapes.get(_skeleton_key(sk)) if exact not in self.done else None
+        # a failure is not relabelled: whether a build fails may hang on its numbering
+        if first is not None and not isinstance(self.done[first], MeshingError) and (out := _relabelled(self.done[first], sk)) is not None:
+            return out
+        return self.exact(sk)
+
+    def exact(self, sk: Skeleton):
+        """The build on ``sk`` itself (built once)."""
+        key = _exact_key(sk)
+        if key not in self.done:
+            work, heard = WorkBudget(self.budget), []
+            work.rays = self.rays
+            hits, misses = self.rays.hits, self.rays.misses
+            try:
+                blocks = self.build(sk, heard, work)
+                blocks.info["work"].update(rays_cast=self.rays.misses - misses, rays_reused=self.rays.hits - hits)
+                self.done[key] = (blocks, heard)
+            except MeshingError as exc:
+                self.done[key] = exc
+            self.shapes.setdefault(_skeleton_key(sk), key)
+        got = self.done[key]
+        if isinstance(got, MeshingError):
+            raise got
+        return copy.deepcopy(got)
+
+
+def _exact_key(sk: Skeleton) -> tuple:
+    """``sk`` exactly: points, radii, segments, tags."""
+    return sk.points.tobytes(), sk.radii.tobytes(), sk.edges.tobytes(), repr(sk.node_tags), repr(sk.edge_tags), sk.name
+
+
+def _relabelled(got, sk: Skeleton):
+    """``(blocks, warnings)`` built on a skeleton that is ``sk`` but for the numbering of its
+    nodes and segments, with ``block_node`` and ``block_segment`` in ``sk``'s numbering and
+    ``info["skeleton"]`` ``sk``; None where the points, radii or tags differ in any bit or
+    the build changed its skeleton (a junction split or merged)."""
+    blocks, heard = copy.deepcopy(got)
+    old = blocks.info.get("skeleton")
+    if old is None or old.n_nodes != sk.n_nodes or old.n_edges != sk.n_edges:
+        return None
+    a, b = np.lexsort(old.points.T), np.lexsort(sk.points.T)
+    node = np.empty(sk.n_nodes, np.int64)
+    node[a] = b  # old node id -> sk's
+    if not (np.array_equal(old.points[a], sk.points[b]) and np.array_equal(old.radii, sk.radii[node])
+            and all(old.node_tags[i] == sk.node_tags[node[i]] for i in range(sk.n_nodes))):
+        return None
+    pair = {tuple(sorted(e)): k for k, e in enumerate(sk.edges.tolist())}
+    seg = np.array([pair.get(tuple(sorted(e)), -1) for e in node[old.edges].tolist()], np.int64)
+    if np.any(seg < 0) or any(old.edge_tags[k] != sk.edge_tags[seg[k]] for k in range(sk.n_edges)):
+        return None
+    blocks.block_segment = np.where(blocks.block_segment >= 0, seg[np.maximum(blocks.block_segment, 0)], blocks.block_segment)
+    blocks.block_node = np.where(blocks.block_node >= 0, node[np.maximum(blocks.block_node, 0)], blocks.block_node)
+    blocks.info["skeleton"], blocks.info["relabelled"] = sk, True
+    return blocks, heard
 
 
 def _build_blocks(skeleton, distance, caps, options: BlockOptions, bad_blocks_path=None, warn=None, progress=None, project=None,

@@ -41,7 +41,9 @@ def add_dent_sections(blocks: BlockStructure, build, fill, distance, project, ro
         A valid structure; ``info["skeleton"]`` is the skeleton it was built on.
     build : callable
         ``build(skeleton) -> (BlockStructure, warnings)``: the whole build on another
-        skeleton (without this step); raises :class:`MeshingError` where it fails.
+        skeleton (without this step); raises :class:`MeshingError` where it fails. A
+        structure it marks ``info["relabelled"]`` (another build's, renumbered:
+        ``builder._Rebuilds``) is only judged; the one kept is ``build.exact(skeleton)``'s.
     fill : callable
         ``fill(blocks, subset) -> (k,)`` each block's :func:`~.checks.fill_quality`.
     distance, project : callable
@@ -75,6 +77,10 @@ def add_dent_sections(blocks: BlockStructure, build, fill, distance, project, ro
             before, trial, split = _Stretch(blocks, sk, better, fill), _try(build, sk, better), better
         if len(better) == 0 or trial is None or before.scores(trial[0], split, fill, whole=True) <= before.whole + 1e-9:
             break
+        if trial[0].info.get("relabelled"):  # judged on a relabelled copy (builder._Rebuilds): keep the build itself
+            trial = _try(getattr(build, "exact", build), sk, split)
+            if trial is None:
+                break
         blocks, kept_warnings = trial
         added += len(split)
     if kept_warnings is None:
