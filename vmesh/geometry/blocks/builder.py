@@ -135,16 +135,14 @@ def _build_blocks(skeleton, distance, caps, options: BlockOptions, bad_blocks_pa
     flat = {id(options): options.replace(junction_lean=0.0), id(at_node): at_node.replace(junction_lean=0.0)}  # :func:`_fallback`
     queue = [(skeleton, [], options, frozenset(), [], None)]  # + the junction pairs a split made, the stubs cut, the wall to cover
     first = None
-    # skeletons tried: [the given one and its changes, those from a merge whose wall is
-    # judged]; the judged merge is a variant of the plain merge queued after it, so it and its
-    # splits get as many tries as the changed skeletons (all but the given one) and do not
-    # use up the tries that merge needs (real sv_rpa given, docs/junctions.md h18/pair)
+    # skeletons tried: [the others, those from a merge whose wall is judged]; the judged
+    # merge is a variant of the plain merge queued after it, and its splits must not use up
+    # the tries that merge needs (real sv_rpa given, docs/junctions.md h18/pair)
     tries = [0, 0]
-    most = [options.repair.max_retopology_tries, options.repair.max_retopology_tries - 1]
     seen = set()  # merging two junctions and splitting the result again can give a skeleton back
     while queue and not work.spent:
         sk, notes, opts, made, cut, wall = queue.pop(0)
-        if opts is options and tries[wall is not None] >= most[wall is not None]:
+        if opts is options and tries[wall is not None] >= options.repair.max_retopology_tries:
             continue  # a skeleton counts once; its :func:`_fallback` placements always follow
         key = (_skeleton_key(sk), opts.junction.junction_centre, opts.junction.junction_lean)
         if key in seen:
