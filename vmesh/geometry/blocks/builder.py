@@ -135,20 +135,15 @@ def _build_blocks(skeleton, distance, caps, options: BlockOptions, bad_blocks_pa
     flat = {id(options): options.replace(junction_lean=0.0), id(at_node): at_node.replace(junction_lean=0.0)}  # :func:`_fallback`
     queue = [(skeleton, [], options, frozenset(), [], None)]  # + the junction pairs a split made, the stubs cut, the wall to cover
     first = None
-    # skeletons tried: [the others, those from a merge whose wall is judged]; the judged
-    # merge is a variant of the plain merge queued after it, and its splits must not use up
-    # the tries that merge needs (real sv_rpa given, docs/junctions.md h18/pair)
-    tries = [0, 0]
+    tries = 0
     seen = set()  # merging two junctions and splitting the result again can give a skeleton back
-    while queue and not work.spent:
+    while queue and (tries < options.repair.max_retopology_tries or queue[0][2] is not options) and not work.spent:
         sk, notes, opts, made, cut, wall = queue.pop(0)
-        if opts is options and tries[wall is not None] >= options.repair.max_retopology_tries:
-            continue  # a skeleton counts once; its :func:`_fallback` placements always follow
         key = (_skeleton_key(sk), opts.junction.junction_centre, opts.junction.junction_lean)
         if key in seen:
             continue
         seen.add(key)
-        tries[wall is not None] += opts is options
+        tries += opts is options  # a skeleton counts once; its :func:`_fallback` placements always follow
         try:
             blocks = _choose_lean(lambda planar: _Builder(sk, distance, caps, opts, warn, progress, project, intersect_lines, work, planar), work)
         except _Failure as failure:
@@ -182,7 +177,7 @@ def _build_blocks(skeleton, distance, caps, options: BlockOptions, bad_blocks_pa
     if (blocks := _last_resort(skeleton, distance, caps, options, (warn, progress, project, intersect_lines), work)) is not None:
         return blocks
     first.hint += work.stop_note()
-    raise first.error(bad_blocks_path, sum(tries))
+    raise first.error(bad_blocks_path, tries)
 
 
 def _last_resort(skeleton, distance, caps, options: BlockOptions, hooks: tuple, work) -> BlockStructure | None:
