@@ -373,13 +373,13 @@ def _retopology_options(failure: "_Failure", notes: list, distance, options: Blo
             note = f"merged junction nodes {a} and {b} (their half cross-sections left the branch between them no room) into node {node}"
             own, _ = merge_junction_pair(sk, a, b, own_lumen=True) if not notes and project is not None else (merged, node)
             if own.n_nodes < merged.n_nodes:
-                # a sibling fused with the link past its middle leaves the merged junction (at
-                # the link's middle) through its fused nodes past the middle, tried first; only
-                # on the skeleton as given: its failed subtree can spend the budget that a merge
-                # of a changed skeleton needs (s0 g0002 extracted); taken only where its blocks
-                # still cover the pair's wall (real sv_rpa given; docs/junctions.md h16/pair,
-                # h17/pair, h18/pair)
-                out.append((own, notes + [note + ", a branch fused with the branch between them leaving from its middle"], frozenset(), [],
+                # a sibling fused with the link past its middle leaves the merged junction from
+                # where it parts from the link, tried first; only on the skeleton as given:
+                # its failed subtree can spend the budget that a merge of a changed skeleton
+                # needs (s0 g0002 extracted); taken only where its blocks still cover the
+                # pair's wall: its first segment can cut the corner of the fused stretch
+                # (real sv_rpa given, docs/junctions.md h16/pair, h17/pair)
+                out.append((own, notes + [note + ", a branch fused with the branch between them leaving from where it parts from it"], frozenset(), [],
                             pair_wall(sk, a, b, project)))
             out.append((merged, notes + [note], frozenset(), [], None))
         if failure.nfurcations:

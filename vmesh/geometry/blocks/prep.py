@@ -95,11 +95,8 @@ def merge_junction_pair(skeleton: Skeleton, a: int, b: int, own_lumen: bool = Fa
     The merged junction sits at the mean of the two with the larger radius; the other
     nodes keep their order. With ``own_lumen``, a branch of either junction that runs
     fused with the link past the link's middle (:func:`_fused_along_link`) leaves the
-    merged junction from the link's middle: its fused nodes on its own junction's half of
-    the link go into the junction (else it would leave the junction backwards, along the
-    link); those past the middle stay its first nodes, so that its first segment follows
-    its fused stretch (re-rooted at the end of the stretch, the segment cuts the stretch's
-    outer side out of the blocks: docs/junctions.md, h17/pair and h18/pair).
+    merged junction from where it parts from the link: its nodes inside that stretch go
+    into the junction (else it would still leave the junction along the link, inside it).
 
     Returns
     -------
@@ -116,7 +113,7 @@ def merge_junction_pair(skeleton: Skeleton, a: int, b: int, own_lumen: bool = Fa
     group = np.arange(sk.n_nodes)
     group[np.asarray(path)] = keep
     if own_lumen:
-        group[_fused_along_link(sk, paths, path, own_half=True)] = keep
+        group[_fused_along_link(sk, paths, path)] = keep
     labels = np.unique(group)
     positions = sk.points[labels].copy()
     positions[np.searchsorted(labels, keep)] = 0.5 * (sk.points[a] + sk.points[b])
@@ -124,7 +121,7 @@ def merge_junction_pair(skeleton: Skeleton, a: int, b: int, own_lumen: bool = Fa
     return merged, int(np.searchsorted(labels, keep))
 
 
-def _fused_along_link(sk: Skeleton, paths: list, link: np.ndarray, own_half: bool = False) -> np.ndarray:
+def _fused_along_link(sk: Skeleton, paths: list, link: np.ndarray) -> np.ndarray:
     """Nodes of the link's sibling branches that lie in one lumen with the link past its middle.
 
     Two 3-junctions closer than their half-sections reach fail where, at one of them, a
@@ -134,8 +131,6 @@ def _fused_along_link(sk: Skeleton, paths: list, link: np.ndarray, own_half: boo
     Merged, such a sibling would still leave the junction along the link, inside it. Per
     sibling: the run of its first nodes (from the junction; never its last node) whose
     tubes overlap the link's, when that run reaches past the link's middle; else none.
-    With ``own_half``, only the run's nodes that lie (projected onto the link) on their
-    own junction's half of it.
     """
     P = sk.points[link]
     seg = P[1:] - P[:-1]
@@ -163,7 +158,7 @@ def _fused_along_link(sk: Skeleton, paths: list, link: np.ndarray, own_half: boo
             run = len(nodes) if fused.all() else int(np.argmin(fused))
             along = np.abs(arc[k[:run]] + t[rows[:run], k[:run]] * seg_len[k[:run]] - from_end)
             if run and along.max() > 0.5 * arc[-1]:
-                out.extend(nodes[:run][along <= 0.5 * arc[-1]].tolist() if own_half else nodes[:run].tolist())
+                out.extend(nodes[:run].tolist())
     return np.asarray(out, np.int64)
 
 
