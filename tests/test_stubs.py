@@ -194,6 +194,10 @@ def test_generated_stub_meshes_through_the_chain(tmp_path, args, cut):
     cuts = [s["cap"] for s in ctx.report.sections["blocks"]["cut_stubs"]]
     assert cuts == (["outlet_2"] if cut else [])
     assert ("outlet_2" in ctx.blocks.boundary_names.values()) is not cut
+    if cut:  # the mouth is meshed as the wall it continues (nodes on the wall), named stub_1
+        fid = [k for k, v in ctx.mesh.boundary_names.items() if v == "stub_1"]
+        mouth = ctx.mesh.boundary_faces[np.isin(ctx.mesh.boundary_ids, fid)]
+        assert len(mouth) > 0 and ctx.mesh.on_wall[mouth].all()
 
 
 @pytest.mark.parametrize("args", [(70, 0.3, 1.0), (55, 0.3, 1.0), (90, 0.6, 2.0)])

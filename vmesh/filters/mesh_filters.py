@@ -55,6 +55,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
     block faces (wall faces projected again) and transfinite interpolation fills the blocks.
     The boundary layer is resolved by grading, never by extra element layers: the element
     count is the same with and without grading."""
+    from ..geometry.blocks.stubs import meshed_as_wall, name_stub_faces
     from ..geometry.boundary_layer import record_first_layer, setup_boundary_layer
     from ..geometry.projection import wall_projector
     from ..geometry.transfinite import Refinement, mesh_blocks
@@ -75,7 +76,8 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         curved_sections=curved_sections,
         **layer,
     )
-    blocks = ctx.blocks
+    named = ctx.blocks
+    blocks = meshed_as_wall(named)  # a cut stub's mouth is meshed as the wall it continues, named after
     sdf = ctx.sdf if ctx.sdf is not None and ctx.sdf.n_faces == surface.n_faces else None
     if sdf is None:
         from ..geometry.sdf import SignedDistance
@@ -122,7 +124,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
             "layer": blocks.block_layer[b],
         },
         boundary_faces=sm.boundary_faces,
-        boundary_ids=sm.boundary_ids,
+        boundary_ids=name_stub_faces(named, sm.points, sm.boundary_faces, sm.boundary_ids, sm.boundary_cells, b),
         boundary_cells=sm.boundary_cells,
         boundary_names=dict(blocks.boundary_names),
         on_wall=sm.on_wall,
