@@ -83,17 +83,17 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
     bad_path = ctx.output_path("invalid_blocks.vtu")
     if bad_path is None:
         bad_path = Path(tempfile.gettempdir()) / f"vmesh_invalid_blocks_{os.getpid()}.vtu"
+    built_on = ctx.skeleton
+    found = _vessels_in_contact(built_on)
+    cuts, touched = _contact_cuts(built_on, found, ctx.caps, cap_distance) if cut_contacts else (None, [])
     project = None
     if check_wall_projection:
         if ctx.surface is not None:
             from ..geometry.projection import wall_projector
 
-            project = wall_projector(ctx.surface, ctx.caps)  # shared with mesh_transfinite and the checks
+            project = wall_projector(ctx.surface, ctx.caps, kept=touched)  # shared with mesh_transfinite and the checks
         else:
             project = sdf.closest_points
-    built_on = ctx.skeleton
-    found = _vessels_in_contact(built_on)
-    cuts = _contact_cuts(built_on, found) if cut_contacts else None
     if cuts is not None:
         from ..geometry.contact_cut import with_cuts
 
@@ -138,6 +138,8 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         ctx.report.sections["blocks"]["junction_lean"] = info["junction_lean"]
     if cuts is not None and len(cuts):
         info["contact_cuts"] = cuts  # mesh_transfinite and compute_quality see the same domain
+    if touched:
+        info["touched_caps"] = touched  # mesh_transfinite's wall projector keeps these caps as the checks did
     if checks["boundary_components"] != 1:
         ctx.warn(f"the outer block faces form {checks['boundary_components']} pieces (is the skeleton connected?)")
     # named on the skeleton the run goes on with (the builder may have changed it)
@@ -151,13 +153,22 @@ def _vessels_in_contact(sk) -> np.ndarray:
     return vessels_in_contact(sk.points, sk.radii, sk.edges)
 
 
-def _contact_cuts(sk, found: np.ndarray):
+def _contact_cuts(sk, found: np.ndarray, caps=None, cap_distance: float = 1.0):
     """The cuts between the vessels in contact ``found`` on the skeleton ``sk`` the blocks
-    are built on (:mod:`vmesh.geometry.contact_cut`); None when there are none."""
+    are built on (:mod:`vmesh.geometry.contact_cut`), each stopping at an open end (an
+    endpoint the builder puts on a cap; None when there are no cuts), and the ids of the
+    caps of the open ends in contact with another vessel (whose cap the wall projector
+    keeps: :func:`vmesh.geometry.projection.wall_projector`)."""
+    from ..geometry.blocks.prep import endpoint_caps
     from ..geometry.contact_cut import contact_cuts
 
-    cuts = contact_cuts(sk.points, sk.radii, sk.edges, found)
-    return cuts if len(cuts) else None
+    if not len(found):
+        return None, []
+    ends = np.flatnonzero(np.bincount(np.asarray(sk.edges, np.int64).ravel(), minlength=len(sk.points)) == 1)
+    cap_of = endpoint_caps(sk.points, sk.radii, ends, caps, cap_distance) if caps else {}
+    cuts = contact_cuts(sk.points, sk.radii, sk.edges, found, open_ends=list(cap_of) if caps else ends)  # no caps: every end open, as the builder
+    touched = sorted({int(cap_of[int(n)].id) for n in np.asarray(cuts.nodes).ravel() if int(n) in cap_of})
+    return (cuts if len(cuts) else None), touched
 
 
 def _warn_vessels_in_contact(ctx, found: np.ndarray, cut: bool = False) -> None:

@@ -65,7 +65,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
                                  y_plus, flow_velocity, flow_density, flow_viscosity, reference_length)
     surface = ctx.coarse_surface if project_to == "coarse" and ctx.coarse_surface is not None else ctx.surface
     caps = ctx.caps if surface is ctx.surface else None
-    projector = wall_projector(surface, caps)
+    projector = wall_projector(surface, caps, kept=ctx.blocks.info.get("touched_caps", ()))  # as the builder's checks
     ref = Refinement(
         around=elements_around * refinement,
         core=elements_around * refinement,

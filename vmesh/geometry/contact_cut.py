@@ -39,6 +39,9 @@ class ContactCuts:
     radius: np.ndarray
     reach: np.ndarray
     nodes: np.ndarray
+    #: (n, 2) bool: the axis segment starts at its vessel's open end (``axis_x[k, 0]``, on
+    #: the cap's plane), so the patch stops there; None: no open ends
+    open_end: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.centre)
@@ -89,7 +92,7 @@ def _segment_closest(p0, u, q0, v, half_p, half_q):
 
 
 def contact_cuts(points: np.ndarray, radii: np.ndarray, edges: np.ndarray, found: np.ndarray, inflate: float = 1.3,
-                 length: float = 2.0) -> ContactCuts:
+                 length: float = 2.0, open_ends=()) -> ContactCuts:
     """The cut of each contact ``found`` (rows node a, node b, gap, as
     :func:`~vmesh.geometry.skeleton.contact.vessels_in_contact` returns them).
 
@@ -97,8 +100,12 @@ def contact_cuts(points: np.ndarray, radii: np.ndarray, edges: np.ndarray, found
     tangent, ``length`` x (r_a + r_b) each way; the plane is the radical plane of the two
     spheres about the segments' closest points (equal power: inside one tube there is
     inside the other, the fused neck), the patch is bounded by the tubes inflated by
-    ``inflate`` (the smooth union widens the neck beyond the tubes' overlap)."""
+    ``inflate`` (the smooth union widens the neck beyond the tubes' overlap). At a node of
+    ``open_ends`` (end nodes on a cap) the tube ends on the plane through the node normal
+    to its axis: the patch stops there rather than rounding the end, since past a cap the
+    other vessel alone fills the lumen (a cut there would halve it)."""
     P = np.asarray(points, float)
+    opened = {int(e) for e in open_ends}
     r = np.asarray(radii, float)
     E = np.asarray(edges, np.int64)
     rows = []
@@ -114,12 +121,14 @@ def contact_cuts(points: np.ndarray, radii: np.ndarray, edges: np.ndarray, found
         n = (cb - ca) / d
         s = (d * d + r[a] ** 2 - r[b] ** 2) / (2.0 * d)
         rows.append((ca + s * n, n, sa, sb,
-                     inflate * np.array([r[a], r[b]]), half + inflate * max(r[a], r[b]), (a, b)))
+                     inflate * np.array([r[a], r[b]]), half + inflate * max(r[a], r[b]), (a, b),
+                     [node in opened and np.count_nonzero(E == node) == 1 for node in (a, b)]))
     if not rows:
         z = np.zeros((0, 3))
         return ContactCuts(z, z, np.zeros((0, 2, 3)), np.zeros((0, 2, 3)), np.zeros((0, 2)), np.zeros(0), np.zeros((0, 2), np.int64))
     cols = list(zip(*rows))
-    return ContactCuts(*(np.array(c, float) for c in cols[:6]), np.array(cols[6], np.int64))
+    ended = np.array(cols[7], bool)
+    return ContactCuts(*(np.array(c, float) for c in cols[:6]), np.array(cols[6], np.int64), ended if ended.any() else None)
 
 
 def _segment_distance(y: np.ndarray, seg: np.ndarray) -> np.ndarray:
@@ -129,9 +138,21 @@ def _segment_distance(y: np.ndarray, seg: np.ndarray) -> np.ndarray:
     return np.linalg.norm(y - (seg[0] + t[:, None] * ab), axis=1)
 
 
+def _before_end(y: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """Whether points ``y`` lie on the segment's side of the plane through its first point
+    normal to it (a tube that ends open at ``seg[0]`` has nothing beyond that plane)."""
+    return (y - seg[0]) @ (seg[1] - seg[0]) >= 0.0
+
+
 def _on_patch(cuts: ContactCuts, k: int, y: np.ndarray) -> np.ndarray:
-    """Whether plane points ``y`` of cut ``k`` lie on its patch (inside both inflated tubes)."""
-    return (_segment_distance(y, cuts.axis_a[k]) < cuts.radius[k, 0]) & (_segment_distance(y, cuts.axis_b[k]) < cuts.radius[k, 1])
+    """Whether plane points ``y`` of cut ``k`` lie on its patch (inside both inflated tubes,
+    and not beyond either vessel's open end: past its cap only the other vessel is there)."""
+    on = (_segment_distance(y, cuts.axis_a[k]) < cuts.radius[k, 0]) & (_segment_distance(y, cuts.axis_b[k]) < cuts.radius[k, 1])
+    if cuts.open_end is not None:
+        for axis, ended in ((cuts.axis_a[k], cuts.open_end[k, 0]), (cuts.axis_b[k], cuts.open_end[k, 1])):
+            if ended:
+                on &= _before_end(y, axis)
+    return on
 
 
 def cut_feet(cuts: ContactCuts, points: np.ndarray, inside) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

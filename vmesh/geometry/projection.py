@@ -56,6 +56,71 @@ class SurfaceProjector:
         return self.project(points)[0]
 
 
+#: A point stays on a cap (rather than going to the wall) when the closest point of the
+#: closed surface is on that cap and the wall is farther than this x the cap's radius ...
+CAP_KEEP_RADIUS = 0.25
+#: ... and this many times farther than the cap (docs/optimiser.md, h18/cap)
+CAP_KEEP_RATIO = 4.0
+
+
+class CapKeepingProjector:
+    """A wall projector (caps left out) that keeps a point on one of its caps where the
+    closed surface's closest point is on that cap and the wall lies far beyond it.
+
+    Used for the caps of open ends that another vessel touches (a contact cut at the end
+    node). The wall projector leaves caps out so that an open end's own rim nodes go to
+    the wall, not to the cap's plane: those lie within a chord's sagitta of the wall. A
+    point far from the wall but on such a cap is the other vessel's, whose lumen the cap
+    closes (the builder's section rays, cast in the closed surface, stop on the cap
+    there). Sending it to the nearest wall would take it across that vessel's lumen or
+    onto the contact cut; it stays on the cap, where the rays put it.
+
+    Parameters
+    ----------
+    wall : SurfaceProjector
+        The projector onto the surface without its caps.
+    closed : TriangleBVH
+        The tree of the whole (closed) surface.
+    cap_of_face : (m,) int array
+        The index into ``cap_radius`` of each closed-surface face's cap, -1 for the wall.
+    cap_radius : (k,) array
+    """
+
+    def __init__(self, wall: SurfaceProjector, closed, cap_of_face: np.ndarray, cap_radius: np.ndarray):
+        self.wall = wall
+        self.closed = closed
+        self.cap_of_face = np.asarray(cap_of_face, np.int64)
+        self.cap_radius = np.asarray(cap_radius, float)
+        self.least_far = CAP_KEEP_RADIUS * float(self.cap_radius.min())
+
+    @property
+    def tree(self):
+        """The wall's :class:`~vmesh.geometry.bvh.TriangleBVH` (caps left out)."""
+        return self.wall.tree
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """As :meth:`SurfaceProjector.project`; a point kept on a cap gets face index -1."""
+        closest, d, face = self.wall.project(points)
+        far = np.flatnonzero(d > self.least_far)  # only these can be kept: one closed query for them
+        if not len(far):
+            return closest, d, face
+        p = np.ascontiguousarray(np.asarray(points, np.float64).reshape(-1, 3)[far])
+        sq, f_closed, on_closed, _ = self.closed.closest(p)
+        cap = self.cap_of_face[f_closed]
+        d_cap = np.sqrt(sq)
+        radius = self.cap_radius[np.maximum(cap, 0)]
+        keep = (cap >= 0) & (d[far] > CAP_KEEP_RADIUS * radius) & (d[far] > CAP_KEEP_RATIO * d_cap)
+        if not keep.any():
+            return closest, d, face
+        i = far[keep]
+        closest, d, face = closest.copy(), d.copy(), face.copy()
+        closest[i], d[i], face[i] = on_closed[keep], d_cap[keep], -1
+        return closest, d, face
+
+    def __call__(self, points):
+        return self.project(points)[0]
+
+
 def _entries(surface) -> dict:
     """The cache of ``surface`` (created, with its clean-up, on first use)."""
     key = id(surface)
@@ -101,20 +166,40 @@ def wall_faces(surface, caps=None) -> np.ndarray | None:
     return np.flatnonzero(keep) if keep.any() and not keep.all() else None
 
 
-def wall_projector(surface, caps=None) -> SurfaceProjector:
-    """A projector onto ``surface`` without the triangles of ``caps`` (flat open ends).
+def wall_projector(surface, caps=None, kept=()) -> SurfaceProjector | CapKeepingProjector:
+    """A projector onto ``surface`` without the triangles of ``caps`` (flat open ends);
+    with ``kept`` (cap ids: open ends another vessel touches) points far from the wall
+    whose closest point is on one of those caps stay there (:class:`CapKeepingProjector`).
 
-    One projector per surface object and set of cap triangles, shared by every caller
-    (the whole surface's projector shares its tree with :func:`surface_tree` and with the
-    surface's :class:`~vmesh.geometry.sdf.SignedDistance`)."""
+    One projector per surface object, set of cap triangles and kept caps, shared by every
+    caller (the whole surface's projector shares its tree with :func:`surface_tree` and
+    with the surface's :class:`~vmesh.geometry.sdf.SignedDistance`)."""
     keep = wall_faces(surface, caps)
-    key = ("wall", None if keep is None else keep.tobytes())
+    kept = sorted({int(k) for k in kept or ()} & {int(c.id) for c in caps or []}) if keep is not None else []
+    key = ("wall", None if keep is None else keep.tobytes(), *kept)
     entries = _entries(surface)
     projector = entries.get(key)
     if projector is None:
         if keep is None:
             projector = SurfaceProjector(surface.vertices, surface.faces, tree=surface_tree(surface))
+        elif kept:  # the plain wall projector (cached, its tree shared), wrapped
+            projector = _cap_keeping(surface, [c for c in caps if int(c.id) in kept], wall_projector(surface, caps))
         else:
             projector = SurfaceProjector(surface.vertices, surface.faces[keep])
         entries[key] = projector
     return projector
+
+
+def _cap_keeping(surface, caps, wall: SurfaceProjector) -> SurfaceProjector | CapKeepingProjector:
+    """``wall`` keeping the triangles of ``caps`` where :class:`CapKeepingProjector` keeps
+    them (``wall`` itself when those caps have no triangles)."""
+    n = len(surface.faces)
+    cap_of_face = np.full(n, -1, np.int64)
+    radius = []
+    for cap in caps:
+        f = np.asarray(cap.faces, np.int64)
+        f = f[(f >= 0) & (f < n)]
+        if len(f):
+            cap_of_face[f] = len(radius)
+            radius.append(float(cap.radius))
+    return CapKeepingProjector(wall, surface_tree(surface), cap_of_face, np.asarray(radius)) if radius else wall

@@ -1,0 +1,85 @@
+"""An open end's cap through a vessel it touches (issue 18, h18/cap): the wall projector
+keeps another vessel's points on a cap, as the builder's rays (cast in the closed
+surface) do, and a contact cut stops at an open end."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vmesh import preprocess as pre
+from vmesh.geometry.contact_cut import CutSurface, contact_cuts
+from vmesh.geometry.projection import CapKeepingProjector, wall_projector
+from vmesh.surface import SurfaceMesh
+
+
+def _capped_tube(radius=1.0, length=6.0, n_around=48, n_along=25):
+    """A tube along z capped at both ends: the surface and its caps."""
+    theta = np.linspace(0, 2 * np.pi, n_around, endpoint=False)
+    z = np.linspace(0, length, n_along)
+    tt, zz = np.meshgrid(theta, z)
+    v = np.stack([radius * np.cos(tt).ravel(), radius * np.sin(tt).ravel(), zz.ravel()], axis=1)
+    i, j = np.meshgrid(np.arange(n_along - 1), np.arange(n_around), indexing="ij")
+    a, b = i * n_around + j, i * n_around + (j + 1) % n_around
+    f = np.concatenate([np.stack([a, b, b + n_around], -1).reshape(-1, 3), np.stack([a, b + n_around, a + n_around], -1).reshape(-1, 3)])
+    cv, cf, labels = pre.cap_boundary_loops(v, f)
+    return SurfaceMesh(cv, cf), pre.caps_from_labels(cv, cf, labels)
+
+
+def test_a_point_on_a_cap_far_from_the_wall_stays_there():
+    """With both caps touched by another vessel, on the cap's plane: a point half a radius in goes nowhere (it is another vessel's,
+    whose lumen the cap closes), a point a chord's sagitta inside the rim goes to the wall
+    (the open end's own rim), and a point inside the tube near the wall goes to the wall."""
+    surface, caps = _capped_tube()
+    assert not isinstance(wall_projector(surface, caps), CapKeepingProjector)  # no cap touched: caps left out
+    project = wall_projector(surface, caps, kept=[c.id for c in caps])
+    assert isinstance(project, CapKeepingProjector)
+    on_cap = np.array([[0.5, 0.0, 6.0], [0.0, -0.4, 0.0]])
+    closest, d, face = project.project(on_cap)
+    np.testing.assert_allclose(closest, on_cap, atol=1e-9)
+    assert (face == -1).all() and np.allclose(d, 0.0, atol=1e-9)
+    rim = np.array([[0.99, 0.0, 6.0], [0.0, 0.97, 0.0]])
+    inside = np.array([[0.9, 0.0, 3.0], [0.0, -0.8, 5.5]])
+    for p in (rim, inside):
+        closest, _, face = project.project(p)
+        assert (face >= 0).all()
+        np.testing.assert_allclose(np.linalg.norm(closest[:, :2], axis=1), 1.0, atol=2e-3)
+
+
+def test_a_contact_cut_stops_at_an_open_end():
+    """Two tubes whose axes lie 0.9 apart (radii 1 and 0.45: the thin one's axis inside the
+    thick one's wall, its radical plane beyond the thin axis); the thick one ends open at
+    y = 0 (its end node on a cap), the thin one runs on. Before the end the cut is there as
+    before; past it the thin vessel alone fills the lumen and no cut halves it."""
+    y = np.arange(-8.0, 4.01, 1.0)
+    thick = np.stack([np.zeros(9), y[:9], np.zeros(9)], 1)  # y = -8 .. 0, end node last
+    thin = np.stack([np.full(len(y), 0.9), y, np.zeros(len(y))], 1)
+    points = np.r_[thick, thin]
+    radii = np.r_[np.full(9, 1.0), np.full(len(y), 0.45)]
+    edges = np.r_[np.stack([np.arange(8), np.arange(1, 9)], 1), 9 + np.stack([np.arange(len(y) - 1), np.arange(1, len(y))], 1)]
+    end, beside = 8, 9 + 8  # the thick end node and the thin node beside it
+    found = np.array([[end, beside, -0.55]])
+
+    def inside(p):  # the union of the two tubes (infinite along y past the thick end for the thin one)
+        p = np.asarray(p, float).reshape(-1, 3)
+        in_thick = (1.0 - np.hypot(p[:, 0], p[:, 2])) * (p[:, 1] <= 0) - (p[:, 1] > 0)
+        return np.maximum(in_thick, 0.45 - np.hypot(p[:, 0] - 0.9, p[:, 2]))
+
+    class Query:
+        distance = staticmethod(inside)
+
+        @staticmethod
+        def project(p):
+            p = np.asarray(p, float).reshape(-1, 3)
+            return p, inside(p), np.zeros(len(p), np.int64)
+
+    rounded = contact_cuts(points, radii, edges, found)
+    ended = contact_cuts(points, radii, edges, found, open_ends=[end])
+    assert len(rounded) == len(ended) == 1 and ended.open_end is not None and ended.open_end[0, 0]
+    c, n = ended.centre[0], ended.normal[0]
+    before, past = c * [1, 0, 1] + [0.0, -0.5, 0.0], c * [1, 0, 1] + [0.0, 0.4, 0.0]  # plane points in the thin lumen, y = -0.5, 0.4
+    for p in (before, past):
+        assert abs((p - c) @ n) < 1e-9 and inside(p)[0] > 0
+    near = lambda p: p[None] + 0.05 * n  # noqa: E731
+    assert CutSurface(Query, rounded).distance(near(past))[0] < 0.06  # the old patch reached past the end
+    assert CutSurface(Query, ended).distance(near(past))[0] > 0.06
+    np.testing.assert_allclose(CutSurface(Query, ended).distance(near(before)), 0.05, atol=1e-9)
