@@ -14,13 +14,9 @@ from vmesh.surface import SurfaceMesh
 
 def _capped_tube(radius=1.0, length=6.0, n_around=48, n_along=25):
     """A tube along z capped at both ends: the surface and its caps."""
-    theta = np.linspace(0, 2 * np.pi, n_around, endpoint=False)
-    z = np.linspace(0, length, n_along)
-    tt, zz = np.meshgrid(theta, z)
-    v = np.stack([radius * np.cos(tt).ravel(), radius * np.sin(tt).ravel(), zz.ravel()], axis=1)
-    i, j = np.meshgrid(np.arange(n_along - 1), np.arange(n_around), indexing="ij")
-    a, b = i * n_around + j, i * n_around + (j + 1) % n_around
-    f = np.concatenate([np.stack([a, b, b + n_around], -1).reshape(-1, 3), np.stack([a, b + n_around, a + n_around], -1).reshape(-1, 3)])
+    from test_preprocess import open_tube
+
+    v, f = open_tube(radius, length, n_around, n_along)
     cv, cf, labels = pre.cap_boundary_loops(v, f)
     return SurfaceMesh(cv, cf), pre.caps_from_labels(cv, cf, labels)
 

@@ -124,3 +124,19 @@ def test_rebuilds_remember_a_skeleton_and_relabel_a_renumbered_one():
 
     for got, want in zip(by_corners(relabelled), by_corners(own)):
         assert np.array_equal(got, want)
+
+
+def test_same_blocks_ignores_block_order_not_corners():
+    """The dent step's check that the build it keeps is the copy it judged: the same corners
+    in another block order are the same blocks; one moved corner is not."""
+    from types import SimpleNamespace as Blocks  # the corners are all it reads
+
+    from vmesh.geometry.blocks.dents import _same_blocks
+
+    v = np.random.default_rng(0).random((12, 3))
+    hexes = np.array([[0, 1, 2, 3, 4, 5, 6, 7], [4, 5, 6, 7, 8, 9, 10, 11]])
+    a = Blocks(vertices=v, hexes=hexes)
+    assert _same_blocks(a, Blocks(vertices=v, hexes=hexes[::-1]))
+    moved = v.copy()
+    moved[9] += 1e-9
+    assert not _same_blocks(a, Blocks(vertices=moved, hexes=hexes))

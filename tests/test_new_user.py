@@ -96,3 +96,11 @@ def test_a_set_value_given_after_a_space_is_explained(capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert "--set mesh_transfinite.refinement=2" in err
+
+
+def test_a_chain_files_params_that_are_not_a_table_are_refused(tmp_path):
+    """``params = 3`` in a chain file: one input error naming the file and step, not a TypeError."""
+    p = tmp_path / "bad.toml"
+    p.write_text('[chain]\nname = "bad"\n\n[[step]]\nfilter = "repair_surface"\nparams = 3\n')
+    with pytest.raises(InputError, match=r"bad\.toml.*step 1 \(repair_surface\): params must be a table"):
+        FilterChain.load(str(p))

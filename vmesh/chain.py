@@ -212,6 +212,8 @@ class FilterChain:
             extra = set(s) - {"filter", "params"}
             if extra:
                 raise InputError(f"step {i + 1}: unknown key(s) {', '.join(sorted(extra))} (use a [step.params] table)", source or None)
+            if not isinstance(s.get("params", {}), dict):
+                raise InputError(f"step {i + 1} ({s['filter']}): params must be a table of name = value", source or None)
             steps.append(Step(s["filter"], dict(s.get("params", {}))))
         chain = cls(name=meta.get("name", ""), description=meta.get("description", ""))
         for i, step in enumerate(steps):

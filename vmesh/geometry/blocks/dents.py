@@ -78,8 +78,11 @@ def add_dent_sections(blocks: BlockStructure, build, fill, distance, project, ro
         if len(better) == 0 or trial is None or before.scores(trial[0], split, fill, whole=True) <= before.whole + 1e-9:
             break
         if trial[0].info.get("relabelled"):  # judged on a relabelled copy (builder._Rebuilds): keep the build itself
-            trial = _try(getattr(build, "exact", build), sk, split)
+            judged, trial = trial[0], _try(getattr(build, "exact", build), sk, split)
             if trial is None:
+                break
+            # a build may hang on its numbering: one that differs from the copy is judged itself
+            if not _same_blocks(judged, trial[0]) and before.scores(trial[0], split, fill, whole=True) <= before.whole + 1e-9:
                 break
         blocks, kept_warnings = trial
         added += len(split)
@@ -150,6 +153,14 @@ def halve_segments(sk: Skeleton, split: np.ndarray) -> Skeleton:
     node_tags = list(sk.node_tags) + [tuple(t for t in sk.node_tags[i] if t in sk.node_tags[j]) for i, j in zip(a.tolist(), b.tolist())]
     return Skeleton(np.r_[sk.points, 0.5 * (sk.points[a] + sk.points[b])], np.r_[sk.radii, 0.5 * (sk.radii[a] + sk.radii[b])],
                     np.r_[edges, np.c_[new, b]], node_tags, list(sk.edge_tags) + [sk.edge_tags[e] for e in split.tolist()], sk.name)
+
+
+def _same_blocks(a: BlockStructure, b: BlockStructure) -> bool:
+    """Whether two structures have the same blocks (corner points, in any block order)."""
+    if a.hexes.shape != b.hexes.shape:
+        return False
+    pa, pb = a.vertices[a.hexes].reshape(len(a.hexes), -1), b.vertices[b.hexes].reshape(len(b.hexes), -1)
+    return bool(np.array_equal(pa[np.lexsort(pa.T[::-1])], pb[np.lexsort(pb.T[::-1])]))
 
 
 def _try(build, sk: Skeleton, split: np.ndarray):
