@@ -164,7 +164,7 @@ def _contact_cuts(sk, found: np.ndarray, caps=None, cap_distance: float = 1.0):
 
     if not len(found):
         return None, []
-    ends = np.flatnonzero(np.bincount(np.asarray(sk.edges, np.int64).ravel(), minlength=len(sk.points)) == 1)
+    ends = sk.endpoints
     cap_of = endpoint_caps(sk.points, sk.radii, ends, caps, cap_distance) if caps else {}
     cuts = contact_cuts(sk.points, sk.radii, sk.edges, found, open_ends=list(cap_of) if caps else ends)  # no caps: every end open, as the builder
     touched = sorted({int(cap_of[int(n)].id) for n in np.asarray(cuts.nodes).ravel() if int(n) in cap_of})

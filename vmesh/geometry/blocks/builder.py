@@ -127,12 +127,13 @@ class _Rebuilds:
     Two rounds of halving often ask for the same skeleton: round 1 tries the flagged set and
     keeps a part, round 2 flags the rest, and halving it on round 1's skeleton gives round
     1's first trial again (s0 g0019 given), or the same up to the new nodes' numbering (s0
-    g0007 extracted, g0008 extracted). A build depends on its skeleton (numbering included) and options alone,
-    so the same skeleton gets a copy of the first build. The same up to numbering gets that
-    build relabelled (segments and nodes mapped by their exact points; the block order is
-    the first build's), marked ``info["relabelled"]``: good for judging it, and built for
-    real (:meth:`exact`) where the dent step keeps it (and judged again where it differs), so the structure kept is the one built
-    (a failed build is remembered for its own skeleton only).
+    g0007 extracted, g0008 extracted). A build depends on its skeleton (numbering included)
+    and options alone, so the same skeleton gets a copy of the first build. The same up to
+    numbering gets that build relabelled (segments and nodes mapped by their exact points;
+    the block order is the first build's), marked ``info["relabelled"]``: good for judging
+    it, and built for real (:meth:`exact`) where the dent step keeps it (and judged again
+    where it differs), so the structure kept is the one built (a failed build is
+    remembered for its own skeleton only).
     The builds share the first build's :class:`~vmesh.geometry.rays.RayCache` (bit for bit
     the same rays; sections away from the halvings do not move); each ``info["work"]``
     counts its own rays.
