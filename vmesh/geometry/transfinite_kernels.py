@@ -189,19 +189,22 @@ def _tfi_one(Q):
     _mean_edge_params(Q[0, :, 0], Q[0, :, K], Q[I, :, 0], Q[I, :, K], np.empty(J + 1), v)
     _mean_edge_params(Q[0, 0, :], Q[0, J, :], Q[I, 0, :], Q[I, J, :], np.empty(K + 1), w)
     # W2 on the faces k = 0 and k = K (needed by W3), W1 on j = 0 and j = J (needed by W2)
-    W2lo = np.empty((I + 1, J + 1, 3))
-    W2hi = np.empty((I + 1, J + 1, 3))
+    # (i, d, j): the rows _w2_row fills are C-contiguous, as ``row`` is, and k = 0 is passed
+    # as a run-time integer: one specialisation of _w2_row, not three
+    W2lo = np.empty((I + 1, 3, J + 1))
+    W2hi = np.empty((I + 1, 3, J + 1))
+    k0 = np.int64(0)
     for i in range(1, I):
         for d in range(3):
-            _w2_row(Q, u, v, i, 0, d, W2lo[i, :, d])
-            _w2_row(Q, u, v, i, K, d, W2hi[i, :, d])
+            _w2_row(Q, u, v, i, k0, d, W2lo[i, d])
+            _w2_row(Q, u, v, i, K, d, W2hi[i, d])
     row = np.empty(J + 1)
     for i in range(1, I):
         for kk in range(1, K):
             for d in range(3):
                 _w2_row(Q, u, v, i, kk, d, row)
                 for j in range(1, J):
-                    Q[i, j, kk, d] = row[j] + ((1 - w[kk]) * (Q[i, j, 0, d] - W2lo[i, j, d]) + w[kk] * (Q[i, j, K, d] - W2hi[i, j, d]))
+                    Q[i, j, kk, d] = row[j] + ((1 - w[kk]) * (Q[i, j, 0, d] - W2lo[i, d, j]) + w[kk] * (Q[i, j, K, d] - W2hi[i, d, j]))
 
 
 @nb.njit(cache=True, error_model="numpy")

@@ -745,13 +745,15 @@ def warm_up() -> None:
     from .objective import escobar_sum
 
     escobar_sum(X, hexes, np.ones((1, 8, 3)), 1e-3, np.zeros((8, 3)))  # the L-BFGS untangler's objective
-    from . import kernels_worst as KW  # the max-min pass's
-
-    for corners, minima in ((KW._worst_corners_serial, KW._trial_minima_serial), (KW._worst_corners_parallel, KW._trial_minima_parallel)):
-        corners(X, hexes, ptr, inc, nodes)
-        minima(X, hexes, ptr, inc, nodes, np.ascontiguousarray(X[:, None]))
     kind, normal, caps = np.full(8, FIXED, np.int64), np.zeros((8, 3)), np.zeros(8)
     for sweep, accept in ((sweep_colour_serial, accept_trials_serial), (sweep_colour_parallel, accept_trials_parallel)):
         trial, state, dirty, buf = np.zeros((8, 3)), np.zeros((8, 4)), np.zeros(8, np.bool_), np.zeros((8, 32))
         sweep(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, caps, 1e-3, SMOOTH, 0.5, trial, state, dirty, buf, 0.0)
         accept(X, hexes, scale, ptr, inc, cq, nodes, trial, 1e-3, SMOOTH, state, dirty, buf, caps, 0.0)
+    # the max-min pass's last: every run needs the sweeps, only runs left below smooth_below
+    # these, and a first run's optimiser may start while the background compile is still here
+    from . import kernels_worst as KW
+
+    for corners, minima in ((KW._worst_corners_serial, KW._trial_minima_serial), (KW._worst_corners_parallel, KW._trial_minima_parallel)):
+        corners(X, hexes, ptr, inc, nodes)
+        minima(X, hexes, ptr, inc, nodes, np.ascontiguousarray(X[:, None]))

@@ -16,7 +16,7 @@ import numpy as np
 from .kernels import PARALLEL_FROM, _variant
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _edge_at(X, hexes, e, tail, head, v, y0, y1, y2):
     """The edge from local node ``tail`` to ``head`` of hexahedron ``e``, with the node ``v``
     placed at ``(y0, y1, y2)``."""
@@ -25,7 +25,7 @@ def _edge_at(X, hexes, e, tail, head, v, y0, y1, y2):
             (y2 if h == v else X[h, 2]) - (y2 if t == v else X[t, 2]))
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _corner_edges(X, hexes, e, c, v, y0, y1, y2):
     """The edges of corner ``c`` of hexahedron ``e`` along +i, +j, +k (9 scalars, row by row),
     its scaled Jacobian and its edge-length product (floored), with the node ``v`` at ``y``;
@@ -40,20 +40,32 @@ def _corner_edges(X, hexes, e, c, v, y0, y1, y2):
     return a0, a1, a2, b0, b1, b2, c0, c1, c2, det / ln, ln
 
 
-@nb.njit(cache=True, inline="always")
-def _corner(X, hexes, e, c, v, y):
-    """:func:`_corner_edges` with the edges as a ``(3, 3)`` array (for the gradients):
-    edges, scaled Jacobian and edge-length product."""
-    r = _corner_edges(X, hexes, e, c, v, y[0], y[1], y[2])
-    E = np.empty((3, 3))
-    E[0, 0], E[0, 1], E[0, 2], E[1, 0], E[1, 1], E[1, 2], E[2, 0], E[2, 1], E[2, 2] = r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8]
-    return E, r[9], r[10]
+@nb.njit(cache=True)
+def _length2(x0, x1, x2):
+    """Squared length of an edge, summed in the order ``np.sum`` of its squares would."""
+    return ((0.0 + x0 ** 2) + x1 ** 2) + x2 ** 2
+
+
+@nb.njit(cache=True)
+def _gradient_term(sign, p0, p1, p2, r0, r1, r2, e0, e1, e2, sj, ln):
+    """``sign * (p x r / ln - sj e / |e|^2)``: the part of a corner's scaled-Jacobian gradient
+    that comes through its edge ``e`` (``p``, ``r``: the corner's two other edges, in cyclic
+    order), component by component on scalars."""
+    m = max(_length2(e0, e1, e2), 1e-300)
+    return (sign * ((p1 * r2 - p2 * r1) / ln - sj * e0 / m), sign * ((p2 * r0 - p0 * r2) / ln - sj * e1 / m),
+            sign * ((p0 * r1 - p1 * r0) / ln - sj * e2 / m))
 
 
 def _worst_corners(X, hexes, ptr, inc, group):
     """For each node of ``group``: the scaled Jacobians ``(c, 3)`` of its three worst corners
     (ascending; +inf where it has fewer), their gradients ``(c, 3, 3)`` with respect to the
-    node, and the longest and shortest of its incident edges ``(c,)``."""
+    node, and the longest and shortest of its incident edges ``(c,)``.
+
+    On scalars, no array per corner: an array expression in the ``prange`` body is a parfor
+    (and a ufunc) of its own to compile. With that, and the helpers as plain calls (LLVM
+    inlines them; ``inline="always"`` copied them into every parfor body at numba's IR
+    level), the four kernels compile in 7.2 s CPU instead of 22.8 (docs/speed.md, session 19);
+    the results are the same bits."""
     c = len(group)
     q = np.full((c, 3), np.inf)
     G = np.zeros((c, 3, 3))
@@ -61,38 +73,43 @@ def _worst_corners(X, hexes, ptr, inc, group):
     shortest = np.full(c, np.inf)
     for a in nb.prange(c):
         v = group[a]
-        y = X[v]
+        y0, y1, y2 = X[v, 0], X[v, 1], X[v, 2]
         for s in range(ptr[v], ptr[v + 1]):
             e, loc = inc[s] >> 3, inc[s] & 7
             for cc in range(8):
                 x = cc ^ loc
                 if x & (x - 1):  # more than one bit apart: not one of the node's corners
                     continue
-                E, sj, ln = _corner(X, hexes, e, cc, v, y)
+                a0, a1, a2, b0, b1, b2, c0, c1, c2, sj, ln = _corner_edges(X, hexes, e, cc, v, y0, y1, y2)
                 if cc == loc:
-                    for b in range(3):
-                        el = np.sqrt((E[b] ** 2).sum())
+                    for el in (np.sqrt(_length2(a0, a1, a2)), np.sqrt(_length2(b0, b1, b2)), np.sqrt(_length2(c0, c1, c2))):
                         longest[a] = max(longest[a], el)
                         shortest[a] = min(shortest[a], el)
                 if not sj < q[a, 2]:
                     continue
-                g = np.zeros(3)
+                g0 = g1 = g2 = 0.0
                 i, j, k = cc & 1, (cc >> 1) & 1, (cc >> 2) & 1
-                ends = ((2 * j + 4 * k, 1 + 2 * j + 4 * k), (i + 4 * k, i + 2 + 4 * k), (i + 2 * j, i + 2 * j + 4))
-                for b in range(3):
-                    sign = (1.0 if ends[b][1] == loc else 0.0) - (1.0 if ends[b][0] == loc else 0.0)
-                    if sign == 0.0:
-                        continue
-                    p, r = E[(b + 1) % 3], E[(b + 2) % 3]
-                    cross = np.array([p[1] * r[2] - p[2] * r[1], p[2] * r[0] - p[0] * r[2], p[0] * r[1] - p[1] * r[0]])
-                    g += sign * (cross / ln - sj * E[b] / max((E[b] ** 2).sum(), 1e-300))
+                # the node's sign along each edge: +1 at its head, -1 at its tail, 0 off it
+                sa = (1.0 if 1 + 2 * j + 4 * k == loc else 0.0) - (1.0 if 2 * j + 4 * k == loc else 0.0)
+                sb = (1.0 if i + 2 + 4 * k == loc else 0.0) - (1.0 if i + 4 * k == loc else 0.0)
+                sc = (1.0 if i + 2 * j + 4 == loc else 0.0) - (1.0 if i + 2 * j == loc else 0.0)
+                if sa != 0.0:
+                    t0, t1, t2 = _gradient_term(sa, b0, b1, b2, c0, c1, c2, a0, a1, a2, sj, ln)
+                    g0, g1, g2 = g0 + t0, g1 + t1, g2 + t2
+                if sb != 0.0:
+                    t0, t1, t2 = _gradient_term(sb, c0, c1, c2, a0, a1, a2, b0, b1, b2, sj, ln)
+                    g0, g1, g2 = g0 + t0, g1 + t1, g2 + t2
+                if sc != 0.0:
+                    t0, t1, t2 = _gradient_term(sc, a0, a1, a2, b0, b1, b2, c0, c1, c2, sj, ln)
+                    g0, g1, g2 = g0 + t0, g1 + t1, g2 + t2
                 m = 2  # insert in the ascending three
                 while m > 0 and sj < q[a, m - 1]:
                     q[a, m] = q[a, m - 1]
-                    G[a, m] = G[a, m - 1]
+                    for d in range(3):
+                        G[a, m, d] = G[a, m - 1, d]
                     m -= 1
                 q[a, m] = sj
-                G[a, m] = g
+                G[a, m, 0], G[a, m, 1], G[a, m, 2] = g0, g1, g2
     return q, G, longest, shortest
 
 
