@@ -582,10 +582,10 @@ def test_real_coarctation_extracted_merges_crowded_junctions(real_path):
     # the brachiocephalic trunk and the left carotid leave the arch so close together that
     # the half cross-sections of the first junction reach past the second: merged into a
     # 4-junction (split again along the arch before h17/pair; now the branch fused with the
-    # arch between them leaves the merged junction from where it parts, and the 4-junction
+    # arch between them leaves the merged junction from the arch's middle, and the 4-junction
     # builds as it is, its wall judged covered; the mesh passes, docs/junctions.md h17/pair)
     fixes = _check_real_blocks(_extracted_blocks(real_path("coarctation_bpm120_open.stl")))
-    assert fixes[0].startswith("merged junction nodes") and ("leaving from where it parts" in fixes[0] or any(f.startswith("split junction node") for f in fixes))
+    assert fixes[0].startswith("merged junction nodes") and ("leaving from its middle" in fixes[0] or any(f.startswith("split junction node") for f in fixes))
 
 
 @pytest.mark.slow

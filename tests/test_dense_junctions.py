@@ -54,7 +54,9 @@ def test_generated_vessel_has_a_dense_junction(gap, azimuth, elevation):
                                                    DENSE[1]])
 def test_dense_junction_blocks_valid(gap, azimuth, elevation):
     """Since h16/pair the 0.6 gap builds: merged, the side branch leaves the 4-junction
-    where it parts from the link (``merge_junction_pair``), not along it; 1.0 still fails."""
+    clear of the link (``merge_junction_pair``), not along it: its fused nodes past the
+    link's middle but inside the link's lumen go into the junction too (h19/pair); 1.0
+    still fails."""
     case = close_junctions(gap, side=(azimuth, elevation))
     blocks = build_blocks(_skeleton(case), case.distance, None, BlockOptions(), project=case.project)
     assert blocks.corner_jacobians().min() > 0

@@ -225,15 +225,22 @@ def _build_blocks(skeleton, distance, caps, options: BlockOptions, bad_blocks_pa
     flat = {id(options): options.replace(junction_lean=0.0), id(at_node): at_node.replace(junction_lean=0.0)}  # :func:`_fallback`
     queue = [(skeleton, [], options, frozenset(), [], None)]  # + the junction pairs a split made, the stubs cut, the wall to cover
     first = None
-    tries = 0
+    # skeletons tried: [the given one and its changes, those from a merge whose wall is
+    # judged]; the judged merge is a variant of the plain merge queued after it, so it and its
+    # splits get as many tries as the changed skeletons (all but the given one) and do not
+    # use up the tries that merge needs (real sv_rpa given, docs/junctions.md h18/pair)
+    tries = [0, 0]
+    most = [options.repair.max_retopology_tries, options.repair.max_retopology_tries - 1]
     seen = set()  # merging two junctions and splitting the result again can give a skeleton back
-    while queue and (tries < options.repair.max_retopology_tries or queue[0][2] is not options) and not work.spent:
+    while queue and not work.spent:
         sk, notes, opts, made, cut, wall = queue.pop(0)
+        if opts is options and tries[wall is not None] >= most[wall is not None]:
+            continue  # a skeleton counts once; its :func:`_fallback` placements always follow
         key = (_skeleton_key(sk), opts.junction.junction_centre, opts.junction.junction_lean)
         if key in seen:
             continue
         seen.add(key)
-        tries += opts is options  # a skeleton counts once; its :func:`_fallback` placements always follow
+        tries[wall is not None] += opts is options
         try:
             blocks = _choose_lean(lambda planar: _Builder(sk, distance, caps, opts, warn, progress, project, intersect_lines, work, planar), work)
         except _Failure as failure:
@@ -267,7 +274,7 @@ def _build_blocks(skeleton, distance, caps, options: BlockOptions, bad_blocks_pa
     if (blocks := _last_resort(skeleton, distance, caps, options, (warn, progress, project, intersect_lines), work)) is not None:
         return blocks
     first.hint += work.stop_note()
-    raise first.error(bad_blocks_path, tries)
+    raise first.error(bad_blocks_path, sum(tries))
 
 
 def _last_resort(skeleton, distance, caps, options: BlockOptions, hooks: tuple, work) -> BlockStructure | None:
@@ -463,13 +470,13 @@ def _retopology_options(failure: "_Failure", notes: list, distance, options: Blo
             note = f"merged junction nodes {a} and {b} (their half cross-sections left the branch between them no room) into node {node}"
             own, _ = merge_junction_pair(sk, a, b, own_lumen=True) if not notes and project is not None else (merged, node)
             if own.n_nodes < merged.n_nodes:
-                # a sibling fused with the link past its middle leaves the merged junction from
-                # where it parts from the link, tried first; only on the skeleton as given:
-                # its failed subtree can spend the budget that a merge of a changed skeleton
-                # needs (s0 g0002 extracted); taken only where its blocks still cover the
-                # pair's wall: its first segment can cut the corner of the fused stretch
-                # (real sv_rpa given, docs/junctions.md h16/pair, h17/pair)
-                out.append((own, notes + [note + ", a branch fused with the branch between them leaving from where it parts from it"], frozenset(), [],
+                # a sibling fused with the link past its middle leaves the merged junction (at
+                # the link's middle) through its fused nodes past the middle, tried first; only
+                # on the skeleton as given: its failed subtree can spend the budget that a merge
+                # of a changed skeleton needs (s0 g0002 extracted); taken only where its blocks
+                # still cover the pair's wall (real sv_rpa given; docs/junctions.md h16/pair,
+                # h17/pair, h18/pair)
+                out.append((own, notes + [note + ", a branch fused with the branch between them leaving from its middle"], frozenset(), [],
                             pair_wall(sk, a, b, project)))
             out.append((merged, notes + [note], frozenset(), [], None))
         if failure.nfurcations:

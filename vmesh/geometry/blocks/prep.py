@@ -95,8 +95,13 @@ def merge_junction_pair(skeleton: Skeleton, a: int, b: int, own_lumen: bool = Fa
     The merged junction sits at the mean of the two with the larger radius; the other
     nodes keep their order. With ``own_lumen``, a branch of either junction that runs
     fused with the link past the link's middle (:func:`_fused_along_link`) leaves the
-    merged junction from where it parts from the link: its nodes inside that stretch go
-    into the junction (else it would still leave the junction along the link, inside it).
+    merged junction from the link's middle: its fused nodes up to its first one past the
+    middle whose axis lies outside the link's lumen go into the junction (else it would
+    leave the junction backwards, along the link); from that one on they stay its first
+    nodes, so that its first segment follows its fused stretch (re-rooted at the end of the
+    stretch, the segment cuts the stretch's outer side out of the blocks; through a node
+    still inside the link's lumen, it leaves along the link again: docs/junctions.md,
+    h17/pair to h19/pair).
 
     Returns
     -------
@@ -113,7 +118,7 @@ def merge_junction_pair(skeleton: Skeleton, a: int, b: int, own_lumen: bool = Fa
     group = np.arange(sk.n_nodes)
     group[np.asarray(path)] = keep
     if own_lumen:
-        group[_fused_along_link(sk, paths, path)] = keep
+        group[_fused_along_link(sk, paths, path, own_half=True)] = keep
     labels = np.unique(group)
     positions = sk.points[labels].copy()
     positions[np.searchsorted(labels, keep)] = 0.5 * (sk.points[a] + sk.points[b])
@@ -121,7 +126,7 @@ def merge_junction_pair(skeleton: Skeleton, a: int, b: int, own_lumen: bool = Fa
     return merged, int(np.searchsorted(labels, keep))
 
 
-def _fused_along_link(sk: Skeleton, paths: list, link: np.ndarray) -> np.ndarray:
+def _fused_along_link(sk: Skeleton, paths: list, link: np.ndarray, own_half: bool = False) -> np.ndarray:
     """Nodes of the link's sibling branches that lie in one lumen with the link past its middle.
 
     Two 3-junctions closer than their half-sections reach fail where, at one of them, a
@@ -131,6 +136,9 @@ def _fused_along_link(sk: Skeleton, paths: list, link: np.ndarray) -> np.ndarray
     Merged, such a sibling would still leave the junction along the link, inside it. Per
     sibling: the run of its first nodes (from the junction; never its last node) whose
     tubes overlap the link's, when that run reaches past the link's middle; else none.
+    With ``own_half``, the run ends before its first node that lies past the middle
+    (projected onto the link) with its axis outside the link's lumen (at least the link's
+    radius from its axis); without such a node, the whole run.
     """
     P = sk.points[link]
     seg = P[1:] - P[:-1]
@@ -158,7 +166,11 @@ def _fused_along_link(sk: Skeleton, paths: list, link: np.ndarray) -> np.ndarray
             run = len(nodes) if fused.all() else int(np.argmin(fused))
             along = np.abs(arc[k[:run]] + t[rows[:run], k[:run]] * seg_len[k[:run]] - from_end)
             if run and along.max() > 0.5 * arc[-1]:
-                out.extend(nodes[:run].tolist())
+                # it leaves through its first fused node past the middle whose axis lies
+                # outside the link's lumen (where its own lumen goes on); one inside the
+                # lumen would make it leave along the link again (the dense pair)
+                outside = (along > 0.5 * arc[-1]) & (d[rows[:run], k[:run]] >= r_link[:run])
+                out.extend(nodes[:int(np.argmax(outside)) if own_half and outside.any() else run].tolist())
     return np.asarray(out, np.int64)
 
 
