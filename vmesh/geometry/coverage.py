@@ -236,6 +236,7 @@ def measure_coverage(
     wall_tree=None,
     on_wall=None,
     tolerance: float | None = None,
+    wall_projector=None,
 ) -> tuple[dict, list]:
     """Measure how much of the input wall the mesh boundary misses.
 
@@ -271,6 +272,10 @@ def measure_coverage(
         Absolute distance added to ``distance`` (× local radius) before a wall point counts
         as uncovered: the input wall's own uncertainty. None: half the surface's voxel step
         (:func:`voxel_step`, 0 on a surface that is no staircase).
+    wall_projector : SurfaceProjector or CapKeepingProjector, optional
+        What the mesh wall nodes' distances are measured to (default: ``wall_tree``): the
+        mesher's own projector, so that nodes it kept on a cap another vessel touches are
+        measured to that cap, not across the lumen to the nearest wall.
 
     Returns
     -------
@@ -301,7 +306,7 @@ def measure_coverage(
     past = _past_end_faces(X, boundary_faces, boundary_ids, V[WF].mean(axis=1))
     end_cap = far & ((beyond & (rel <= end_depth)) | (past[:, None] & (rel <= min(end_depth, 1.0))))
     wall_tree = TriangleBVH(V, WF) if wall_tree is None else wall_tree
-    off = _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, *skeleton, on_wall)
+    off = _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree if wall_projector is None else wall_projector, *skeleton, on_wall)
     node_of_branch = _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3)))
     missing, n_patches, n_missing = _missing_parts(
         V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names,
@@ -364,15 +369,18 @@ def _past_end_faces(X, boundary_faces, boundary_ids, points) -> np.ndarray:
     return out
 
 
-def _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, skeleton_points, skeleton_edges, skeleton_radii, on_wall=None):
-    """The mesh wall nodes' positions, their distances to the input wall (``wall_tree``),
-    relative to the local radius, and which of them the mesher put on the wall."""
+def _wall_node_distances(X, boundary_faces, boundary_ids, wall, skeleton_points, skeleton_edges, skeleton_radii, on_wall=None):
+    """The mesh wall nodes' positions, their distances to the input wall (``wall``: a
+    TriangleBVH, or a projector, whose kept caps count as wall), relative to the local
+    radius, and which of them the mesher put on the wall."""
     wall_nodes = np.unique(np.asarray(boundary_faces)[np.asarray(boundary_ids) == 0])
     if len(wall_nodes) == 0:
         return np.zeros((1, 3)), np.zeros(1), np.ones(1, bool)
     r_n = skeleton_radius(X[wall_nodes], skeleton_points, skeleton_edges, skeleton_radii)[0]
     placed = np.ones(len(wall_nodes), bool) if on_wall is None else np.asarray(on_wall, bool)[wall_nodes]
-    return X[wall_nodes], np.sqrt(wall_tree.closest(X[wall_nodes])[0]) / r_n, placed
+    p = X[wall_nodes]
+    d = wall.project(p)[1] if hasattr(wall, "project") else np.sqrt(wall.closest(p)[0])
+    return p, d / r_n, placed
 
 
 def _wall_node_stats(off) -> dict:
