@@ -313,6 +313,7 @@ def test_missing_stub_is_judged_by_its_own_radius(cylinder_mesh):
     assert summary["missing_parts"] == 1 and missing[0].caps == ["stub"]
     assert missing[0].depth > 1.5 and missing[0].cross_sections > 2
     assert missing[0].skeleton_node in (4, 5, 6)
+    assert _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1", "stub"], own_radius=False)[0]["missing_parts"] == 0  # as before
 
 
 def _voxel_surface(h, branch=False):

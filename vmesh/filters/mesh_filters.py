@@ -467,12 +467,13 @@ def _on_cuts(mesh, wall, face) -> dict:
         Parameter("end_depth", "float", 1.5, "Depth allowed to a patch beyond one of the mesh's end faces (a rounded closed end past the last cross-section).", unit="× radius", min=0.0),
         Parameter("fail_on_missing", "bool", True, "Fail when part of the vessel is missing from the mesh (false: a warning)."),
         Parameter("voxel_tolerance", "bool", True, "On a voxel (staircase) input surface, add half its measured voxel step to distance: the wall is known only to that."),
+        Parameter("own_radius", "bool", True, "Judge an uncovered patch by its own radius (half its chord across the surface) where that is smaller than the skeleton's: a side vessel the skeleton never entered; false: the skeleton's radius alone."),
     ],
     reads=("mesh", "surface", "skeleton"),
     optional_reads=("caps", "blocks"),
     category="quality",
 )
-def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing, voxel_tolerance=True):
+def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing, voxel_tolerance=True, own_radius=True):
     """Measured against the repaired, capped surface the chain started from, its caps left
     out (the mesh ends there); the local radius is the skeleton's. The result is the
     report's ``coverage`` section (see :mod:`vmesh.geometry.coverage`)."""
@@ -488,6 +489,7 @@ def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing,
         skeleton.points, skeleton.edges, skeleton.radii,
         distance=distance, patch_area=patch_area, depth=depth, end_depth=end_depth, branches=skeleton.branches(),
         wall_tree=projector.tree, on_wall=mesh.on_wall, tolerance=None if voxel_tolerance else 0.0, wall_projector=projector,
+        own_radius=own_radius,
     )
     ctx.report.sections["coverage"] = summary
     ctx.count(uncovered=summary["uncovered_share"], volume_ratio=summary["volume_ratio"], missing=summary["missing_parts"])

@@ -237,6 +237,7 @@ def measure_coverage(
     on_wall=None,
     tolerance: float | None = None,
     wall_projector=None,
+    own_radius: bool = True,
 ) -> tuple[dict, list]:
     """Measure how much of the input wall the mesh boundary misses.
 
@@ -276,6 +277,9 @@ def measure_coverage(
         What the mesh wall nodes' distances are measured to (default: ``wall_tree``): the
         mesher's own projector, so that nodes it kept on a cap another vessel touches are
         measured to that cap, not across the lumen to the nearest wall.
+    own_radius : bool
+        Judge a patch by the smaller of the skeleton's radius and its own
+        (:func:`_own_radius`); False: by the skeleton's alone.
 
     Returns
     -------
@@ -310,7 +314,7 @@ def measure_coverage(
     node_of_branch = _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3)))
     missing, n_patches, n_missing = _missing_parts(
         V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names,
-        patch_area, depth, end_depth, node_of_branch, off, F,
+        patch_area, depth, end_depth, node_of_branch, off, F if own_radius else None,
     )
     volumes = (enclosed_volume(V, F), enclosed_volume(X, tri))
     summary = _coverage_summary(distance, area, rel, far & ~end_cap, end_cap, volumes, off, n_patches, missing, n_missing)
@@ -426,7 +430,7 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
     part's depth (plus half a radius) of its faces, where the mesh wall that misses it lies
     (and ``over_opening``: the nodes there the mesher left off the wall). A patch's radius
     is the smaller of the skeleton's at its deepest face and its own (:func:`_own_radius`,
-    across the closed surface ``F``).
+    across the closed surface ``F``; None: the skeleton's alone).
 
     Returns the parts (at most :data:`MAX_PATCHES`), the patch count and the count of
     missing parts."""
@@ -446,7 +450,7 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
         first = order_[np.searchsorted(lab[order_], np.arange(n_patches))]
         deep_face = np.flatnonzero(sel)[first]
         # the deepest face's distance, relative to the patch's own radius where that is smaller
-        patch_r = np.minimum(face_r[deep_face], _own_radius(V, F, WF, label, n_patches))
+        patch_r = face_r[deep_face] if F is None else np.minimum(face_r[deep_face], _own_radius(V, F, WF, label, n_patches))
         patch_depth = face_rel[deep_face] * face_r[deep_face] / patch_r
         sections = patch_area_sum / (np.pi * patch_r**2)
         big = np.flatnonzero((sections > patch_area) & (patch_depth > np.where(at_end, end_depth, depth)))
