@@ -488,7 +488,8 @@ def _own_radius(V, F, WF, label, n_patches) -> np.ndarray:
     On a vessel's wall that chord is its diameter; the skeleton's radius is that of the
     vessel the skeleton holds, and a side vessel it never entered would be judged by its
     parent's. Normals of a Taubin-smoothed copy: a staircase's terrace normals point
-    along the grid axes, not across the vessel."""
+    along the grid axes, not across the vessel. A chord shorter than its face's longest
+    edge gives no radius (the surface does not resolve a lumen that narrow)."""
     from ..preprocess import taubin_smooth
     from .bvh import TriangleBVH
 
@@ -505,7 +506,11 @@ def _own_radius(V, F, WF, label, n_patches) -> np.ndarray:
     c = V[WF[sel]].mean(axis=1)
     reach = 2.0 * float(np.ptp(V, axis=0).max())
     t = TriangleBVH(V, F).intersect_lines(c - 1e-9 * reach * n, -n, reach, side=1)[0]
-    half = np.where(np.isfinite(t), 0.5 * t, np.inf)
+    # a chord shorter than the face it starts from crosses a sliver (a ragged end's flap),
+    # not a lumen the surface resolves: no radius from it
+    tv = V[WF[sel]]
+    edge = np.linalg.norm(tv - np.roll(tv, 1, axis=1), axis=2).max(axis=1)
+    half = np.where(np.isfinite(t) & (t >= edge), 0.5 * t, np.inf)
     lab = label[sel]
     order_ = np.lexsort((half, lab))
     start = np.searchsorted(lab[order_], np.arange(n_patches))
