@@ -270,16 +270,12 @@ def measure_coverage(
     on_wall : (n,) bool, optional
         Nodes the mesher put on the wall (``HexMesh.on_wall``; None: all), see :func:`_wall_node_stats`.
     tolerance : float, optional
-        Absolute distance added to ``distance`` (× local radius) before a wall point counts
-        as uncovered: the input wall's own uncertainty. None: half the surface's voxel step
-        (:func:`voxel_step`, 0 on a surface that is no staircase).
+        Absolute distance added to ``distance`` before wall counts as uncovered (None: half
+        the surface's :func:`voxel_step`, 0 on a surface that is no staircase).
     wall_projector : SurfaceProjector or CapKeepingProjector, optional
-        What the mesh wall nodes' distances are measured to (default: ``wall_tree``): the
-        mesher's own projector, so that nodes it kept on a cap another vessel touches are
-        measured to that cap, not across the lumen to the nearest wall.
+        The mesher's projector, which measures the wall nodes (default ``wall_tree``).
     own_radius : bool
-        Judge a patch by the smaller of the skeleton's radius and its own
-        (:func:`_own_radius`); False: by the skeleton's alone.
+        Judge a patch by the smaller of the skeleton's radius and its own (:func:`_own_radius`).
 
     Returns
     -------
@@ -318,8 +314,7 @@ def measure_coverage(
     )
     volumes = (enclosed_volume(V, F), enclosed_volume(X, tri))
     summary = _coverage_summary(distance, area, rel, far & ~end_cap, end_cap, volumes, off, n_patches, missing, n_missing)
-    summary.update(voxel_step=float(step), tolerance=float(tolerance))
-    return summary, missing
+    return {**summary, "voxel_step": float(step), "tolerance": float(tolerance)}, missing
 
 
 def _coverage_summary(distance, area, rel, uncovered, end_cap, volumes, off, n_patches, missing, n_missing) -> dict:
@@ -430,7 +425,7 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
     part's depth (plus half a radius) of its faces, where the mesh wall that misses it lies
     (and ``over_opening``: the nodes there the mesher left off the wall). A patch's radius
     is the smaller of the skeleton's at its deepest face and its own (:func:`_own_radius`,
-    across the closed surface ``F``; None: the skeleton's alone).
+    across the closed surface ``F``; None: the skeleton's alone), except past an end face.
 
     Returns the parts (at most :data:`MAX_PATCHES`), the patch count and the count of
     missing parts."""
@@ -450,7 +445,8 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
         first = order_[np.searchsorted(lab[order_], np.arange(n_patches))]
         deep_face = np.flatnonzero(sel)[first]
         # the deepest face's distance, relative to the patch's own radius where that is smaller
-        patch_r = face_r[deep_face] if F is None else np.minimum(face_r[deep_face], _own_radius(V, F, WF, label, n_patches))
+        # (not past an end face: there the patch continues the vessel the skeleton ends in)
+        patch_r = face_r[deep_face] if F is None else np.where(at_end, face_r[deep_face], np.minimum(face_r[deep_face], _own_radius(V, F, WF, label, n_patches)))
         patch_depth = face_rel[deep_face] * face_r[deep_face] / patch_r
         sections = patch_area_sum / (np.pi * patch_r**2)
         big = np.flatnonzero((sections > patch_area) & (patch_depth > np.where(at_end, end_depth, depth)))
