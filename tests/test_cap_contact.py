@@ -5,10 +5,11 @@ surface) do, and a contact cut stops at an open end."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from vmesh import preprocess as pre
 from vmesh.geometry.contact_cut import CutSurface, contact_cuts
-from vmesh.geometry.projection import CapKeepingProjector, wall_projector
+from vmesh.geometry.projection import ON_CAP, CapKeepingProjector, wall_projector
 from vmesh.surface import SurfaceMesh
 
 
@@ -32,7 +33,7 @@ def test_a_point_on_a_cap_far_from_the_wall_stays_there():
     on_cap = np.array([[0.5, 0.0, 6.0], [0.0, -0.4, 0.0]])
     closest, d, face = project.project(on_cap)
     np.testing.assert_allclose(closest, on_cap, atol=1e-9)
-    assert (face == -1).all() and np.allclose(d, 0.0, atol=1e-9)
+    assert (face == ON_CAP).all() and np.allclose(d, 0.0, atol=1e-9)  # not ON_CUT: no contact cut there
     rim = np.array([[0.99, 0.0, 6.0], [0.0, 0.97, 0.0]])
     inside = np.array([[0.9, 0.0, 3.0], [0.0, -0.8, 5.5]])
     for p in (rim, inside):
@@ -79,3 +80,39 @@ def test_a_contact_cut_stops_at_an_open_end():
     assert CutSurface(Query, rounded).distance(near(past))[0] < 0.06  # the old patch reached past the end
     assert CutSurface(Query, ended).distance(near(past))[0] > 0.06
     np.testing.assert_allclose(CutSurface(Query, ended).distance(near(before)), 0.05, atol=1e-9)
+
+
+def test_wall_nodes_kept_on_a_touched_cap_are_measured_to_it():
+    """check_coverage's wall-node distances use the mesher's projector: a node the mesher kept
+    on a cap another vessel touches lies on the input boundary (distance 0), not a radius
+    off the wall (the inflated ``wall_node_max_rel`` of contact runs)."""
+    from vmesh.geometry.coverage import _wall_node_distances
+
+    surface, caps = _capped_tube()
+    kept = wall_projector(surface, caps, kept=[c.id for c in caps])
+    X = np.array([[0.0, 0.0, 6.0], [1.0, 0.0, 5.0], [0.0, 1.0, 5.0], [0.0, -1.0, 5.0]])  # the first on the top cap's centre
+    faces, ids = np.array([[0, 1, 2, 3]]), np.array([0])
+    skeleton = (np.array([[0.0, 0, 0], [0, 0, 6]]), np.array([[0, 1]]), np.ones(2))
+    plain = _wall_node_distances(X, faces, ids, wall_projector(surface, caps).tree, *skeleton)[1]
+    measured = _wall_node_distances(X, faces, ids, kept, *skeleton)[1]
+    assert plain[0] == pytest.approx(1.0, abs=0.01) and measured[0] == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose(measured[1:], plain[1:], atol=1e-12)
+
+
+def test_coarse_surface_keeps_its_caps():
+    """``mesh_transfinite.project_to = "coarse"`` projected onto the whole coarse surface (its
+    caps dropped: the cap triangles are the fine surface's), so a touched cap was no longer
+    kept and the open ends' rim nodes could land on the cap planes. ``caps_on`` finds each
+    cap's triangles on another triangulation of the surface."""
+    from test_preprocess import open_tube
+    from vmesh.geometry.projection import caps_on
+
+    fine, caps = _capped_tube()
+    v, f = open_tube(1.0, 6.0, 24, 9)
+    cv, cf, labels = pre.cap_boundary_loops(v, f)
+    coarse = SurfaceMesh(cv, cf)
+    on = caps_on(coarse, fine, caps)
+    for cap, own in zip(on, pre.caps_from_labels(cv, cf, labels)):
+        assert sorted(cap.faces.tolist()) == sorted(own.faces.tolist()) and cap.name in [c.name for c in caps]
+    assert caps_on(fine, fine, caps) is caps and caps_on(coarse, fine, None) is None
+    assert isinstance(wall_projector(coarse, on, kept=[c.id for c in on]), CapKeepingProjector)

@@ -291,3 +291,76 @@ def test_high_order_boundary_covers_closer():
     assert result[2]["missing_parts"] == 0 and result[2]["uncovered_share"] == 0.0
     assert result[2]["surface_max_rel"] < 0.5 * result[1]["surface_max_rel"]
     assert result[1]["volume_ratio"] < result[2]["volume_ratio"] < 1.001
+
+
+def _with_stub(radius, past, n_around=32):
+    """The tube, and a capped side stub of ``radius`` along +x at z = 5 that ends ``past``
+    beyond the tube's wall (its cap listed with the tube's)."""
+    V1, F1, caps1 = tube([0, 0, 0], [0, 0, 1], RADIUS, LENGTH)
+    V2, F2, caps2 = tube([1.5, 0, 5], [1, 0, 0], radius, RADIUS - 1.5 + past, n_around=n_around, n_along=12, start_cap=False)
+    return np.vstack([V1, V2]), np.vstack([F1, F2 + len(V1)]), [caps1[0], caps1[1], caps2[1] + len(F1)]
+
+
+def test_missing_stub_is_judged_by_its_own_radius(cylinder_mesh):
+    """Seed 1 g0009 extracted (issue 17): a stub of 0.35 of its parent's radius, ending two of
+    its own radii past the parent's wall, was pruned from the skeleton. Judged by the
+    parent's radius (the only skeleton near it) it was 0.7 radii deep and 0.6 of a
+    cross-section, below both limits: a whole side vessel left out, passed. Its own radius,
+    half its chord across the surface, makes it 2 radii deep and several of its cross-sections."""
+    sm, skeleton = cylinder_mesh
+    V, F, caps = _with_stub(0.35 * RADIUS, 2 * 0.35 * RADIUS)
+    summary, missing = _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1", "stub"])
+    assert summary["missing_parts"] == 1 and missing[0].caps == ["stub"]
+    assert missing[0].depth > 1.5 and missing[0].cross_sections > 2
+    assert missing[0].skeleton_node in (4, 5, 6)
+    assert _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1", "stub"], own_radius=False)[0]["missing_parts"] == 0  # as before
+
+
+def _voxel_surface(h, branch=False):
+    """Marching cubes of the binary image (step ``h``) of the tube (radius 2 along z, 0 to 10;
+    flat ends exactly at 0 and 10), with a side branch of radius 1 along +x at z = 5 when
+    ``branch``: a staircase surface, its end discs (and the branch's) as caps."""
+    from skimage.measure import marching_cubes
+
+    ax = np.arange(-3.5 * RADIUS, 3.5 * RADIUS + h, h) - 0.5 * h
+    az = np.arange(-2 * h, LENGTH + 2 * h, h) + 0.5 * h
+    x, y, z = np.meshgrid(ax, ax, az, indexing="ij")
+    inside = (x**2 + y**2 < RADIUS**2) & (z > 0) & (z < LENGTH)
+    if branch:
+        inside |= (y**2 + (z - 5) ** 2 < 1.0) & (x > 0) & (x < 6.0)
+    V, F, _, _ = marching_cubes(np.where(inside, 1.0, -1.0).astype(np.float32), 0.0, spacing=(h, h, h))
+    V = V + [ax[0], ax[0], az[0]]
+    F = F.astype(np.int64)
+    if np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum() < 0:
+        F = F[:, ::-1]
+    flat = [np.flatnonzero(np.all(np.abs(V[F][:, :, k] - at) < 1e-6, axis=1)) for k, at in ((2, 0.0), (2, LENGTH), (0, 6.0))]
+    return V, F, flat
+
+
+def test_voxel_step_is_measured_from_the_surface():
+    """Edges along each grid axis of a binary marching-cubes surface are one step long; a
+    smooth tube meshed in rings along its axis has such edges along one axis only."""
+    from vmesh.geometry.coverage import voxel_step
+
+    V, F, _ = _voxel_surface(0.4)
+    assert voxel_step(V, F) == pytest.approx(0.4)
+    V, F, _ = tube([0, 0, 0], [0, 0, 1], RADIUS, LENGTH)
+    assert voxel_step(V, F) == 0.0
+
+
+def test_staircase_wall_within_half_a_step_is_covered_and_a_missing_branch_still_named(cylinder_mesh):
+    """Seed 1 g0010 extracted (issue 17): a voxel surface, step 0.3 of the radius (g0010's
+    are 0.22-0.46), meshed completely; the steps' corners lie up to half a step off the
+    mesh, past 0.1 r. Half the measured step added to the distance covers them; the same
+    staircase with a side branch the mesh leaves out still names the branch."""
+    sm, skeleton = cylinder_mesh
+    V, F, flat = _voxel_surface(0.3 * RADIUS)
+    strict = _measure(sm, skeleton, V, F, flat[:2], ["inlet", "outlet_1"], tolerance=0.0)[0]
+    summary, missing = _measure(sm, skeleton, V, F, flat[:2], ["inlet", "outlet_1"])
+    assert summary["voxel_step"] == pytest.approx(0.3 * RADIUS) and summary["tolerance"] == pytest.approx(0.15 * RADIUS)
+    assert strict["uncovered_share"] > 0.1 and summary["uncovered_share"] < 0.002 and missing == []
+    V, F, flat = _voxel_surface(0.3 * RADIUS, branch=True)
+    summary, missing = _measure(sm, skeleton, V, F, flat[:2], ["inlet", "outlet_1"])
+    assert summary["voxel_step"] > 0 and summary["missing_parts"] == 1
+    assert missing[0].depth > 1.5 and missing[0].position[0] > RADIUS  # the branch, along +x
+    assert summary["uncovered_share"] > 0.1

@@ -68,6 +68,31 @@ def test_cut_stub_mouth_is_named_not_wall():
     assert np.count_nonzero(ids == 0) > 10 * len(mouth)
 
 
+def test_cut_stub_mouth_faces_of_the_mesh_are_those_of_its_named_block_faces():
+    """The mesh names a wall face ``stub_k`` exactly where it lies on a block face so named
+    (its element's block and that block's face, as the mesher made it): as many mesh faces
+    as the named block faces hold elements, every one on such a face. Naming by the nearest
+    block-face centre could give a wall face of a block next to the mouth the mouth's name."""
+    from vmesh.blocks import FACE_WALL
+    from vmesh.geometry.blocks.stubs import meshed_as_wall, name_stub_faces, stub_face_ids
+
+    case, blocks, _ = _build(55, 0.3, 1.0)
+    ref = REFINEMENTS[0]
+    sm = mesh_blocks(meshed_as_wall(blocks), case.project, ref, signed_distance=case.distance)
+    ids = name_stub_faces(blocks, sm.boundary_ids, sm.boundary_cells, sm.cell_block, sm.boundary_local_face)
+    fid = stub_face_ids(blocks)
+    named = np.isin(ids, fid)
+    b = sm.cell_block[sm.boundary_cells]
+    on_named = np.isin(blocks.face_boundary[b, sm.boundary_local_face], fid)
+    assert named.any() and np.array_equal(named, on_named)
+    assert np.array_equal(ids[~named], sm.boundary_ids[~named])  # every other face keeps its id
+    # per named block face, its elements: the product of the block's counts along the face's two axes
+    nb, f = np.nonzero(np.isin(blocks.face_boundary, fid))
+    counts = sm.block_counts[nb]
+    per_face = np.where(f // 2 == 0, counts[:, 1] * counts[:, 2], np.where(f // 2 == 1, counts[:, 0] * counts[:, 2], counts[:, 0] * counts[:, 1]))
+    assert named.sum() == per_face.sum()
+
+
 def test_cut_stub_fills_valid_at_every_refinement():
     """The parent without its stub fills with min scaled Jacobian >= 0.3 at the default and a
     finer resolution (no untangling)."""

@@ -57,14 +57,14 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
     count is the same with and without grading."""
     from ..geometry.blocks.stubs import meshed_as_wall, name_stub_faces
     from ..geometry.boundary_layer import record_first_layer, setup_boundary_layer
-    from ..geometry.projection import wall_projector
+    from ..geometry.projection import caps_on, wall_projector
     from ..geometry.transfinite import Refinement, mesh_blocks
     from ..mesh import HexMesh
 
     layer = setup_boundary_layer(ctx, refinement, elements_layer, grading, first_layer, growth, first_layer_height, boundary_layer_thickness,
                                  y_plus, flow_velocity, flow_density, flow_viscosity, reference_length)
     surface = ctx.coarse_surface if project_to == "coarse" and ctx.coarse_surface is not None else ctx.surface
-    caps = ctx.caps if surface is ctx.surface else None
+    caps = caps_on(surface, ctx.surface, ctx.caps)  # the coarse surface's own cap triangles: kept caps stay kept
     projector = wall_projector(surface, caps, kept=ctx.blocks.info.get("touched_caps", ()))  # as the builder's checks
     ref = Refinement(
         around=elements_around * refinement,
@@ -124,7 +124,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
             "layer": blocks.block_layer[b],
         },
         boundary_faces=sm.boundary_faces,
-        boundary_ids=name_stub_faces(named, sm.points, sm.boundary_faces, sm.boundary_ids, sm.boundary_cells, b),
+        boundary_ids=name_stub_faces(named, sm.boundary_ids, sm.boundary_cells, b, sm.boundary_local_face),
         boundary_cells=sm.boundary_cells,
         boundary_names=dict(blocks.boundary_names),
         on_wall=sm.on_wall,
@@ -444,10 +444,13 @@ def boundary_distance(mesh, surface, blocks, projector) -> dict:
 
 
 def _on_cuts(mesh, wall, face) -> dict:
-    """Wall faces that lie on a contact cut (the projector answers face -1 there,
-    :class:`~vmesh.geometry.contact_cut.CutProjector`): their count and area, about twice
+    """Wall faces that lie on a contact cut (the projector answers face
+    :data:`~vmesh.geometry.projection.ON_CUT` there, :class:`~vmesh.geometry.contact_cut.CutProjector`;
+    faces kept on a touched cap answer another index): their count and area, about twice
     the neck's cross-section that the mesh leaves out; nothing without cuts."""
-    on = np.asarray(face) < 0
+    from ..geometry.projection import ON_CUT
+
+    on = np.asarray(face) == ON_CUT
     if not on.any():
         return {}
     q = mesh.points[mesh.corner_boundary_faces()[wall][on]]
@@ -463,12 +466,14 @@ def _on_cuts(mesh, wall, face) -> dict:
         Parameter("depth", "float", 0.3, "... that reaches farther than this from the mesh is a missing part of the vessel (facet sag stays below it).", unit="× radius", min=0.0),
         Parameter("end_depth", "float", 1.5, "Depth allowed to a patch beyond one of the mesh's end faces (a rounded closed end past the last cross-section).", unit="× radius", min=0.0),
         Parameter("fail_on_missing", "bool", True, "Fail when part of the vessel is missing from the mesh (false: a warning)."),
+        Parameter("voxel_tolerance", "bool", True, "On a voxel (staircase) input surface, add half its measured voxel step to distance: the wall is known only to that."),
+        Parameter("own_radius", "bool", True, "Judge an uncovered patch by its own radius (half its chord across the surface) where that is smaller than the skeleton's: a side vessel the skeleton never entered; false: the skeleton's radius alone."),
     ],
     reads=("mesh", "surface", "skeleton"),
-    optional_reads=("caps",),
+    optional_reads=("caps", "blocks"),
     category="quality",
 )
-def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing):
+def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing, voxel_tolerance=True, own_radius=True):
     """Measured against the repaired, capped surface the chain started from, its caps left
     out (the mesh ends there); the local radius is the skeleton's. The result is the
     report's ``coverage`` section (see :mod:`vmesh.geometry.coverage`)."""
@@ -476,12 +481,15 @@ def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing)
     from ..geometry.projection import wall_projector
 
     mesh, skeleton, caps = ctx.mesh, ctx.skeleton, ctx.caps or []
+    # the mesher's projector: wall nodes it kept on a touched cap are measured to that cap
+    projector = wall_projector(ctx.surface, caps, kept=ctx.blocks.info.get("touched_caps", ()) if ctx.blocks is not None else ())
     summary, missing = measure_coverage(
         ctx.surface.vertices, ctx.surface.faces, [c.faces for c in caps], [c.name for c in caps],
         mesh.points, mesh.boundary_faces, mesh.boundary_ids, mesh.order,
         skeleton.points, skeleton.edges, skeleton.radii,
         distance=distance, patch_area=patch_area, depth=depth, end_depth=end_depth, branches=skeleton.branches(),
-        wall_tree=wall_projector(ctx.surface, caps).tree, on_wall=mesh.on_wall,
+        wall_tree=projector.tree, on_wall=mesh.on_wall, tolerance=None if voxel_tolerance else 0.0, wall_projector=projector,
+        own_radius=own_radius,
     )
     ctx.report.sections["coverage"] = summary
     ctx.count(uncovered=summary["uncovered_share"], volume_ratio=summary["volume_ratio"], missing=summary["missing_parts"])

@@ -22,6 +22,8 @@ from functools import cached_property
 
 import numpy as np
 
+from .projection import ON_CUT
+
 
 @dataclass(frozen=True)
 class ContactCuts:
@@ -216,7 +218,7 @@ def _nearer_cuts(cuts: ContactCuts, p: np.ndarray, found, inside):
     h, y, _, _ = cut_feet(cuts, p[near], inside)
     cut = (h < np.abs(d[near])) & (d[near] > 0)
     i = near[cut]
-    closest[i], d[i], face[i] = y[cut], h[cut], -1
+    closest[i], d[i], face[i] = y[cut], h[cut], ON_CUT
     return closest, d, face
 
 

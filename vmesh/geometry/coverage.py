@@ -18,7 +18,13 @@ about 0.08 r with 8 faces around at refinement 1) stays far below that depth.
 
 The local radius is taken from the skeleton: the radius at the closest point of its
 edges (sampled at a quarter of the smaller end radius), which the skeleton's own radius
-estimate (inscribed spheres of the signed distance) provides.
+estimate (inscribed spheres of the signed distance) provides. A patch is judged by the
+smaller of that radius and its own (:func:`_own_radius`): a side vessel the skeleton never
+entered has no skeleton radius of its own, and the parent's would hide it.
+
+A voxel (staircase) input surface is itself only known to half its voxel step: the
+step is measured from the surface (:func:`voxel_step`) and half of it added to the
+distance a wall point may lie from the mesh (``tolerance``).
 """
 
 from __future__ import annotations
@@ -29,6 +35,8 @@ import numpy as np
 
 #: Patches reported in full (the largest first); the rest are only counted.
 MAX_PATCHES = 10
+#: Edges exactly along each grid axis a voxel surface must have to count as one.
+VOXEL_EDGES = 8
 
 
 @dataclass
@@ -155,16 +163,18 @@ def skeleton_radius(points, skeleton_points, skeleton_edges, skeleton_radii):
     return radii[near], nodes[near], gap
 
 
-def _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, skeleton, distance):
+def _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, skeleton, distance, tolerance=0.0):
     """Distances from four area-weighted samples per wall triangle (the centroid and the
-    centres of the three corner sub-triangles) to the mesh boundary, × local radius.
+    centres of the three corner sub-triangles) to the mesh boundary, × local radius, and
+    the distance beyond which each sample is uncovered: ``distance`` plus the absolute
+    ``tolerance``, × the same radius.
 
     The corner samples are queried only where they can be farther than ``distance``: a
     distance moves no more than the point does, so a triangle whose centroid is closer
     than ``distance`` minus its corners' offset keeps the centroid's value for them.
 
-    Returns rel (m, 4), beyond (m, 4: the closest mesh face is an end face), the local
-    radius and the nearest skeleton node of each triangle's centroid."""
+    Returns rel (m, 4), limit (m, 4), beyond (m, 4: the closest mesh face is an end face),
+    the local radius and the nearest skeleton node of each triangle's centroid."""
     t = V[WF]
     c = t.mean(axis=1)
     corner = (2.0 / 3.0) * t + (1.0 / 3.0) * c[:, None, :]
@@ -176,15 +186,17 @@ def _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, skeleton, distance):
     rel_c = np.sqrt(sq) / face_r
     reach = np.linalg.norm(corner - c[:, None, :], axis=2).max(axis=1) / face_r
     rel = np.repeat(rel_c[:, None], 4, axis=1)
+    limit = np.repeat((distance + tolerance / face_r)[:, None], 4, axis=1)
     beyond = np.repeat(end_face[tri_c][:, None], 4, axis=1)
-    check = np.flatnonzero(rel_c + reach > distance)
+    check = np.flatnonzero(rel_c + reach > distance)  # the limit is never below distance
     if len(check):
         p = corner[check].reshape(-1, 3)
         r_k = skeleton_radius(p, *skeleton)[0]
         sq_k, tri_k = mesh_tree.closest(p)[:2]
         rel[check, 1:] = (np.sqrt(sq_k) / r_k).reshape(-1, 3)
+        limit[check, 1:] = (distance + tolerance / r_k).reshape(-1, 3)
         beyond[check, 1:] = end_face[tri_k].reshape(-1, 3)
-    return rel, beyond, face_r, face_node
+    return rel, limit, beyond, face_r, face_node
 
 
 def _patches(faces, n_vertices, uncovered):
@@ -223,6 +235,9 @@ def measure_coverage(
     branches=None,
     wall_tree=None,
     on_wall=None,
+    tolerance: float | None = None,
+    wall_projector=None,
+    own_radius: bool = True,
 ) -> tuple[dict, list]:
     """Measure how much of the input wall the mesh boundary misses.
 
@@ -254,6 +269,13 @@ def measure_coverage(
         A tree of the wall triangles (the surface without its caps), shared with the chain.
     on_wall : (n,) bool, optional
         Nodes the mesher put on the wall (``HexMesh.on_wall``; None: all), see :func:`_wall_node_stats`.
+    tolerance : float, optional
+        Absolute distance added to ``distance`` before wall counts as uncovered (None: half
+        the surface's :func:`voxel_step`, 0 on a surface that is no staircase).
+    wall_projector : SurfaceProjector or CapKeepingProjector, optional
+        The mesher's projector, which measures the wall nodes (default ``wall_tree``).
+    own_radius : bool
+        Judge a patch by the smaller of the skeleton's radius and its own (:func:`_own_radius`).
 
     Returns
     -------
@@ -275,22 +297,24 @@ def measure_coverage(
     # input wall -> mesh boundary, at four area-weighted samples per triangle
     area = 0.5 * np.linalg.norm(np.cross(V[WF[:, 1]] - V[WF[:, 0]], V[WF[:, 2]] - V[WF[:, 0]]), axis=1)
     skeleton = (skeleton_points, skeleton_edges, skeleton_radii)
-    rel, beyond, face_r, face_node = _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, skeleton, distance)
-    far = rel > distance
+    step = voxel_step(V, F)
+    tolerance = 0.5 * step if tolerance is None else float(tolerance)
+    rel, limit, beyond, face_r, face_node = _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, skeleton, distance, tolerance)
+    far = rel > limit
     # wall past an open end face, no deeper than a rounded end: the end cap of a surface without
     # flat caps, left out as flat caps are (past the face's plane too, up to a hemisphere's depth)
     past = _past_end_faces(X, boundary_faces, boundary_ids, V[WF].mean(axis=1))
     end_cap = far & ((beyond & (rel <= end_depth)) | (past[:, None] & (rel <= min(end_depth, 1.0))))
     wall_tree = TriangleBVH(V, WF) if wall_tree is None else wall_tree
-    off = _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, *skeleton, on_wall)
+    off = _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree if wall_projector is None else wall_projector, *skeleton, on_wall)
     node_of_branch = _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3)))
     missing, n_patches, n_missing = _missing_parts(
         V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names,
-        patch_area, depth, end_depth, node_of_branch, off,
+        patch_area, depth, end_depth, node_of_branch, off, F if own_radius else None,
     )
     volumes = (enclosed_volume(V, F), enclosed_volume(X, tri))
     summary = _coverage_summary(distance, area, rel, far & ~end_cap, end_cap, volumes, off, n_patches, missing, n_missing)
-    return summary, missing
+    return {**summary, "voxel_step": float(step), "tolerance": float(tolerance)}, missing
 
 
 def _coverage_summary(distance, area, rel, uncovered, end_cap, volumes, off, n_patches, missing, n_missing) -> dict:
@@ -344,15 +368,18 @@ def _past_end_faces(X, boundary_faces, boundary_ids, points) -> np.ndarray:
     return out
 
 
-def _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree, skeleton_points, skeleton_edges, skeleton_radii, on_wall=None):
-    """The mesh wall nodes' positions, their distances to the input wall (``wall_tree``),
-    relative to the local radius, and which of them the mesher put on the wall."""
+def _wall_node_distances(X, boundary_faces, boundary_ids, wall, skeleton_points, skeleton_edges, skeleton_radii, on_wall=None):
+    """The mesh wall nodes' positions, their distances to the input wall (``wall``: a
+    TriangleBVH, or a projector, whose kept caps count as wall), relative to the local
+    radius, and which of them the mesher put on the wall."""
     wall_nodes = np.unique(np.asarray(boundary_faces)[np.asarray(boundary_ids) == 0])
     if len(wall_nodes) == 0:
         return np.zeros((1, 3)), np.zeros(1), np.ones(1, bool)
     r_n = skeleton_radius(X[wall_nodes], skeleton_points, skeleton_edges, skeleton_radii)[0]
     placed = np.ones(len(wall_nodes), bool) if on_wall is None else np.asarray(on_wall, bool)[wall_nodes]
-    return X[wall_nodes], np.sqrt(wall_tree.closest(X[wall_nodes])[0]) / r_n, placed
+    p = X[wall_nodes]
+    d = wall.project(p)[1] if hasattr(wall, "project") else np.sqrt(wall.closest(p)[0])
+    return p, d / r_n, placed
 
 
 def _wall_node_stats(off) -> dict:
@@ -390,13 +417,15 @@ def _wall_and_caps(F, n_vertices, cap_faces):
     return wall, cap_of_vertex
 
 
-def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names, patch_area, depth, end_depth, node_of_branch, off):
+def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names, patch_area, depth, end_depth, node_of_branch, off, F):
     """Connected uncovered patches of the wall (a face is uncovered when at least two of its
     four samples are) and the missing parts among them, largest first; ``off``: the mesh
     wall nodes, their distances off the wall (x local radius) and whether the mesher put them
     on the wall, for a part's ``wall_off``: the farthest node put on the wall within the
     part's depth (plus half a radius) of its faces, where the mesh wall that misses it lies
-    (and ``over_opening``: the nodes there the mesher left off the wall).
+    (and ``over_opening``: the nodes there the mesher left off the wall). A patch's radius
+    is the smaller of the skeleton's at its deepest face and its own (:func:`_own_radius`,
+    across the closed surface ``F``; None: the skeleton's alone), except past an end face.
 
     Returns the parts (at most :data:`MAX_PATCHES`), the patch count and the count of
     missing parts."""
@@ -415,8 +444,10 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
         order_ = np.lexsort((-face_rel[sel], lab))
         first = order_[np.searchsorted(lab[order_], np.arange(n_patches))]
         deep_face = np.flatnonzero(sel)[first]
-        patch_depth = face_rel[deep_face]
-        patch_r = face_r[deep_face]
+        # the deepest face's distance, relative to the patch's own radius where that is smaller
+        # (not past an end face: there the patch continues the vessel the skeleton ends in)
+        patch_r = face_r[deep_face] if F is None else np.where(at_end, face_r[deep_face], np.minimum(face_r[deep_face], _own_radius(V, F, WF, label, n_patches)))
+        patch_depth = face_rel[deep_face] * face_r[deep_face] / patch_r
         sections = patch_area_sum / (np.pi * patch_r**2)
         big = np.flatnonzero((sections > patch_area) & (patch_depth > np.where(at_end, end_depth, depth)))
         big = big[np.argsort(-patch_area_sum[big])]
@@ -444,6 +475,71 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
     else:
         n_missing = 0
     return missing, n_patches, n_missing
+
+
+def _own_radius(V, F, WF, label, n_patches) -> np.ndarray:
+    """Each uncovered patch's own radius: the median over its faces of half the chord
+    across the closed surface (``V``, ``F``) along the face's inward normal.
+
+    On a vessel's wall that chord is its diameter; the skeleton's radius is that of the
+    vessel the skeleton holds, and a side vessel it never entered would be judged by its
+    parent's. Normals of a Taubin-smoothed copy: a staircase's terrace normals point
+    along the grid axes, not across the vessel. A chord shorter than its face's longest
+    edge gives no radius (the surface does not resolve a lumen that narrow)."""
+    from ..preprocess import taubin_smooth
+    from .bvh import TriangleBVH
+
+    sel = np.flatnonzero(label >= 0)
+    own = np.full(n_patches, np.inf)
+    if not len(sel):
+        return own
+    S = taubin_smooth(V, F, 10)
+    T = S[WF[sel]]
+    n = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+    if np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum() < 0:
+        n = -n  # inward faces
+    c = V[WF[sel]].mean(axis=1)
+    reach = 2.0 * float(np.ptp(V, axis=0).max())
+    t = TriangleBVH(V, F).intersect_lines(c - 1e-9 * reach * n, -n, reach, side=1)[0]
+    # a chord shorter than the face it starts from crosses a sliver (a ragged end's flap),
+    # not a lumen the surface resolves: no radius from it
+    tv = V[WF[sel]]
+    edge = np.linalg.norm(tv - np.roll(tv, 1, axis=1), axis=2).max(axis=1)
+    half = np.where(np.isfinite(t) & (t >= edge), 0.5 * t, np.inf)
+    lab = label[sel]
+    order_ = np.lexsort((half, lab))
+    start = np.searchsorted(lab[order_], np.arange(n_patches))
+    count = np.bincount(lab, minlength=n_patches)
+    own[count > 0] = half[order_[start + count // 2]][count > 0]  # the median (upper) face
+    return own
+
+
+def voxel_step(vertices, faces) -> float:
+    """The grid step of a voxel (staircase) surface, 0 for any other surface.
+
+    Marching cubes of a binary image puts every vertex at the middle of a grid edge, so an
+    edge of the surface that runs along a grid axis is exactly one step long. The surface
+    is a staircase when edges run exactly along each of the three axes and most of those
+    along each axis have one length, the same for all three (a smooth tube meshed in
+    rings along an axis has such edges along one axis only)."""
+    V, F = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
+    if len(F) == 0:
+        return 0.0
+    e = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0)
+    d = np.abs(V[e[:, 1]] - V[e[:, 0]])
+    length = np.linalg.norm(d, axis=1)
+    flat = d <= 1e-6 * np.maximum(length, 1e-300)[:, None]  # components zero (to float32 rounding)
+    steps = []
+    for a in range(3):
+        along = length[(flat.sum(axis=1) == 2) & ~flat[:, a]]
+        if len(along) < VOXEL_EDGES:
+            return 0.0
+        h = float(np.median(along))
+        if np.mean(np.abs(along - h) <= 0.01 * h) < 0.5:
+            return 0.0
+        steps.append(h)
+    return float(np.median(steps)) if max(steps) <= 1.01 * min(steps) else 0.0
 
 
 def _wall_off(centres, reach, off) -> dict:

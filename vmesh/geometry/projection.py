@@ -61,6 +61,11 @@ class SurfaceProjector:
 CAP_KEEP_RADIUS = 0.25
 #: ... and this many times farther than the cap (docs/optimiser.md, h18/cap)
 CAP_KEEP_RATIO = 4.0
+#: Face index a projection answers for a point on a contact cut
+#: (:mod:`vmesh.geometry.contact_cut`) ...
+ON_CUT = -1
+#: ... and for a point kept on a cap (:class:`CapKeepingProjector`): no wall face either
+ON_CAP = -2
 
 
 class CapKeepingProjector:
@@ -99,7 +104,7 @@ class CapKeepingProjector:
         return self.wall.tree
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """As :meth:`SurfaceProjector.project`; a point kept on a cap gets face index -1."""
+        """As :meth:`SurfaceProjector.project`; a point kept on a cap gets face index :data:`ON_CAP`."""
         closest, d, face = self.wall.project(points)
         far = np.flatnonzero(d > self.least_far)  # only these can be kept: one closed query for them
         if not len(far):
@@ -114,7 +119,7 @@ class CapKeepingProjector:
             return closest, d, face
         i = far[keep]
         closest, d, face = closest.copy(), d.copy(), face.copy()
-        closest[i], d[i], face[i] = on_closed[keep], d_cap[keep], -1
+        closest[i], d[i], face[i] = on_closed[keep], d_cap[keep], ON_CAP
         return closest, d, face
 
     def __call__(self, points):
@@ -188,6 +193,25 @@ def wall_projector(surface, caps=None, kept=()) -> SurfaceProjector | CapKeeping
             projector = SurfaceProjector(surface.vertices, surface.faces[keep])
         entries[key] = projector
     return projector
+
+
+def caps_on(surface, fine, caps) -> list | None:
+    """``caps`` (triangles of the ``fine`` surface) as triangles of ``surface``, another
+    triangulation of it (the coarse surface of ``decimate_surface``): a triangle of
+    ``surface`` belongs to the cap that holds the fine triangle closest to its centroid.
+    None without caps; ``caps`` themselves when ``surface`` is ``fine``."""
+    import dataclasses
+
+    if not caps or surface is fine:
+        return caps or None
+    n = len(fine.faces)
+    cap_of_face = np.full(n, -1, np.int64)
+    for k, cap in enumerate(caps):
+        f = np.asarray(cap.faces, np.int64)
+        cap_of_face[f[(f >= 0) & (f < n)]] = k
+    centroid = np.asarray(surface.vertices, np.float64)[np.asarray(surface.faces, np.int64)].mean(axis=1)
+    on = cap_of_face[surface_tree(fine).closest(centroid)[1]]
+    return [dataclasses.replace(cap, faces=np.flatnonzero(on == k)) for k, cap in enumerate(caps)]
 
 
 def _cap_keeping(surface, caps, wall: SurfaceProjector) -> SurfaceProjector | CapKeepingProjector:

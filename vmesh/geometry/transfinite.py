@@ -175,6 +175,7 @@ class StructuredMesh:
     boundary_cells: np.ndarray  # (k,) element of each boundary face
     on_wall: np.ndarray  # (n,) bool: node projected onto the wall
     block_counts: np.ndarray  # (nb, 3) elements per block along i, j, k
+    boundary_local_face: np.ndarray | None = None  # (k,) face of its block (HEX_FACES order) each boundary face lies on
 
 
 def requested_counts(blocks: BlockStructure, topo: Topology, ref: Refinement) -> np.ndarray:
@@ -272,7 +273,7 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
     if np.isnan(X).any():
         raise RuntimeError("transfinite meshing left nodes unset (inconsistent block topology)")
     tick(0.85, "connectivity")
-    cells, cell_block, bfaces, bids, bcells = connectivity(blocks, lattices, p)
+    cells, cell_block, bfaces, bids, bcells, blocal = connectivity(blocks, lattices, p)
     tick(1.0, "done")
     return StructuredMesh(
         points=X,
@@ -284,6 +285,7 @@ def mesh_blocks(blocks: BlockStructure, project, ref: Refinement, progress=None,
         boundary_cells=bcells,
         on_wall=on_wall,
         block_counts=num.block_n,
+        boundary_local_face=blocal,
     )
 
 

@@ -286,9 +286,10 @@ def connectivity(blocks: BlockStructure, lattices: dict, p: int):
 
     ``lattices`` maps a lattice size (I, J, K) to ``(members, L)``: the blocks of that size
     and their node ids. Returns ``cells, cell_block, boundary_faces, boundary_ids,
-    boundary_cells``.
+    boundary_cells, boundary_local_face`` (the last: the face of its block, 0-5 in
+    ``HEX_FACES`` order, that each boundary face lies on).
     """
-    cell_block, bfaces, bids, bcells = [], [], [], []
+    cell_block, bfaces, bids, bcells, blocal = [], [], [], [], []
     n_total = sum(len(members) * int(np.prod([k // p for k in key])) for key, (members, _) in lattices.items())
     all_cells = np.empty((n_total, (p + 1) ** 3), np.int64)
     n_cells = 0
@@ -309,6 +310,7 @@ def connectivity(blocks: BlockStructure, lattices: dict, p: int):
             bfaces.append(face_nodes)
             bcells.append(face_elems)
             bids.append(np.repeat(fbound[has, f], face_nodes.shape[0] // len(has)))
+            blocal.append(np.full(face_nodes.shape[0], f, np.int8))
         n_cells += n_here
     empty = np.zeros((0, (p + 1) ** 2), np.int64)
     return (
@@ -317,4 +319,5 @@ def connectivity(blocks: BlockStructure, lattices: dict, p: int):
         np.concatenate(bfaces) if bfaces else empty,
         np.concatenate(bids) if bids else np.zeros(0, np.int64),
         np.concatenate(bcells) if bcells else np.zeros(0, np.int64),
+        np.concatenate(blocal) if blocal else np.zeros(0, np.int8),
     )

@@ -179,26 +179,22 @@ def meshed_as_wall(blocks):
     return out
 
 
-def name_stub_faces(blocks, points, boundary_faces, boundary_ids, boundary_cells, cell_block) -> np.ndarray:
+def name_stub_faces(blocks, boundary_ids, boundary_cells, cell_block, local_face) -> np.ndarray:
     """The mesh's boundary ids with the faces over each cut stub's mouth named as ``blocks``
     names them (the mesh made from :func:`meshed_as_wall`'s copy calls them wall).
 
-    A mesh face takes the id of the nearest face centre of its block among the block's wall
-    and stub faces (a block's wall faces lie on different sides of it).
+    A mesh wall face takes the id of the block face it lies on: its element's block
+    (``cell_block`` of ``boundary_cells``) and that block's face ``local_face``
+    (:func:`~vmesh.geometry.transfinite_lattice.connectivity` records it).
     """
-    from ...blocks import FACE_WALL, HEX_FACES
+    from ...blocks import FACE_WALL
 
     ids = stub_face_ids(blocks)
     out = np.array(boundary_ids, copy=True)
     if not len(ids):
         return out
-    named = np.isin(blocks.face_boundary, ids)
-    sel = np.flatnonzero((out == FACE_WALL) & named.any(axis=1)[cell_block[boundary_cells]])
-    if not len(sel):
-        return out
-    b = cell_block[boundary_cells[sel]]
-    centre = points[boundary_faces[sel]].mean(axis=1)
-    face_centre = blocks.vertices[blocks.hexes[b][:, HEX_FACES]].mean(axis=2)  # (k, 6, 3)
-    near = np.where(named[b] | (blocks.face_boundary[b] == FACE_WALL), np.linalg.norm(face_centre - centre[:, None], axis=2), np.inf)
-    out[sel] = blocks.face_boundary[b, np.argmin(near, axis=1)]
+    b = np.asarray(cell_block)[np.asarray(boundary_cells)]
+    named = blocks.face_boundary[b, np.asarray(local_face, np.int64)]
+    sel = (out == FACE_WALL) & np.isin(named, ids)
+    out[sel] = named[sel]
     return out
