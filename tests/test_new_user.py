@@ -104,3 +104,22 @@ def test_a_chain_files_params_that_are_not_a_table_are_refused(tmp_path):
     p.write_text('[chain]\nname = "bad"\n\n[[step]]\nfilter = "repair_surface"\nparams = 3\n')
     with pytest.raises(InputError, match=r"bad\.toml.*step 1 \(repair_surface\): params must be a table"):
         FilterChain.load(str(p))
+
+
+@pytest.mark.parametrize("value", ["0.05mmm", "-1mm", "0mm", "5 furlongs"])
+def test_a_bad_length_is_refused_when_the_step_is_added(value):
+    """``--set mesh_transfinite.first_layer_height=0.05mmm`` used to run nine steps and stop
+    in ``mesh_transfinite`` with an ``OUT.failed/``; a length is now checked with the other
+    values, before the first step (``FilterChain.resolved``, as ``run`` does)."""
+    with pytest.raises(ParameterError, match=r"first_layer_height' = .*expected a positive length such as 0\.05mm"):
+        FilterChain.load("default").with_overrides({"mesh_transfinite.first_layer_height": value}).resolved()
+
+
+def test_a_length_without_a_unit_may_be_a_plain_number():
+    """'no unit = the input's units': ``--set ...first_layer_height=0.05`` (a TOML float)
+    used to be refused as 'must be of type str'."""
+    p = get_filter("mesh_transfinite").parameter("first_layer_height")
+    assert p.validate(0.05, "x") == "0.05" and p.validate(2, "x") == "2"
+    assert p.validate("50um", "x") == "50um" and p.validate("", "x") == ""
+    with pytest.raises(ParameterError, match="must be of type length"):
+        p.validate(True, "x")
