@@ -123,3 +123,22 @@ def test_a_length_without_a_unit_may_be_a_plain_number():
     assert p.validate("50um", "x") == "50um" and p.validate("", "x") == ""
     with pytest.raises(ParameterError, match="must be of type length"):
         p.validate(True, "x")
+
+
+CENTERLINE_FILES = {
+    "centerline.vtk": "# vtk DataFile Version 3.0\nline\nASCII\nDATASET POLYDATA\nPOINTS 3 float\n0 0 0 1 0 0 2 0 0\nLINES 1 4\n3 0 1 2\n",
+    "centerline.ply": "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+    "element edge 2\nproperty int vertex1\nproperty int vertex2\nend_header\n0 0 0\n1 0 0\n2 0 0\n0 1\n1 2\n",
+}
+
+
+@pytest.mark.parametrize("name", sorted(CENTERLINE_FILES))
+def test_a_centerline_given_as_the_surface_is_named_as_such(tmp_path, name):
+    """``-i centerline.vtp`` said 'no surface faces found (empty or corrupt ... file)',
+    as for a broken file; it now says the file holds lines and where a centerline goes."""
+    from vmesh.io.surface import read_surface
+
+    path = tmp_path / name
+    path.write_text(CENTERLINE_FILES[name])
+    with pytest.raises(InputError, match=r"no surface faces, only \d+ (line cell|edge)\(s\): is it a centerline .* --skeleton"):
+        read_surface(path)
