@@ -142,3 +142,22 @@ def test_a_centerline_given_as_the_surface_is_named_as_such(tmp_path, name):
     path.write_text(CENTERLINE_FILES[name])
     with pytest.raises(InputError, match=r"no surface faces, only \d+ (line cell|edge)\(s\): is it a centerline .* --skeleton"):
         read_surface(path)
+
+
+def test_a_folder_export_does_not_replace_a_folder_of_other_files(tmp_path):
+    """``vmesh export RUN -f openfoam -o DIR`` removed DIR with whatever it held; a folder
+    writer now replaces only an empty folder or one it wrote (an OpenFOAM case, a MeshLab
+    export), and refuses the rest before writing."""
+    notes = tmp_path / "notes"
+    notes.mkdir()
+    (notes / "todo.txt").write_text("keep me")
+    with pytest.raises(InputError, match=r"notes: is a folder with other files \(todo\.txt\).*not replaced"):
+        with atomic_path(notes):
+            pass
+    assert (notes / "todo.txt").read_text() == "keep me" and sorted(p.name for p in tmp_path.iterdir()) == ["notes"]
+    case = tmp_path / "case"
+    (case / "constant" / "polyMesh").mkdir(parents=True)
+    with atomic_path(case) as tmp:
+        tmp.unlink()
+        (tmp / "system").mkdir(parents=True)
+    assert sorted(p.name for p in case.iterdir()) == ["system"]
