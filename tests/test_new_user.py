@@ -161,3 +161,16 @@ def test_a_folder_export_does_not_replace_a_folder_of_other_files(tmp_path):
         tmp.unlink()
         (tmp / "system").mkdir(parents=True)
     assert sorted(p.name for p in case.iterdir()) == ["system"]
+
+
+def test_vmesh_info_diagnoses_every_file_and_fails_at_the_end(tmp_path, capsys):
+    """``vmesh info bad.stl good.ply`` stopped at the first bad file; a diagnosis now
+    covers every file, one error line for each bad one, and exits 2."""
+    v, f = tube(n_around=8, n_along=4)
+    good = _write_ply(tmp_path / "good.ply", v, f)
+    empty = tmp_path / "empty.stl"
+    empty.write_bytes(b"")
+    assert main(["info", str(empty), str(good), str(tmp_path / "missing.stl")]) == 2
+    out, err = capsys.readouterr()
+    assert out.startswith(f"{good}\n") and "triangles" in out
+    assert err.splitlines() == [f"vmesh: error: {empty}: file is empty", f"vmesh: error: {tmp_path / 'missing.stl'}: file not found"]
