@@ -9,7 +9,9 @@ point of the branch's node polyline). Prints, per end with a dip of ``--ratio`` 
 deepest dip and its arc, the half-sections' reach along the branch, the first section's
 arc, the branch radius, the deepest dip past ``reach + junction_margin × radius`` (where a
 section normal to the branch could stand), and the arcs of the deepest face's four corners
-(half-section end | first-section end).
+(half-section end | first-section end). The blocks probed are those the chain kept
+(``ctx.blocks``), matched among every build :meth:`_Builder.finish` finished (dent
+rebuilds and lean variants finish builds that are then dropped).
 
     PYTHONPATH=$PWD python3 benchmarks/crotch_dips.py SURFACE [--skeleton FILE] [--ratio 0.5]
 
@@ -86,6 +88,18 @@ def report(builder, blocks, min_ratio: float) -> list:
     return rows
 
 
+def kept_build(finished: list, blocks) -> tuple:
+    """The (builder, finished blocks) of ``finished`` that the chain kept as ``blocks``: the
+    last one with the same vertices and hexahedra (a dent rebuild's copy is not the same
+    object). Not simply the last build finished: a dropped lean variant or dent trial may
+    have finished after it."""
+    for builder, out in reversed(finished):
+        if out is blocks or (out.vertices.shape == blocks.vertices.shape and np.array_equal(out.vertices, blocks.vertices)
+                             and np.array_equal(out.hexes, blocks.hexes)):
+            return builder, out
+    raise SystemExit("the kept block structure is none of the builds finished")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("surface")
@@ -98,20 +112,28 @@ def main(argv=None) -> int:
     from vmesh.io.skeleton import read_skeleton
     from vmesh.io.surface import read_surface
 
-    rows, finish = [], B._Builder.finish
+    finished, finish = [], B._Builder.finish
 
     def hooked(self, blocks):
         out = finish(self, blocks)
-        rows[:] = report(self, out, args.ratio)  # the last build finished (dent rebuilds and lean tries finish builds too)
+        finished.append((self, out))  # dent rebuilds and lean tries finish builds that may be dropped
         return out
 
     B._Builder.finish = hooked
     chain = FilterChain.load("default").with_overrides(C.BENCH_OVERRIDES)
     chain.steps = chain.steps[: [s.filter for s in chain.steps].index("build_block_structure") + 1]
+    ctx = Context()
     try:
-        chain.run(surface=read_surface(args.surface), skeleton=read_skeleton(args.skeleton) if args.skeleton else None, out_dir=None, context=Context())
+        chain.run(surface=read_surface(args.surface), skeleton=read_skeleton(args.skeleton) if args.skeleton else None, out_dir=None, context=ctx)
     finally:
         B._Builder.finish = finish
+    builder, kept = kept_build(finished, ctx.blocks)
+    n = next(i for i, (b, _) in enumerate(finished) if b is builder) + 1
+    rows = report(builder, ctx.blocks, args.ratio)
+    print(f"{len(finished)} build(s) finished; the chain kept number {n}")
+    if n < len(finished):  # what the probe read before it matched the kept build (h18/crotch's table)
+        last = report(*finished[-1], args.ratio)
+        print("the last build finished (dropped) gives", "the same rows" if last == rows else f"other rows: {last}")
     for row in rows:
         print(row)
     return 0

@@ -374,6 +374,20 @@ def test_bad_manifest_one_line_exit_2(tmp_path, capsys, content, problem):
     assert not out.exists()
 
 
+def test_a_bad_set_value_is_named_as_sets(tmp_path, capsys):
+    """``vmesh batch m.csv --set mesh_transfinite.order=two`` was reported as the manifest's
+    row 1; it is --set's error (session 19, docs/inputs_and_failures.md)."""
+    from vmesh.cli import main
+
+    path = tmp_path / "rows.csv"
+    path.write_text(f"surface\n{SURFACE}\n")
+    out = tmp_path / "out"
+    assert main(["batch", str(path), "--out", str(out), "--workers", "1", "--set", "mesh_transfinite.order=two"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["vmesh: error: --set: step 10: filter 'mesh_transfinite': parameter 'order' must be of type int, got str 'two'"]
+    assert not out.exists()
+
+
 def test_sweep_toml_errors(tmp_path):
     m = tmp_path / "m.toml"
     m.write_text(f'[[sweep]]\nsurface = "{SURFACE}"\n[sweep.zip]\n"a.b" = [1, 2]\n"c.d" = [1]\n')

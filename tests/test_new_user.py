@@ -104,3 +104,73 @@ def test_a_chain_files_params_that_are_not_a_table_are_refused(tmp_path):
     p.write_text('[chain]\nname = "bad"\n\n[[step]]\nfilter = "repair_surface"\nparams = 3\n')
     with pytest.raises(InputError, match=r"bad\.toml.*step 1 \(repair_surface\): params must be a table"):
         FilterChain.load(str(p))
+
+
+@pytest.mark.parametrize("value", ["0.05mmm", "-1mm", "0mm", "5 furlongs"])
+def test_a_bad_length_is_refused_when_the_step_is_added(value):
+    """``--set mesh_transfinite.first_layer_height=0.05mmm`` used to run nine steps and stop
+    in ``mesh_transfinite`` with an ``OUT.failed/``; a length is now checked with the other
+    values, before the first step (``FilterChain.resolved``, as ``run`` does)."""
+    with pytest.raises(ParameterError, match=r"first_layer_height' = .*expected a positive length such as 0\.05mm"):
+        FilterChain.load("default").with_overrides({"mesh_transfinite.first_layer_height": value}).resolved()
+
+
+def test_a_length_without_a_unit_may_be_a_plain_number():
+    """'no unit = the input's units': ``--set ...first_layer_height=0.05`` (a TOML float)
+    used to be refused as 'must be of type str'."""
+    p = get_filter("mesh_transfinite").parameter("first_layer_height")
+    assert p.validate(0.05, "x") == "0.05" and p.validate(2, "x") == "2"
+    assert p.validate("50um", "x") == "50um" and p.validate("", "x") == ""
+    with pytest.raises(ParameterError, match="must be of type length"):
+        p.validate(True, "x")
+
+
+CENTERLINE_FILES = {
+    "centerline.vtk": "# vtk DataFile Version 3.0\nline\nASCII\nDATASET POLYDATA\nPOINTS 3 float\n0 0 0 1 0 0 2 0 0\nLINES 1 4\n3 0 1 2\n",
+    "centerline.ply": "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+    "element edge 2\nproperty int vertex1\nproperty int vertex2\nend_header\n0 0 0\n1 0 0\n2 0 0\n0 1\n1 2\n",
+}
+
+
+@pytest.mark.parametrize("name", sorted(CENTERLINE_FILES))
+def test_a_centerline_given_as_the_surface_is_named_as_such(tmp_path, name):
+    """``-i centerline.vtp`` said 'no surface faces found (empty or corrupt ... file)',
+    as for a broken file; it now says the file holds lines and where a centerline goes."""
+    from vmesh.io.surface import read_surface
+
+    path = tmp_path / name
+    path.write_text(CENTERLINE_FILES[name])
+    with pytest.raises(InputError, match=r"no surface faces, only \d+ (line cell|edge)\(s\): is it a centerline .* --skeleton"):
+        read_surface(path)
+
+
+def test_a_folder_export_does_not_replace_a_folder_of_other_files(tmp_path):
+    """``vmesh export RUN -f openfoam -o DIR`` removed DIR with whatever it held; a folder
+    writer now replaces only an empty folder or one it wrote (an OpenFOAM case, a MeshLab
+    export), and refuses the rest before writing."""
+    notes = tmp_path / "notes"
+    notes.mkdir()
+    (notes / "todo.txt").write_text("keep me")
+    with pytest.raises(InputError, match=r"notes: is a folder with other files \(todo\.txt\).*not replaced"):
+        with atomic_path(notes):
+            pass
+    assert (notes / "todo.txt").read_text() == "keep me" and sorted(p.name for p in tmp_path.iterdir()) == ["notes"]
+    case = tmp_path / "case"
+    (case / "constant" / "polyMesh").mkdir(parents=True)
+    with atomic_path(case) as tmp:
+        tmp.unlink()
+        (tmp / "system").mkdir(parents=True)
+    assert sorted(p.name for p in case.iterdir()) == ["system"]
+
+
+def test_vmesh_info_diagnoses_every_file_and_fails_at_the_end(tmp_path, capsys):
+    """``vmesh info bad.stl good.ply`` stopped at the first bad file; a diagnosis now
+    covers every file, one error line for each bad one, and exits 2."""
+    v, f = tube(n_around=8, n_along=4)
+    good = _write_ply(tmp_path / "good.ply", v, f)
+    empty = tmp_path / "empty.stl"
+    empty.write_bytes(b"")
+    assert main(["info", str(empty), str(good), str(tmp_path / "missing.stl")]) == 2
+    out, err = capsys.readouterr()
+    assert out.startswith(f"{good}\n") and "triangles" in out
+    assert err.splitlines() == [f"vmesh: error: {empty}: file is empty", f"vmesh: error: {tmp_path / 'missing.stl'}: file not found"]

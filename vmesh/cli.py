@@ -69,13 +69,22 @@ def cmd_chains(args) -> int:
 
 
 def cmd_info(args) -> int:
+    from .errors import InputError
     from .io.surface import read_surface
 
-    for path in args.surface:
-        surface = read_surface(path)
+    failed = 0
+    for path in args.surface:  # a diagnosis: every file, a bad one does not stop the rest
+        try:
+            surface = read_surface(path)
+        except InputError as exc:
+            if args.debug:
+                raise
+            print(f"vmesh: error: {one_line(str(exc))}", file=sys.stderr)
+            failed += 1
+            continue
         print(f"{path}")
         print("  " + str(surface.info()).replace("\n", "\n  "))
-    return 0
+    return EXIT_USAGE if failed else 0
 
 
 def cmd_run(args) -> int:

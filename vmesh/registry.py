@@ -11,6 +11,7 @@ from __future__ import annotations
 import difflib
 import inspect
 import math
+import re
 import textwrap
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,11 +26,16 @@ PARAMETER_TYPES: dict[str, tuple[type, ...]] = {
     "bool": (bool,),
     "str": (str,),
     "path": (str, Path),
+    "length": (str, int, float),
     "float_list": (list, tuple),
     "int_list": (list, tuple),
     "str_list": (list, tuple),
     "dict": (dict,),
 }
+
+#: A ``length`` value: a positive number with an optional unit (none = the input's units),
+#: as ``vmesh.geometry.boundary_layer.parse_length`` reads it when the filter runs.
+_LENGTH_TEXT = re.compile(r"^\s*\+?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?\s*(?:m|cm|mm|um|µm)?\s*$")
 
 #: Layers of a run's :class:`~vmesh.context.Context` a filter may read or write.
 LAYERS = (
@@ -100,8 +106,13 @@ class Parameter:
         label = f"{where}: parameter '{self.name}'"
         allowed = PARAMETER_TYPES[self.type]
         # bool is an int subclass: refuse it where a number is expected
-        if not isinstance(value, allowed) or (self.type in ("int", "float") and isinstance(value, bool)):
+        if not isinstance(value, allowed) or (self.type in ("int", "float", "length") and isinstance(value, bool)):
             raise ParameterError(f"{label} must be of type {self.type}, got {type(value).__name__} {value!r}")
+        if self.type == "length":
+            value = value if isinstance(value, str) else repr(value)
+            if value and not (_LENGTH_TEXT.match(value) and float(re.sub(r"[a-zµ\s]+$", "", value)) > 0):
+                raise ParameterError(f"{label} = {value!r}: expected a positive length such as 0.05mm "
+                                     "(units: m, cm, mm, um, µm; none = the input's units)")
         if self.type == "float":
             value = float(value)
             if not math.isfinite(value):

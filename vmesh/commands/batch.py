@@ -40,13 +40,23 @@ def run(args) -> int:
     if args.retries < 0:
         raise InputError(f"--retries must be at least 0, got {args.retries}")
     manifest = batch.read_manifest(args.manifest)
+    chain, overrides = args.chain or manifest.chain or "default", parse_overrides(args.set)
+    if overrides:  # a bad --set value is --set's error, not the first row's
+        from ..chain import FilterChain
+        from ..errors import VmeshError
+
+        loaded = FilterChain.load(chain)  # its own errors name the chain
+        try:
+            loaded.with_overrides(overrides).resolved()
+        except VmeshError as exc:
+            raise InputError(f"--set: {exc}") from None
     result = batch.run(
         manifest,
-        args.chain or manifest.chain or "default",
+        chain,
         out=args.out,
         scheduler=args.scheduler,
         workers=args.workers,
-        overrides=parse_overrides(args.set),
+        overrides=overrides,
         retries=args.retries,
         progress=not args.quiet,
         parquet=False if args.no_parquet else "auto",

@@ -19,6 +19,7 @@ def atomic_path(path: str | Path):
     ``path`` is left untouched, so a failed write never leaves a partial file.
     """
     path = Path(path)
+    _check_replaceable(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".partial" + path.suffix, dir=path.parent)
@@ -44,6 +45,19 @@ def atomic_path(path: str | Path):
         else:
             tmp.unlink(missing_ok=True)
         raise
+
+
+def _check_replaceable(path: Path) -> None:
+    """Refuse, before anything is written, to replace a folder holding files that vmesh did
+    not write: only an empty folder, an OpenFOAM case (``constant/polyMesh``) or a MeshLab
+    export (``vmesh.mlp``) is replaced (``vmesh export -o ~/notes`` removed the folder)."""
+    if not path.is_dir() or (path / "constant" / "polyMesh").is_dir() or (path / "vmesh.mlp").is_file():
+        return
+    names = sorted(p.name for p in path.iterdir())
+    if names:
+        shown = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+        raise InputError(f"is a folder with other files ({shown}), not an OpenFOAM case or MeshLab export "
+                         "vmesh wrote: not replaced (give a new or empty folder)", path)
 
 
 def write_text_atomic(path: str | Path, text: str) -> Path:

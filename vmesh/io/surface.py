@@ -98,6 +98,22 @@ def read_surface(path: str | Path, notes: list | None = None) -> SurfaceMesh:
     return SurfaceMesh(vertices, faces, name=path.name, face_data=face_data)
 
 
+#: A file of lines only (a centerline, an edge-mesh skeleton) given as the surface.
+_CENTERLINE_HINT = "no surface faces, only {n} {what}(s): is it a centerline rather than a surface? (a centerline goes to --skeleton)"
+
+
+def _ply_edge_count(path: Path) -> int:
+    """Edges declared by a PLY header without faces (an edge-mesh skeleton), else 0."""
+    from .ply import UnsupportedPLY, ply_header
+
+    try:
+        _, elements, _ = ply_header(path.read_bytes()[:65536])
+    except (UnsupportedPLY, ValueError, IndexError):
+        return 0
+    counts = {name: count for name, count, _ in elements}
+    return counts.get("edge", 0) if not counts.get("face") else 0
+
+
 def _short(exc: Exception) -> str:
     """An exception's message without its class name (users see the problem, not Python)."""
     text = " ".join(str(exc).split())
@@ -132,6 +148,8 @@ def _read_ply(path: Path, notes: list):
     try:
         return read_ply_triangles(path)
     except UnsupportedPLY:
+        if edges := _ply_edge_count(path):
+            raise InputError(_CENTERLINE_HINT.format(n=edges, what="edge"), path) from None
         return _read_pyvista(path, notes)
 
 
@@ -164,6 +182,8 @@ def _read_pyvista(path: Path, notes: list):
         dropped = [f"{n} {what}" for n, what in ((n_by_dim[1], "line"), (n_by_dim[0], "vertex")) if n]
         if dropped:
             notes.append(f"{path.name}: dropped {' and '.join(dropped)} cell(s) among its {n_by_dim[2]} surface faces")
+    elif n_by_dim[1]:
+        raise InputError(_CENTERLINE_HINT.format(n=n_by_dim[1], what="line cell"), path)
     else:
         return empty
     if surface.n_cells == 0:
