@@ -9,11 +9,35 @@ import vmesh
 
 
 def vmesh_cli(*args, cwd=None):
+    """``python -m vmesh ARGS`` in a new process (about 1 s of imports each)."""
     return subprocess.run([sys.executable, "-m", "vmesh", *map(str, args)], capture_output=True, text=True, cwd=cwd)
 
 
-def test_filters_lists_every_filter():
-    r = vmesh_cli("filters")
+@pytest.fixture
+def vmesh_main(capfd, monkeypatch):
+    """``vmesh_main(*args)`` runs the command in this process, as ``python -m vmesh`` does
+    (``sys.exit(main())``), and returns what ``vmesh_cli`` returns: the exit status and the
+    text written to stdout and stderr, captured at the file descriptors (so that a line a
+    compiled library writes counts too). One real process per test module is enough to
+    cover the entry point; the rest save the interpreter's start."""
+    from vmesh.cli import main
+
+    monkeypatch.setattr(sys, "unraisablehook", sys.unraisablehook)  # main() wraps it; undone after the test
+
+    def run(*args):
+        capfd.readouterr()
+        try:
+            code = main(list(map(str, args)))
+        except SystemExit as exc:  # argparse's usage errors
+            code = exc.code
+        out, err = capfd.readouterr()
+        return subprocess.CompletedProcess(["vmesh", *map(str, args)], code, out, err)
+
+    return run
+
+
+def test_filters_lists_every_filter(vmesh_main):
+    r = vmesh_main("filters")
     assert r.returncode == 0
     for name in vmesh.filter_list():
         assert name in r.stdout
@@ -32,8 +56,8 @@ def test_filters_name_prints_parameters(capsys):
             assert f"{p.name} : {p.type}" in out
 
 
-def test_unknown_filter_name():
-    r = vmesh_cli("filters", "mesh_transfinit")
+def test_unknown_filter_name(vmesh_main):
+    r = vmesh_main("filters", "mesh_transfinit")
     assert r.returncode == 2
     assert r.stderr.strip().count("\n") == 0 and "did you mean 'mesh_transfinite'" in r.stderr
 
@@ -54,17 +78,17 @@ def _bad_inputs(tmp_path):
 
 
 @pytest.mark.parametrize("case", ["missing", "empty", "corrupt", "unknown"])
-def test_bad_surface_inputs(tmp_path, case):
+def test_bad_surface_inputs(tmp_path, case, vmesh_main):
     path, message = _bad_inputs(tmp_path)[case]
     out = tmp_path / "out"
-    r = vmesh_cli("run", "default", "--input", path, "--out", out)
+    r = vmesh_main("run", "default", "--input", path, "--out", out)
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("vmesh: error:") and str(path) in lines[0] and message in lines[0], r.stderr
     assert not out.exists()
 
 
-def test_bad_skeleton_file(tmp_path):
+def test_bad_skeleton_file(tmp_path, vmesh_main):
     from conftest import synthetic_case
 
     surface, _ = synthetic_case("straight_tube")
@@ -73,26 +97,26 @@ def test_bad_skeleton_file(tmp_path):
     skel = tmp_path / "skel.json"
     skel.write_text('{"nodes": [{"id": 0, "xyz": [0, 0]}], "edges": []')
     out = tmp_path / "out"
-    r = vmesh_cli("run", "default", "--input", surface, "--skeleton", skel, "--out", out)
+    r = vmesh_main("run", "default", "--input", surface, "--skeleton", skel, "--out", out)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
     assert str(skel) in r.stderr and "JSON" in r.stderr
     assert not out.exists()
 
 
-def test_bad_set_values(tmp_path):
-    r = vmesh_cli("run", "default", "--input", tmp_path / "x.stl", "--set", "mesh_transfinite.order=9")
+def test_bad_set_values(tmp_path, vmesh_main):
+    r = vmesh_main("run", "default", "--input", tmp_path / "x.stl", "--set", "mesh_transfinite.order=9")
     assert r.returncode == 2 and "above its maximum" in r.stderr
-    r = vmesh_cli("run", "default", "--set", "oops")
+    r = vmesh_main("run", "default", "--set", "oops")
     assert r.returncode == 2 and "filter.param=value" in r.stderr
 
 
-def test_info(tmp_path):
+def test_info(tmp_path, vmesh_main):
     import numpy as np
     import pyvista as pv
 
     path = tmp_path / "c.stl"
     pv.Cylinder(resolution=16).triangulate().save(path)
-    r = vmesh_cli("info", path)
+    r = vmesh_main("info", path)
     assert r.returncode == 0 and "open boundary loops 0" in r.stdout and "outward" in r.stdout
 
 

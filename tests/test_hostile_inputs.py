@@ -59,6 +59,24 @@ class _Result:
         self.returncode, self.stderr = returncode, stderr
 
 
+@pytest.fixture
+def run_main(capfd, monkeypatch):
+    """``run_main(*args)``: the command line in this process, its stderr captured at the file
+    descriptor (a compiled library's lines count too); returns what ``run_cli`` returns. A
+    real process costs about 1 s of imports per run: `test_not_a_mesh_in_a_real_process`
+    covers the entry point, the meshing runs go in-process."""
+    from vmesh.cli import main
+
+    monkeypatch.setattr(sys, "unraisablehook", sys.unraisablehook)  # main() wraps it; undone after the test
+
+    def run(*args):
+        capfd.readouterr()
+        code = main(list(map(str, args)))
+        return _Result(code, capfd.readouterr().err)
+
+    return run
+
+
 @pytest.mark.parametrize("name", NOT_MESHES)
 def test_not_a_mesh_is_refused_in_one_line(tmp_path, capsys, name):
     from vmesh.cli import main
@@ -81,10 +99,10 @@ def test_not_a_mesh_in_a_real_process(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", MESHABLE)
-def test_repairable_input_meshes(tmp_path, name):
+def test_repairable_input_meshes(tmp_path, name, run_main):
     surface, skeleton = HOSTILE_INPUTS[name](tmp_path)
     out = tmp_path / "out"
-    r = run_cli("run", "default", "-q", "-i", surface, "-s", skeleton, "-o", out)
+    r = run_main("run", "default", "-q", "-i", surface, "-s", skeleton, "-o", out)
     report = check_outcome(r, out)
     assert report is not None, r.stderr[-2000:]
     if name == "hole_in_wall":
@@ -100,24 +118,24 @@ def test_repairable_input_meshes(tmp_path, name):
 
 
 @pytest.mark.slow
-def test_self_touching_vessel_meshes_or_fails_cleanly(tmp_path):
+def test_self_touching_vessel_meshes_or_fails_cleanly(tmp_path, run_main):
     surface, skeleton = HOSTILE_INPUTS["self_touching"](tmp_path)
     out = tmp_path / "out"
-    r = run_cli("run", "default", "-q", "-i", surface, "-s", skeleton, "-o", out)
+    r = run_main("run", "default", "-q", "-i", surface, "-s", skeleton, "-o", out)
     if check_outcome(r, out) is None:
         assert (tmp_path / "out.failed" / "failure.log").is_file()
         assert f"{tmp_path / 'out.failed'}/" in r.stderr
 
 
 @pytest.mark.slow
-def test_hostile_inputs_with_extracted_skeleton(tmp_path):
+def test_hostile_inputs_with_extracted_skeleton(tmp_path, run_main):
     """Without a centerline the extraction runs on the repaired surface."""
     for name in ("stray_cells", "two_pieces", "hole_in_wall"):
         d = tmp_path / name
         d.mkdir()
         surface, _ = HOSTILE_INPUTS[name](d)
         out = d / "out"
-        check_outcome(run_cli("run", "default", "-q", "-i", surface, "-o", out), out)
+        check_outcome(run_main("run", "default", "-q", "-i", surface, "-o", out), out)
 
 
 # -- repairs, in process (fast) ------------------------------------------------------------

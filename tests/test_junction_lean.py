@@ -10,6 +10,7 @@ branches' bisector (:meth:`vmesh.geometry.blocks.junctions._Junctions._leaned`).
 
 from __future__ import annotations
 
+import functools
 import types
 
 import numpy as np
@@ -89,9 +90,18 @@ def test_trifurcation_half_sections_lean_away_from_the_dipping_daughter():
 DEFAULT = Refinement(around=2, core=2, ring=2, layer=3, element_length=0.5, first_layer=0.02)
 
 
-def _inverted(case, lean):
+@functools.lru_cache(maxsize=None)
+def _built(make, lean):
+    """``(case, skeleton, blocks)``: the generated case, its skeleton cleaned as the default
+    chain does, and its blocks with ``junction_lean = lean``; built once for the tests
+    below, which look at the same blocks (a build takes seconds)."""
+    case = make()
     sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
-    blocks = build_blocks(sk, case.distance, None, BlockOptions(junction_lean=lean), project=case.project)
+    return case, sk, build_blocks(sk, case.distance, None, BlockOptions(junction_lean=lean), project=case.project)
+
+
+def _inverted(make, lean):
+    case, _, blocks = _built(make, lean)
     assert blocks.corner_jacobians().min() > 0
     sm = mesh_blocks(blocks, case.project, DEFAULT, signed_distance=case.distance)
     sj = scaled_jacobian(sm.points, sm.cells, DEFAULT.order)
@@ -103,9 +113,8 @@ def test_generated_trifurcation_folds_less_with_leaning_half_sections():
     """g0018's trifurcation (middle daughter 33 degrees out of the plane): valid blocks
     either way, and the raw fill (no untangling) has less than half the inverted elements
     with leaning half-sections (measured 16 against 37, least -0.44 against -0.56)."""
-    case = trifurcation_out_of_plane()
-    planar, planar_min = _inverted(case, 0.0)
-    leaned, leaned_min = _inverted(case, 1.0)
+    planar, planar_min = _inverted(trifurcation_out_of_plane, 0.0)
+    leaned, leaned_min = _inverted(trifurcation_out_of_plane, 1.0)
     assert leaned < 0.5 * planar and leaned_min > planar_min
 
 
@@ -195,13 +204,11 @@ def test_trifurcation_with_choose_lean_ends_no_worse(make):
     from benchmarks.junction_sweep import optimised
     from test_junctions import DEFAULT
 
-    case = make()
-    sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
+    case, sk, lean = _built(make, 1.0)  # the default's blocks (``junction_lean`` 1, no ``choose_lean``)
     chosen = build_blocks(sk, case.distance, None, BlockOptions(choose_lean=True), project=case.project)
     (corner_lean, fill_lean), (corner_flat, fill_flat) = chosen.info["junction_lean"]["score_lean_flat"]["0"]
     assert corner_flat > corner_lean and fill_flat < fill_lean
     assert chosen.info["junction_lean"]["kept"] == "0: lean"
-    lean = build_blocks(sk, case.distance, None, BlockOptions(), project=case.project)
     assert "junction_lean" not in lean.info
     # the same blocks as the default's, so the same mesh: only one is filled and optimised
     np.testing.assert_array_equal(chosen.hexes, lean.hexes)

@@ -46,11 +46,18 @@ def check_mesh(ctx):
     return sj
 
 
+@pytest.fixture(scope="module")
+def aneurysm_run():
+    """The default chain on the synthetic aneurysm: one run shared by the tests that look at
+    it (each used to run it again)."""
+    return run_default(*synthetic_case("aneurysm"))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("case", CASES)
-def test_default_chain_on_synthetic_case(case):
+def test_default_chain_on_synthetic_case(case, request):
     surface, skeleton = synthetic_case(case)
-    ctx = run_default(surface, skeleton)
+    ctx = request.getfixturevalue("aneurysm_run") if case == "aneurysm" else run_default(surface, skeleton)
     sj = check_mesh(ctx)
     assert sj.mean() > 0.85
     # element labels follow the skeleton tags
@@ -64,9 +71,8 @@ def test_default_chain_on_synthetic_case(case):
     assert not any("+" in n or n.startswith(("inlet", "outlet")) for n in mesh.label_names.values())  # ends name patches only
 
 
-def test_aneurysm_tagged_elements_form_the_sac():
-    surface, skeleton = synthetic_case("aneurysm")
-    ctx = run_default(surface, skeleton)
+def test_aneurysm_tagged_elements_form_the_sac(aneurysm_run):
+    ctx = aneurysm_run
     mesh, sk = ctx.mesh, ctx.skeleton
     sac = mesh.cell_data["tag_aneurysm"].astype(bool)
     assert 0 < sac.sum() < 0.5 * mesh.n_cells
@@ -78,7 +84,7 @@ def test_aneurysm_tagged_elements_form_the_sac():
     assert (~node_is_sac[nearest[~sac]]).mean() > 0.9  # the junction blocks next to the neck are vessel
 
 
-def test_aneurysm_dome_is_meshed_without_folds():
+def test_aneurysm_dome_is_meshed_without_folds(aneurysm_run):
     """The sac ends blind inside the dome (no cap): its boundary layer turns round the dome in
     a cap of blocks, so the dome's elements are good before any untangling (their blocks
     used to meet the dome with two faces, min SJ 0.12), and the mesh meets the quality target."""
@@ -90,7 +96,7 @@ def test_aneurysm_dome_is_meshed_without_folds():
     last = blocks.block_segment == int(np.flatnonzero((sk.edges == sac_end).any(axis=1))[0])
     dome = last[raw.mesh.cell_data["block_id"]]
     assert dome.sum() > 0 and sj[dome].min() > 0.4
-    sj = check_mesh(run_default(surface, skeleton))
+    sj = check_mesh(aneurysm_run)
     assert sj.min() >= 0.2 and sj.mean() >= 0.85
 
 
