@@ -1,0 +1,88 @@
+"""Mends from the review of session 19's new-user changes: which folders an export may
+replace (any MeshLab project, only OpenFOAM cases vmesh wrote, unreadable folders, a file
+writer never), every export target checked before the first is written, numpy lengths,
+batch ``--set`` checked without the rows, a PLY header read alone, block faces recomputed."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vmesh.cli import main
+from vmesh.errors import InputError
+from vmesh.io.atomic import atomic_path, check_replaceable
+
+
+def _one_hex():
+    from test_export import unit_cube_mesh
+
+    return unit_cube_mesh()
+
+
+def test_a_meshlab_export_with_any_project_name_is_replaced(tmp_path):
+    """``export_meshlab(project="x.mlp")`` wrote ``meshlab/x.mlp``; a later ``vmesh export
+    --format meshlab`` looked for ``vmesh.mlp`` only and refused the folder."""
+    from vmesh.io.meshlab import write_meshlab_folder
+
+    folder = tmp_path / "meshlab"
+    write_meshlab_folder(folder, _one_hex(), project="x.mlp")
+    assert (folder / "x.mlp").is_file()
+    check_replaceable(folder, folder=True)
+    write_meshlab_folder(folder, _one_hex())
+    assert sorted(p.name for p in folder.glob("*.mlp")) == ["vmesh.mlp"]
+
+
+def test_only_an_openfoam_case_vmesh_wrote_is_replaced(tmp_path):
+    """Any folder with ``constant/polyMesh`` was removed whole, a user's own case too."""
+    from vmesh.io.openfoam import write
+
+    case = tmp_path / "case"
+    write(case, _one_hex())
+    (case / "0").mkdir()  # a solver ran in it: still vmesh's case
+    write(case, _one_hex())
+    assert not (case / "0").exists() and (case / "constant" / "polyMesh" / "points").is_file()
+    theirs = tmp_path / "theirs"
+    (theirs / "constant" / "polyMesh").mkdir(parents=True)
+    (theirs / "constant" / "polyMesh" / "points").write_text("FoamFile { object points; }\n8 ( )\n")
+    with pytest.raises(InputError, match=r"theirs: is an OpenFOAM case vmesh did not write: not replaced"):
+        write(theirs, _one_hex())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["case", "theirs"]
+
+
+def test_an_unreadable_folder_is_an_input_error(tmp_path, monkeypatch):
+    """``iterdir`` outside the try: an unreadable folder gave a raw PermissionError."""
+    folder = tmp_path / "locked"
+    folder.mkdir()
+
+    def denied(self):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(Path, "iterdir", denied)
+    with pytest.raises(InputError, match=r"locked: cannot read this folder: Permission denied"):
+        check_replaceable(folder, folder=True)
+
+
+def test_a_file_writer_refuses_a_folder_in_its_place(tmp_path):
+    """A folder named like the file (``mesh.msh/``) was refused as 'not an OpenFOAM case or
+    MeshLab export', or, when empty, failed at the final rename with a raw OSError."""
+    (tmp_path / "mesh.msh").mkdir()
+    with pytest.raises(InputError, match=r"mesh\.msh: is a folder: not replaced by a file \(give a file name\)"):
+        with atomic_path(tmp_path / "mesh.msh") as tmp:
+            tmp.write_text("x")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mesh.msh"]
+
+
+def test_every_export_target_is_checked_before_the_first_is_written(tmp_path, capsys):
+    """``--format inp,openfoam`` with a folder of user files at RUN/openfoam wrote mesh.inp,
+    then refused openfoam."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "mesh.vtu").write_text("")  # never read: the refusal comes first
+    (run / "openfoam").mkdir()
+    (run / "openfoam" / "notes.txt").write_text("keep me")
+    assert main(["export", str(run), "--format", "inp,openfoam"]) == 2
+    assert "openfoam: is a folder with other files (notes.txt)" in capsys.readouterr().err
+    assert sorted(p.name for p in run.iterdir()) == ["mesh.vtu", "openfoam"]
