@@ -86,3 +86,13 @@ def test_every_export_target_is_checked_before_the_first_is_written(tmp_path, ca
     assert main(["export", str(run), "--format", "inp,openfoam"]) == 2
     assert "openfoam: is a folder with other files (notes.txt)" in capsys.readouterr().err
     assert sorted(p.name for p in run.iterdir()) == ["mesh.vtu", "openfoam"]
+
+
+def test_a_numpy_length_is_accepted(capsys):
+    """``repr(np.float64(0.05))`` is 'np.float64(0.05)': a numpy length was refused."""
+    from vmesh.registry import get_filter
+
+    p = get_filter("mesh_transfinite").parameter("first_layer_height")
+    assert p.validate(np.float64(0.05), "x") == "0.05" and p.validate(np.int64(2), "x") == "2"
+    assert main(["filters", "mesh_transfinite"]) == 0
+    assert "first_layer_height : length = '' (not set)" in capsys.readouterr().out
