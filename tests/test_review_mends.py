@@ -96,3 +96,17 @@ def test_a_numpy_length_is_accepted(capsys):
     assert p.validate(np.float64(0.05), "x") == "0.05" and p.validate(np.int64(2), "x") == "2"
     assert main(["filters", "mesh_transfinite"]) == 0
     assert "first_layer_height : length = '' (not set)" in capsys.readouterr().out
+
+
+def test_batch_set_is_checked_without_the_rows(tmp_path):
+    """The ``--set`` pre-check resolved the chain with ``--set`` alone: a parameter the rows
+    supply (``meshlab_script.path``) refused the whole batch."""
+    from vmesh.chain import FilterChain
+    from vmesh.commands.batch import check_overrides
+
+    chain_file = tmp_path / "c.toml"
+    chain_file.write_text('[chain]\nname = "c"\n\n[[step]]\nfilter = "meshlab_script"\n')
+    chain = FilterChain.load(str(chain_file))
+    check_overrides(chain, {"meshlab_script.layer": "surface"})
+    with pytest.raises(InputError, match=r"^--set: filter 'meshlab_script': parameter 'layer' = 'skin' is not one of"):
+        check_overrides(chain, {"meshlab_script.layer": "skin"})
