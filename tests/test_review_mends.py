@@ -110,3 +110,14 @@ def test_batch_set_is_checked_without_the_rows(tmp_path):
     check_overrides(chain, {"meshlab_script.layer": "surface"})
     with pytest.raises(InputError, match=r"^--set: filter 'meshlab_script': parameter 'layer' = 'skin' is not one of"):
         check_overrides(chain, {"meshlab_script.layer": "skin"})
+
+
+def test_a_ply_header_is_read_without_the_body(tmp_path, monkeypatch):
+    """The edge-PLY hint read the whole file to parse its header."""
+    from vmesh.io.surface import _ply_edge_count
+
+    path = tmp_path / "edges.ply"
+    path.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                     b"element edge 2\nproperty int vertex1\nproperty int vertex2\nend_header\n" + b"0 0 0\n" * 20000)
+    monkeypatch.setattr(Path, "read_bytes", lambda self: pytest.fail("whole file read"))
+    assert _ply_edge_count(path) == 2
