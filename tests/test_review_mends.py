@@ -121,3 +121,15 @@ def test_a_ply_header_is_read_without_the_body(tmp_path, monkeypatch):
                      b"element edge 2\nproperty int vertex1\nproperty int vertex2\nend_header\n" + b"0 0 0\n" * 20000)
     monkeypatch.setattr(Path, "read_bytes", lambda self: pytest.fail("whole file read"))
     assert _ply_edge_count(path) == 2
+
+
+def test_block_faces_are_recomputed_where_the_mesher_left_none():
+    """``StructuredMesh.boundary_local_face`` may be None; ``name_stub_faces`` crashed on it."""
+    from cylinder_blocks import cylinder_blocks, project_cylinder
+    from vmesh.geometry.blocks.stubs import block_local_faces
+    from vmesh.geometry.transfinite import Refinement, mesh_blocks
+
+    sm = mesh_blocks(cylinder_blocks(radius=2.0, sections=2), project_cylinder(2.0), Refinement(order=2))
+    assert sm.boundary_local_face is not None
+    recomputed = block_local_faces(dataclasses.replace(sm, boundary_local_face=None))
+    assert np.array_equal(recomputed, sm.boundary_local_face)
