@@ -384,7 +384,7 @@ def test_a_bad_set_value_is_named_as_sets(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["batch", str(path), "--out", str(out), "--workers", "1", "--set", "mesh_transfinite.order=two"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["vmesh: error: --set: step 10: filter 'mesh_transfinite': parameter 'order' must be of type int, got str 'two'"]
+    assert err == ["vmesh: error: --set: filter 'mesh_transfinite': parameter 'order' must be of type int, got str 'two'"]
     assert not out.exists()
 
 

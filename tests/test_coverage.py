@@ -320,6 +320,26 @@ def test_missing_stub_is_judged_by_its_own_radius(cylinder_mesh):
     assert _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1", "stub"], own_radius=False)[0]["missing_parts"] == 0  # as before
 
 
+def test_a_patch_shallower_than_its_own_radius_keeps_the_skeletons(cylinder_mesh, monkeypatch):
+    """A short chord alone is no side vessel: across a narrow neck (a contact cut, a thin
+    crotch) the chord is the neck's width. The own radius judges a patch only where the
+    patch stands out of the mesh by at least that radius, as a vessel left out does. Here a
+    stub 0.3 of its radius past the wall, its chord set to 2.5 times that height (as a
+    neck's would be): judged by the skeleton's radius, as before, and by the chord only
+    once the patch is deeper than it."""
+    import numpy as np
+
+    from vmesh.geometry import coverage
+
+    sm, skeleton = cylinder_mesh
+    V, F, caps = _with_stub(0.35 * RADIUS, 0.3 * 0.35 * RADIUS)
+    chord = {"half": 2.5 * 0.3 * 0.35 * RADIUS}
+    monkeypatch.setattr(coverage, "_own_radius", lambda V, F, WF, label, n: np.full(n, chord["half"]))
+    assert _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1", "stub"])[0]["missing_parts"] == 0
+    chord["half"] = 0.2 * 0.3 * 0.35 * RADIUS  # a patch deeper than its own radius: judged by it
+    assert _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1", "stub"])[0]["missing_parts"] >= 1
+
+
 def _voxel_surface(h, branch=False):
     """Marching cubes of the binary image (step ``h``) of the tube (radius 2 along z, 0 to 10;
     flat ends exactly at 0 and 10), with a side branch of radius 1 along +x at z = 5 when
@@ -350,6 +370,9 @@ def test_voxel_step_is_measured_from_the_surface():
     assert voxel_step(V, F) == pytest.approx(0.4)
     V, F, _ = tube([0, 0, 0], [0, 0, 1], RADIUS, LENGTH)
     assert voxel_step(V, F) == 0.0
+    # anisotropic voxels (a thicker slice): the largest step
+    V, F, _ = _voxel_surface(0.4)
+    assert voxel_step(V * [1.0, 1.0, 2.0], F) == pytest.approx(0.8)
 
 
 def test_staircase_wall_within_half_a_step_is_covered_and_a_missing_branch_still_named(cylinder_mesh):

@@ -152,12 +152,13 @@ def test_a_folder_export_does_not_replace_a_folder_of_other_files(tmp_path):
     notes.mkdir()
     (notes / "todo.txt").write_text("keep me")
     with pytest.raises(InputError, match=r"notes: is a folder with other files \(todo\.txt\).*not replaced"):
-        with atomic_path(notes):
+        with atomic_path(notes, folder=True):
             pass
     assert (notes / "todo.txt").read_text() == "keep me" and sorted(p.name for p in tmp_path.iterdir()) == ["notes"]
     case = tmp_path / "case"
     (case / "constant" / "polyMesh").mkdir(parents=True)
-    with atomic_path(case) as tmp:
+    (case / "constant" / "polyMesh" / "boundary").write_text("/*---*\\\n  Written by vmesh 0.1\n*/\n")
+    with atomic_path(case, folder=True) as tmp:
         tmp.unlink()
         (tmp / "system").mkdir(parents=True)
     assert sorted(p.name for p in case.iterdir()) == ["system"]

@@ -11,6 +11,7 @@ from __future__ import annotations
 import difflib
 import inspect
 import math
+from numbers import Integral, Real
 import re
 import textwrap
 from dataclasses import dataclass
@@ -106,10 +107,13 @@ class Parameter:
         label = f"{where}: parameter '{self.name}'"
         allowed = PARAMETER_TYPES[self.type]
         # bool is an int subclass: refuse it where a number is expected
+        if self.type == "length" and isinstance(value, Real) and not isinstance(value, bool):
+            allowed = Real  # numpy floats and ints too
         if not isinstance(value, allowed) or (self.type in ("int", "float", "length") and isinstance(value, bool)):
             raise ParameterError(f"{label} must be of type {self.type}, got {type(value).__name__} {value!r}")
         if self.type == "length":
-            value = value if isinstance(value, str) else repr(value)
+            # a numpy number from the Python API: repr(np.float64(0.05)) is 'np.float64(0.05)'
+            value = value if isinstance(value, str) else repr(int(value) if isinstance(value, Integral) else float(value))
             if value and not (_LENGTH_TEXT.match(value) and float(re.sub(r"[a-zµ\s]+$", "", value)) > 0):
                 raise ParameterError(f"{label} = {value!r}: expected a positive length such as 0.05mm "
                                      "(units: m, cm, mm, um, µm; none = the input's units)")
@@ -215,7 +219,7 @@ class Filter:
         if not self.parameters:
             lines.append("  (no parameters)")
         for p in self.parameters:
-            default = "auto" if p.default is None else repr(p.default)
+            default = "auto" if p.default is None else "'' (not set)" if p.default == "" and p.type == "length" else repr(p.default)
             head = f"  {p.name} : {p.type} = {default}"
             extras = [x for x in (p.range_text(), p.unit and f"unit: {p.unit}") if x]
             if extras:

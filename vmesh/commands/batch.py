@@ -42,14 +42,7 @@ def run(args) -> int:
     manifest = batch.read_manifest(args.manifest)
     chain, overrides = args.chain or manifest.chain or "default", parse_overrides(args.set)
     if overrides:  # a bad --set value is --set's error, not the first row's
-        from ..chain import FilterChain
-        from ..errors import VmeshError
-
-        loaded = FilterChain.load(chain)  # its own errors name the chain
-        try:
-            loaded.with_overrides(overrides).resolved()
-        except VmeshError as exc:
-            raise InputError(f"--set: {exc}") from None
+        check_overrides(chain, overrides)
     result = batch.run(
         manifest,
         chain,
@@ -69,6 +62,25 @@ def run(args) -> int:
         if r["status"] == "failed":
             print(f"failed: {r['name']}: {r['error']}", file=sys.stderr)
     return 1 if result.n_failed else 0
+
+
+def check_overrides(chain, overrides: dict) -> None:
+    """Refuse a bad ``--set`` before any row runs, as ``--set``'s error: a filter not in the
+    chain, an unknown parameter, a value its parameter refuses. Only the overridden values
+    are checked: the rows may still supply parameters the chain leaves unset (a
+    ``meshlab_script.path`` column), so the chain is not resolved with ``--set`` alone."""
+    from ..chain import FilterChain
+    from ..errors import InputError, VmeshError
+    from ..registry import get_filter
+
+    loaded = chain if isinstance(chain, FilterChain) else FilterChain.load(chain)  # its own errors name the chain
+    try:
+        loaded.with_overrides(overrides)
+        for key, value in overrides.items():
+            fname, _, pname = key.partition(".")
+            get_filter(fname).parameter(pname).validate(value, f"filter '{fname}'")
+    except VmeshError as exc:
+        raise InputError(f"--set: {exc}") from None
 
 
 EXTRA_COMMANDS["batch"] = (add_arguments, run, HELP)

@@ -42,6 +42,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from ..io.atomic import check_replaceable
     from ..io.export import default_filename, export_mesh, resolve_format
     from ..io.run_folder import check_run_dir, read_run_mesh
 
@@ -59,6 +60,8 @@ def run(args) -> int:
             continue
         fmt = resolve_format(run_dir, name)
         targets.append((fmt, Path(args.out) if args.out else run_dir / default_filename(fmt)))
+    for fmt, path in targets:  # a folder in the way refused now, not after other formats are written
+        check_replaceable(path, folder=fmt == "meshlab" or fmt.folder)
     flow = _flow_case(args, run_dir, targets)
     mesh = _in_units(read_run_mesh(run_dir), run_dir, args)
     if flow is not None and mesh.units != "m":

@@ -19,7 +19,7 @@ from ..registry import Parameter, register_filter
         Parameter("grading", "str", "first_layer", "Boundary-layer node distribution: uniform, first_layer (first element thickness given) or growth (ratio given).", choices=("uniform", "first_layer", "growth")),
         Parameter("first_layer", "float", 0.02, "First boundary-layer element thickness relative to the local radius (grading = first_layer).", unit="× radius", min=1e-5, max=1.0),
         Parameter("growth", "float", 1.3, "Ratio of consecutive boundary-layer element thicknesses (grading = growth).", min=1.0, max=10.0),
-        Parameter("first_layer_height", "length", "", "Absolute first boundary-layer element height, a length with its unit ('0.05mm', '50um'; no unit = the input's units); replaces first_layer. Any three of first-layer height, boundary_layer_thickness, elements_layer and growth (grading = growth; uniform = 1) fix the fourth (docs/cfd.md)."),
+        Parameter("first_layer_height", "length", "", "Absolute first boundary-layer element height, a length with its unit ('0.05mm', '50um'; no unit = the input's units); replaces first_layer; '' = not set (first_layer, or y_plus when on, gives the height). Any three of first-layer height, boundary_layer_thickness, elements_layer and growth (grading = growth; uniform = 1) fix the fourth (docs/cfd.md)."),
         Parameter("boundary_layer_thickness", "length", "", "Absolute total thickness of the boundary-layer blocks ('0.6mm'); '' = the block structure's (build_block_structure.layer_thickness × wall distance)."),
         Parameter("y_plus", "float", 0.0, "Target y+ of the first element: sets first_layer_height from the flat-plate skin friction Cf = 0.026 Re^(-1/7) with flow_velocity, flow_density, flow_viscosity and reference_length (0 = off).", min=0.0, max=1000.0),
         Parameter("flow_velocity", "float", 0.5, "Bulk velocity for the y+ estimate.", unit="m/s", min=1e-9, max=1e3),
@@ -55,7 +55,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
     block faces (wall faces projected again) and transfinite interpolation fills the blocks.
     The boundary layer is resolved by grading, never by extra element layers: the element
     count is the same with and without grading."""
-    from ..geometry.blocks.stubs import meshed_as_wall, name_stub_faces
+    from ..geometry.blocks.stubs import block_local_faces, meshed_as_wall, name_stub_faces
     from ..geometry.boundary_layer import record_first_layer, setup_boundary_layer
     from ..geometry.projection import caps_on, wall_projector
     from ..geometry.transfinite import Refinement, mesh_blocks
@@ -124,7 +124,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
             "layer": blocks.block_layer[b],
         },
         boundary_faces=sm.boundary_faces,
-        boundary_ids=name_stub_faces(named, sm.boundary_ids, sm.boundary_cells, b, sm.boundary_local_face),
+        boundary_ids=name_stub_faces(named, sm.boundary_ids, sm.boundary_cells, b, block_local_faces(sm)),
         boundary_cells=sm.boundary_cells,
         boundary_names=dict(blocks.boundary_names),
         on_wall=sm.on_wall,

@@ -446,7 +446,14 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
         deep_face = np.flatnonzero(sel)[first]
         # the deepest face's distance, relative to the patch's own radius where that is smaller
         # (not past an end face: there the patch continues the vessel the skeleton ends in)
-        patch_r = face_r[deep_face] if F is None else np.where(at_end, face_r[deep_face], np.minimum(face_r[deep_face], _own_radius(V, F, WF, label, n_patches)))
+        # and only where the patch is at least that own radius deep: a side vessel left out
+        # stands out of the mesh by its own radius or more, while a shallow patch across a
+        # narrow neck (a contact cut, a thin crotch) has a short chord and is no vessel
+        patch_r = face_r[deep_face]
+        if F is not None:
+            own = _own_radius(V, F, WF, label, n_patches)
+            real_depth = face_rel[deep_face] * face_r[deep_face]
+            patch_r = np.where(~at_end & (real_depth >= own), np.minimum(patch_r, own), patch_r)
         patch_depth = face_rel[deep_face] * face_r[deep_face] / patch_r
         sections = patch_area_sum / (np.pi * patch_r**2)
         big = np.flatnonzero((sections > patch_area) & (patch_depth > np.where(at_end, end_depth, depth)))
@@ -521,8 +528,9 @@ def voxel_step(vertices, faces) -> float:
     Marching cubes of a binary image puts every vertex at the middle of a grid edge, so an
     edge of the surface that runs along a grid axis is exactly one step long. The surface
     is a staircase when edges run exactly along each of the three axes and most of those
-    along each axis have one length, the same for all three (a smooth tube meshed in
-    rings along an axis has such edges along one axis only)."""
+    along each axis have one length (a smooth tube meshed in rings along an axis has such
+    edges along one axis only). Scans often have anisotropic voxels (a thicker slice): the
+    largest of the three steps is returned."""
     V, F = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
     if len(F) == 0:
         return 0.0
@@ -539,7 +547,7 @@ def voxel_step(vertices, faces) -> float:
         if np.mean(np.abs(along - h) <= 0.01 * h) < 0.5:
             return 0.0
         steps.append(h)
-    return float(np.median(steps)) if max(steps) <= 1.01 * min(steps) else 0.0
+    return float(max(steps))
 
 
 def _wall_off(centres, reach, off) -> dict:

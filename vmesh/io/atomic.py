@@ -11,15 +11,20 @@ from ..errors import InputError
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | Path):
+def atomic_path(path: str | Path, folder: bool = False):
     """Yield a temporary path next to ``path``; rename it onto ``path`` on success.
 
     The temporary name keeps the suffix so that writers choosing the format by
     extension still work. On any exception the temporary file is removed and
     ``path`` is left untouched, so a failed write never leaves a partial file.
+
+    Before anything is written, :func:`check_replaceable` refuses (``InputError``) a
+    ``path`` that is a folder vmesh may not replace: any folder for a file writer, and a
+    folder of other files for a folder writer (``folder=True``: an OpenFOAM case, a
+    MeshLab export, which then turns the yielded file into a folder).
     """
     path = Path(path)
-    _check_replaceable(path)
+    check_replaceable(path, folder)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".partial" + path.suffix, dir=path.parent)
@@ -47,17 +52,43 @@ def atomic_path(path: str | Path):
         raise
 
 
-def _check_replaceable(path: Path) -> None:
-    """Refuse, before anything is written, to replace a folder holding files that vmesh did
-    not write: only an empty folder, an OpenFOAM case (``constant/polyMesh``) or a MeshLab
-    export (``vmesh.mlp``) is replaced (``vmesh export -o ~/notes`` removed the folder)."""
-    if not path.is_dir() or (path / "constant" / "polyMesh").is_dir() or (path / "vmesh.mlp").is_file():
+def check_replaceable(path: str | Path, folder: bool = False) -> None:
+    """Refuse (``InputError``), before anything is written, to replace a folder that is not
+    vmesh's to replace (``vmesh export -o ~/notes`` once removed the folder).
+
+    A file writer (``folder=False``) never replaces a folder. A folder writer replaces an
+    empty folder, an OpenFOAM case vmesh wrote (its ``constant/polyMesh`` files carry the
+    ``Written by vmesh`` header) or a MeshLab export (a ``*.mlp`` project at its top);
+    not a folder of other files, nor an OpenFOAM case written by something else."""
+    path = Path(path)
+    if not path.is_dir():
         return
-    names = sorted(p.name for p in path.iterdir())
-    if names:
-        shown = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
-        raise InputError(f"is a folder with other files ({shown}), not an OpenFOAM case or MeshLab export "
-                         "vmesh wrote: not replaced (give a new or empty folder)", path)
+    if not folder:
+        raise InputError("is a folder: not replaced by a file (give a file name)", path)
+    try:
+        if _vmesh_case(path) or any(p.suffix.lower() == ".mlp" and p.is_file() for p in path.iterdir()):
+            return
+        names = sorted(p.name for p in path.iterdir())
+    except OSError as exc:  # an unreadable folder
+        raise InputError(f"cannot read this folder: {exc.strerror or exc}", path) from None
+    if not names:
+        return
+    shown = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+    what = ("an OpenFOAM case vmesh did not write" if (path / "constant" / "polyMesh").is_dir()
+            else f"a folder with other files ({shown}), not an OpenFOAM case or MeshLab export vmesh wrote")
+    raise InputError(f"is {what}: not replaced (give a new or empty folder)", path)
+
+
+def _vmesh_case(path: Path) -> bool:
+    """Whether ``path`` is an OpenFOAM case written by vmesh: the header of its
+    ``constant/polyMesh/boundary`` (or ``points``) names vmesh."""
+    for name in ("boundary", "points"):
+        f = path / "constant" / "polyMesh" / name
+        if f.is_file():
+            with open(f, "rb") as fh:
+                if b"Written by vmesh" in fh.read(1024):
+                    return True
+    return False
 
 
 def write_text_atomic(path: str | Path, text: str) -> Path:

@@ -173,7 +173,7 @@ def write_meshlab_folder(folder, mesh, surface=None, coarse_surface=None, skelet
 
     folder = Path(folder)
     written: dict = {}
-    with atomic_path(folder) as tmp:
+    with atomic_path(folder, folder=True) as tmp:
         tmp.unlink()
         tmp.mkdir()
         for label, s in (("surface", surface), ("coarse_surface", coarse_surface)):

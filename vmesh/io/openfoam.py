@@ -162,7 +162,7 @@ def write(path, mesh, case_name: str | None = None, flow=None) -> Path:
     n_int = len(poly["neighbour"])
     note = f"nPoints:{mesh.n_points}  nCells:{mesh.n_cells}  nFaces:{len(poly['faces'])}  nInternalFaces:{n_int}"
     loc = "constant/polyMesh"
-    with atomic_path(path) as tmp:
+    with atomic_path(path, folder=True) as tmp:
         tmp.unlink()  # atomic_path made a file; a case is a folder
         pm = tmp / "constant" / "polyMesh"
         pm.mkdir(parents=True)

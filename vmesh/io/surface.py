@@ -107,8 +107,9 @@ def _ply_edge_count(path: Path) -> int:
     from .ply import UnsupportedPLY, ply_header
 
     try:
-        _, elements, _ = ply_header(path.read_bytes()[:65536])
-    except (UnsupportedPLY, ValueError, IndexError):
+        with open(path, "rb") as fh:  # the header only, not the whole file
+            _, elements, _ = ply_header(fh.read(65536))
+    except (UnsupportedPLY, ValueError, IndexError, OSError):
         return 0
     counts = {name: count for name, count, _ in elements}
     return counts.get("edge", 0) if not counts.get("face") else 0
