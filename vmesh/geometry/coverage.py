@@ -495,6 +495,7 @@ def _own_radius(V, F, WF, label, n_patches) -> np.ndarray:
     edge gives no radius (the surface does not resolve a lumen that narrow)."""
     from ..preprocess import taubin_smooth
     from .bvh import TriangleBVH
+    from .topology import signed_volume
 
     sel = np.flatnonzero(label >= 0)
     own = np.full(n_patches, np.inf)
@@ -504,7 +505,7 @@ def _own_radius(V, F, WF, label, n_patches) -> np.ndarray:
     T = S[WF[sel]]
     n = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
-    if np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum() < 0:
+    if signed_volume(V, F) < 0:
         n = -n  # inward faces
     c = V[WF[sel]].mean(axis=1)
     reach = 2.0 * float(np.ptp(V, axis=0).max())
