@@ -1,11 +1,10 @@
 """Mends from the review of session 19's new-user changes: which folders an export may
 replace (any MeshLab project, only OpenFOAM cases vmesh wrote, unreadable folders, a file
 writer never), every export target checked before the first is written, numpy lengths,
-batch ``--set`` checked without the rows, a PLY header read alone, block faces recomputed."""
+batch ``--set`` checked without the rows, a PLY header read alone, the block faces the mesher records."""
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -123,13 +122,17 @@ def test_a_ply_header_is_read_without_the_body(tmp_path, monkeypatch):
     assert _ply_edge_count(path) == 2
 
 
-def test_block_faces_are_recomputed_where_the_mesher_left_none():
-    """``StructuredMesh.boundary_local_face`` may be None; ``name_stub_faces`` crashed on it."""
+def test_block_faces_recorded_by_the_mesher_match_the_elements():
+    """``StructuredMesh.boundary_local_face`` (recorded by ``connectivity``, which
+    ``name_stub_faces`` reads) is the face each boundary face's element has it on
+    (:func:`vmesh.io.export.boundary_local_faces`: an element's axes are its block's)."""
     from cylinder_blocks import cylinder_blocks, project_cylinder
-    from vmesh.geometry.blocks.stubs import block_local_faces
     from vmesh.geometry.transfinite import Refinement, mesh_blocks
+    from vmesh.io.export import boundary_local_faces
+    from vmesh.mesh import HexMesh
 
     sm = mesh_blocks(cylinder_blocks(radius=2.0, sections=2), project_cylinder(2.0), Refinement(order=2))
     assert sm.boundary_local_face is not None
-    recomputed = block_local_faces(dataclasses.replace(sm, boundary_local_face=None))
+    recomputed = boundary_local_faces(HexMesh(points=sm.points, cells=sm.cells, order=sm.order,
+                                              boundary_faces=sm.boundary_faces, boundary_cells=sm.boundary_cells))
     assert np.array_equal(recomputed, sm.boundary_local_face)

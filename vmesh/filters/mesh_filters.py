@@ -55,7 +55,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
     block faces (wall faces projected again) and transfinite interpolation fills the blocks.
     The boundary layer is resolved by grading, never by extra element layers: the element
     count is the same with and without grading."""
-    from ..geometry.blocks.stubs import block_local_faces, meshed_as_wall, name_stub_faces
+    from ..geometry.blocks.stubs import meshed_as_wall, name_stub_faces
     from ..geometry.boundary_layer import record_first_layer, setup_boundary_layer
     from ..geometry.projection import caps_on, wall_projector
     from ..geometry.transfinite import Refinement, mesh_blocks
@@ -124,7 +124,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
             "layer": blocks.block_layer[b],
         },
         boundary_faces=sm.boundary_faces,
-        boundary_ids=name_stub_faces(named, sm.boundary_ids, sm.boundary_cells, b, block_local_faces(sm)),
+        boundary_ids=name_stub_faces(named, sm.boundary_ids, sm.boundary_cells, b, sm.boundary_local_face),
         boundary_cells=sm.boundary_cells,
         boundary_names=dict(blocks.boundary_names),
         on_wall=sm.on_wall,

@@ -175,7 +175,7 @@ class StructuredMesh:
     boundary_cells: np.ndarray  # (k,) element of each boundary face
     on_wall: np.ndarray  # (n,) bool: node projected onto the wall
     block_counts: np.ndarray  # (nb, 3) elements per block along i, j, k
-    boundary_local_face: np.ndarray | None = None  # (k,) face of its block (HEX_FACES order) each boundary face lies on
+    boundary_local_face: np.ndarray  # (k,) face of its block (HEX_FACES order) each boundary face lies on
 
 
 def requested_counts(blocks: BlockStructure, topo: Topology, ref: Refinement) -> np.ndarray:

@@ -193,25 +193,9 @@ def name_stub_faces(blocks, boundary_ids, boundary_cells, cell_block, local_face
     out = np.array(boundary_ids, copy=True)
     if not len(ids):
         return out
-    if local_face is None:
-        raise ValueError("name_stub_faces needs each boundary face's block face: pass block_local_faces(structured_mesh)")
     b = np.asarray(cell_block)[np.asarray(boundary_cells)]
     named = blocks.face_boundary[b, np.asarray(local_face, np.int64)]
     sel = (out == FACE_WALL) & np.isin(named, ids)
     out[sel] = named[sel]
     return out
 
-
-def block_local_faces(sm) -> np.ndarray:
-    """(k,) the face of its block (``HEX_FACES`` order) each boundary face of the
-    :class:`~vmesh.geometry.transfinite.StructuredMesh` ``sm`` lies on: its
-    ``boundary_local_face``, or, where that is None, the same faces found from the elements
-    (:func:`vmesh.io.export.boundary_local_faces`: an element's faces i0, ip, j0, jp, k0, kp
-    are ``HEX_FACES``' order, and an element's axes are its block's)."""
-    if sm.boundary_local_face is not None:
-        return np.asarray(sm.boundary_local_face)
-    from ...io.export import boundary_local_faces
-    from ...mesh import HexMesh
-
-    return boundary_local_faces(HexMesh(points=sm.points, cells=sm.cells, order=sm.order,
-                                        boundary_faces=sm.boundary_faces, boundary_cells=sm.boundary_cells))
