@@ -12,7 +12,6 @@ import difflib
 import inspect
 import math
 from numbers import Integral, Real
-import re
 import textwrap
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,10 +33,6 @@ PARAMETER_TYPES: dict[str, tuple[type, ...]] = {
     "dict": (dict,),
 }
 
-#: A ``length`` value: a positive number with an optional unit (none = the input's units),
-#: as ``vmesh.geometry.boundary_layer.parse_length`` reads it when the filter runs.
-_LENGTH_TEXT = re.compile(r"^\s*\+?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?\s*(?:m|cm|mm|um|µm)?\s*$")
-
 #: Layers of a run's :class:`~vmesh.context.Context` a filter may read or write.
 LAYERS = (
     "surface",
@@ -55,6 +50,18 @@ def suggest(name: str, candidates) -> str:
     """Return ``" (did you mean 'x'?)"`` for the closest candidate, or ``""``."""
     close = difflib.get_close_matches(str(name), list(candidates), n=1, cutoff=0.5)
     return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+def _check_length(text: str, label: str) -> None:
+    """Refuse a ``length`` text that ``parse_length`` would refuse when the filter runs: a
+    positive number with an optional known unit (none = the input's units)."""
+    from .geometry.boundary_layer import LENGTH_UNITS, parse_length
+
+    try:
+        parse_length(text, "m", label)
+    except ParameterError:
+        raise ParameterError(f"{label} = {text!r}: expected a positive length such as 0.05mm "
+                             f"(units: {', '.join(LENGTH_UNITS)}; none = the input's units)") from None
 
 
 @dataclass(frozen=True)
@@ -114,9 +121,8 @@ class Parameter:
         if self.type == "length":
             # a numpy number from the Python API: repr(np.float64(0.05)) is 'np.float64(0.05)'
             value = value if isinstance(value, str) else repr(int(value) if isinstance(value, Integral) else float(value))
-            if value and not (_LENGTH_TEXT.match(value) and float(re.sub(r"[a-zµ\s]+$", "", value)) > 0):
-                raise ParameterError(f"{label} = {value!r}: expected a positive length such as 0.05mm "
-                                     "(units: m, cm, mm, um, µm; none = the input's units)")
+            if value:
+                _check_length(value, label)
         if self.type == "float":
             value = float(value)
             if not math.isfinite(value):
