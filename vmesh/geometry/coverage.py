@@ -238,7 +238,7 @@ def measure_coverage(
     tolerance: float | None = None,
     wall_projector=None,
     own_radius: bool = True,
-    surface_tree=None,
+    surface_tree=None,  # TriangleBVH
 ) -> tuple[dict, list]:
     """Measure how much of the input wall the mesh boundary misses.
 
@@ -266,8 +266,9 @@ def measure_coverage(
         end past the last section, where no flat cap was found: a hemisphere is 1 r deep).
     branches : list of node arrays, optional
         Skeleton branches (node paths), to name the branch of a missing part.
-    wall_tree : TriangleBVH, optional
-        A tree of the wall triangles (the surface without its caps), shared with the chain.
+    wall_tree, surface_tree : TriangleBVH, optional
+        Trees of the wall triangles (no caps) and of all triangles (for :func:`_own_radius`),
+        shared with the chain (None: built here where needed).
     on_wall : (n,) bool, optional
         Nodes the mesher put on the wall (``HexMesh.on_wall``; None: all), see :func:`_wall_node_stats`.
     tolerance : float, optional
@@ -277,9 +278,6 @@ def measure_coverage(
         The mesher's projector, which measures the wall nodes (default ``wall_tree``).
     own_radius : bool
         Judge a patch by the smaller of the skeleton's radius and its own (:func:`_own_radius`).
-    surface_tree : TriangleBVH, optional
-        A tree of all of the surface's triangles (caps included) the chain already built, for
-        :func:`_own_radius` (None: built there when a patch needs it).
 
     Returns
     -------
@@ -291,8 +289,7 @@ def measure_coverage(
     """
     from .bvh import TriangleBVH
 
-    V = np.ascontiguousarray(surface_vertices, np.float64)
-    F = np.ascontiguousarray(surface_faces, np.int64)
+    V, F = np.ascontiguousarray(surface_vertices, np.float64), np.ascontiguousarray(surface_faces, np.int64)
     X = np.ascontiguousarray(mesh_points, np.float64)
     wall, cap_of_vertex = _wall_and_caps(F, len(V), cap_faces)
     WF = F[wall]
