@@ -11,11 +11,13 @@ rate is the steadier one. Issue 18's target is 10^6 updates per second.
 
 Usage::
 
-    python benchmarks/optimiser_speed.py [--case ica|y_bifurcation] [--repeat 3] [--smooth-tol 0 0.01]
+    python benchmarks/optimiser_speed.py [--case ica|y_bifurcation] [--repeat 3] [--smooth-tol 0 0.01] [--per-sweep]
 
 ``--smooth-tol`` runs the light pass once per value (``optimise(..., smooth_tol=)``, the
 filter's ``light_pass_tol``) instead of the recorded one; ``NUMBA_NUM_THREADS=1`` gives the
-steadiest CPU seconds on a loaded machine.
+steadiest CPU seconds on a loaded machine. ``--per-sweep`` runs the light pass once more and
+prints, per sweep, the node updates, the nodes moved, the mesh's SJ min / mean after it and
+its CPU seconds (:func:`per_sweep`).
 """
 
 from __future__ import annotations
@@ -65,11 +67,38 @@ def record_calls(surface, skeleton, overrides):
     return calls
 
 
+def per_sweep(args, kw) -> None:
+    """The light pass ``optimise(*args, **kw)`` once, with a table row per Gauss-Seidel sweep."""
+    import vmesh.geometry.optimize as O
+    from vmesh.geometry.quality import hex8_scaled_jacobian
+
+    cells, original, rows = np.asarray(args[1]).reshape(-1, 8), O._sweep, []
+
+    def counted(X, st, *rest):
+        stats, before = rest[9], X[st.nodes].copy()
+        u, c = stats["updates"], time.process_time()
+        out = original(X, st, *rest)
+        c = time.process_time() - c
+        q = hex8_scaled_jacobian(X, cells)
+        rows.append((stats["updates"] - u, int(np.any(X[st.nodes] != before, axis=1).sum()), float(q.min()), float(q.mean()), c))
+        return out
+
+    O._sweep = counted
+    try:
+        O.optimise(*args, **kw)
+    finally:
+        O._sweep = original
+    print("| sweep | updates | nodes moved | SJ min / mean after | CPU s |\n|---|---|---|---|---|")
+    for i, (u, moved, lo, mean, c) in enumerate(rows, 1):
+        print(f"| {i} | {u:,} | {moved:,} | {lo:.5f} / {mean:.6f} | {c:.2f} |")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--case", choices=("ica", "y_bifurcation"), default="ica")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs per call (best kept)")
     ap.add_argument("--smooth-tol", type=float, nargs="+", help="light-pass tolerances to compare (default: the recorded one)")
+    ap.add_argument("--per-sweep", action="store_true", help="also print the light pass sweep by sweep")
     args = ap.parse_args(argv)
     from vmesh.geometry.optimize import optimise
 
@@ -91,6 +120,8 @@ def main(argv=None) -> int:
         dt, dc, info = best
         b, f, u = info["before"], info["after"], info["updates"]
         print(f"| {name} | {len(np.asarray(a[0])):,} | {u:,} | {dt:.2f} | {dc:.2f} | {u / dt:,.0f} ({u / max(dc, 1e-9):,.0f}) | {b['min']:.4f} / {b['mean']:.5f} | {f['min']:.4f} / {f['mean']:.5f} |", flush=True)
+    if args.per_sweep and len(calls) > 1:
+        per_sweep(*calls[1])
     return 0
 
 

@@ -318,6 +318,12 @@ def test_missing_stub_is_judged_by_its_own_radius(cylinder_mesh):
     assert missing[0].depth > 1.5 and missing[0].cross_sections > 2
     assert missing[0].skeleton_node in (4, 5, 6)
     assert _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1", "stub"], own_radius=False)[0]["missing_parts"] == 0  # as before
+    # the chain's tree of the whole surface (check_coverage passes the signed distance's)
+    # gives the same chords as the one built for them
+    from vmesh.geometry.bvh import TriangleBVH
+
+    shared = _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1", "stub"], surface_tree=TriangleBVH(V, F))
+    assert shared[0] == summary and [m.depth for m in shared[1]] == [m.depth for m in missing]
 
 
 def test_a_patch_shallower_than_its_own_radius_keeps_the_skeletons(cylinder_mesh, monkeypatch):
@@ -334,7 +340,7 @@ def test_a_patch_shallower_than_its_own_radius_keeps_the_skeletons(cylinder_mesh
     sm, skeleton = cylinder_mesh
     V, F, caps = _with_stub(0.35 * RADIUS, 0.3 * 0.35 * RADIUS)
     chord = {"half": 2.5 * 0.3 * 0.35 * RADIUS}
-    monkeypatch.setattr(coverage, "_own_radius", lambda V, F, WF, label, n: np.full(n, chord["half"]))
+    monkeypatch.setattr(coverage, "_own_radius", lambda V, F, WF, label, n, tree=None: np.full(n, chord["half"]))
     assert _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1", "stub"])[0]["missing_parts"] == 0
     chord["half"] = 0.2 * 0.3 * 0.35 * RADIUS  # a patch deeper than its own radius: judged by it
     assert _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1", "stub"])[0]["missing_parts"] >= 1

@@ -31,7 +31,7 @@ def test_frame_trials_equal_the_displaced_mesh():
     for v in nodes:
         z = rng.normal(size=3) * 0.05
         K.frame(X, hexes, scale, ptr, inc, cq, v, L)
-        r = K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], 1e-3, False, False, True, buf, np.int64(0), False)
+        r = K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], 1e-3, False, False, True, buf, np.int64(0), False, -np.inf)
         Y = X.copy()
         Y[v] += z
         moved = K.corner_qualities(Y, hexes, scale)
@@ -56,7 +56,7 @@ def test_frame_gradient_and_hessian_match_finite_differences():
     K.frame(X, hexes, scale, ptr, inc, cq, v, L)
 
     def f(z):
-        return K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], 1e-3, True, True, False, buf, np.int64(-1), False)
+        return K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], 1e-3, True, True, False, buf, np.int64(-1), False, -np.inf)
 
     r = f(np.zeros(3))
     g, H = np.array(r[1:4]), np.array([[r[4], r[5], r[6]], [r[5], r[7], r[8]], [r[6], r[8], r[9]]])
@@ -83,7 +83,7 @@ def test_frame_functional_equals_the_displaced_mesh():
     for v in rng.choice(np.flatnonzero(valence == valence.max()), 3, replace=False):
         z = rng.normal(size=3) * 0.05
         K.frame(X, hexes, scale, ptr, inc, cq, v, L)
-        f = K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], delta, True, True, True, buf, np.int64(0), False)[0]
+        f = K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], delta, True, True, True, buf, np.int64(0), False, -np.inf)[0]
         Y = X.copy()
         Y[v] += z
         want = 0.0

@@ -478,7 +478,7 @@ def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing,
     out (the mesh ends there); the local radius is the skeleton's. The result is the
     report's ``coverage`` section (see :mod:`vmesh.geometry.coverage`)."""
     from ..geometry.coverage import measure_coverage
-    from ..geometry.projection import wall_projector
+    from ..geometry.projection import cached_trees, wall_projector
 
     mesh, skeleton, caps = ctx.mesh, ctx.skeleton, ctx.caps or []
     # the mesher's projector: wall nodes it kept on a touched cap are measured to that cap
@@ -489,7 +489,7 @@ def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing,
         skeleton.points, skeleton.edges, skeleton.radii,
         distance=distance, patch_area=patch_area, depth=depth, end_depth=end_depth, branches=skeleton.branches(),
         wall_tree=projector.tree, on_wall=mesh.on_wall, tolerance=None if voxel_tolerance else 0.0, wall_projector=projector,
-        own_radius=own_radius,
+        own_radius=own_radius, surface_tree=cached_trees(ctx.surface).get("tree"),  # the signed distance's, where built
     )
     ctx.report.sections["coverage"] = summary
     ctx.count(uncovered=summary["uncovered_share"], volume_ratio=summary["volume_ratio"], missing=summary["missing_parts"])

@@ -272,10 +272,11 @@ def set_layer_thickness(blocks, thickness: float):
     return out
 
 
-def first_cell_heights(mesh) -> np.ndarray:
+def first_cell_heights(mesh, local=None) -> np.ndarray:
     """Wall-normal height of the element on each wall face (the first-cell height a CFD
     solver sees): the vector from the wall face's centre to the opposite face's centre,
-    projected on the wall face's normal."""
+    projected on the wall face's normal. ``local``: the boundary faces' local faces
+    (:func:`~vmesh.io.export.boundary_local_faces`, computed when None)."""
     from ..io.export import boundary_local_faces, face_corner_ids, tensor_faces
 
     wall = np.flatnonzero(np.asarray(mesh.boundary_ids) == 0)
@@ -283,7 +284,7 @@ def first_cell_heights(mesh) -> np.ndarray:
         return np.zeros(0)
     p = mesh.order
     corners = tensor_faces(p)[:, face_corner_ids(p)]  # (6, 4)
-    local = boundary_local_faces(mesh)[wall]
+    local = (boundary_local_faces(mesh) if local is None else local)[wall]
     cells = np.asarray(mesh.cells)[np.asarray(mesh.boundary_cells)[wall]]
     own = mesh.points[np.take_along_axis(cells, corners[local], axis=1)]  # (k, 4, 3)
     opp = mesh.points[np.take_along_axis(cells, corners[local ^ 1], axis=1)]
@@ -345,16 +346,17 @@ def setup_boundary_layer(ctx, refinement, elements_layer, grading, first_layer, 
     return out
 
 
-def first_edge_lengths(mesh) -> np.ndarray:
+def first_edge_lengths(mesh, local=None) -> np.ndarray:
     """Length of the element edge from each corner of each wall face to the next node off
-    the wall (4 per wall face): the first-layer height along the boundary-layer lines."""
+    the wall (4 per wall face): the first-layer height along the boundary-layer lines.
+    ``local`` as :func:`first_cell_heights`'."""
     from ..io.export import boundary_local_faces, face_corner_ids, tensor_faces
 
     wall = np.flatnonzero(np.asarray(mesh.boundary_ids) == 0)
     if len(wall) == 0:
         return np.zeros(0)
     p = mesh.order
-    local = boundary_local_faces(mesh)[wall]
+    local = (boundary_local_faces(mesh) if local is None else local)[wall]
     corners = tensor_faces(p)[:, face_corner_ids(p)][local]  # (k, 4) tensor ids, i + (p+1)(j + (p+1)k)
     axis = local // 2
     step = (p + 1) ** axis * np.where(local % 2 == 0, 1, -1)  # one element inwards along the face's axis
@@ -375,12 +377,15 @@ def record_first_layer(ctx, mesh, target: float | None = None) -> None:
     wall-normal per wall node (:func:`first_node_heights`), wall-normal per wall face
     (:func:`first_cell_heights`) and along the layer lines per wall-face corner
     (:func:`first_edge_lengths`), with the fraction within 5 % of ``target``."""
-    h = first_cell_heights(mesh)
-    if len(h) == 0:
+    from ..io.export import boundary_local_faces
+
+    if not (np.asarray(mesh.boundary_ids) == 0).any():
         return
+    local = boundary_local_faces(mesh)  # once for both measures
+    h = first_cell_heights(mesh, local)
     section = ctx.report.sections.setdefault("boundary_layer", {})
     section["measured_first_height"] = _stats(h, target)
-    section["measured_first_edge"] = _stats(first_edge_lengths(mesh), target)
+    section["measured_first_edge"] = _stats(first_edge_lengths(mesh, local), target)
     nodes, lines = first_node_heights(mesh, whole_lines=False)  # the heights need the first elements only
     if len(nodes) == 0:
         ctx.count(first_height=float(np.median(h)))

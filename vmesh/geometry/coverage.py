@@ -238,6 +238,7 @@ def measure_coverage(
     tolerance: float | None = None,
     wall_projector=None,
     own_radius: bool = True,
+    surface_tree=None,  # TriangleBVH
 ) -> tuple[dict, list]:
     """Measure how much of the input wall the mesh boundary misses.
 
@@ -265,8 +266,9 @@ def measure_coverage(
         end past the last section, where no flat cap was found: a hemisphere is 1 r deep).
     branches : list of node arrays, optional
         Skeleton branches (node paths), to name the branch of a missing part.
-    wall_tree : TriangleBVH, optional
-        A tree of the wall triangles (the surface without its caps), shared with the chain.
+    wall_tree, surface_tree : TriangleBVH, optional
+        Trees of the wall triangles (no caps) and of all triangles (for :func:`_own_radius`),
+        shared with the chain (None: built here where needed).
     on_wall : (n,) bool, optional
         Nodes the mesher put on the wall (``HexMesh.on_wall``; None: all), see :func:`_wall_node_stats`.
     tolerance : float, optional
@@ -287,8 +289,7 @@ def measure_coverage(
     """
     from .bvh import TriangleBVH
 
-    V = np.ascontiguousarray(surface_vertices, np.float64)
-    F = np.ascontiguousarray(surface_faces, np.int64)
+    V, F = np.ascontiguousarray(surface_vertices, np.float64), np.ascontiguousarray(surface_faces, np.int64)
     X = np.ascontiguousarray(mesh_points, np.float64)
     wall, cap_of_vertex = _wall_and_caps(F, len(V), cap_faces)
     WF = F[wall]
@@ -310,7 +311,7 @@ def measure_coverage(
     node_of_branch = _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3)))
     missing, n_patches, n_missing = _missing_parts(
         V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names,
-        patch_area, depth, end_depth, node_of_branch, off, F if own_radius else None,
+        patch_area, depth, end_depth, node_of_branch, off, F if own_radius else None, surface_tree,
     )
     volumes = (enclosed_volume(V, F), enclosed_volume(X, tri))
     summary = _coverage_summary(distance, area, rel, far & ~end_cap, end_cap, volumes, off, n_patches, missing, n_missing)
@@ -417,7 +418,7 @@ def _wall_and_caps(F, n_vertices, cap_faces):
     return wall, cap_of_vertex
 
 
-def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names, patch_area, depth, end_depth, node_of_branch, off, F):
+def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names, patch_area, depth, end_depth, node_of_branch, off, F, tree=None):
     """Connected uncovered patches of the wall (a face is uncovered when at least two of its
     four samples are) and the missing parts among them, largest first; ``off``: the mesh
     wall nodes, their distances off the wall (x local radius) and whether the mesher put them
@@ -425,7 +426,8 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
     part's depth (plus half a radius) of its faces, where the mesh wall that misses it lies
     (and ``over_opening``: the nodes there the mesher left off the wall). A patch's radius
     is the smaller of the skeleton's at its deepest face and its own (:func:`_own_radius`,
-    across the closed surface ``F``; None: the skeleton's alone), except past an end face.
+    across the closed surface ``F``, ``tree`` its BVH where built; None: the skeleton's
+    alone), except past an end face.
 
     Returns the parts (at most :data:`MAX_PATCHES`), the patch count and the count of
     missing parts."""
@@ -451,7 +453,7 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
         # narrow neck (a contact cut, a thin crotch) has a short chord and is no vessel
         patch_r = face_r[deep_face]
         if F is not None:
-            own = _own_radius(V, F, WF, label, n_patches)
+            own = _own_radius(V, F, WF, label, n_patches, tree)
             real_depth = face_rel[deep_face] * face_r[deep_face]
             patch_r = np.where(~at_end & (real_depth >= own), np.minimum(patch_r, own), patch_r)
         patch_depth = face_rel[deep_face] * face_r[deep_face] / patch_r
@@ -484,7 +486,7 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
     return missing, n_patches, n_missing
 
 
-def _own_radius(V, F, WF, label, n_patches) -> np.ndarray:
+def _own_radius(V, F, WF, label, n_patches, tree=None) -> np.ndarray:
     """Each uncovered patch's own radius: the median over its faces of half the chord
     across the closed surface (``V``, ``F``) along the face's inward normal.
 
@@ -492,7 +494,8 @@ def _own_radius(V, F, WF, label, n_patches) -> np.ndarray:
     vessel the skeleton holds, and a side vessel it never entered would be judged by its
     parent's. Normals of a Taubin-smoothed copy: a staircase's terrace normals point
     along the grid axes, not across the vessel. A chord shorter than its face's longest
-    edge gives no radius (the surface does not resolve a lumen that narrow)."""
+    edge gives no radius (the surface does not resolve a lumen that narrow). ``tree``: the
+    BVH of ``(V, F)`` where the chain built one (None: built here)."""
     from ..preprocess import taubin_smooth
     from .bvh import TriangleBVH
     from .topology import signed_volume
@@ -509,7 +512,8 @@ def _own_radius(V, F, WF, label, n_patches) -> np.ndarray:
         n = -n  # inward faces
     c = V[WF[sel]].mean(axis=1)
     reach = 2.0 * float(np.ptp(V, axis=0).max())
-    t = TriangleBVH(V, F).intersect_lines(c - 1e-9 * reach * n, -n, reach, side=1)[0]
+    tree = TriangleBVH(V, F) if tree is None else tree
+    t = tree.intersect_lines(c - 1e-9 * reach * n, -n, reach, side=1)[0]
     # a chord shorter than the face it starts from crosses a sliver (a ragged end's flap),
     # not a lumen the surface resolves: no radius from it
     tv = V[WF[sel]]
@@ -535,13 +539,18 @@ def voxel_step(vertices, faces) -> float:
     V, F = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
     if len(F) == 0:
         return 0.0
-    e = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0)
+    e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
     d = np.abs(V[e[:, 1]] - V[e[:, 0]])
     length = np.linalg.norm(d, axis=1)
     flat = d <= 1e-6 * np.maximum(length, 1e-300)[:, None]  # components zero (to float32 rounding)
+    # each edge once, counted among the axis-aligned ones only (a smooth surface has few):
+    # the same edges, in the same order, as the unique rows of all edges
+    aligned = np.flatnonzero(flat.sum(axis=1) == 2)
+    aligned = aligned[np.unique(e[aligned, 0] * len(V) + e[aligned, 1], return_index=True)[1]]
+    length, flat = length[aligned], flat[aligned]
     steps = []
     for a in range(3):
-        along = length[(flat.sum(axis=1) == 2) & ~flat[:, a]]
+        along = length[~flat[:, a]]
         if len(along) < VOXEL_EDGES:
             return 0.0
         h = float(np.median(along))

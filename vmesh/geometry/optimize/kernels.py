@@ -313,7 +313,7 @@ _NO, _YES = np.bool_(False), np.bool_(True)
 
 
 @nb.njit(cache=True)
-def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, buf, row, fused):
+def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, buf, row, fused, floor):
     """Functional and quality of node ``v`` displaced by ``z`` from where its frame ``L`` was
     taken (:func:`frame`), over the 4 corners of each incident hexahedron that it moves.
 
@@ -325,6 +325,11 @@ def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, bu
 
     ``fused`` (the light pass's Newton direction only, so always with ``hessian``) sums the
     functional with :func:`_escobar_sums_fused`.
+
+    ``floor`` (a trial judged by its minimum, without the functional; ``-inf`` otherwise):
+    the first corner whose scaled Jacobian falls below it ends the evaluation with ``qmin =
+    -inf``, the trial's refusal known (the callers refuse any ``qmin`` below the start's);
+    ``buf[row]`` is then incomplete, which only an accepted trial reads.
 
     Returns ``(f, g0, g1, g2, H00, H01, H02, H11, H12, H22, qmin, qsum)``: the minimum and
     sum over the incident hexahedra of their scaled Jacobian (``want_q``).
@@ -372,6 +377,8 @@ def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, bu
                     e = inc[t] >> 3
                     l = inc[t] & 7
                     cq[e, l if q == 0 else l ^ (1 << (q - 1))] = sj
+                if sj < floor:
+                    return f, g0, g1, g2, h00, h01, h02, h11, h12, h22, -np.inf, qsum
                 hmin = min(hmin, sj)
             if want_f:  # the functional's inputs, for the second loop
                 k = 36 + 9 * q
@@ -437,6 +444,16 @@ def _acceptable(mode, f, qmin, qsum, f0, qmin0, qsum0):
     return qmin >= qmin0 and qsum > qsum0
 
 
+@nb.njit(cache=True)
+def _trial_floor(mode, f0, qmin0):
+    """The least corner scaled Jacobian a projected trial of a smoothing step can keep
+    (:func:`_acceptable`: a max-min trial, ``f0 = inf``, must raise the minimum, a Newton
+    trial keep it); ``-inf`` where the functional decides too."""
+    if mode != SMOOTH:
+        return -np.inf
+    return np.nextafter(qmin0, np.inf) if f0 == np.inf else qmin0
+
+
 @nb.njit(parallel=True, cache=True)
 def corner_qualities(X, hexes, scale):
     """Scaled Jacobian of every corner ``(m, 8)``: the cache that :func:`frame` reads and every
@@ -467,7 +484,7 @@ def _moved(X, hexes, ptr, inc, cq, v, L, y0, y1, y2, dirty, buf, row, least):
     step = np.sqrt(z0 * z0 + z1 * z1 + z2 * z2)
     X[v, 0], X[v, 1], X[v, 2] = y0, y1, y2
     if row < 0:
-        node_eval(L, ptr, inc, cq, v, z0, z1, z2, 0.0, _NO, _NO, _YES, buf, np.int64(-2), _NO)
+        node_eval(L, ptr, inc, cq, v, z0, z1, z2, 0.0, _NO, _NO, _YES, buf, np.int64(-2), _NO, -np.inf)
     else:
         for t in range(ptr[v], ptr[v + 1]):
             e = inc[t] >> 3
@@ -493,7 +510,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
     # the start's quality from the frame, as every trial's: the cache's values of the moved
     # corners (computed in other frames) differ in the last bits, enough to refuse the short
     # steps that climb the worst element
-    f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin0, qsum0 = node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, delta, _YES, _YES, _YES, buf, np.int64(-1), mode == SMOOTH)
+    f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin0, qsum0 = node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, delta, _YES, _YES, _YES, buf, np.int64(-1), mode == SMOOTH, -np.inf)
     if mode == ESCOBAR and not on_wall:
         qmin0, qsum0 = np.inf, 0.0
     state[j, 0], state[j, 1], state[j, 2] = f0, qmin0, qsum0
@@ -515,7 +532,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
             trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2
             state[j, 3] = 1.0
             return
-        r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, not smooth, judge or smooth, buf, np.int64(j), _NO)
+        r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, not smooth, judge or smooth, buf, np.int64(j), _NO, qmin0 if smooth else -np.inf)
         if (r[0] < f0) if not smooth else _acceptable(mode, r[0], r[10], r[11], f0, qmin0, qsum0):
             if on_wall:  # judged again after the projection
                 trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2
@@ -538,6 +555,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
             return
         d0, d1, d2 = d0 * step_cap[v] / length, d1 * step_cap[v] / length, d2 * step_cap[v] / length
         t = 0.25
+        climb_floor = np.nextafter(qmin0, np.inf)  # a climb must raise the minimum: sj <= qmin0 refuses
         for _ in range(CLIMB_TRIALS):
             z0, z1, z2 = t * d0, t * d1, t * d2
             if on_wall:
@@ -545,7 +563,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
                 state[j, 0] = np.inf  # the functional is not asked for
                 state[j, 3] = 1.0
                 return
-            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, _NO, _YES, buf, np.int64(j), _NO)
+            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, _NO, _YES, buf, np.int64(j), _NO, climb_floor)
             if _acceptable(mode, np.inf, r[10], r[11], np.inf, qmin0, qsum0):
                 # a climb raises a worst element: however short, the neighbours try again
                 _moved(X, hexes, ptr, inc, cq, v, L, X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2, dirty, buf, np.int64(j), 0.0)
@@ -596,7 +614,7 @@ def _accept_trials(X, hexes, scale, ptr, inc, cq, nodes, projected, delta, mode,
             v = nodes[j]
             frame(X, hexes, scale, ptr, inc, cq, v, L)
             z0, z1, z2 = projected[j, 0] - X[v, 0], projected[j, 1] - X[v, 1], projected[j, 2] - X[v, 2]
-            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, mode != SMOOTH, _YES, buf, np.int64(j), _NO)
+            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, mode != SMOOTH, _YES, buf, np.int64(j), _NO, _trial_floor(mode, state[j, 0], state[j, 1]))
             if _acceptable(mode, r[0], r[10], r[11], state[j, 0], state[j, 1], state[j, 2]):
                 _moved(X, hexes, ptr, inc, cq, v, L, projected[j, 0], projected[j, 1], projected[j, 2], dirty, buf, np.int64(j), 0.0 if state[j, 0] == np.inf or r[10] > state[j, 1] else tol * step_cap[v])
             else:
