@@ -1,0 +1,165 @@
+"""Spur candidates that alone explain part of the wall: side stubs, not noise.
+
+:meth:`~.branch_graph.BranchGraph.prune_spurs` takes a terminal branch whose inscribed
+balls barely leave its junction's ball for noise. A short side stub (a vessel of 0.3-0.5
+of its parent's radius standing one or two of its own radii out) scores the same, and
+pruning it leaves the stub out of the mesh, which ``check_coverage`` then names as a
+missing part. Here a candidate is noise only when the wall it alone explains is explained
+by the rest of the skeleton too, up to the tolerance ``check_coverage`` allows a missing
+part: the extractor and the verdict judge the same wall by the same rule
+(:func:`~vmesh.geometry.coverage.judge_patches`), so a branch the verdict would call
+missing is not pruned.
+
+"The rest" is the graph without every candidate of the round: the medial axis's fan
+towards a flat end face's rim is several candidates at one junction, and without all of
+them that junction is a free end of the rest; the rim's wall lies past that end, where
+:func:`~.ends.place_ends` extends the vessel, and is judged with the verdict's
+``end_depth`` as the wall past a mesh's end face is. A real stub's junction lies on its
+parent's path, which the rest keeps, and its wall stands out of the parent's balls by
+more than its own radius.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..coverage import DEPTH, DISTANCE, END_DEPTH, PATCH_AREA, judge_patches
+
+
+def surface_samples(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
+    """Centroids and areas of a surface's triangles: the wall the rule measures."""
+    tri = np.asarray(vertices, float)[np.asarray(faces, np.int64)]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    return tri.mean(axis=1), area
+
+
+def _balls(graph, spurs):
+    """Every branch's medial samples (centres, radii) and, per sample, the index of the
+    candidate it belongs to (-1: the rest). A candidate's junction sample is the rest's."""
+    index = {}
+    for i, (u, v, key, _, _) in enumerate(spurs):
+        index[(u, v, key)] = index[(v, u, key)] = i
+    centres, radii, owner = [], [], []
+    for u, v, key in graph.branches():
+        i = index.get((u, v, key), -1)
+        start = spurs[i][4] if i >= 0 else None
+        pts, rad = graph.polyline(u, v, key, start=start)
+        if i >= 0:
+            pts, rad = pts[1:], rad[1:]
+        centres.append(pts)
+        radii.append(rad)
+        owner.append(np.full(len(rad), i))
+    return np.concatenate(centres), np.concatenate(radii), np.concatenate(owner)
+
+
+def _free_ends(graph, spurs, span: float = 2.0):
+    """The rest's free ends: nodes left with one branch once the candidates are gone.
+    Returns their positions, radii and outward tangents (from ``span`` radii back along
+    the branch)."""
+    lost = {}
+    for _, _, _, tip, base in spurs:
+        lost[tip] = lost.get(tip, 0) + 1
+        lost[base] = lost.get(base, 0) + 1
+    cand = {(u, v, k) for u, v, k, _, _ in spurs} | {(v, u, k) for u, v, k, _, _ in spurs}
+    ends, radii, tangents = [], [], []
+    for node, n_lost in lost.items():
+        if graph.degree(node) - n_lost != 1:
+            continue
+        u, v, k = next(e for e in graph.graph.edges(node, keys=True) if e not in cand)
+        pts, rad = graph.polyline(u, v, k, start=node)
+        s = np.cumsum(np.r_[0.0, np.linalg.norm(np.diff(pts, axis=0), axis=1)])
+        back = pts[min(int(np.searchsorted(s, span * rad[0])), len(pts) - 1)]
+        t = pts[0] - back
+        ends.append(pts[0])
+        radii.append(rad[0])
+        tangents.append(t / max(np.linalg.norm(t), 1e-300))
+    return np.reshape(ends, (-1, 3)), np.asarray(radii, float), np.reshape(tangents, (-1, 3))
+
+
+def spurs_explaining_wall(
+    graph, wall, spurs, spacing: float, distance: float = DISTANCE, patch_area: float = PATCH_AREA,
+    depth: float = DEPTH, end_depth: float = END_DEPTH, k: int = 8, details: list | None = None,
+) -> np.ndarray:
+    """Which spur candidates alone explain a part of the wall the verdict would call missing.
+
+    Parameters
+    ----------
+    graph : BranchGraph
+    wall : (centroids (m, 3), areas (m,))
+        The surface's triangles (:func:`surface_samples`).
+    spurs : list of (u, v, key, tip, base)
+        The candidates of one pruning round.
+    spacing : float
+        The voxel size: the medial samples are voxel centres, so a wall point up to one
+        voxel outside the balls is explained (the sampled axis's own resolution).
+    distance, patch_area, depth, end_depth : float
+        ``check_coverage``'s: a wall point farther than ``distance`` local radii (plus
+        ``spacing``) outside the rest's balls is unexplained; a candidate's unexplained
+        wall is a missing part when it spans more than ``patch_area`` cross-sections and
+        reaches deeper than ``depth`` radii (``end_depth`` past a free end of the rest),
+        the radius its own where it stands out by at least that (the candidate's balls
+        outside the rest's, median).
+    k : int
+        Balls looked at per wall point (the nearest centres).
+    details : list, optional
+        Receives one dict per candidate (area, depth, radii, the verdict) for probes.
+
+    Returns
+    -------
+    numpy.ndarray of bool
+        One per candidate: True where pruning it would leave wall unexplained.
+    """
+    from scipy.spatial import cKDTree
+
+    held = np.zeros(len(spurs), bool)
+    if not spurs:
+        return held
+    points, area = wall
+    centres, radii, owner = _balls(graph, spurs)
+    mine = owner >= 0
+    rest_tree = cKDTree(centres[~mine])
+    rest_r = radii[~mine]
+    # the wall each candidate explains: within its balls up to the tolerance
+    wall_tree = cKDTree(points)
+    reach = radii[mine] * (1.0 + distance) + spacing
+    hits = wall_tree.query_ball_point(centres[mine], reach)
+    cand_of_sample = owner[mine]
+    ends, end_r, end_t = _free_ends(graph, spurs)
+    kk = min(k, len(rest_r))
+    for i in range(len(spurs)):
+        near = np.unique(np.concatenate([np.asarray(h, np.int64) for h in hits[cand_of_sample == i]] or [np.zeros(0, np.int64)]))
+        info = {"tip": graph.pos(spurs[i][3]).round(3).tolist(), "junction_r": graph.radius(spurs[i][4]), "held": False}
+        if details is not None:
+            details.append(info)
+        if len(near) == 0:
+            continue
+        d, j = rest_tree.query(points[near], k=kk)
+        d, j = d.reshape(len(near), -1), j.reshape(len(near), -1)
+        excess = d - rest_r[j]
+        best = np.argmin(excess, axis=1)
+        excess = excess[np.arange(len(near)), best]
+        r_local = rest_r[j[np.arange(len(near)), best]]
+        out = excess > distance * r_local + spacing
+        if not out.any():
+            continue
+        sel = near[out]
+        deep = int(np.argmax(excess[out]))
+        # past a free end of the rest: where place_ends extends the vessel (a flat end's rim)
+        rel = points[sel][:, None, :] - ends[None]
+        along = np.einsum("pej,ej->pe", rel, end_t)
+        past = ((along > 0) & (np.linalg.norm(rel, axis=2) < (1.0 + end_depth) * end_r[None])).any(axis=1)
+        at_end = area[sel][past].sum() > 0.5 * area[sel].sum()
+        # the candidate's own radius: its balls whose centres lie outside the rest's
+        own_c = centres[mine][cand_of_sample == i]
+        own_r = radii[mine][cand_of_sample == i]
+        dc, jc = rest_tree.query(own_c, k=kk)
+        outside = (dc.reshape(len(own_c), -1) - rest_r[jc.reshape(len(own_c), -1)]).min(axis=1) > 0
+        own = float(np.median(own_r[outside])) if outside.any() else np.inf
+        verdict = judge_patches(
+            np.array([area[sel].sum()]), np.array([excess[out][deep]]), np.array([r_local[out][deep]]),
+            np.array([own]), np.array([at_end]), patch_area, depth, end_depth,
+        )
+        held[i] = bool(verdict[0][0])
+        info.update(area=float(area[sel].sum()), depth=float(excess[out][deep]), rest_r=float(r_local[out][deep]), own_r=own,
+                    at_end=bool(at_end), sections=float(verdict[1][0]), depth_rel=float(verdict[2][0]), held=held[i])
+    return held
