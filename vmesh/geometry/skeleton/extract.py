@@ -261,7 +261,7 @@ def extract_skeleton(
         if expected_cycles is None and surface is not None:
             expected_cycles = surface_genus(*surface)
         stats["expected_cycles"] = expected_cycles
-        wall = spur_wall.surface_samples(*surface) if surface is not None and settings.spur_wall else None
+        wall = spur_wall.surface_samples(*surface, caps) if surface is not None and settings.spur_wall else None
         stats.update(clean_branch_graph(graph, settings, expected_cycles, sdf, spacing, caps, wall))
         stats["centred_junctions"] = graph.center_junctions(sdf, spacing)
     with _timed(timings, "ends"):

@@ -26,11 +26,20 @@ import numpy as np
 from ..coverage import DEPTH, DISTANCE, END_DEPTH, PATCH_AREA, judge_patches
 
 
-def surface_samples(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
-    """Centroids and areas of a surface's triangles: the wall the rule measures."""
-    tri = np.asarray(vertices, float)[np.asarray(faces, np.int64)]
+def surface_samples(vertices, faces, caps=()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centroids and areas of a surface's triangles, and which lie on one of ``caps`` (open
+    ends; not the flat regions that may be facets of the wall, ``needs_end``): the verdict
+    leaves caps out of the wall, and a candidate reaching a cap is an open end, which
+    :func:`~.ends.place_ends` gives its branch."""
+    faces = np.asarray(faces, np.int64)
+    tri = np.asarray(vertices, float)[faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    return tri.mean(axis=1), area
+    on_cap = np.zeros(len(faces), bool)
+    for cap in caps or ():
+        if not getattr(cap, "needs_end", False):
+            index = np.asarray(cap.faces, np.int64)
+            on_cap[index[(index >= 0) & (index < len(faces))]] = True
+    return tri.mean(axis=1), area, on_cap
 
 
 def _balls(graph, spurs):
@@ -116,10 +125,17 @@ def spurs_explaining_wall(
     from scipy.spatial import cKDTree
 
     held = np.zeros(len(spurs), bool)
+    points, area, on_cap = wall if len(wall) == 3 else (*wall, np.zeros(len(wall[0]), bool))
+    wall = (points[~on_cap], area[~on_cap])
     found = [{"tip": graph.pos(s[3]).round(3).tolist(), "junction": graph.pos(s[4]).round(3).tolist(),
               "junction_r": graph.radius(s[4]), "length": graph.length(*s[:3]), "held": False} for s in spurs]
     if spurs:
         wall_tree = cKDTree(wall[0])
+        # a candidate whose balls reach a cap is an open end: place_ends gives every cap its
+        # end (matched or attached), and a branch held there besides can leave the builder
+        # two branches into one short stub (as spurs_at_flat_ends leaves caps out)
+        at_cap = _reaches(graph, spurs, points[on_cap], spacing, distance)
+        held[at_cap] = True  # out of the running; cleared below
         while not held.all():
             open_ = np.flatnonzero(~held)
             parts = _unexplained(graph, wall, wall_tree, [spurs[i] for i in open_], spacing, distance, k)
@@ -136,9 +152,25 @@ def spurs_explaining_wall(
                 break
             i = open_[np.argmax(np.where(side, area, -1.0))]
             held[i] = found[i]["held"] = True
+        held[at_cap] = False
+        for i in np.flatnonzero(at_cap):
+            found[i]["at_cap"] = True
     if details is not None:
         details.extend(found)
     return held
+
+
+def _reaches(graph, spurs, points, spacing, distance) -> np.ndarray:
+    """Which candidates' balls, grown as for the wall they explain, contain one of ``points``."""
+    from scipy.spatial import cKDTree
+
+    if len(points) == 0:
+        return np.zeros(len(spurs), bool)
+    centres, radii, owner = _balls(graph, spurs)
+    mine = owner >= 0
+    d, _ = cKDTree(points).query(centres[mine])
+    inside = d <= radii[mine] * (1.0 + distance) + spacing
+    return np.bincount(owner[mine][inside], minlength=len(spurs)) > 0
 
 
 def _unexplained(graph, wall, wall_tree, spurs, spacing, distance, k) -> list[dict]:
