@@ -1,7 +1,7 @@
 """Spur candidates that alone explain part of the wall: side stubs, not noise.
 
 :meth:`~.branch_graph.BranchGraph.prune_spurs` takes a terminal branch whose inscribed
-balls barely leave its junction's ball for noise. A short side stub (a vessel of 0.3-0.5
+balls barely leave its junction's ball for noise. A short side stub (a vessel of 0.3-0.6
 of its parent's radius standing one or two of its own radii out) scores the same, and
 pruning it leaves the stub out of the mesh, which ``check_coverage`` then names as a
 missing part. Here a candidate is noise only when the wall it alone explains is explained
@@ -17,6 +17,11 @@ them that junction is a free end of the rest; the rim's wall lies past that end,
 ``end_depth`` as the wall past a mesh's end face is. A real stub's junction lies on its
 parent's path, which the rest keeps, and its wall stands out of the parent's balls by
 more than its own radius.
+
+Only side vessels are held (judged by their own radius, narrower than the rest where they
+leave it, standing out of it by at least that radius), one at a time (the largest missing
+part first; it then joins the rest), and never a candidate reaching a cap, whose end
+:func:`~.ends.place_ends` gives (docs/coverage.md, h20/stubs).
 """
 
 from __future__ import annotations
