@@ -39,6 +39,12 @@ from .preprocess_filters import walls_not_caps
             min=0.0,
         ),
         Parameter(
+            "spur_wall",
+            "bool",
+            True,
+            "Keep a spur that alone explains part of the wall which check_coverage would call missing (a short side stub); false: spur_ratio alone.",
+        ),
+        Parameter(
             "merge_ratio",
             "float",
             1.0,
@@ -82,6 +88,7 @@ def extract_skeleton(
     min_radius,
     max_voxels,
     spur_ratio,
+    spur_wall,
     merge_ratio,
     cycle_ratio,
     node_spacing,
@@ -108,6 +115,7 @@ def extract_skeleton(
         voxels_per_radius=voxels_per_radius,
         max_voxels=max_voxels,
         spur_ratio=spur_ratio,
+        spur_wall=spur_wall,
         merge_ratio=merge_ratio,
         cycle_ratio=cycle_ratio,
         node_spacing=node_spacing,

@@ -35,6 +35,8 @@ import numpy as np
 
 #: Patches reported in full (the largest first); the rest are only counted.
 MAX_PATCHES = 10
+# check_coverage's defaults, shared with the extraction's spur rule (skeleton.spur_wall)
+DISTANCE, PATCH_AREA, DEPTH, END_DEPTH = 0.1, 1.0, 0.3, 1.5
 #: Edges exactly along each grid axis a voxel surface must have to count as one.
 VOXEL_EDGES = 8
 
@@ -228,10 +230,10 @@ def measure_coverage(
     skeleton_points,
     skeleton_edges,
     skeleton_radii,
-    distance: float = 0.1,
-    patch_area: float = 1.0,
-    depth: float = 0.3,
-    end_depth: float = 1.5,
+    distance: float = DISTANCE,
+    patch_area: float = PATCH_AREA,
+    depth: float = DEPTH,
+    end_depth: float = END_DEPTH,
     branches=None,
     wall_tree=None,
     on_wall=None,
@@ -446,19 +448,13 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
         order_ = np.lexsort((-face_rel[sel], lab))
         first = order_[np.searchsorted(lab[order_], np.arange(n_patches))]
         deep_face = np.flatnonzero(sel)[first]
-        # the deepest face's distance, relative to the patch's own radius where that is smaller
-        # (not past an end face: there the patch continues the vessel the skeleton ends in)
-        # and only where the patch is at least that own radius deep: a side vessel left out
-        # stands out of the mesh by its own radius or more, while a shallow patch across a
-        # narrow neck (a contact cut, a thin crotch) has a short chord and is no vessel
-        patch_r = face_r[deep_face]
-        if F is not None:
-            own = _own_radius(V, F, WF, label, n_patches, tree)
-            real_depth = face_rel[deep_face] * face_r[deep_face]
-            patch_r = np.where(~at_end & (real_depth >= own), np.minimum(patch_r, own), patch_r)
-        patch_depth = face_rel[deep_face] * face_r[deep_face] / patch_r
-        sections = patch_area_sum / (np.pi * patch_r**2)
-        big = np.flatnonzero((sections > patch_area) & (patch_depth > np.where(at_end, end_depth, depth)))
+        # the deepest face's distance, relative to the patch's own radius where judge_patches takes it
+        own = _own_radius(V, F, WF, label, n_patches, tree) if F is not None else np.full(n_patches, np.inf)
+        real_depth = face_rel[deep_face] * face_r[deep_face]
+        is_missing, sections, patch_depth, patch_r = judge_patches(
+            patch_area_sum, real_depth, face_r[deep_face], own, at_end, patch_area, depth, end_depth
+        )
+        big = np.flatnonzero(is_missing)
         big = big[np.argsort(-patch_area_sum[big])]
         for k in big[:MAX_PATCHES]:
             faces_k = np.flatnonzero(label == k)
@@ -484,6 +480,34 @@ def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vert
     else:
         n_missing = 0
     return missing, n_patches, n_missing
+
+
+def judge_patches(area, real_depth, skeleton_r, own_r, at_end, patch_area=PATCH_AREA, depth=DEPTH, end_depth=END_DEPTH):
+    """Which uncovered patches are missing parts of the vessel: the one rule of the verdict
+    (:func:`measure_coverage`) and of the extraction's spur pruning
+    (:func:`~vmesh.geometry.skeleton.spur_wall.spurs_explaining_wall`).
+
+    A patch is judged by the skeleton's radius at its deepest point, or by its own radius
+    (``own_r``, ``inf`` where unknown) where that is smaller and the patch stands out by at
+    least that much (``real_depth >= own_r``: a side vessel left out; a shallow patch across
+    a narrow neck keeps the skeleton's), except past an end face (``at_end``: it continues
+    the vessel the skeleton ends in). It is missing when it spans more than ``patch_area``
+    cross-sections (pi r**2) and reaches deeper than ``depth`` radii (``end_depth`` at an end).
+
+    Returns
+    -------
+    missing, sections, depth_rel, radius : numpy.ndarray
+        Per patch: the verdict, its area in cross-sections, its depth in radii and the
+        radius it is judged by.
+    """
+    real_depth = np.asarray(real_depth, float)
+    own_r = np.asarray(own_r, float)
+    patch_r = np.asarray(skeleton_r, float)
+    patch_r = np.where(~np.asarray(at_end, bool) & (real_depth >= own_r), np.minimum(patch_r, own_r), patch_r)
+    depth_rel = real_depth / patch_r
+    sections = np.asarray(area, float) / (np.pi * patch_r**2)
+    missing = (sections > patch_area) & (depth_rel > np.where(at_end, end_depth, depth))
+    return missing, sections, depth_rel, patch_r
 
 
 def _own_radius(V, F, WF, label, n_patches, tree=None) -> np.ndarray:

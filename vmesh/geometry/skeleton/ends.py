@@ -254,7 +254,10 @@ def _trim_end(graph: BranchGraph, node: int, spacing: float) -> tuple[np.ndarray
     Near a flat end the medial axis fans out into a cone towards the rim, and the
     thinned curve follows one side of it; the points whose inscribed radius has
     dropped below 85 % of the largest radius near the end are that tail. What
-    remains ends on the vessel axis, about a radius before the end face.
+    remains ends on the vessel axis, about a radius before the end face. Only the part
+    of the branch outside its junction's inscribed ball is the end's: a short side stub's
+    branch starts on its wider parent's axis, and the parent's radius there is no radius
+    of the stub (measured with it, the whole stub was taken for a tail and cut off).
     """
     (u, v, k), = list(graph.graph.edges(node, keys=True))
     other = graph.other(u, v, node)
@@ -263,6 +266,9 @@ def _trim_end(graph: BranchGraph, node: int, spacing: float) -> tuple[np.ndarray
     from_end = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]])
     window = min(float(from_end[0]), 2.0 * float(np.median(rad)) + 2 * spacing)
     tail = np.flatnonzero(from_end <= window)
+    if graph.degree(other) >= 3:
+        own = tail[np.linalg.norm(pts[tail] - pts[0], axis=1) > rad[0]]
+        tail = own if len(own) else tail
     r_ref = float(rad[tail].max())
     keep = tail[rad[tail] >= 0.85 * r_ref]
     last = int(keep[-1]) if len(keep) else len(pts) - 1

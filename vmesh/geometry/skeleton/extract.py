@@ -43,6 +43,7 @@ from typing import Callable
 import numpy as np
 
 from ...skeleton import Skeleton
+from . import spur_wall
 from .branch_graph import BranchGraph
 from .ends import place_ends, spurs_at_flat_ends
 from .probe import SdfFunction, evaluate_sdf
@@ -62,6 +63,7 @@ class ExtractionSettings:
     voxels_per_radius: float = 3.0
     max_voxels: int = 60_000_000
     spur_ratio: float = 2.0
+    spur_wall: bool = True
     merge_ratio: float = 1.0
     cycle_ratio: float = 6.0
     node_spacing: float = 1.0
@@ -152,7 +154,7 @@ def _voxel_branch_graph(sdf, bounds, spacing: float, tick, stats: dict, timings:
 
 
 def clean_branch_graph(
-    graph: BranchGraph, settings: ExtractionSettings, expected_cycles: int | None, sdf=None, spacing=None, caps=()
+    graph: BranchGraph, settings: ExtractionSettings, expected_cycles: int | None, sdf=None, spacing=None, caps=(), wall=None
 ) -> dict:
     """Stage 4: clean a raw branch graph until nothing changes (at most 20 rounds).
 
@@ -163,7 +165,10 @@ def clean_branch_graph(
     ``spacing``), a short terminal branch that ends at a flat end face (on none of
     ``caps``) is a vessel's end, not a spur, and stays (:func:`~.ends.spurs_at_flat_ends`),
     and a side sac the cleaned path runs through is split off it as a branch
-    (:func:`~.sacs.split_side_sacs`; counted as ``side_sacs``).
+    (:func:`~.sacs.split_side_sacs`; counted as ``side_sacs``). With ``wall`` (the
+    surface's triangle centroids and areas, :func:`~.spur_wall.surface_samples`), a
+    candidate that alone explains wall the coverage verdict would call missing stays too
+    (:func:`~.spur_wall.spurs_explaining_wall`: a side stub).
     """
     keep = None
     if sdf is not None:
@@ -174,7 +179,10 @@ def clean_branch_graph(
             todo = [i for i, k in enumerate(key) if k not in seen]
             for i, flat in zip(todo, spurs_at_flat_ends(graph, sdf, spacing, [spurs[i] for i in todo], list(caps or ()))):
                 seen[key[i]] = bool(flat)
-            return [seen[k] for k in key]
+            held = np.array([seen[k] for k in key], bool)
+            if wall is not None:  # judged against the whole round's rest: no cache
+                held |= spur_wall.spurs_explaining_wall(graph, wall, spurs, spacing)
+            return held
 
     removed = {"specks": 0, "spurs": 0, "merged_junctions": 0, "small_cycles": 0, "bridges": 0}
     graph.dissolve_all()
@@ -253,7 +261,8 @@ def extract_skeleton(
         if expected_cycles is None and surface is not None:
             expected_cycles = surface_genus(*surface)
         stats["expected_cycles"] = expected_cycles
-        stats.update(clean_branch_graph(graph, settings, expected_cycles, sdf, spacing, caps))
+        wall = spur_wall.surface_samples(*surface, caps) if surface is not None and settings.spur_wall else None
+        stats.update(clean_branch_graph(graph, settings, expected_cycles, sdf, spacing, caps, wall))
         stats["centred_junctions"] = graph.center_junctions(sdf, spacing)
     with _timed(timings, "ends"):
         tick(0.85, "placing the ends")
