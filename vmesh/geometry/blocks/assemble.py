@@ -33,7 +33,7 @@ class _Assembly:
         t = self.template
         idx, sec_ids, vertices, on_surface = self._assemble_vertices()
         rows = [[] for _ in range(9)]  # hexes, fb, ak, radius, bnode, bseg, blayer, btags, where
-        self._branch_blocks(sec_ids, rows)
+        columns = self._branch_blocks(sec_ids, rows)
         self._dome_blocks(idx, sec_ids, rows)
         hexes, fb, ak, radius, bnode, bseg, blayer, btags, where = rows
         hexes = np.vstack(hexes)
@@ -64,6 +64,7 @@ class _Assembly:
             block_tags=btags,
             boundary_names=dict(self.ends.boundary_names),
         )
+        blocks.info["_columns"] = columns  # this structure's own section ids (:mod:`.crotch`), dropped by finish
         self.built.info = {
             "blocks_around": t.n_around,
             "core": [t.a, t.b],
@@ -144,12 +145,15 @@ class _Assembly:
         on_surface = np.concatenate(on_surf)
         return idx, sec_ids, vertices, on_surface
 
-    def _branch_blocks(self, sec_ids: dict, rows: list) -> None:
-        """Append the blocks between consecutive sections of every branch to ``rows``."""
+    def _branch_blocks(self, sec_ids: dict, rows: list) -> tuple:
+        """Append the blocks between consecutive sections of every branch to ``rows``;
+        return each branch's section ids (K, nv), first block row and end kinds."""
         t, sk = self.template, self.topo.sk
         hexes, fb, ak, radius, bnode, bseg, blayer, btags, where = rows
         q = t.quads
         nq = len(q)
+        columns = ([], [], [])
+        n_blocks = 0
         for bi, br in enumerate(self.topo.branches):
             K = len(br.nodes)
             ids = [None] * K
@@ -164,6 +168,10 @@ class _Assembly:
             # all segments of the branch at once, in the order segment by segment, quad by quad
             ids = np.stack(ids)  # (K, nv)
             m = K - 1
+            columns[0].append(ids)
+            columns[1].append(n_blocks)
+            columns[2].append(tuple(br.kinds))
+            n_blocks += m * nq
             hexes.append(np.concatenate([ids[:-1][:, q], ids[1:][:, q]], axis=2).reshape(-1, 8))
             f = np.full((m, nq, 6), FACE_INTERIOR, np.int64)
             f[:, t.quad_wall, 1] = FACE_WALL
@@ -184,6 +192,7 @@ class _Assembly:
                 tags = tuple(sorted(set(sk.node_tags[n0]) | set(sk.node_tags[n1]) | set(sk.edge_tags[e])))
                 btags.extend([tags] * nq)
             where.append(np.c_[np.full(m * nq, bi), np.repeat(np.arange(m), nq)])
+        return columns
 
     def _dome_blocks(self, idx: list, sec_ids: dict, rows: list) -> None:
         """Append the cap blocks round every closed end's dome to ``rows``."""

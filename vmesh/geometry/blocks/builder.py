@@ -45,6 +45,7 @@ from ...skeleton import Skeleton
 from .. import cross_sections as cs
 from .assemble import _Assembly
 from .checks import _Failure, fill_quality, wall_left_out
+from .crotch import column_ends, split_saddle_columns
 from .dents import add_dent_sections
 from .junctions import _Junctions
 from .options import BlockOptions, _LocalFixes
@@ -571,6 +572,11 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _Stubs):
             if self.opt.repair.relieve_wall_folds:
                 blocks = self._kept_valid(self.relieve_wall_folds, blocks)
             self.report_wall_folds(blocks)
+        columns = blocks.info.pop("_columns", None)
+        ratio = self.opt.junction.saddle_split
+        if self.project is not None and columns is not None and ratio > 0:  # the crotch's saddle (:mod:`.crotch`)
+            blocks, notes = split_saddle_columns(blocks, self.template, column_ends(columns, self.template.n_quads), self.sdf, self.cast, ratio)
+            self.fixes.extend(notes)
         blocks.info.update(self.built.info)
         blocks.info["fixes"] = list(self.fixes)
         blocks.info["work"] = self.work.summary()

@@ -35,6 +35,7 @@ class JunctionOptions:
     junction_lean: float = 1.0  # how far n-furcations' half-sections may lean towards the bisector of branches leaving the plane unalike (0: planar)
     choose_lean: bool = False  # build leaning n-furcations with half-planes too, keep per junction the one whose finished blocks there and at its neighbours have the higher least corner SJ (:func:`~.builder._choose_lean`)
     junction_centre: float = 1.0  # how far half-sections' common line moves from the node to the wall's centre (0: at the node)
+    saddle_split: float = 0.0  # split a junction end's first block column where its straight wall faces dip this many layers outside the wall (:mod:`.crotch`; 0: never)
 
 
 @dataclass

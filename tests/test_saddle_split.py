@@ -1,0 +1,90 @@
+"""A junction end's first block column split where its wall dips (blocks/crotch.py, h20/crotch).
+
+Fast: a column between two O-grid sections of a tube whose wall narrows to a waist between
+them (the saddle a straight wall face spans at a crotch). Slow: the generated acute
+bifurcation whose crotch folds in the raw fill (``bif_30_2``) fills without an inverted
+element with the split on."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vmesh.blocks import hex_corner_jacobians
+from vmesh.geometry import cross_sections as cs
+from vmesh.geometry.blocks.crotch import dip_fraction, saddle_section, split_column
+
+
+def _waisted_tube(waist_at=3.0, depth=0.35):
+    """Signed distance (positive inside) and ray casts (from the axis, across it) of a tube
+    of radius 1 along z, narrowed by ``depth`` in a smooth waist at ``z = waist_at``."""
+    def radius(z):
+        return 1.0 - depth * np.exp(-((z - waist_at) / 1.0) ** 2)
+
+    def sdf(p):
+        p = np.asarray(p, float)
+        return radius(p[:, 2]) - np.hypot(p[:, 0], p[:, 1])
+
+    def cast(origins, directions, scale):
+        return radius(np.asarray(origins, float)[:, 2])
+
+    return sdf, cast
+
+
+def _column(template, length=10.0):
+    """Vertices of the sections at z = 0 and z = ``length`` (radius 1) and the column's blocks."""
+    nr = len(template.ray_angles)
+    e1, e2 = np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]])
+    A = cs.section_vertices(template, np.zeros((1, 3)), e1, e2, np.ones((1, nr)), 0.3, 0.3)[0]
+    B = A + [0.0, 0.0, length]
+    nv = template.n_vertices
+    V = np.vstack([A, B])
+    hexes = np.c_[template.quads, template.quads + nv]
+    return V, hexes, np.arange(nv), nv + np.arange(nv)
+
+
+def test_saddle_section_follows_the_waist():
+    t = cs.o_grid_template(8)
+    sdf, cast = _waisted_tube()
+    V, hexes, A_ids, B_ids = _column(t)
+    assert hex_corner_jacobians(V[hexes]).min() > 0
+    tau, dip = dip_fraction(t, V[A_ids], V[B_ids], sdf)
+    # the straight wall faces lie outside the wall by more than the layer at the waist
+    assert abs(10.0 * tau - 3.0) <= 10.0 / 16 + 1e-9 and dip > 1.0
+    M = saddle_section(t, V[A_ids], V[B_ids], tau, cast)
+    assert np.abs(sdf(M[t.outer])).max() < 1e-9  # the new section's wall vertices on the wall
+    # its layer and ring stay inside the wall, in the same order along every ray
+    assert sdf(M[t.ring]).min() > 0
+    blocks = type("B", (), {"vertices": V, "hexes": hexes})()
+    got = split_column(blocks, np.arange(len(hexes)), A_ids, B_ids, M)
+    assert got is not None
+    first, second, _ = got
+    assert np.array_equal(first[:, :4], hexes[:, :4]) and np.array_equal(second[:, 4:], hexes[:, 4:])
+    assert np.array_equal(first[:, 4:], second[:, :4])  # the halves share the new section
+
+
+def test_split_column_refuses_an_inverted_half():
+    t = cs.o_grid_template(8)
+    sdf, cast = _waisted_tube()
+    V, hexes, A_ids, B_ids = _column(t)
+    M = (V[A_ids] + V[B_ids]) / 2
+    M[t.outer] *= [0.2, 0.2, 1.0]  # wall vertices pulled inside the ring: the layer inverts
+    blocks = type("B", (), {"vertices": V, "hexes": hexes})()
+    assert split_column(blocks, np.arange(len(hexes)), A_ids, B_ids, M) is None
+
+
+@pytest.mark.slow
+def test_acute_bifurcation_fills_without_folds_once_split():
+    from test_junctions import DEFAULT, fill
+
+    from junction_cases import bifurcation
+    from vmesh.geometry import skeleton_ops as ops
+    from vmesh.geometry.block_builder import BlockOptions, build_blocks
+
+    case = bifurcation(30, 2)
+    sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
+    blocks = build_blocks(sk, case.distance, None, BlockOptions(saddle_split=0.5), project=case.project)
+    assert any(f.startswith("split the first blocks") for f in blocks.info["fixes"])
+    assert blocks.corner_jacobians().min() > 0
+    sj = fill(case, blocks, DEFAULT)
+    assert sj.min() > 0  # main folds 4 elements at this crotch (tests/test_junctions.py KNOWN_FOLDS)
