@@ -73,7 +73,13 @@ def jacobian_ratio(points: np.ndarray, cells: np.ndarray, order: int = 1, ref_no
     D = lagrange_derivative_matrix(ref_nodes)
     out = np.empty(len(cells))
     for s in range(0, len(cells), chunk):
-        Ju, Jv, Jw = _node_jacobians(points[cells[s : s + chunk]], D, p)
+        if p == 1:  # the corners' edge vectors directly: einsum on 2-point axes is 20x slower
+            X = points[cells[s : s + chunk]].reshape(-1, 2, 2, 2, 3)  # (m, k, j, i, 3)
+            Ju = np.broadcast_to((X[:, :, :, 1] - X[:, :, :, 0])[:, :, :, None], X.shape)
+            Jv = np.broadcast_to((X[:, :, 1] - X[:, :, 0])[:, :, None], X.shape)
+            Jw = np.broadcast_to((X[:, 1] - X[:, 0])[:, None], X.shape)
+        else:
+            Ju, Jv, Jw = _node_jacobians(points[cells[s : s + chunk]], D, p)
         det = np.einsum("...d,...d->...", Ju, np.cross(Jv, Jw)).reshape(len(Ju), -1)
         out[s : s + chunk] = det.min(axis=1) / np.maximum(np.abs(det).max(axis=1), 1e-300)
     return out
