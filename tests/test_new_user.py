@@ -175,3 +175,15 @@ def test_vmesh_info_diagnoses_every_file_and_fails_at_the_end(tmp_path, capsys):
     out, err = capsys.readouterr()
     assert out.startswith(f"{good}\n") and "triangles" in out
     assert err.splitlines() == [f"vmesh: error: {empty}: file is empty", f"vmesh: error: {tmp_path / 'missing.stl'}: file not found"]
+
+
+def test_an_override_value_is_checked_when_given():
+    """Session 20: ``with_overrides({"mesh_transfinite.refinement": "two"})`` was taken and
+    refused only by ``run``; the value is now checked against its parameter at once, and
+    "auto" still resets an automatic parameter."""
+    chain = FilterChain.load("default")
+    with pytest.raises(ParameterError, match=r"filter 'mesh_transfinite': parameter 'refinement' must be of type int, got str 'two'"):
+        chain.with_overrides({"mesh_transfinite.refinement": "two"})
+    with pytest.raises(ParameterError, match="below its minimum"):
+        chain.with_overrides({"mesh_transfinite.refinement": 0})
+    chain.with_overrides({"decimate_surface.target_faces": "auto", "mesh_transfinite.refinement": 2})
