@@ -27,7 +27,7 @@ _SKELETON_ONLY = (".json", ".swc", ".csv")
 def add_arguments(p) -> None:
     p.add_argument("input", metavar="INPUT", help="vessel surface (stl, obj, ply, vtp, vtk, vtu, off), or a centerline file to convert")
     p.add_argument("-s", "--skeleton", metavar="FILE", help="centerline file (json, swc, csv, ply, vtp, vtk); extracted from the surface when absent")
-    p.add_argument("-o", "--out", metavar="FILE", help="write the skeleton here; the extension picks the format (json, swc, csv, ply, vtp, vtk)")
+    p.add_argument("-o", "--out", metavar="FILE", help="write the skeleton here; the extension picks the format (json, swc, csv, ply, vtp, vtk; a .vtp/.vtk holds one polyline per branch with a Radius point array, not VMTK's overlapping inlet-to-outlet lines)")
     p.add_argument("--png", metavar="FILE", help="render to this PNG (default: --out with the suffix .png)")
     p.add_argument("--no-png", action="store_true", help="do not render a PNG")
     p.add_argument("--vtk-kind", default="auto", choices=("auto", "vmtk", "simvascular", "polylines"), help="what a .vtp/.vtk centerline holds (default: auto)")
