@@ -187,3 +187,16 @@ def test_an_override_value_is_checked_when_given():
     with pytest.raises(ParameterError, match="below its minimum"):
         chain.with_overrides({"mesh_transfinite.refinement": 0})
     chain.with_overrides({"decimate_surface.target_faces": "auto", "mesh_transfinite.refinement": 2})
+
+
+def test_render_pictures_takes_the_chains_block_structure():
+    """Session 20: ``render_pictures(..., blocks=ctx.blocks)`` stopped on
+    ``'BlockStructure' object has no attribute 'n_cells'``: it wanted ``blocks.vtu`` read
+    with pyvista. A BlockStructure is now drawn from its own grid (same cells and arrays)."""
+    from cylinder_blocks import cylinder_blocks
+    from vmesh.render import _blocks_grid
+
+    blocks = cylinder_blocks()
+    grid = _blocks_grid(blocks)
+    assert grid.n_cells == blocks.n_blocks and "segment_id" in grid.cell_data
+    assert _blocks_grid(grid) is grid and _blocks_grid(None) is None
