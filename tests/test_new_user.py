@@ -200,3 +200,17 @@ def test_render_pictures_takes_the_chains_block_structure():
     grid = _blocks_grid(blocks)
     assert grid.n_cells == blocks.n_blocks and "segment_id" in grid.cell_data
     assert _blocks_grid(grid) is grid and _blocks_grid(None) is None
+
+
+def test_vmesh_skeleton_names_the_option_a_bad_value_came_from(tmp_path, capsys):
+    """Session 20: ``vmesh skeleton --spacing -1`` said ``step 2: filter
+    'resample_skeleton': parameter 'spacing' ...`` (the chain the command builds); it now
+    names ``--spacing``, exit status 2, nothing written."""
+    from pathlib import Path
+
+    skeleton = Path(__file__).resolve().parents[1] / "data_synthetic" / "y_bifurcation" / "skeleton.json"
+    out = tmp_path / "s.swc"
+    assert main(["skeleton", str(skeleton), "-o", str(out), "--no-png", "--spacing", "-1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("vmesh: error: --spacing -1: filter 'resample_skeleton': parameter 'spacing'"), err
+    assert not out.exists()
