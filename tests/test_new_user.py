@@ -175,3 +175,42 @@ def test_vmesh_info_diagnoses_every_file_and_fails_at_the_end(tmp_path, capsys):
     out, err = capsys.readouterr()
     assert out.startswith(f"{good}\n") and "triangles" in out
     assert err.splitlines() == [f"vmesh: error: {empty}: file is empty", f"vmesh: error: {tmp_path / 'missing.stl'}: file not found"]
+
+
+def test_an_override_value_is_checked_when_given():
+    """Session 20: ``with_overrides({"mesh_transfinite.refinement": "two"})`` was taken and
+    refused only by ``run``; the value is now checked against its parameter at once, and
+    "auto" still resets an automatic parameter."""
+    chain = FilterChain.load("default")
+    with pytest.raises(ParameterError, match=r"filter 'mesh_transfinite': parameter 'refinement' must be of type int, got str 'two'"):
+        chain.with_overrides({"mesh_transfinite.refinement": "two"})
+    with pytest.raises(ParameterError, match="below its minimum"):
+        chain.with_overrides({"mesh_transfinite.refinement": 0})
+    chain.with_overrides({"decimate_surface.target_faces": "auto", "mesh_transfinite.refinement": 2})
+
+
+def test_render_pictures_takes_the_chains_block_structure():
+    """Session 20: ``render_pictures(..., blocks=ctx.blocks)`` stopped on
+    ``'BlockStructure' object has no attribute 'n_cells'``: it wanted ``blocks.vtu`` read
+    with pyvista. A BlockStructure is now drawn from its own grid (same cells and arrays)."""
+    from cylinder_blocks import cylinder_blocks
+    from vmesh.render import _blocks_grid
+
+    blocks = cylinder_blocks()
+    grid = _blocks_grid(blocks)
+    assert grid.n_cells == blocks.n_blocks and "segment_id" in grid.cell_data
+    assert _blocks_grid(grid) is grid and _blocks_grid(None) is None
+
+
+def test_vmesh_skeleton_names_the_option_a_bad_value_came_from(tmp_path, capsys):
+    """Session 20: ``vmesh skeleton --spacing -1`` said ``step 2: filter
+    'resample_skeleton': parameter 'spacing' ...`` (the chain the command builds); it now
+    names ``--spacing``, exit status 2, nothing written."""
+    from pathlib import Path
+
+    skeleton = Path(__file__).resolve().parents[1] / "data_synthetic" / "y_bifurcation" / "skeleton.json"
+    out = tmp_path / "s.swc"
+    assert main(["skeleton", str(skeleton), "-o", str(out), "--no-png", "--spacing", "-1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("vmesh: error: --spacing -1: filter 'resample_skeleton': parameter 'spacing'"), err
+    assert not out.exists()

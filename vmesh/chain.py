@@ -150,7 +150,8 @@ class FilterChain:
                     f"override '{key}': filter '{fname}' is not in this chain"
                     + suggest(fname, [s.filter for s in chain.steps])
                 )
-            get_filter(fname).parameter(pname)  # unknown parameter: suggestion
+            # unknown parameter: suggestion; a value its parameter refuses fails here, not at run
+            get_filter(fname).parameter(pname).validate(value, f"filter '{fname}'")
             for s in matches:
                 s.params[pname] = value
         return chain

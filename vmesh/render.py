@@ -140,6 +140,14 @@ def _categorical(plotter, mesh, scalars, names: dict, **kw):
         plotter.add_legend(legend, bcolor="white", size=(width, 0.035 * min(len(legend), 10) + 0.01), face="rectangle", loc="lower left")
 
 
+def _blocks_grid(blocks):
+    """A chain's ``ctx.blocks`` (a BlockStructure) as the grid the pictures draw; a grid
+    (``blocks.vtu`` read with pyvista) or None as given."""
+    from .blocks import BlockStructure
+
+    return blocks.to_pyvista() if isinstance(blocks, BlockStructure) else blocks
+
+
 def render_pictures(out_dir, mesh, surface=None, skeleton=None, blocks=None, report=None, size=(1000, 750),
                     name: str = "") -> dict:
     """Render the run's pictures into ``out_dir`` (PNG files, each written atomically).
@@ -149,8 +157,8 @@ def render_pictures(out_dir, mesh, surface=None, skeleton=None, blocks=None, rep
     mesh : HexMesh
     surface : SurfaceMesh, optional
     skeleton : Skeleton, optional
-    blocks : pyvista.UnstructuredGrid, optional
-        The block structure (``blocks.vtu``) with ``segment_id``.
+    blocks : BlockStructure or pyvista.UnstructuredGrid, optional
+        The block structure (``ctx.blocks``, or ``blocks.vtu`` read with pyvista).
     report : dict, optional
         ``report.json``'s content (for titles).
 
@@ -181,6 +189,7 @@ def render_pictures(out_dir, mesh, surface=None, skeleton=None, blocks=None, rep
 
         render_skeleton_png(out_dir / "skeleton.png", skeleton, surface, size, 0.2, title=title)
         done["skeleton"] = out_dir / "skeleton.png"
+    blocks = _blocks_grid(blocks)
     if blocks is not None:
         with _Shot(out_dir / "blocks.png", size, frame, f"{blocks.n_cells} blocks") as p:
             if surf_pv is not None:

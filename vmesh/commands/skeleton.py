@@ -27,7 +27,7 @@ _SKELETON_ONLY = (".json", ".swc", ".csv")
 def add_arguments(p) -> None:
     p.add_argument("input", metavar="INPUT", help="vessel surface (stl, obj, ply, vtp, vtk, vtu, off), or a centerline file to convert")
     p.add_argument("-s", "--skeleton", metavar="FILE", help="centerline file (json, swc, csv, ply, vtp, vtk); extracted from the surface when absent")
-    p.add_argument("-o", "--out", metavar="FILE", help="write the skeleton here; the extension picks the format (json, swc, csv, ply, vtp, vtk)")
+    p.add_argument("-o", "--out", metavar="FILE", help="write the skeleton here; the extension picks the format (json, swc, csv, ply, vtp, vtk; a .vtp/.vtk holds one polyline per branch with a Radius point array, not VMTK's overlapping inlet-to-outlet lines)")
     p.add_argument("--png", metavar="FILE", help="render to this PNG (default: --out with the suffix .png)")
     p.add_argument("--no-png", action="store_true", help="do not render a PNG")
     p.add_argument("--vtk-kind", default="auto", choices=("auto", "vmtk", "simvascular", "polylines"), help="what a .vtp/.vtk centerline holds (default: auto)")
@@ -67,6 +67,30 @@ def _is_skeleton_file(path: Path) -> bool:
     return False
 
 
+#: the command's options that set a filter parameter: (option, attribute, filter, parameter)
+OPTION_PARAMETERS = (
+    ("--spacing", "spacing", "resample_skeleton", "spacing"),
+    ("--radius-change", "radius_change", "resample_skeleton", "radius_change"),
+    ("--sac-ratio", "sac_ratio", "tag_skeleton", "sac_ratio"),
+)
+
+
+def _check_options(args) -> None:
+    """Refuse an option's value its filter parameter refuses, naming the option (not the
+    chain step the command builds from it)."""
+    from ..errors import ParameterError
+    from ..registry import get_filter
+
+    for option, attr, fname, pname in OPTION_PARAMETERS:
+        value = getattr(args, attr, None)
+        if value is None or not _registered(fname):
+            continue
+        try:
+            get_filter(fname).parameter(pname).validate(value, f"filter '{fname}'")
+        except ParameterError as exc:
+            raise InputError(f"{option} {value:g}: {exc}") from None
+
+
 def build_chain(args, surface_open: bool, has_surface: bool, has_skeleton: bool, inlet_point=None):
     """The filter chain the command runs, from its options (the skeleton, when given, is
     read before the chain runs so that a bad file fails before any work).
@@ -78,6 +102,7 @@ def build_chain(args, surface_open: bool, has_surface: bool, has_skeleton: bool,
     """
     from ..chain import FilterChain
 
+    _check_options(args)
     chain = FilterChain(name="skeleton", description="vmesh skeleton command")
     if has_surface and _registered("repair_surface"):
         # as `vmesh run default`: weld, drop degenerate faces and stray pieces, orient

@@ -351,22 +351,35 @@ def label_elements(ctx, untagged):
         Parameter("histogram", "str", "quality_histogram.png", "File name of the histogram in the output folder ('' for none)."),
         Parameter("fail_on_invalid", "bool", True, "Fail when some element has a scaled Jacobian <= 0."),
         Parameter("bins", "int", 50, "Histogram bins.", min=5, max=500),
+        Parameter(
+            "jacobian_ratio_below",
+            "float",
+            0.2,
+            "Count the elements whose Jacobian ratio (min / max det J over the element's nodes: the taper the scaled Jacobian does not see; "
+            "0.2 is an edge about 5 times shorter than the one opposite) is below this, per block layer (report.json: quality.jacobian_ratio).",
+            min=0.0,
+            max=1.0,
+        ),
     ],
     reads=("mesh", "surface"),
     optional_reads=("blocks", "skeleton"),
-    writes=("quality", "mesh"),  # mesh: its scaled_jacobian cell array
+    writes=("quality", "mesh"),  # mesh: its scaled_jacobian and jacobian_ratio cell arrays
     category="quality",
 )
-def compute_quality(ctx, histogram, fail_on_invalid, bins):
+def compute_quality(ctx, histogram, fail_on_invalid, bins, jacobian_ratio_below=0.2):
     """For p > 1 an element's scaled Jacobian is the minimum over its nodes. The boundary
     distance is measured at the wall faces' nodes and centres, relative to the local radius."""
     from ..geometry.projection import wall_projector
-    from ..geometry.quality import quality_summary, scaled_jacobian
+    from ..geometry.quality import jacobian_ratio, jacobian_ratio_summary, quality_summary, scaled_jacobian
     from ..geometry.transfinite import reference_points
 
     mesh = ctx.mesh
-    sj = scaled_jacobian(mesh.points, mesh.cells, mesh.order, reference_points(mesh.order, mesh.node_distribution))
+    ref_nodes = reference_points(mesh.order, mesh.node_distribution)
+    sj = scaled_jacobian(mesh.points, mesh.cells, mesh.order, ref_nodes)
     mesh.cell_data["scaled_jacobian"] = sj
+    # taper, which the corner measure does not see (gmsh's minSJ does: docs/robustness.md, h20/fold)
+    ratio = jacobian_ratio(mesh.points, mesh.cells, mesh.order, ref_nodes)
+    mesh.cell_data["jacobian_ratio"] = ratio
     summary = quality_summary(sj)
     projector = wall_projector(ctx.surface)  # the whole surface's cached tree
     cuts = ctx.blocks.info.get("contact_cuts") if ctx.blocks is not None else None
@@ -375,8 +388,9 @@ def compute_quality(ctx, histogram, fail_on_invalid, bins):
 
         projector = with_cuts(ctx.sdf, projector, cuts)[1]
     dist = boundary_distance(mesh, ctx.surface, ctx.blocks, projector)
-    ctx.quality = {"scaled_jacobian": sj, "summary": summary, "boundary_distance": dist}
-    ctx.report.sections["quality"] = {"scaled_jacobian": summary}
+    ratios = jacobian_ratio_summary(ratio, mesh.cell_data.get("layer"), jacobian_ratio_below)
+    ctx.quality = {"scaled_jacobian": sj, "summary": summary, "boundary_distance": dist, "jacobian_ratio": ratio}
+    ctx.report.sections["quality"] = {"scaled_jacobian": summary, "jacobian_ratio": ratios}
     folds = wall_fold_share(sj, mesh.cell_data["block_id"], ctx.blocks.info.get("wall_fold_blocks")) if ctx.blocks is not None and "block_id" in mesh.cell_data else None
     if folds is not None:
         ctx.report.sections["quality"]["wall_fold_blocks"] = folds
