@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 
 from junction_cases import close_junctions
-from vmesh.errors import MeshingError
 from vmesh.geometry import cross_sections as cs
 from vmesh.geometry import skeleton_ops as ops
 from vmesh.geometry.block_builder import BlockOptions, build_blocks
@@ -49,14 +48,36 @@ def test_generated_vessel_has_a_dense_junction(gap, azimuth, elevation):
     assert np.all(case.distance(sk.points) > 0)
 
 
+@pytest.mark.parametrize("gap,azimuth,elevation", DENSE)
+def test_merged_dense_pair_stands_where_the_side_branch_leaves_the_link(gap, azimuth, elevation):
+    """``merge_junction_pair(own_lumen=True)`` on the dense pair: the side branch of the
+    first junction runs in one lumen with the link past the bifurcation, so the node it
+    leaves through (the first past the link's middle outside the link's lumen) projects onto
+    the link's far end: the merged 4-junction stands at the bifurcation, not at the link's
+    middle (h20/pair), and the side branch leaves it forward, outside the link's lumen."""
+    from vmesh.geometry.blocks.prep import merge_junction_pair
+
+    case = close_junctions(gap, side=(azimuth, elevation))
+    sk = _skeleton(case)
+    a, b = sorted(int(x) for x in sk.junctions)  # a: the side branch's junction at the origin
+    out, node = merge_junction_pair(sk, a, b, own_lumen=True)
+    assert out.degrees[node] == 4 and out.n_nodes < sk.n_nodes - 1  # fused side-branch nodes taken
+    np.testing.assert_allclose(out.points[node], sk.points[b], atol=1e-12)
+    first = out.points[out.neighbors(node)] - out.points[node]
+    side = first[np.argmax(np.linalg.norm(first[:, 1:], axis=1) / np.linalg.norm(first, axis=1) * (first[:, 2] > 0))]
+    # forward from the bifurcation, so its distance from the link's axis is that from its end: outside the lumen
+    assert side[0] > 0 and np.linalg.norm(side) >= sk.radii[b]
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("gap,azimuth,elevation", [pytest.param(*DENSE[0], marks=pytest.mark.xfail(strict=True, raises=MeshingError, reason="dense junction: blocks stay invalid (issue 17)")),
-                                                   DENSE[1]])
+@pytest.mark.parametrize("gap,azimuth,elevation", DENSE)
 def test_dense_junction_blocks_valid(gap, azimuth, elevation):
     """Since h16/pair the 0.6 gap builds: merged, the side branch leaves the 4-junction
     clear of the link (``merge_junction_pair``), not along it: its fused nodes past the
-    link's middle but inside the link's lumen go into the junction too (h19/pair); 1.0
-    still fails."""
+    link's middle but inside the link's lumen go into the junction too (h19/pair). Since
+    h20/pair the 1.0 gap builds too: the merged junction stands where the side branch
+    leaves the link (its first kept node projects onto the bifurcation's end of the link),
+    not at the link's middle, where the side branch's first blocks folded (-0.16)."""
     case = close_junctions(gap, side=(azimuth, elevation))
     blocks = build_blocks(_skeleton(case), case.distance, None, BlockOptions(), project=case.project)
     assert blocks.corner_jacobians().min() > 0

@@ -101,7 +101,10 @@ def merge_junction_pair(skeleton: Skeleton, a: int, b: int, own_lumen: bool = Fa
     nodes, so that its first segment follows its fused stretch (re-rooted at the end of the
     stretch, the segment cuts the stretch's outer side out of the blocks; through a node
     still inside the link's lumen, it leaves along the link again: docs/junctions.md,
-    h17/pair to h19/pair).
+    h17/pair to h19/pair). Where the fused siblings come from one end only and leave the
+    link past its other end (the node they leave through is nearest that end), the
+    merged junction stands at that other junction instead: their lumen parts from the
+    link where its branches do (the dense pair, h20/pair).
 
     Returns
     -------
@@ -117,16 +120,30 @@ def merge_junction_pair(skeleton: Skeleton, a: int, b: int, own_lumen: bool = Fa
     keep = min(a, b)
     group = np.arange(sk.n_nodes)
     group[np.asarray(path)] = keep
+    at = 0.5 * (sk.points[a] + sk.points[b])
     if own_lumen:
-        group[_fused_along_link(sk, paths, path, own_half=True)] = keep
+        runs = _fused_runs(sk, paths, path, own_half=True)
+        for nodes, _ in runs.values():
+            group[nodes] = keep
+        (end, (taken, beyond)), *others = runs.items() if runs else [(None, ([], False))]
+        if taken and beyond and not others:
+            # the fused siblings all come from one end and leave the link past its other end
+            # (they part from it where the other junction's branches do): the junction stands there
+            at = sk.points[b if end == a else a].copy()
     labels = np.unique(group)
     positions = sk.points[labels].copy()
-    positions[np.searchsorted(labels, keep)] = 0.5 * (sk.points[a] + sk.points[b])
+    positions[np.searchsorted(labels, keep)] = at
     merged = contract_nodes(sk, group, positions)
     return merged, int(np.searchsorted(labels, keep))
 
 
 def _fused_along_link(sk: Skeleton, paths: list, link: np.ndarray, own_half: bool = False) -> np.ndarray:
+    """All the nodes of :func:`_fused_runs`."""
+    runs = _fused_runs(sk, paths, link, own_half)
+    return np.asarray([n for nodes, _ in runs.values() for n in nodes], np.int64)
+
+
+def _fused_runs(sk: Skeleton, paths: list, link: np.ndarray, own_half: bool = False) -> dict:
     """Nodes of the link's sibling branches that lie in one lumen with the link past its middle.
 
     Two 3-junctions closer than their half-sections reach fail where, at one of them, a
@@ -139,13 +156,20 @@ def _fused_along_link(sk: Skeleton, paths: list, link: np.ndarray, own_half: boo
     With ``own_half``, the run ends before its first node that lies past the middle
     (projected onto the link) with its axis outside the link's lumen (at least the link's
     radius from its axis); without such a node, the whole run.
+
+    Returns
+    -------
+    dict
+        The link's end node -> (the fused nodes of its siblings, whether one of them leaves
+        through a node whose nearest point on the link is the link's other end, i.e. it
+        runs fused past the other junction); ends without a fused sibling left out.
     """
     P = sk.points[link]
     seg = P[1:] - P[:-1]
     seg_len = np.linalg.norm(seg, axis=1)
     arc = np.r_[0.0, np.cumsum(seg_len)]
     ends = {int(link[0]): 0.0, int(link[-1]): arc[-1]}
-    out = []
+    out: dict = {}
     for p in paths:
         if p is link or len(p) < 3:
             continue
@@ -170,8 +194,11 @@ def _fused_along_link(sk: Skeleton, paths: list, link: np.ndarray, own_half: boo
                 # outside the link's lumen (where its own lumen goes on); one inside the
                 # lumen would make it leave along the link again (the dense pair)
                 outside = (along > 0.5 * arc[-1]) & (d[rows[:run], k[:run]] >= r_link[:run])
-                out.extend(nodes[:int(np.argmax(outside)) if own_half and outside.any() else run].tolist())
-    return np.asarray(out, np.int64)
+                cut = int(np.argmax(outside)) if own_half and outside.any() else run
+                taken, beyond = out.get(end, ([], False))
+                past = cut < run and np.isclose(along[cut], arc[-1], rtol=1e-9, atol=0.0)
+                out[end] = (taken + nodes[:cut].tolist(), bool(beyond or past))
+    return out
 
 
 #: how far (× local radius) the wall may stand from the blocks around a merged pair: the
