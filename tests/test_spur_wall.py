@@ -258,3 +258,26 @@ def test_only_the_candidates_a_hold_can_change_are_judged_again_with_the_same_he
     assert held.tolist() == [True, False, True, False, True, True, False, False, False], held
     assert len(calls) < sum(len(spurs) - n for n in range(held.sum() + 1))  # before: every open candidate after each hold
 
+
+@pytest.mark.parametrize("outside_junction", [True, False])
+def test_a_stubs_end_is_trimmed_back_to_its_parent_only_without_spur_wall(outside_junction):
+    """``_trim_end`` measures a terminal branch's tail outside its junction's ball only with
+    ``spur_wall`` (extract_skeleton passes it to place_ends): false is session 19's trim,
+    which takes the stub's branch (its radii below the parent's) for a tail."""
+    from vmesh.geometry.skeleton.branch_graph import BranchGraph
+    from vmesh.geometry.skeleton.ends import _trim_end
+
+    graph = BranchGraph()
+    a, j, b = graph.add_node([-3.0, 0, 0], R), graph.add_node([0.0, 0, 0], R), graph.add_node([3.0, 0, 0], R)
+    for p, q in ((a, j), (j, b)):
+        x = np.arange(graph.pos(p)[0] + 0.1, graph.pos(q)[0] - 0.05, 0.1)
+        graph.add_branch(p, q, np.c_[x, np.zeros((len(x), 2))], np.full(len(x), R))
+    y = np.arange(0.1, 1.45, 0.1)  # a stub of radius STUB standing two of its radii out
+    r = np.maximum(R - y, STUB)
+    tip = graph.add_node([0, y[-1], 0], r[-1])
+    graph.add_branch(j, tip, np.c_[0 * y[:-1], y[:-1], 0 * y[:-1]], r[:-1])
+    _, r_ref = _trim_end(graph, tip, 0.1, outside_junction)
+    if outside_junction:
+        assert graph.pos(tip)[1] > R and r_ref == pytest.approx(STUB)
+    else:
+        assert graph.pos(tip)[1] < 0.5 * R and r_ref > 1.2 * STUB  # cut back inside its parent
