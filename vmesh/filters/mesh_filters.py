@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import MeshingError
+from ..geometry.coverage import DEPTH, DISTANCE, END_DEPTH, PATCH_AREA
 from ..registry import Parameter, register_filter
 
 
@@ -475,10 +476,10 @@ def _on_cuts(mesh, wall, face) -> dict:
 @register_filter(
     description="Check that the mesh covers the vessel: share of the input wall farther than a tenth of a radius from the mesh, volume ratio, wall-node distances; fail naming a missing branch or cap.",
     parameters=[
-        Parameter("distance", "float", 0.1, "Input wall farther than this from the mesh boundary counts as uncovered.", unit="× radius", min=0.001, max=10.0),
-        Parameter("patch_area", "float", 1.0, "A connected uncovered patch larger than this many local cross-sections (π r²) ...", unit="× π r²", min=0.0),
-        Parameter("depth", "float", 0.3, "... that reaches farther than this from the mesh is a missing part of the vessel (facet sag stays below it).", unit="× radius", min=0.0),
-        Parameter("end_depth", "float", 1.5, "Depth allowed to a patch beyond one of the mesh's end faces (a rounded closed end past the last cross-section).", unit="× radius", min=0.0),
+        Parameter("distance", "float", DISTANCE, "Input wall farther than this from the mesh boundary counts as uncovered.", unit="× radius", min=0.001, max=10.0),
+        Parameter("patch_area", "float", PATCH_AREA, "A connected uncovered patch larger than this many local cross-sections (π r²) ...", unit="× π r²", min=0.0),
+        Parameter("depth", "float", DEPTH, "... that reaches farther than this from the mesh is a missing part of the vessel (facet sag stays below it).", unit="× radius", min=0.0),
+        Parameter("end_depth", "float", END_DEPTH, "Depth allowed to a patch beyond one of the mesh's end faces (a rounded closed end past the last cross-section).", unit="× radius", min=0.0),
         Parameter("fail_on_missing", "bool", True, "Fail when part of the vessel is missing from the mesh (false: a warning)."),
         Parameter("voxel_tolerance", "bool", True, "On a voxel (staircase) input surface, add half its measured voxel step to distance: the wall is known only to that."),
         Parameter("own_radius", "bool", True, "Judge an uncovered patch by its own radius (half its chord across the surface) where that is smaller than the skeleton's: a side vessel the skeleton never entered; false: the skeleton's radius alone."),

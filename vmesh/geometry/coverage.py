@@ -35,7 +35,8 @@ import numpy as np
 
 #: Patches reported in full (the largest first); the rest are only counted.
 MAX_PATCHES = 10
-# check_coverage's defaults, shared with the extraction's spur rule (skeleton.spur_wall)
+#: check_coverage's defaults (its filter's registration), with which the extraction's spur
+#: rule judges (skeleton.spur_wall; not the chain's check_coverage settings)
 DISTANCE, PATCH_AREA, DEPTH, END_DEPTH = 0.1, 1.0, 0.3, 1.5
 #: Edges exactly along each grid axis a voxel surface must have to count as one.
 VOXEL_EDGES = 8

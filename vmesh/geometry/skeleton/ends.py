@@ -187,7 +187,7 @@ def _match_caps(ends: np.ndarray, end_radii: np.ndarray, caps, tangents: np.ndar
 
 
 
-def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, end_depth: float = 0.5) -> dict:
+def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, end_depth: float = 0.5, outside_junction: bool = True) -> dict:
     """Move every end of the skeleton to where the vessel ends.
 
     * With ``caps`` (objects with ``center``, ``normal``, ``radius``): each end is
@@ -206,6 +206,9 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
       ends where the inscribed radius has dropped to ``end_depth`` x the radius at
       the medial end.
 
+    A terminal branch's wall-ward tail is cut first (:func:`_trim_end`; ``outside_junction``:
+    measured outside its junction's ball, as the extraction does with ``spur_wall``).
+
     Returns the number of ends of each kind (``cap``, ``flat``, ``rounded``, ``added``)
     and, when some cap could not be reached, the list ``unreached`` of their indices;
     caps that need an end (``needs_end``: flat regions that may be facets of the wall) that
@@ -214,7 +217,7 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
     """
     counts = {"cap": 0, "flat": 0, "rounded": 0, "added": 0}
     ends = [n for n in graph.graph.nodes if graph.degree(n) == 1]
-    info = [(node, *_trim_end(graph, node, spacing)) for node in ends]
+    info = [(node, *_trim_end(graph, node, spacing, outside_junction)) for node in ends]
     caps = list(caps or [])
     matched = {}
     if caps and ends:
@@ -248,7 +251,7 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
 
 
 
-def _trim_end(graph: BranchGraph, node: int, spacing: float) -> tuple[np.ndarray, float]:
+def _trim_end(graph: BranchGraph, node: int, spacing: float, outside_junction: bool = True) -> tuple[np.ndarray, float]:
     """Cut the wall-ward tail off a terminal branch and return its end tangent and radius.
 
     Near a flat end the medial axis fans out into a cone towards the rim, and the
@@ -257,7 +260,8 @@ def _trim_end(graph: BranchGraph, node: int, spacing: float) -> tuple[np.ndarray
     remains ends on the vessel axis, about a radius before the end face. Only the part
     of the branch outside its junction's inscribed ball is the end's: a short side stub's
     branch starts on its wider parent's axis, and the parent's radius there is no radius
-    of the stub (measured with it, the whole stub was taken for a tail and cut off).
+    of the stub (measured with it, the whole stub was taken for a tail and cut off); with
+    ``outside_junction`` false the whole window is measured (session 19's extraction).
     """
     (u, v, k), = list(graph.graph.edges(node, keys=True))
     other = graph.other(u, v, node)
@@ -266,7 +270,7 @@ def _trim_end(graph: BranchGraph, node: int, spacing: float) -> tuple[np.ndarray
     from_end = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]])
     window = min(float(from_end[0]), 2.0 * float(np.median(rad)) + 2 * spacing)
     tail = np.flatnonzero(from_end <= window)
-    if graph.degree(other) >= 3:
+    if outside_junction and graph.degree(other) >= 3:
         own = tail[np.linalg.norm(pts[tail] - pts[0], axis=1) > rad[0]]
         tail = own if len(own) else tail
     r_ref = float(rad[tail].max())

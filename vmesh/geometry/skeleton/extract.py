@@ -166,7 +166,8 @@ def clean_branch_graph(
     ``caps``) is a vessel's end, not a spur, and stays (:func:`~.ends.spurs_at_flat_ends`),
     and a side sac the cleaned path runs through is split off it as a branch
     (:func:`~.sacs.split_side_sacs`; counted as ``side_sacs``). With ``wall`` (the
-    surface's triangle centroids and areas, :func:`~.spur_wall.surface_samples`), a
+    surface's triangle centroids and areas, :func:`~.spur_wall.surface_samples`, or their
+    :class:`~.spur_wall.Wall`), a
     candidate that alone explains wall the coverage verdict would call missing stays too
     (:func:`~.spur_wall.spurs_explaining_wall`: a side stub).
     """
@@ -180,7 +181,7 @@ def clean_branch_graph(
             for i, flat in zip(todo, spurs_at_flat_ends(graph, sdf, spacing, [spurs[i] for i in todo], list(caps or ()))):
                 seen[key[i]] = bool(flat)
             held = np.array([seen[k] for k in key], bool)
-            if wall is not None:  # judged against the whole round's rest: no cache
+            if wall is not None:  # judged against the whole round's rest, the wall's tree built once
                 held |= spur_wall.spurs_explaining_wall(graph, wall, spurs, spacing)
             return held
 
@@ -261,12 +262,13 @@ def extract_skeleton(
         if expected_cycles is None and surface is not None:
             expected_cycles = surface_genus(*surface)
         stats["expected_cycles"] = expected_cycles
-        wall = spur_wall.surface_samples(*surface, caps) if surface is not None and settings.spur_wall else None
+        wall = spur_wall.Wall(spur_wall.surface_samples(*surface, caps)) if surface is not None and settings.spur_wall else None
         stats.update(clean_branch_graph(graph, settings, expected_cycles, sdf, spacing, caps, wall))
         stats["centred_junctions"] = graph.center_junctions(sdf, spacing)
     with _timed(timings, "ends"):
         tick(0.85, "placing the ends")
-        stats["ends"] = place_ends(graph, sdf, spacing, caps=caps, end_depth=settings.end_depth)
+        # spur_wall=false: session 19's extraction, the tail measured over the whole window
+        stats["ends"] = place_ends(graph, sdf, spacing, caps=caps, end_depth=settings.end_depth, outside_junction=settings.spur_wall)
     with _timed(timings, "resample"):
         tick(0.9, "resampling and centring the branches")
         skeleton = resample_branches(

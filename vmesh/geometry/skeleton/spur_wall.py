@@ -66,28 +66,16 @@ def _balls(graph, spurs):
     return np.concatenate(centres), np.concatenate(radii), np.concatenate(owner)
 
 
-def _free_ends(graph, spurs, span: float = 2.0):
-    """The rest's free ends: nodes left with one branch once the candidates are gone.
-    Returns their positions, radii and outward tangents (from ``span`` radii back along
-    the branch)."""
-    lost = {}
-    for _, _, _, tip, base in spurs:
-        lost[tip] = lost.get(tip, 0) + 1
-        lost[base] = lost.get(base, 0) + 1
-    cand = {(u, v, k) for u, v, k, _, _ in spurs} | {(v, u, k) for u, v, k, _, _ in spurs}
-    ends, radii, tangents = [], [], []
-    for node, n_lost in lost.items():
-        if graph.degree(node) - n_lost != 1:
-            continue
-        u, v, k = next(e for e in graph.graph.edges(node, keys=True) if e not in cand)
-        pts, rad = graph.polyline(u, v, k, start=node)
-        s = np.cumsum(np.r_[0.0, np.linalg.norm(np.diff(pts, axis=0), axis=1)])
-        back = pts[min(int(np.searchsorted(s, span * rad[0])), len(pts) - 1)]
-        t = pts[0] - back
-        ends.append(pts[0])
-        radii.append(rad[0])
-        tangents.append(t / max(np.linalg.norm(t), 1e-300))
-    return np.reshape(ends, (-1, 3)), np.asarray(radii, float), np.reshape(tangents, (-1, 3))
+class Wall:
+    """The wall the rule judges (not its caps) and its point tree, built once per extraction
+    (:func:`~.extract.clean_branch_graph` judges every pruning pass against it)."""
+
+    def __init__(self, wall):
+        points, area, on_cap = wall if len(wall) == 3 else (*wall, np.zeros(len(wall[0]), bool))
+        from scipy.spatial import cKDTree
+
+        self.points, self.area, self.caps = points[~on_cap], area[~on_cap], points[on_cap]
+        self.tree = cKDTree(self.points)
 
 
 def spurs_explaining_wall(
@@ -98,13 +86,14 @@ def spurs_explaining_wall(
 
     The candidates are held one at a time, the one leaving the largest missing part first,
     and a held candidate joins the rest: two candidates along one stub (or one vessel's
-    end) explain the same wall, and the second is then explained by the first.
+    end) explain the same wall, and the second is then explained by the first. After a
+    hold only the candidates it can change are judged again (:class:`_Judge`).
 
     Parameters
     ----------
     graph : BranchGraph
-    wall : (centroids (m, 3), areas (m,))
-        The surface's triangles (:func:`surface_samples`).
+    wall : (centroids (m, 3), areas (m,)[, on a cap (m,)]) or Wall
+        The surface's triangles (:func:`surface_samples`), or their :class:`Wall`.
     spurs : list of (u, v, key, tip, base)
         The candidates of one pruning round.
     spacing : float
@@ -114,9 +103,9 @@ def spurs_explaining_wall(
         ``check_coverage``'s: a wall point farther than ``distance`` local radii (plus
         ``spacing``) outside the rest's balls is unexplained; a candidate's unexplained
         wall is a missing part when it spans more than ``patch_area`` cross-sections and
-        reaches deeper than ``depth`` radii (``end_depth`` past a free end of the rest),
-        the radius its own where it stands out by at least that (the candidate's balls
-        outside the rest's, median).
+        reaches deeper than ``depth`` radii (``end_depth`` past a free end of the rest,
+        within ``1 + end_depth`` of its radii), the radius its own where it stands out by
+        at least that (the candidate's balls outside the rest's, median).
     k : int
         Balls looked at per wall point (the nearest centres).
     details : list, optional
@@ -127,23 +116,20 @@ def spurs_explaining_wall(
     numpy.ndarray of bool
         One per candidate: True where pruning it would leave wall unexplained.
     """
-    from scipy.spatial import cKDTree
-
+    wall = wall if isinstance(wall, Wall) else Wall(wall)
     held = np.zeros(len(spurs), bool)
-    points, area, on_cap = wall if len(wall) == 3 else (*wall, np.zeros(len(wall[0]), bool))
-    wall = (points[~on_cap], area[~on_cap])
     found = [{"tip": graph.pos(s[3]).round(3).tolist(), "junction": graph.pos(s[4]).round(3).tolist(),
               "junction_r": graph.radius(s[4]), "length": graph.length(*s[:3]), "held": False} for s in spurs]
     if spurs:
-        wall_tree = cKDTree(wall[0])
         # a candidate whose balls reach a cap is an open end: place_ends gives every cap its
         # end (matched or attached), and a branch held there besides can leave the builder
         # two branches into one short stub (as spurs_at_flat_ends leaves caps out)
-        at_cap = _reaches(graph, spurs, points[on_cap], spacing, distance)
-        held[at_cap] = True  # out of the running; cleared below
+        at_cap = _reaches(graph, spurs, wall.caps, spacing, distance)
+        held[at_cap] = True  # out of the running (in the rest); cleared below
+        judge = _Judge(graph, wall, spurs, np.flatnonzero(~held), spacing, distance, end_depth, k) if not held.all() else None
         while not held.all():
             open_ = np.flatnonzero(~held)
-            parts = _unexplained(graph, wall, wall_tree, [spurs[i] for i in open_], spacing, distance, k)
+            parts = [judge.parts[i] for i in open_]
             area, deep, rest_r, own_r, at_end = (np.array([p[key] for p in parts]) for key in ("area", "depth", "rest_r", "own_r", "at_end"))
             missing, sections, depth_rel, _ = judge_patches(area, deep, rest_r, own_r, at_end, patch_area, depth, end_depth)
             # a side vessel: judged by its own radius, narrower than the rest where it leaves
@@ -157,6 +143,7 @@ def spurs_explaining_wall(
                 break
             i = open_[np.argmax(np.where(side, area, -1.0))]
             held[i] = found[i]["held"] = True
+            judge.hold(i, np.flatnonzero(~held))
         held[at_cap] = False
         for i in np.flatnonzero(at_cap):
             found[i]["at_cap"] = True
@@ -178,48 +165,141 @@ def _reaches(graph, spurs, points, spacing, distance) -> np.ndarray:
     return np.bincount(owner[mine][inside], minlength=len(spurs)) > 0
 
 
-def _unexplained(graph, wall, wall_tree, spurs, spacing, distance, k) -> list[dict]:
-    """Per candidate, the wall it explains that the rest (the graph without ``spurs``) does
-    not: its area, its deepest point's distance outside the rest's balls and the rest's
-    radius there, whether it lies past a free end of the rest, and the candidate's own
-    radius (its balls outside the rest's, median; ``inf`` where none)."""
-    from scipy.spatial import cKDTree
+class _Judge:
+    """Per open candidate, the wall it explains that the rest (the graph without the open
+    candidates) does not (:meth:`judge`), kept up to date as candidates are held.
 
-    points, area = wall
-    centres, radii, owner = _balls(graph, spurs)
-    mine = owner >= 0
-    rest_tree, rest_r = cKDTree(centres[~mine]), radii[~mine]
-    kk = min(k, len(rest_r))
+    A hold adds the held branch's balls to the rest and changes the rest's free ends only at
+    its two nodes. A candidate's part depends on the rest only through the ``k`` nearest
+    rest centres of its points (its wall and its own centres) and the free ends near its
+    wall: it is judged again only when a centre of the held branch comes within its points'
+    ``k``-th nearest distance, or a free end that came or went lies within reach of its wall.
+    The rest's tree is built once; the held branches' centres have a tree of their own.
+    """
 
-    def outside_rest(x):
-        d, j = rest_tree.query(x, k=kk)
-        d, j = d.reshape(len(x), -1), j.reshape(len(x), -1)
-        best = np.argmin(d - rest_r[j], axis=1)
-        rows = np.arange(len(x))
-        return d[rows, best] - rest_r[j[rows, best]], rest_r[j[rows, best]]
+    def __init__(self, graph, wall, spurs, open_, spacing, distance, end_depth, k):
+        from scipy.spatial import cKDTree
 
-    # the wall each candidate explains: within its balls up to the tolerance
-    hits = wall_tree.query_ball_point(centres[mine], radii[mine] * (1.0 + distance) + spacing)
-    sample_of = owner[mine]
-    ends, end_r, end_t = _free_ends(graph, spurs)
-    parts = []
-    for i in range(len(spurs)):
-        part = {"area": 0.0, "depth": 0.0, "rest_r": 1.0, "own_r": np.inf, "at_end": False}
-        parts.append(part)
-        near = np.unique(np.concatenate([np.asarray(h, np.int64) for h in hits[sample_of == i]] + [np.zeros(0, np.int64)]))
+        self.graph, self.wall, self.spurs = graph, wall, spurs
+        self.spacing, self.distance, self.end_depth, self.k = spacing, distance, end_depth, k
+        centres, radii, owner = _balls(graph, [spurs[i] for i in open_])
+        mine = owner >= 0
+        self.rest = [cKDTree(centres[~mine]), radii[~mine], None, np.zeros(0), np.zeros((0, 3))]
+        hits = wall.tree.query_ball_point(centres[mine], radii[mine] * (1.0 + distance) + spacing)
+        of = owner[mine]
+        self.balls = {}  # per candidate: the wall near its balls, its own centres and radii
+        for n, i in enumerate(open_):
+            near = np.unique(np.concatenate([np.asarray(h, np.int64) for h in hits[of == n]] + [np.zeros(0, np.int64)]))
+            self.balls[i] = (near, centres[mine][of == n], radii[mine][of == n])
+        self.lost = {}
+        for i in open_:
+            for node in spurs[i][3:]:
+                self.lost[node] = self.lost.get(node, 0) + 1
+        self.cand = {e for i in open_ for e in (spurs[i][:3], (spurs[i][1], spurs[i][0], spurs[i][2]))}
+        self.ends = {node: end for node in self.lost if (end := self._free_end(node)) is not None}
+        self.end_arrays = None  # the free ends' positions, radii and tangents, when asked for
+        self.parts, self.probe = {}, {}
+        for i in open_:
+            self.judge(i)
+
+    def _free_end(self, node, span: float = 2.0):
+        """The rest's free end at ``node``, a node of an open candidate left with one branch
+        (its position, radius and outward tangent, from ``span`` radii back along that branch),
+        or None. A held candidate's tip is none (the rule's free ends are the junctions the
+        open candidates leave)."""
+        graph, lost = self.graph, self.lost.get(node, 0)
+        if lost == 0 or graph.degree(node) - lost != 1:
+            return None
+        u, v, k = next(e for e in graph.graph.edges(node, keys=True) if e not in self.cand)
+        pts, rad = graph.polyline(u, v, k, start=node)
+        s = np.cumsum(np.r_[0.0, np.linalg.norm(np.diff(pts, axis=0), axis=1)])
+        t = pts[0] - pts[min(int(np.searchsorted(s, span * rad[0])), len(pts) - 1)]
+        return pts[0], rad[0], t / max(np.linalg.norm(t), 1e-300)
+
+    def outside_rest(self, x):
+        """How far points lie outside the rest's balls (the best of their ``k`` nearest
+        centres), that ball's radius, and the ``k``-th nearest centre's distance."""
+        tree, rest_r, held_tree, held_r, _ = self.rest
+        d, r = [np.zeros((len(x), 0))], [np.zeros((len(x), 0))]
+        for t, rr in ((tree, rest_r), (held_tree, held_r)):
+            if t is not None and len(rr):
+                dd, j = t.query(x, k=min(self.k, len(rr)))
+                d.append(dd.reshape(len(x), -1))
+                r.append(rr[j.reshape(len(x), -1)])
+        d, r = np.hstack(d), np.hstack(r)
+        kk = min(self.k, d.shape[1])
+        order = np.argsort(d, axis=1, kind="stable")[:, :kk]
+        d, r = np.take_along_axis(d, order, 1), np.take_along_axis(r, order, 1)
+        rows, best = np.arange(len(x)), np.argmin(d - r, axis=1)
+        kth = d[:, -1] if kk == self.k else np.full(len(x), np.inf)
+        return d[rows, best] - r[rows, best], r[rows, best], kth
+
+    def judge(self, i) -> None:
+        """Candidate ``i``'s part: the area of the wall it alone explains, its deepest point's
+        distance outside the rest's balls and the rest's radius there, whether it lies past a
+        free end of the rest, and its own radius (its balls outside the rest's, median)."""
+        points, area = self.wall.points, self.wall.area
+        near, own_c, own_r = self.balls[i]
+        part = self.parts[i] = {"area": 0.0, "depth": 0.0, "rest_r": 1.0, "own_r": np.inf, "at_end": False}
+        x = np.concatenate([points[near], own_c])
         if len(near) == 0:
-            continue
-        excess, r_local = outside_rest(points[near])
-        out = excess > distance * r_local + spacing
+            self.probe.pop(i, None)  # nothing the rest can change
+            return
+        all_excess, all_r, kth = self.outside_rest(x)
+        mid = x.mean(axis=0)  # and a ball around them, for the quick test
+        self.probe[i] = (x, kth, mid, float(np.linalg.norm(x - mid, axis=1).max()) + kth.max())
+        excess, r_local = all_excess[: len(near)], all_r[: len(near)]
+        out = excess > self.distance * r_local + self.spacing
         if not out.any():
-            continue
+            return
         sel, deep = near[out], int(np.argmax(excess[out]))
         # past a free end of the rest: where place_ends extends the vessel (a flat end's rim)
-        rel = points[sel][:, None, :] - ends[None]
-        along = np.einsum("pej,ej->pe", rel, end_t)
-        past = ((along > 0) & (np.linalg.norm(rel, axis=2) < (1.0 + END_DEPTH) * end_r[None])).any(axis=1)
-        own_excess, _ = outside_rest(centres[mine][sample_of == i])
-        own = radii[mine][sample_of == i][own_excess > 0]
+        if self.end_arrays is None:
+            ends = list(self.ends.values())
+            self.end_arrays = (np.reshape([e[0] for e in ends], (-1, 3)), np.array([e[1] for e in ends], float), np.reshape([e[2] for e in ends], (-1, 3)))
+        e_pos, e_r, e_t = self.end_arrays
+        mid, size = self.probe[i][2:]
+        close = np.linalg.norm(e_pos - mid, axis=1) <= size + (1.0 + self.end_depth) * e_r  # the others are out of reach
+        e_pos, e_r, e_t = e_pos[close], e_r[close], e_t[close]
+        past = np.zeros(len(sel), bool)
+        if len(e_r):
+            rel = points[sel][:, None, :] - e_pos[None]
+            along = np.einsum("pej,ej->pe", rel, e_t)
+            past = ((along > 0) & (np.linalg.norm(rel, axis=2) < (1.0 + self.end_depth) * e_r[None])).any(axis=1)
+        own = own_r[all_excess[len(near):] > 0]
         part.update(area=float(area[sel].sum()), depth=float(excess[out][deep]), rest_r=float(r_local[out][deep]),
                     own_r=float(np.median(own)) if len(own) else np.inf, at_end=bool(area[sel][past].sum() > 0.5 * area[sel].sum()))
-    return parts
+
+    def hold(self, h, open_) -> None:
+        """Candidate ``h`` joins the rest; judge again the ``open_`` candidates it can change."""
+        from scipy.spatial import cKDTree
+
+        u, v, key, tip, base = self.spurs[h]
+        pts, rad = self.graph.polyline(u, v, key)
+        tree, rest_r, _, held_r, held_c = self.rest
+        held_c, held_r = np.vstack([held_c, pts]), np.r_[held_r, rad]
+        self.rest = [tree, rest_r, cKDTree(held_c), held_r, held_c]
+        self.cand -= {(u, v, key), (v, u, key)}
+        changed = []
+        for node in (tip, base):
+            self.lost[node] -= 1
+            before, after = self.ends.pop(node, None), self._free_end(node)
+            if after is not None:
+                self.ends[node] = after
+            if (before is None) != (after is None):
+                changed.append(before if before is not None else after)
+                self.end_arrays = None
+        new_tree, centre = cKDTree(pts), pts.mean(axis=0)
+        reach = float(np.linalg.norm(pts - centre, axis=1).max())
+        todo = [i for i in open_ if i in self.probe]
+        if not todo:
+            return
+        mid = np.array([self.probe[i][2] for i in todo])
+        size = np.array([self.probe[i][3] for i in todo])  # plus the k-th nearest distance
+        near_h = np.linalg.norm(mid - centre, axis=1) <= size + reach
+        for e in changed:  # a free end that came or went: the wall within its reach
+            near_h |= np.linalg.norm(mid - e[0], axis=1) <= size + (1.0 + self.end_depth) * e[1]
+        for i in np.asarray(todo)[near_h]:
+            x, kth = self.probe[i][:2]
+            if changed or (new_tree.query(x)[0] <= kth).any():
+                self.judge(i)
