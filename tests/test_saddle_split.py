@@ -104,11 +104,16 @@ def test_acute_bifurcation_fills_without_folds_once_split():
     from junction_cases import bifurcation
     from vmesh.geometry import skeleton_ops as ops
     from vmesh.geometry.block_builder import BlockOptions, build_blocks
+    from vmesh.geometry.blocks.checks import projected_wall_quality
 
     case = bifurcation(30, 2)
     sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
     blocks = build_blocks(sk, case.distance, None, BlockOptions(saddle_split=0.5), project=case.project)
     assert any(f.startswith("split the first blocks") for f in blocks.info["fixes"])
     assert blocks.corner_jacobians().min() > 0
+    # the wall-fold record is of the split blocks (-0.0554; the unsplit ones' -0.0625)
+    q = projected_wall_quality(blocks, case.project)
+    assert blocks.info["min_projected_wall_quality"] == round(float(q.min()), 4)
+    assert blocks.info["wall_fold_blocks"] == np.flatnonzero(q <= 0).tolist()
     sj = fill(case, blocks, DEFAULT)
     assert sj.min() > 0  # main folds 4 elements at this crotch (tests/test_junctions.py KNOWN_FOLDS)
