@@ -81,3 +81,29 @@ def test_dense_junction_blocks_valid(gap, azimuth, elevation):
     case = close_junctions(gap, side=(azimuth, elevation))
     blocks = build_blocks(_skeleton(case), case.distance, None, BlockOptions(), project=case.project)
     assert blocks.corner_jacobians().min() > 0
+
+
+def test_merged_pair_stays_at_the_middle_when_one_fused_sibling_leaves_mid_link():
+    """Two siblings from one end run fused with the link past its middle; one leaves past
+    the other junction, the other mid-link: the merged junction stays at the link's middle
+    (moved to the other end, the second sibling would leave it backwards). With the first
+    one alone it stands at the other end (h20/pair)."""
+    from vmesh.geometry.blocks.prep import merge_junction_pair
+    from vmesh.skeleton import Skeleton
+
+    def skeleton(siblings):
+        pts, radii, edges = [[0.0, 0, 0], [1.0, 0, 0], [2.0, 0, 0]], [1.0, 1.0, 1.0], [(0, 1), (1, 2)]  # link a=0 .. b=2
+        for start, chain, r in [(0, [[-1.0, 0, 0], [-2.0, 0, 0]], 1.0), (2, [[3.0, 0.5, 0], [4.0, 1.0, 0]], 0.7), (2, [[3.0, -0.5, 0], [4.0, -1.0, 0]], 0.7)] + siblings:
+            prev = start
+            for q in chain:
+                pts.append(q)
+                radii.append(r)
+                edges.append((prev, len(pts) - 1))
+                prev = len(pts) - 1
+        return Skeleton(np.asarray(pts), np.asarray(radii), np.asarray(edges))
+
+    past = (0, [[1.0, 0.5, 0], [2.5, 1.2, 0], [4.0, 3.0, 0], [5.0, 4.0, 0]], 0.5)  # leaves through (2.5, 1.2): nearest b
+    mid = (0, [[0.7, -0.4, 0], [1.5, -1.2, 0], [2.5, -2.5, 0], [3.0, -3.5, 0]], 0.5)  # leaves through (1.5, -1.2): mid-link
+    for siblings, at in (([past], [2.0, 0, 0]), ([past, mid], [1.0, 0, 0]), ([mid, past], [1.0, 0, 0])):
+        out, node = merge_junction_pair(skeleton(siblings), 0, 2, own_lumen=True)
+        np.testing.assert_allclose(out.points[node], at, atol=1e-12)

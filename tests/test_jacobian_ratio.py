@@ -6,21 +6,25 @@ import json
 import numpy as np
 import pytest
 
-from vmesh.geometry.quality import jacobian_ratio, jacobian_ratio_summary, scaled_jacobian
+from vmesh.geometry.quality import jacobian_quality, jacobian_ratio, jacobian_ratio_summary, scaled_jacobian
 
 # unit cube corners in tensor order (corner i + 2 j + 4 k)
 CUBE = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], float)
 
 
-def _ratio(corners, order=1):
-    if order == 1:
-        return jacobian_ratio(corners, np.arange(8)[None])[0], scaled_jacobian(corners, np.arange(8)[None])[0]
-    # the trilinear element's nodes at order p (tensor order, i fastest)
+def _nodes(corners, order):
+    """The trilinear element's nodes at order p (tensor order, i fastest)."""
     t = np.linspace(0, 1, order + 1)
     w, v, u = np.meshgrid(t, t, t, indexing="ij")
     u, v, w = u.ravel(), v.ravel(), w.ravel()
     shape = np.stack([(1 - u if i == 0 else u) * (1 - v if j == 0 else v) * (1 - w if k == 0 else w) for k in (0, 1) for j in (0, 1) for i in (0, 1)], axis=1)
-    pts = shape @ corners
+    return shape @ corners
+
+
+def _ratio(corners, order=1):
+    if order == 1:
+        return jacobian_ratio(corners, np.arange(8)[None])[0], scaled_jacobian(corners, np.arange(8)[None])[0]
+    pts = _nodes(corners, order)
     cells = np.arange(len(pts))[None]
     return jacobian_ratio(pts, cells, order)[0], scaled_jacobian(pts, cells, order)[0]
 
@@ -51,6 +55,25 @@ def test_inverted_element_has_ratio_at_most_zero():
     r, sj = _ratio(c)
     assert sj <= 0
     assert r <= 0
+
+
+def test_one_pass_matches_the_separate_measures():
+    # compute_quality's one pass (jacobian_quality) gives both columns' values exactly
+    rng = np.random.default_rng(1)
+    for order in (1, 2):
+        n = (order + 1) ** 3
+        pts = np.vstack([_nodes(CUBE + 0.3 * rng.standard_normal((8, 3)), order) + 0.03 * (order - 1) * rng.standard_normal((n, 3)) for _ in range(40)])
+        cells = np.arange(len(pts)).reshape(-1, n)
+        sj, ratio = jacobian_quality(pts, cells, order, chunk=7)
+        assert np.array_equal(sj, scaled_jacobian(pts, cells, order)) and np.array_equal(ratio, jacobian_ratio(pts, cells, order))
+        assert (sj <= 0).any() and (sj > 0).any()  # inverted elements and valid ones
+    # p = 1 (compiled): the corners' determinants of their three edge vectors, numpy
+    X = np.vstack([CUBE + 0.3 * rng.standard_normal((8, 3)) for _ in range(40)])
+    Y = X.reshape(-1, 2, 2, 2, 3)  # (m, k, j, i, 3)
+    det = np.stack([np.linalg.det(np.stack([Y[:, k, j, 1] - Y[:, k, j, 0], Y[:, k, 1, i] - Y[:, k, 0, i], Y[:, 1, j, i] - Y[:, 0, j, i]], axis=1))
+                    for k in (0, 1) for j in (0, 1) for i in (0, 1)], axis=1)
+    got = jacobian_quality(X, np.arange(len(X)).reshape(-1, 8), 1)[1]
+    assert np.allclose(got, det.min(axis=1) / np.abs(det).max(axis=1), rtol=0, atol=1e-12)
 
 
 def test_summary_counts_per_layer():

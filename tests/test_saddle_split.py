@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vmesh.blocks import hex_corner_jacobians
+from vmesh.blocks import FACE_INTERIOR, BlockStructure, hex_corner_jacobians
 from vmesh.geometry import cross_sections as cs
-from vmesh.geometry.blocks.crotch import dip_fraction, saddle_section, split_column
+from vmesh.geometry.blocks.crotch import dip_fraction, saddle_section, split_column, split_saddle_columns
 
 
 def _waisted_tube(waist_at=3.0, depth=0.35):
@@ -73,6 +73,30 @@ def test_split_column_refuses_an_inverted_half():
     assert split_column(blocks, np.arange(len(hexes)), A_ids, B_ids, M) is None
 
 
+def _structure(template, V, hexes):
+    """A :class:`BlockStructure` of the column (its faces' kinds play no part in a split)."""
+    nb = len(hexes)
+    fb = np.full((nb, 6), FACE_INTERIOR)
+    z = np.zeros(nb, np.int64)
+    on = np.isin(np.arange(len(V)) % template.n_vertices, template.outer)
+    return BlockStructure(vertices=V, hexes=hexes, vertex_on_surface=on, face_boundary=fb, axis_kind=np.zeros((nb, 3), np.int64),
+                          block_radius=np.ones(nb), block_node=z, block_segment=z, block_layer=z, block_tags=[()] * nb)
+
+
+def test_far_end_column_splits_as_often_as_a_near_end_one():
+    # a junction at a branch's far end (side 1): the column's first faces are the other
+    # section's; its halves must keep their own block rows, or rounds 2-3 split nothing there
+    t = cs.o_grid_template(8)
+    V, hexes, A_ids, B_ids = _column(t)
+    counts = []
+    for waist_at, end in ((3.0, (A_ids, B_ids)), (7.0, (B_ids, A_ids))):
+        sdf, cast = _waisted_tube(waist_at, depth=0.5)  # the halves' part past the waist still dips 0.22 layers
+        out, notes = split_saddle_columns(_structure(t, V, hexes), t, [(*end, np.arange(len(hexes)))], sdf, cast, 0.2)
+        assert out.corner_jacobians().min() > 0
+        counts.append(len(notes))
+    assert counts[0] >= 2 and counts[1] == counts[0]
+
+
 @pytest.mark.slow
 def test_acute_bifurcation_fills_without_folds_once_split():
     from test_junctions import DEFAULT, fill
@@ -80,11 +104,16 @@ def test_acute_bifurcation_fills_without_folds_once_split():
     from junction_cases import bifurcation
     from vmesh.geometry import skeleton_ops as ops
     from vmesh.geometry.block_builder import BlockOptions, build_blocks
+    from vmesh.geometry.blocks.checks import projected_wall_quality
 
     case = bifurcation(30, 2)
     sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
     blocks = build_blocks(sk, case.distance, None, BlockOptions(saddle_split=0.5), project=case.project)
     assert any(f.startswith("split the first blocks") for f in blocks.info["fixes"])
     assert blocks.corner_jacobians().min() > 0
+    # the wall-fold record is of the split blocks (-0.0554; the unsplit ones' -0.0625)
+    q = projected_wall_quality(blocks, case.project)
+    assert blocks.info["min_projected_wall_quality"] == round(float(q.min()), 4)
+    assert blocks.info["wall_fold_blocks"] == np.flatnonzero(q <= 0).tolist()
     sj = fill(case, blocks, DEFAULT)
     assert sj.min() > 0  # main folds 4 elements at this crotch (tests/test_junctions.py KNOWN_FOLDS)

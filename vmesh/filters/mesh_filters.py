@@ -371,15 +371,14 @@ def compute_quality(ctx, histogram, fail_on_invalid, bins, jacobian_ratio_below=
     """For p > 1 an element's scaled Jacobian is the minimum over its nodes. The boundary
     distance is measured at the wall faces' nodes and centres, relative to the local radius."""
     from ..geometry.projection import wall_projector
-    from ..geometry.quality import jacobian_ratio, jacobian_ratio_summary, quality_summary, scaled_jacobian
+    from ..geometry.quality import jacobian_quality, jacobian_ratio_summary, quality_summary
     from ..geometry.transfinite import reference_points
 
     mesh = ctx.mesh
     ref_nodes = reference_points(mesh.order, mesh.node_distribution)
-    sj = scaled_jacobian(mesh.points, mesh.cells, mesh.order, ref_nodes)
+    # and the taper, which the corner measure does not see (gmsh's minSJ does: docs/robustness.md, h20/fold)
+    sj, ratio = jacobian_quality(mesh.points, mesh.cells, mesh.order, ref_nodes)
     mesh.cell_data["scaled_jacobian"] = sj
-    # taper, which the corner measure does not see (gmsh's minSJ does: docs/robustness.md, h20/fold)
-    ratio = jacobian_ratio(mesh.points, mesh.cells, mesh.order, ref_nodes)
     mesh.cell_data["jacobian_ratio"] = ratio
     summary = quality_summary(sj)
     projector = wall_projector(ctx.surface)  # the whole surface's cached tree

@@ -68,21 +68,38 @@ def jacobian_ratio(points: np.ndarray, cells: np.ndarray, order: int = 1, ref_no
     Parameters as :func:`scaled_jacobian`.
     """
     p = int(order)
+    if p == 1:  # the corners' edge vectors, compiled (as :func:`hex8_scaled_jacobian`)
+        return jacobian_quality(points, cells, 1)[1]
     if ref_nodes is None:
         ref_nodes = np.linspace(0, 1, p + 1)
     D = lagrange_derivative_matrix(ref_nodes)
     out = np.empty(len(cells))
     for s in range(0, len(cells), chunk):
-        if p == 1:  # the corners' edge vectors directly: einsum on 2-point axes is 20x slower
-            X = points[cells[s : s + chunk]].reshape(-1, 2, 2, 2, 3)  # (m, k, j, i, 3)
-            Ju = np.broadcast_to((X[:, :, :, 1] - X[:, :, :, 0])[:, :, :, None], X.shape)
-            Jv = np.broadcast_to((X[:, :, 1] - X[:, :, 0])[:, :, None], X.shape)
-            Jw = np.broadcast_to((X[:, 1] - X[:, 0])[:, None], X.shape)
-        else:
-            Ju, Jv, Jw = _node_jacobians(points[cells[s : s + chunk]], D, p)
+        Ju, Jv, Jw = _node_jacobians(points[cells[s : s + chunk]], D, p)
         det = np.einsum("...d,...d->...", Ju, np.cross(Jv, Jw)).reshape(len(Ju), -1)
         out[s : s + chunk] = det.min(axis=1) / np.maximum(np.abs(det).max(axis=1), 1e-300)
     return out
+
+
+def jacobian_quality(points: np.ndarray, cells: np.ndarray, order: int = 1, ref_nodes: np.ndarray | None = None, chunk: int = 200_000) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`scaled_jacobian` and :func:`jacobian_ratio` of each hexahedron, the node
+    Jacobians computed once for both (the same values as the two functions'). Parameters
+    as :func:`scaled_jacobian`."""
+    p = int(order)
+    if p == 1:
+        return _hex8_both(np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(cells, dtype=np.int64).reshape(-1, 8))
+    if ref_nodes is None:
+        ref_nodes = np.linspace(0, 1, p + 1)
+    D = lagrange_derivative_matrix(ref_nodes)
+    sj, ratio = np.empty(len(cells)), np.empty(len(cells))
+    for s in range(0, len(cells), chunk):
+        Ju, Jv, Jw = _node_jacobians(points[cells[s : s + chunk]], D, p)
+        det = np.einsum("...d,...d->...", Ju, np.cross(Jv, Jw))
+        norm = np.linalg.norm(Ju, axis=-1) * np.linalg.norm(Jv, axis=-1) * np.linalg.norm(Jw, axis=-1)
+        sj[s : s + chunk] = (det / np.maximum(norm, 1e-300)).reshape(len(det), -1).min(axis=1)
+        det = det.reshape(len(det), -1)
+        ratio[s : s + chunk] = det.min(axis=1) / np.maximum(np.abs(det).max(axis=1), 1e-300)
+    return sj, ratio
 
 
 def jacobian_ratio_summary(ratio: np.ndarray, layer: np.ndarray | None, below: float) -> dict:
@@ -112,6 +129,20 @@ def hex8_scaled_jacobian(points: np.ndarray, hexes: np.ndarray) -> np.ndarray:
     return _hex8_kernel(p, h)
 
 
+@nb.njit(inline="always")
+def _hex8_corner(points, hexes, e, c):
+    """det of the edge vectors at corner ``c`` of hexahedron ``e`` and their lengths' product."""
+    i, j, k = c & 1, (c >> 1) & 1, (c >> 2) & 1
+    a0, a1 = hexes[e, 2 * j + 4 * k], hexes[e, 1 + 2 * j + 4 * k]
+    b0, b1 = hexes[e, i + 4 * k], hexes[e, i + 2 + 4 * k]
+    c0, c1 = hexes[e, i + 2 * j], hexes[e, i + 2 * j + 4]
+    ux, uy, uz = points[a1, 0] - points[a0, 0], points[a1, 1] - points[a0, 1], points[a1, 2] - points[a0, 2]
+    vx, vy, vz = points[b1, 0] - points[b0, 0], points[b1, 1] - points[b0, 1], points[b1, 2] - points[b0, 2]
+    wx, wy, wz = points[c1, 0] - points[c0, 0], points[c1, 1] - points[c0, 1], points[c1, 2] - points[c0, 2]
+    det = ux * (vy * wz - vz * wy) + uy * (vz * wx - vx * wz) + uz * (vx * wy - vy * wx)
+    return det, np.sqrt((ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz) * (wx * wx + wy * wy + wz * wz))
+
+
 @nb.njit(parallel=True, cache=True, error_model="numpy")
 def _hex8_kernel(points, hexes):
     m = hexes.shape[0]
@@ -119,20 +150,26 @@ def _hex8_kernel(points, hexes):
     for e in nb.prange(m):
         best = np.inf
         for c in range(8):
-            i, j, k = c & 1, (c >> 1) & 1, (c >> 2) & 1
-            a0, a1 = hexes[e, 2 * j + 4 * k], hexes[e, 1 + 2 * j + 4 * k]
-            b0, b1 = hexes[e, i + 4 * k], hexes[e, i + 2 + 4 * k]
-            c0, c1 = hexes[e, i + 2 * j], hexes[e, i + 2 * j + 4]
-            ux, uy, uz = points[a1, 0] - points[a0, 0], points[a1, 1] - points[a0, 1], points[a1, 2] - points[a0, 2]
-            vx, vy, vz = points[b1, 0] - points[b0, 0], points[b1, 1] - points[b0, 1], points[b1, 2] - points[b0, 2]
-            wx, wy, wz = points[c1, 0] - points[c0, 0], points[c1, 1] - points[c0, 1], points[c1, 2] - points[c0, 2]
-            det = ux * (vy * wz - vz * wy) + uy * (vz * wx - vx * wz) + uz * (vx * wy - vy * wx)
-            ln = np.sqrt((ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz) * (wx * wx + wy * wy + wz * wz))
+            det, ln = _hex8_corner(points, hexes, e, c)
             v = det / max(ln, 1e-300)
             if v < best:
                 best = v
         out[e] = best
     return out
+
+
+@nb.njit(parallel=True, cache=True, error_model="numpy")
+def _hex8_both(points, hexes):
+    """:func:`_hex8_kernel` and the corners' ``min det / max |det|`` (:func:`jacobian_quality`)."""
+    m = hexes.shape[0]
+    sj, ratio = np.empty(m), np.empty(m)
+    for e in nb.prange(m):
+        best, lo, hi = np.inf, np.inf, 0.0
+        for c in range(8):
+            det, ln = _hex8_corner(points, hexes, e, c)
+            best, lo, hi = min(best, det / max(ln, 1e-300)), min(lo, det), max(hi, abs(det))
+        sj[e], ratio[e] = best, lo / max(hi, 1e-300)
+    return sj, ratio
 
 
 def quality_summary(sj: np.ndarray) -> dict:

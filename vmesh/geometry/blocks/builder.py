@@ -571,12 +571,13 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _Stubs):
             blocks = self._kept_valid(self.choose_planes, blocks)
             if self.opt.repair.relieve_wall_folds:
                 blocks = self._kept_valid(self.relieve_wall_folds, blocks)
-            self.report_wall_folds(blocks)
         columns = blocks.info.pop("_columns", None)
         ratio = self.opt.junction.saddle_split
         if self.project is not None and columns is not None and ratio > 0:  # the crotch's saddle (:mod:`.crotch`)
             blocks, notes = split_saddle_columns(blocks, self.template, column_ends(columns, self.template.n_quads), self.sdf, self.cast, ratio)
             self.fixes.extend(notes)
+        if self.project is not None:  # of the blocks built (split columns included)
+            self.report_wall_folds(blocks)
         blocks.info.update(self.built.info)
         blocks.info["fixes"] = list(self.fixes)
         blocks.info["work"] = self.work.summary()

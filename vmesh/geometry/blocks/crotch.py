@@ -131,7 +131,8 @@ def split_saddle_columns(blocks: BlockStructure, template, ends: list, sdf, cast
 
 def _with_splits(blocks: BlockStructure, template, splits: list):
     """``blocks`` with the columns of ``splits`` (``(end, (first, second, M, ...))``) split:
-    the new structure and per split its two halves' columns ``(A, M, rows), (M, B, rows)``."""
+    the new structure and per split its two halves' columns ``(A, M, rows), (M, B, rows)``
+    (each with the block rows it now lies in, whichever end of the column is ``A``)."""
     V = blocks.vertices
     hexes, new_vertices, added, halves = blocks.hexes.copy(), [], [], []
     fb = blocks.face_boundary
@@ -144,8 +145,10 @@ def _with_splits(blocks: BlockStructure, template, splits: list):
         hexes[rows] = first
         new_vertices.append(M)
         added.append((rows, second))
-        mid_ids = n_new + np.arange(len(M))
-        halves.append(((A_ids, mid_ids, rows), (mid_ids, B_ids, n_blocks + np.arange(len(rows)))))
+        mid_ids, new_rows = n_new + np.arange(len(M)), n_blocks + np.arange(len(rows))
+        # the first halves start on the rows' first faces: B's at a branch's far end (side 1)
+        a_rows, b_rows = (new_rows, rows) if np.isin(got[0][:, :4], B_ids).all() else (rows, new_rows)
+        halves.append(((A_ids, mid_ids, a_rows), (mid_ids, B_ids, b_rows)))
         n_new += len(M)
         n_blocks += len(rows)
     rows = np.concatenate([r for r, _ in added])

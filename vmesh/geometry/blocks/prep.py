@@ -94,7 +94,7 @@ def merge_junction_pair(skeleton: Skeleton, a: int, b: int, own_lumen: bool = Fa
 
     The merged junction sits at the mean of the two with the larger radius; the other
     nodes keep their order. With ``own_lumen``, a branch of either junction that runs
-    fused with the link past the link's middle (:func:`_fused_along_link`) leaves the
+    fused with the link past the link's middle (:func:`_fused_runs`) leaves the
     merged junction from the link's middle: its fused nodes up to its first one past the
     middle whose axis lies outside the link's lumen go into the junction (else it would
     leave the junction backwards, along the link); from that one on they stay its first
@@ -160,9 +160,9 @@ def _fused_runs(sk: Skeleton, paths: list, link: np.ndarray, own_half: bool = Fa
     Returns
     -------
     dict
-        The link's end node -> (the fused nodes of its siblings, whether one of them leaves
-        through a node whose nearest point on the link is the link's other end, i.e. it
-        runs fused past the other junction); ends without a fused sibling left out.
+        The link's end node -> (the fused nodes of its siblings, whether every one of them
+        leaves through a node whose nearest point on the link is the link's other end, i.e.
+        they all run fused past the other junction); ends without a fused sibling left out.
     """
     P = sk.points[link]
     seg = P[1:] - P[:-1]
@@ -195,9 +195,9 @@ def _fused_runs(sk: Skeleton, paths: list, link: np.ndarray, own_half: bool = Fa
                 # lumen would make it leave along the link again (the dense pair)
                 outside = (along > 0.5 * arc[-1]) & (d[rows[:run], k[:run]] >= r_link[:run])
                 cut = int(np.argmax(outside)) if own_half and outside.any() else run
-                taken, beyond = out.get(end, ([], False))
+                taken, beyond = out.get(end, ([], True))
                 past = cut < run and np.isclose(along[cut], arc[-1], rtol=1e-9, atol=0.0)
-                out[end] = (taken + nodes[:cut].tolist(), bool(beyond or past))
+                out[end] = (taken + nodes[:cut].tolist(), bool(beyond and past))
     return out
 
 
