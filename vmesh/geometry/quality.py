@@ -34,17 +34,7 @@ def scaled_jacobian(points: np.ndarray, cells: np.ndarray, order: int = 1, ref_n
     p = int(order)
     if p == 1:
         return hex8_scaled_jacobian(points, cells)
-    if ref_nodes is None:
-        ref_nodes = np.linspace(0, 1, p + 1)
-    D = lagrange_derivative_matrix(ref_nodes)
-    out = np.empty(len(cells))
-    for s in range(0, len(cells), chunk):
-        Ju, Jv, Jw = _node_jacobians(points[cells[s : s + chunk]], D, p)
-        det = np.einsum("...d,...d->...", Ju, np.cross(Jv, Jw))
-        norm = np.linalg.norm(Ju, axis=-1) * np.linalg.norm(Jv, axis=-1) * np.linalg.norm(Jw, axis=-1)
-        sj = det / np.maximum(norm, 1e-300)
-        out[s : s + chunk] = sj.reshape(len(sj), -1).min(axis=1)
-    return out
+    return jacobian_quality(points, cells, p, ref_nodes, chunk)[0]
 
 
 def _node_jacobians(X: np.ndarray, D: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -67,18 +57,7 @@ def jacobian_ratio(points: np.ndarray, cells: np.ndarray, order: int = 1, ref_no
 
     Parameters as :func:`scaled_jacobian`.
     """
-    p = int(order)
-    if p == 1:  # the corners' edge vectors, compiled (as :func:`hex8_scaled_jacobian`)
-        return jacobian_quality(points, cells, 1)[1]
-    if ref_nodes is None:
-        ref_nodes = np.linspace(0, 1, p + 1)
-    D = lagrange_derivative_matrix(ref_nodes)
-    out = np.empty(len(cells))
-    for s in range(0, len(cells), chunk):
-        Ju, Jv, Jw = _node_jacobians(points[cells[s : s + chunk]], D, p)
-        det = np.einsum("...d,...d->...", Ju, np.cross(Jv, Jw)).reshape(len(Ju), -1)
-        out[s : s + chunk] = det.min(axis=1) / np.maximum(np.abs(det).max(axis=1), 1e-300)
-    return out
+    return jacobian_quality(points, cells, order, ref_nodes, chunk)[1]
 
 
 def jacobian_quality(points: np.ndarray, cells: np.ndarray, order: int = 1, ref_nodes: np.ndarray | None = None, chunk: int = 200_000) -> tuple[np.ndarray, np.ndarray]:
