@@ -42,7 +42,7 @@ from .preprocess_filters import walls_not_caps
             "spur_wall",
             "bool",
             True,
-            "Keep a spur that alone explains part of the wall which check_coverage would call missing (a short side stub), judged with check_coverage's default distance, patch_area, depth and end_depth (not the chain's settings); false: spur_ratio alone, and a terminal branch's end trimmed as before (session 19's extraction).",
+            "Keep a spur that alone explains part of the wall which check_coverage would call missing (a short side stub), judged with check_coverage's default distance, patch_area, depth and end_depth (not the chain's settings); false: spur_ratio alone, and a terminal branch's end trimmed over its whole last stretch (the extraction before this rule, docs/coverage.md h20/stubs).",
         ),
         Parameter(
             "merge_ratio",

@@ -261,7 +261,7 @@ def _trim_end(graph: BranchGraph, node: int, spacing: float, outside_junction: b
     of the branch outside its junction's inscribed ball is the end's: a short side stub's
     branch starts on its wider parent's axis, and the parent's radius there is no radius
     of the stub (measured with it, the whole stub was taken for a tail and cut off); with
-    ``outside_junction`` false the whole window is measured (session 19's extraction).
+    ``outside_junction`` false the whole window is measured (the extraction before the spur-wall rule).
     """
     (u, v, k), = list(graph.graph.edges(node, keys=True))
     other = graph.other(u, v, node)

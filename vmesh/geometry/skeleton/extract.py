@@ -267,7 +267,7 @@ def extract_skeleton(
         stats["centred_junctions"] = graph.center_junctions(sdf, spacing)
     with _timed(timings, "ends"):
         tick(0.85, "placing the ends")
-        # spur_wall=false: session 19's extraction, the tail measured over the whole window
+        # spur_wall=false: the extraction before the rule, the tail measured over the whole window
         stats["ends"] = place_ends(graph, sdf, spacing, caps=caps, end_depth=settings.end_depth, outside_junction=settings.spur_wall)
     with _timed(timings, "resample"):
         tick(0.9, "resampling and centring the branches")
