@@ -24,6 +24,7 @@ Usage::
     python benchmarks/robustness.py --generated-only --n 24 --preset rough --seed 3
     python benchmarks/robustness.py --cases carotid:given g0003:extracted
     python benchmarks/robustness.py --refinement 2               # the coverage criterion
+    python benchmarks/robustness.py --set build_block_structure.saddle_split=0.5   # an option on every run
 
 Writes ``benchmarks/results/robustness.json`` and ``.md`` (``--name`` changes the stem) and
 per-case folders under ``--work`` (default ``out/robustness``). Each row of the JSON carries
@@ -352,6 +353,9 @@ def main(argv=None) -> int:
     ap.add_argument("--timeout", type=float, default=300.0, help="seconds per run (default 300)")
     ap.add_argument("--workers", type=int, default=max(1, min(2, os.cpu_count() or 1)))
     ap.add_argument("--refinement", type=int, help="mesh_transfinite.refinement (the coverage criterion is judged at 2)")
+    ap.add_argument("--set", action="append", default=[], metavar="FILTER.PARAM=VALUE", dest="sets",
+                    help="a parameter of the default chain for every run, as `vmesh run --set` (repeatable), "
+                         "e.g. build_block_structure.saddle_split=0.5")
     ap.add_argument("--work", type=Path, default=C.ROOT / "out" / "robustness", help="per-case folders")
     ap.add_argument("--name", default="robustness")
     ap.add_argument("--merge", nargs="+", type=Path, metavar="JSON",
@@ -370,6 +374,15 @@ def main(argv=None) -> int:
     overrides = {**C.BENCH_OVERRIDES}
     if args.refinement is not None:
         overrides["mesh_transfinite.refinement"] = args.refinement
+    from vmesh.chain import FilterChain
+    from vmesh.cli import parse_overrides
+
+    try:  # as `vmesh run --set` parses them; a typo fails here, not in every run
+        sets = parse_overrides(args.sets)
+        FilterChain.load("default").with_overrides(sets)
+    except Exception as exc:
+        ap.error(str(exc))
+    overrides.update(sets)
     t0 = time.perf_counter()
     cluster = _local_cluster(args.workers)
     client = Client(cluster)
