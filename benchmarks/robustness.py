@@ -374,12 +374,12 @@ def main(argv=None) -> int:
     overrides = {**C.BENCH_OVERRIDES}
     if args.refinement is not None:
         overrides["mesh_transfinite.refinement"] = args.refinement
-    from vmesh.chain import FilterChain
     from vmesh.cli import parse_overrides
+    from vmesh.commands.batch import check_overrides
 
-    try:  # as `vmesh run --set` parses them; a typo fails here, not in every run
+    try:  # as `vmesh batch --set` parses and checks them: a typo fails here, not in every run
         sets = parse_overrides(args.sets)
-        FilterChain.load("default").with_overrides(sets)
+        check_overrides("default", sets)
     except Exception as exc:
         ap.error(str(exc))
     overrides.update(sets)

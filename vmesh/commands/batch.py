@@ -66,19 +66,16 @@ def run(args) -> int:
 
 def check_overrides(chain, overrides: dict) -> None:
     """Refuse a bad ``--set`` before any row runs, as ``--set``'s error: a filter not in the
-    chain, an unknown parameter, a value its parameter refuses. Only the overridden values
-    are checked: the rows may still supply parameters the chain leaves unset (a
-    ``meshlab_script.path`` column), so the chain is not resolved with ``--set`` alone."""
+    chain, an unknown parameter, a value its parameter refuses (``with_overrides`` checks
+    each). Only the overridden values are checked: the rows may still supply parameters the
+    chain leaves unset (a ``meshlab_script.path`` column), so the chain is not resolved with
+    ``--set`` alone."""
     from ..chain import FilterChain
     from ..errors import InputError, VmeshError
-    from ..registry import get_filter
 
     loaded = chain if isinstance(chain, FilterChain) else FilterChain.load(chain)  # its own errors name the chain
     try:
         loaded.with_overrides(overrides)
-        for key, value in overrides.items():
-            fname, _, pname = key.partition(".")
-            get_filter(fname).parameter(pname).validate(value, f"filter '{fname}'")
     except VmeshError as exc:
         raise InputError(f"--set: {exc}") from None
 
