@@ -214,3 +214,15 @@ def test_vmesh_skeleton_names_the_option_a_bad_value_came_from(tmp_path, capsys)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("vmesh: error: --spacing -1: filter 'resample_skeleton': parameter 'spacing'"), err
     assert not out.exists()
+
+
+def test_set_on_a_filter_the_chain_lacks_says_how_to_add_it():
+    """Session 21: `--set tag_skeleton.branches=true` on `default` suggested 'extract_skeleton';
+    a registered filter the chain lacks now says to add a step, a misspelt one is matched
+    against every filter."""
+    chain = FilterChain.load("default")
+    with pytest.raises(ParameterError, match=r"add a \[\[step\]\] filter = \"tag_skeleton\"") as exc:
+        chain.with_overrides({"tag_skeleton.branches": True})
+    assert "did you mean" not in str(exc.value)
+    with pytest.raises(ParameterError, match="did you mean 'tag_skeleton'"):
+        chain.with_overrides({"tag_skeletn.branches": True})
