@@ -226,3 +226,18 @@ def test_set_on_a_filter_the_chain_lacks_says_how_to_add_it():
     assert "did you mean" not in str(exc.value)
     with pytest.raises(ParameterError, match="did you mean 'tag_skeleton'"):
         chain.with_overrides({"tag_skeletn.branches": True})
+
+
+def test_a_truncated_binary_ply_is_one_line_not_a_crash(tmp_path):
+    """Session 21: a binary PLY cut short went on to VTK's reader, which ended the process
+    (a segmentation fault; on Dask, every worker that took the row died)."""
+    from vmesh.io.surface import _write_ply_triangles, read_surface
+
+    v, f = tube()
+    whole = tmp_path / "whole.ply"
+    _write_ply_triangles(whole, v, f)
+    cut = tmp_path / "cut.ply"
+    cut.write_bytes(whole.read_bytes()[:2000])
+    with pytest.raises(InputError, match=r"cut\.ply: the file ends early: 2000 bytes.*truncated"):
+        read_surface(cut)
+    assert len(read_surface(whole).faces) == len(f)

@@ -144,10 +144,12 @@ def _read_vtp(path: Path, notes: list):
 
 def _read_ply(path: Path, notes: list):
     """PLY triangles read with numpy (:mod:`vmesh.io.ply`); anything else goes to VTK."""
-    from .ply import UnsupportedPLY, read_ply_triangles
+    from .ply import TruncatedPLY, UnsupportedPLY, read_ply_triangles
 
     try:
         return read_ply_triangles(path)
+    except TruncatedPLY as exc:
+        raise InputError(str(exc), path) from None
     except UnsupportedPLY:
         if edges := _ply_edge_count(path):
             raise InputError(_CENTERLINE_HINT.format(n=edges, what="edge"), path) from None
