@@ -241,3 +241,23 @@ def test_a_truncated_binary_ply_is_one_line_not_a_crash(tmp_path):
     with pytest.raises(InputError, match=r"cut\.ply: the file ends early: 2000 bytes.*truncated"):
         read_surface(cut)
     assert len(read_surface(whole).faces) == len(f)
+
+
+def test_an_off_file_with_normals_as_pymeshlab_writes_it(tmp_path):
+    """Session 21: pymeshlab saves `NOFF` (vertex normals); meshio reads plain `OFF` only and
+    ended vmesh with SystemExit (exit status 1, meshio's own two lines)."""
+    from vmesh.io.surface import read_surface
+
+    v, f = tube(n_around=8, n_along=4)
+    normals = v * 0 + [0.0, 0.0, 1.0]
+    rows = [" ".join(map(str, list(p) + list(n))) for p, n in zip(v, normals)]
+    text = "NOFF\n# a comment\n%d %d 0\n%s\n%s\n" % (len(v), len(f), "\n".join(rows), "\n".join("3 %d %d %d" % tuple(t) for t in f))
+    (tmp_path / "n.off").write_text(text)
+    s = read_surface(tmp_path / "n.off")
+    assert s.faces.shape == f.shape and np.allclose(s.vertices, v)
+    (tmp_path / "cut.off").write_text(text[: len(text) // 2])
+    with pytest.raises(InputError, match="cut.off: could not read as OFF: the file ends early"):
+        read_surface(tmp_path / "cut.off")
+    (tmp_path / "bad.off").write_text("hello\n1 2\n")
+    with pytest.raises(InputError, match="not an OFF keyword"):
+        read_surface(tmp_path / "bad.off")
