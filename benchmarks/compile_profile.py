@@ -37,13 +37,17 @@ class _Recorder(event.Listener):
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ("-h", "--help"):  # its own usage, not vmesh's
+        print(__doc__)
+        return 0
     rec = _Recorder()
     event.register("numba:compile", rec)
     c, t = time.process_time(), time.perf_counter()
     from vmesh.cli import main as vmesh_main
 
     try:
-        vmesh_main(sys.argv[1:] if argv is None else argv)
+        vmesh_main(argv)
     except SystemExit:
         pass
     print(f"total {time.process_time() - c:.1f} s CPU, {time.perf_counter() - t:.1f} s wall")

@@ -344,20 +344,20 @@ def merge(paths: list[Path], name: str) -> int:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--n", type=int, default=200, help="generated vessels (default 200)")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--n", type=int, default=200, help="generated vessels (default 200); every real surface runs too (BraVa alone takes minutes) unless --generated-only")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the generated vessels (default 0)")
     ap.add_argument("--preset", default="mixed", choices=["clean", "rough", "mixed"])
-    ap.add_argument("--real-only", action="store_true")
-    ap.add_argument("--generated-only", action="store_true")
+    ap.add_argument("--real-only", action="store_true", help="only the real surfaces (../shared/data/real or $VMESH_REAL_DATA)")
+    ap.add_argument("--generated-only", action="store_true", help="only the generated vessels (a quick try: --n 2 --generated-only --name try)")
     ap.add_argument("--cases", nargs="+", help="case names, or case:variant (e.g. carotid:given g0003:extracted)")
     ap.add_argument("--timeout", type=float, default=300.0, help="seconds per run (default 300)")
-    ap.add_argument("--workers", type=int, default=max(1, min(2, os.cpu_count() or 1)))
+    ap.add_argument("--workers", type=int, default=max(1, min(2, os.cpu_count() or 1)), help="runs at a time (default: 2, or 1 on one core)")
     ap.add_argument("--refinement", type=int, help="mesh_transfinite.refinement (the coverage criterion is judged at 2)")
     ap.add_argument("--set", action="append", default=[], metavar="FILTER.PARAM=VALUE", dest="sets",
                     help="a parameter of the default chain for every run, as `vmesh run --set` (repeatable), "
                          "e.g. build_block_structure.saddle_split=0.5")
     ap.add_argument("--work", type=Path, default=C.ROOT / "out" / "robustness", help="per-case folders")
-    ap.add_argument("--name", default="robustness")
+    ap.add_argument("--name", default="robustness", help="writes benchmarks/results/NAME.{json,md} (default robustness: the recorded results, which a trial run replaces)")
     ap.add_argument("--merge", nargs="+", type=Path, metavar="JSON",
                     help="no runs: tabulate the rows of earlier result files together (e.g. a real and a generated run)")
     ap.add_argument("--one", help=argparse.SUPPRESS)

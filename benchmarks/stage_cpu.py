@@ -29,6 +29,9 @@ def ica_args(out: str) -> list[str]:
 
 
 def main(argv: list[str]) -> int:
+    if not argv or argv[0] in ("-h", "--help"):  # its own usage, not vmesh's
+        print(__doc__)
+        return 0
     c, w = time.process_time(), time.perf_counter()
     import vmesh.chain as chain
     from vmesh.cli import main as vmesh_main

@@ -244,7 +244,12 @@ def report(rows: list[dict], load_before: str) -> str:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog="Needs vascularmd's venv ($VASCULARMD_VENV, else ../vascularmd-venv) and its runner ($VASCULARMD_PEERS, "
+        "else ../shared/peers); without them the vascularmd row is skipped with the reason and vmesh runs alone. "
+        "The ICA surface and centerline come from the real corpus ($VMESH_REAL_DATA, else ../shared/data/real).",
+    )
     ap.add_argument("--repeat", type=int, default=1, help="runs per tool, the fastest kept (default 1)")
     ap.add_argument("--timeout", type=float, default=600, help="seconds per run before it counts as failed")
     ap.add_argument("--unoptimised", action="store_true", help="add vmesh rows without untangling (inverted elements before optimisation)")

@@ -356,6 +356,7 @@ name = "{{stem}}_{{i}}_{{mesh_transfinite.refinement}}"
         ("skeleton,name\nx.json,a\n", "missing column 'surface'"),
         (f"surface,mesh_transfinite.no_such_param\n{SURFACE},1\n", "column 'mesh_transfinite.no_such_param': filter 'mesh_transfinite' has no parameter"),
         (f"surface,no_such_filter.x\n{SURFACE},\n", "column 'no_such_filter.x': no filter 'no_such_filter'"),
+        (f"surface,tag_skeleton.branches\n{SURFACE},true\n", "no filter 'tag_skeleton' in chain 'default' (add a [[step]]"),
         (f"surface,mesh_transfinite.order\n{SURFACE},9\n", "row 1: filter 'mesh_transfinite': parameter 'order' = 9 is above its maximum"),
         ("surface\nnot_there.ply\n", "row 1: surface file not found"),
         (f"name,surface\na,{SURFACE}\na,{SURFACE}\n", "name 'a' is used by row 1 too"),

@@ -214,3 +214,50 @@ def test_vmesh_skeleton_names_the_option_a_bad_value_came_from(tmp_path, capsys)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("vmesh: error: --spacing -1: filter 'resample_skeleton': parameter 'spacing'"), err
     assert not out.exists()
+
+
+def test_set_on_a_filter_the_chain_lacks_says_how_to_add_it():
+    """Session 21: `--set tag_skeleton.branches=true` on `default` suggested 'extract_skeleton';
+    a registered filter the chain lacks now says to add a step, a misspelt one is matched
+    against every filter."""
+    chain = FilterChain.load("default")
+    with pytest.raises(ParameterError, match=r"add a \[\[step\]\] filter = \"tag_skeleton\"") as exc:
+        chain.with_overrides({"tag_skeleton.branches": True})
+    assert "did you mean" not in str(exc.value)
+    with pytest.raises(ParameterError, match="did you mean 'tag_skeleton'"):
+        chain.with_overrides({"tag_skeletn.branches": True})
+
+
+def test_a_truncated_binary_ply_is_one_line_not_a_crash(tmp_path):
+    """Session 21: a binary PLY cut short went on to VTK's reader, which ended the process
+    (a segmentation fault; on Dask, every worker that took the row died)."""
+    from vmesh.io.surface import _write_ply_triangles, read_surface
+
+    v, f = tube()
+    whole = tmp_path / "whole.ply"
+    _write_ply_triangles(whole, v, f)
+    cut = tmp_path / "cut.ply"
+    cut.write_bytes(whole.read_bytes()[:2000])
+    with pytest.raises(InputError, match=r"cut\.ply: the file ends early: 2000 bytes.*truncated"):
+        read_surface(cut)
+    assert len(read_surface(whole).faces) == len(f)
+
+
+def test_an_off_file_with_normals_as_pymeshlab_writes_it(tmp_path):
+    """Session 21: pymeshlab saves `NOFF` (vertex normals); meshio reads plain `OFF` only and
+    ended vmesh with SystemExit (exit status 1, meshio's own two lines)."""
+    from vmesh.io.surface import read_surface
+
+    v, f = tube(n_around=8, n_along=4)
+    normals = v * 0 + [0.0, 0.0, 1.0]
+    rows = [" ".join(map(str, list(p) + list(n))) for p, n in zip(v, normals)]
+    text = "NOFF\n# a comment\n%d %d 0\n%s\n%s\n" % (len(v), len(f), "\n".join(rows), "\n".join("3 %d %d %d" % tuple(t) for t in f))
+    (tmp_path / "n.off").write_text(text)
+    s = read_surface(tmp_path / "n.off")
+    assert s.faces.shape == f.shape and np.allclose(s.vertices, v)
+    (tmp_path / "cut.off").write_text(text[: len(text) // 2])
+    with pytest.raises(InputError, match="cut.off: could not read as OFF: the file ends early"):
+        read_surface(tmp_path / "cut.off")
+    (tmp_path / "bad.off").write_text("hello\n1 2\n")
+    with pytest.raises(InputError, match="not an OFF keyword"):
+        read_surface(tmp_path / "bad.off")

@@ -118,6 +118,8 @@ def test_missing_or_constant_radii_are_measured_from_the_surface(placeholder, tm
     assert np.all(np.abs(r[inner] / truth.radii[matched][inner] - 1) < 0.15)
     if placeholder == 1.0:
         assert any("taken as unknown" in w for w in ctx.report.warnings)
+    else:  # session 21: a centerline without radii was measured without a word
+        assert any("the centerline has no radii" in w for w in ctx.report.warnings)
 
 
 def test_vmtk_centerline_without_radius_array_gives_the_true_tree(tmp_path):

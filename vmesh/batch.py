@@ -101,7 +101,7 @@ def prepare(manifest: Manifest, chain, overrides: dict | None = None) -> list[_T
         ``<manifest>: <row>: <problem>``.
     """
     from .chain import FilterChain
-    from .registry import get_filter, suggest
+    from .registry import filter_list, get_filter, suggest
 
     where_file = manifest.path or "manifest"
     chain = chain if isinstance(chain, FilterChain) else FilterChain.load(chain)
@@ -110,7 +110,9 @@ def prepare(manifest: Manifest, chain, overrides: dict | None = None) -> list[_T
         fname, _, pname = col.partition(".")
         steps = [s.filter for s in base.steps]
         if not pname or fname not in steps:
-            raise InputError(f"column '{col}': no filter '{fname}' in chain '{base.name}'" + suggest(fname, steps), where_file)
+            hint = (f" (add a [[step]] filter = \"{fname}\" to a copy of the chain: docs/chains.md)" if pname and fname in filter_list()
+                    else suggest(fname, filter_list()))
+            raise InputError(f"column '{col}': no filter '{fname}' in chain '{base.name}'" + hint, where_file)
         try:
             get_filter(fname).parameter(pname)
         except VmeshError as exc:

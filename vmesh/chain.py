@@ -19,7 +19,7 @@ from .errors import ChainError, InputError, ParameterError, Stopped, VmeshError,
 from .io.atomic import replace_dir
 from .io.failed_run import OWNER_FILE, failed_dir, keep_failed, mark_owner, remove_failed, remove_stale_stages, write_diagnostics
 from .monitor import ResourceMonitor
-from .registry import get_filter, suggest
+from .registry import filter_list, get_filter, suggest
 
 #: Folders searched for chain presets named without a path (``vmesh run default``).
 PRESET_DIRS = [
@@ -146,9 +146,11 @@ class FilterChain:
                 raise ParameterError(f"override '{key}' must look like filter.param=value")
             matches = [s for s in chain.steps if s.filter == fname]
             if not matches:
+                known = fname in filter_list()  # a filter the chain lacks: say how to add it
                 raise ParameterError(
                     f"override '{key}': filter '{fname}' is not in this chain"
-                    + suggest(fname, [s.filter for s in chain.steps])
+                    + (f" (--set changes a step the chain has; add a [[step]] filter = \"{fname}\" to a copy of the"
+                       " chain's TOML file: docs/chains.md)" if known else suggest(fname, filter_list()))
                 )
             # unknown parameter: suggestion; a value its parameter refuses fails here, not at run
             get_filter(fname).parameter(pname).validate(value, f"filter '{fname}'")

@@ -200,7 +200,8 @@ def _pull_inside(skeleton, sdf, name):
 def _report(ctx, skeleton, stats: dict, caps, max_voxels: int) -> None:
     """Warnings and step counts of an extraction."""
     if stats.get("spacing_limited"):
-        ctx.warn(f"voxel size raised to {stats['spacing']:.4g} to stay within max_voxels={max_voxels}: thin vessels may be lost")
+        ctx.warn(f"voxel size raised to {stats['spacing']:.4g} to stay within max_voxels={max_voxels}: thin vessels may be lost "
+                 f"(--set extract_skeleton.max_voxels=N allows a finer grid, at more memory and time)")
     if stats["components"] > 1:
         ctx.warn(f"the skeleton has {stats['components']} separate pieces")
     if caps and stats["ends"]["added"]:

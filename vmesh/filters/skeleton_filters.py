@@ -181,6 +181,7 @@ def estimate_radii(ctx, overwrite, scale):
     With the sdf, a centerline that does not fit the surface (other units, another
     vessel) is an error that says so."""
     skel = ctx.skeleton
+    none_given = not np.isfinite(skel.radii).any()  # said below: the user may not know the file has none
     if scale != 1.0:
         skel = ctx.skeleton = skel.copy(points=skel.points * scale, radii=skel.radii * scale)
     if ctx.sdf is not None:
@@ -197,6 +198,9 @@ def estimate_radii(ctx, overwrite, scale):
         skel = _radii_from_sections(skel, distance, overwrite, ctx.caps or ())
     ctx.skeleton, _ = sk_distance.estimate_radii(skel, distance, overwrite=False)
     filled = int((~np.isclose(ctx.skeleton.radii, before, equal_nan=True)).sum())
+    if none_given and filled and distance is not None:
+        ctx.warn(f"the centerline has no radii: {filled} measured from the surface (the inscribed sphere at each "
+                 "node); a VMTK file keeps them in MaximumInscribedSphereRadius, an SWC in its radius column")
     ctx.count(radii_filled=filled, radius_min=float(np.min(ctx.skeleton.radii)), radius_max=float(np.max(ctx.skeleton.radii)))
 
 

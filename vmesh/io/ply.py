@@ -22,6 +22,11 @@ class UnsupportedPLY(Exception):
     """The file is valid PLY, perhaps, but not the plain triangle surface read here."""
 
 
+class TruncatedPLY(UnsupportedPLY):
+    """A binary PLY shorter than its header's counts need: not to be handed to VTK, whose
+    reader ends the process on it (a segmentation fault, found in session 21)."""
+
+
 def ply_header(data: bytes):
     """The header of any PLY file: ``(format, [(element, count, properties)], header
     length)``, a property ``(name, type)`` or, for a list, ``(name, count type, item
@@ -86,8 +91,10 @@ def read_ply_triangles(path: str | Path):
     order = "<" if fmt == "binary_little_endian" else ">"
     vtype = np.dtype([(name, order + _TYPES[t]) for name, t in vprops])
     ftype = np.dtype([("k", order + _TYPES[count_type]), ("v", order + _TYPES[index_type], (3,))])
-    if len(data) < start + n * vtype.itemsize + m * ftype.itemsize:
-        raise UnsupportedPLY("file shorter than its header says (or not all triangles)")
+    least = start + n * vtype.itemsize + m * ftype.itemsize  # faces of 3 or more vertices: the fewest bytes
+    if len(data) < least:
+        raise TruncatedPLY(f"the file ends early: {len(data)} bytes, where its header's {n} vertices and {m} "
+                           f"triangles need {least} (a truncated download or copy?)")
     vert = np.frombuffer(data, vtype, n, start)
     faces = np.frombuffer(data, ftype, m, start + n * vtype.itemsize)
     if np.any(faces["k"] != 3):

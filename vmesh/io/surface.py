@@ -2,13 +2,14 @@
 
 VTK XML PolyData (.vtp) of triangles is read with numpy (:func:`vmesh.io.vtk_xml.read_vtp_triangles`);
 other .vtp files, the other VTK-family files and STL/OBJ/PLY are read with pyvista (VTK's
-readers), OFF with meshio. Quads and polygons are triangulated; per-face arrays are kept. Line
+readers), OFF (and NOFF, COFF...) with numpy. Quads and polygons are triangulated; per-face arrays are kept. Line
 and vertex cells among the faces are dropped, and a volume mesh (tetrahedra, hexahedra...)
 gives its boundary surface; both are noted for the run's warnings.
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -75,7 +76,7 @@ def read_surface(path: str | Path, notes: list | None = None) -> SurfaceMesh:
     notes = [] if notes is None else notes
     try:
         if suffix == ".off":
-            vertices, faces, face_data = _read_meshio(path)
+            vertices, faces, face_data = _read_off(path)
         elif suffix == ".vtp":
             vertices, faces, face_data = _read_vtp(path, notes)
         elif suffix == ".ply":
@@ -144,10 +145,12 @@ def _read_vtp(path: Path, notes: list):
 
 def _read_ply(path: Path, notes: list):
     """PLY triangles read with numpy (:mod:`vmesh.io.ply`); anything else goes to VTK."""
-    from .ply import UnsupportedPLY, read_ply_triangles
+    from .ply import TruncatedPLY, UnsupportedPLY, read_ply_triangles
 
     try:
         return read_ply_triangles(path)
+    except TruncatedPLY as exc:
+        raise InputError(str(exc), path) from None
     except UnsupportedPLY:
         if edges := _ply_edge_count(path):
             raise InputError(_CENTERLINE_HINT.format(n=edges, what="edge"), path) from None
@@ -200,12 +203,27 @@ def _read_pyvista(path: Path, notes: list):
     return np.asarray(surface.points, float), faces, face_data
 
 
-def _read_meshio(path: Path):
-    import meshio
-
-    m = meshio.read(str(path))
-    blocks = [c.data for c in m.cells if c.type in ("triangle", "quad", "polygon") or c.type.startswith("polygon")]
-    return np.asarray(m.points, float)[:, :3], triangulate_polygons(blocks), {}
+def _read_off(path: Path):
+    """ASCII OFF and its variants with per-vertex normals, colours or texture coordinates
+    (``NOFF``, ``COFF``, ``STOFF``..., as pymeshlab writes them; meshio reads plain ``OFF``
+    only and ends the process with ``SystemExit`` on anything else)."""
+    rows = [r.split("#", 1)[0].split() for r in path.read_text(errors="replace").splitlines()]
+    rows = [r for r in rows if r]
+    head = rows[0] if rows else [""]
+    if not re.fullmatch(r"(ST)?C?N?(OFF)", head[0]):
+        raise ValueError(f"first word '{head[0][:20]}' is not an OFF keyword (OFF, NOFF, COFF, STOFF...; binary and 4D OFF are not read)")
+    counts, body = (head[1:], rows[1:]) if len(head) > 1 else (rows[1] if len(rows) > 1 else [], rows[2:])
+    if len(counts) < 2:
+        raise ValueError("no vertex and face counts after the OFF keyword")
+    nv, nf = int(counts[0]), int(counts[1])
+    if len(body) < nv + nf:
+        raise ValueError(f"the file ends early: {len(body)} vertex and face lines, its header says {nv} + {nf}")
+    vertices = np.array([r[:3] for r in body[:nv]], float)
+    by_size: dict = {}
+    for r in body[nv : nv + nf]:
+        k = int(r[0])
+        by_size.setdefault(k, []).append(r[1 : 1 + k])
+    return vertices, triangulate_polygons([np.array(b, np.int64) for k, b in sorted(by_size.items())]), {}
 
 
 def write_surface(path: str | Path, surface: SurfaceMesh, binary: bool = True) -> Path:
