@@ -352,6 +352,37 @@ def side_sac(angle: float = 62.0, ratio: float = 1.4, length: float = 2.1, spaci
     return case, caps
 
 
+def closed_end_past_branch(gap: float = 1.0, angle: float = 60.0, ratio: float = 0.6, half: float = 8.0, tip: float = 0.01) -> tuple:
+    """A vessel of radius 1 along +x from an open inlet at ``-half`` that ends closed
+    ``gap`` radii past the origin, where a side branch of radius ``ratio`` leaves at
+    ``angle`` degrees from +x (cut open ``half`` along it). The parent's skeleton ends
+    ``tip`` radii short of its dome's tip (a given centreline run to the wall), one
+    segment past the junction.
+
+    As seed 0 g0000 given's outlet node 76: 1.03 radii past the junction where the kissing
+    vessel leaves, on the wall, so the closed branch is shorter than its junction's
+    half-sections need. Returns the case and its caps (inlet at -x, outlet_1 on the branch)."""
+    from vmesh.caps import Cap
+
+    d = direction(angle)
+    x = np.arange(-half, 1e-9, 0.8)
+    x[-1] = 0.0
+    n = len(x)
+    side = np.outer(np.arange(1, int(half / 0.8) + 1) * 0.8, d)
+    pts = np.r_[np.c_[x, np.zeros((n, 2))], [[gap, 0.0, 0.0]], side]
+    m = len(side)
+    edges = np.r_[np.c_[np.arange(n - 1), np.arange(1, n)], [[n - 1, n], [n - 1, n + 1]], np.c_[np.arange(n + 1, n + m), np.arange(n + 2, n + m + 1)]]
+    radii = np.r_[np.ones(n + 1), np.full(m, ratio)]
+    sk = Skeleton(pts, radii, edges)
+    ex = np.array([1.0, 0.0, 0.0])
+    end = side[-1]
+    cuts = ((0, -half * ex, -ex), (1, end, d))
+    case = CutCase(f"closed_past_{gap:g}_{angle:g}_{ratio:g}", np.array([-(half + 2) * ex, np.zeros(3)]),
+                   np.array([(gap + tip - 1.0) * ex, end + 2 * ratio * d]), np.array([1.0, ratio]), sk, cuts=cuts)
+    caps = [Cap(1, "inlet", -half * ex, -ex, 1.0), Cap(2, "outlet_1", end, d, ratio)]
+    return case, caps
+
+
 def bent_bulged_branch(turn: float = 75.0, leg: float = 1.2, at: float = 3.5, off: float = 1.0, bulge: float = 1.6,
                        ratio: float = 0.7, angle: float = 40.0) -> tuple:
     """A bifurcation at the origin (parent from -x, radius 1; daughters of radius ``ratio``

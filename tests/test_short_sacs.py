@@ -71,3 +71,31 @@ def test_long_closed_side_branch_keeps_its_dome_retreat():
     case, blocks = _build(62, 1.0, 6.0, 0.75)
     assert blocks.corner_jacobians().min() > 0
     assert max(blocks.info["dome_retreat"].values()) > 0
+
+
+
+def _closed_past_branch(keep: float):
+    from junction_cases import closed_end_past_branch
+    from vmesh.geometry.blocks.options import EndOptions
+
+    case, caps = closed_end_past_branch(gap=1.0, angle=90.0, ratio=0.6)
+    return case, build_blocks(case.skeleton, case.distance, caps, BlockOptions(ends=EndOptions(dome_keep=keep)), project=case.project, warn=lambda m: None)
+
+
+def test_closed_end_one_radius_past_a_junction_keeps_a_dome_with_dome_keep():
+    """A vessel that ends closed one radius past the junction where a side branch leaves,
+    its skeleton run to the dome's tip (seed 0 g0000 given's outlet 76): the junction's
+    half-sections take the dome's room and, by default, its section goes onto the
+    endpoint, where the cap of blocks round the dome has no height (a raw fill Jacobian
+    ratio of 0.005). ``dome_keep`` keeps the section off the endpoint (a dome of 0.1
+    radii) and the fill's least Jacobian ratio above 0.1."""
+    from vmesh.geometry.quality import jacobian_ratio
+
+    _, blocks = _closed_past_branch(0.0)
+    end = max(blocks.info["dome_retreat"])
+    assert blocks.info["dome_retreat"][end] == 0.0
+    case, blocks = _closed_past_branch(0.3)
+    assert blocks.corner_jacobians().min() > 0
+    assert blocks.info["dome_retreat"][end] > 0.05
+    sm = mesh_blocks(blocks, case.project, DEFAULT_FILL, signed_distance=case.distance)
+    assert jacobian_ratio(sm.points, sm.cells, DEFAULT_FILL.order).min() > 0.1

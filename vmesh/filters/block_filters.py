@@ -33,6 +33,7 @@ from ..registry import Parameter, register_filter
         Parameter("cap_distance", "float", 1.0, "An endpoint is the open end of a cap when it lies within this many radii of the cap centre.", unit="× radius", min=0.0, max=20.0),
         Parameter("dome_depth", "float", 1.0, "A closed end (a dome without cap, such as an aneurysm sac) ends in a cap of blocks that carries the boundary layer round the dome; its last cross-section moves back from the endpoint until the wall ahead along the axis is at least this many times its mean distance to the wall in the section.", unit="× wall distance", min=0.0, max=5.0),
         Parameter("dome_max_retreat", "float", 1.5, "How far a closed end's last cross-section may move back from its endpoint (at most half its branch).", unit="× radius", min=0.0, max=10.0),
+        Parameter("dome_keep", "float", 0.0, "How far a closed end's last cross-section stays back from its endpoint where its junction's half-sections take the room of its dome (a closed branch shorter than they need). 0: it may reach the endpoint; where that is the dome's tip, on the wall, the cap of blocks round the dome has no height (collapsed elements).", unit="× radius", min=0.0, max=1.0),
         Parameter("max_fix_rounds", "int", 16, "Rounds of repairs of invalid blocks before failing.", min=0, max=100),
         Parameter("junction_centre", "float", 1.0, "Where a junction's half cross-sections meet: 0 on the skeleton node, 1 at the centre of the wall points straight out between its branches (each crotch's apex and the outer walls), as vascularmd places a bifurcation's centre; blends in between.", min=0.0, max=1.0),
         Parameter("relieve_wall_folds", "bool", True, "Where a junction's boundary-layer blocks would still fold once projected on the wall, try further first cross-sections and other half-plane rotations, judged by filling the junction's blocks (costs seconds per junction)."),
@@ -52,7 +53,7 @@ from ..registry import Parameter, register_filter
 )
 def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_bias, junction_rotation, rotation_range,
                           max_out_of_plane, min_branch_gap, split_nonplanar, clear_ray_factor, junction_margin, cap_distance,
-                          dome_depth, dome_max_retreat, max_fix_rounds, check_wall_projection, junction_centre=1.0,
+                          dome_depth, dome_max_retreat, max_fix_rounds, check_wall_projection, junction_centre=1.0, dome_keep=0.0,
                           relieve_wall_folds=True, work_budget=160, own_territory=True, junction_lean=1.0, cut_contacts=True,
                           choose_lean=False, dent_sections=2, saddle_split=0.0):
     """One O-grid cross-section per skeleton node (a core of a x b blocks, a ring and a
@@ -76,7 +77,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
             min_branch_gap=min_branch_gap, clear_ray_factor=clear_ray_factor, junction_margin=junction_margin,
             junction_centre=junction_centre, junction_lean=junction_lean, choose_lean=choose_lean, saddle_split=saddle_split,
         ),
-        ends=EndOptions(cap_distance=cap_distance, dome_depth=dome_depth, dome_max_retreat=dome_max_retreat),
+        ends=EndOptions(cap_distance=cap_distance, dome_depth=dome_depth, dome_max_retreat=dome_max_retreat, dome_keep=dome_keep),
         repair=RepairOptions(split_nonplanar=split_nonplanar, max_fix_rounds=max_fix_rounds, relieve_wall_folds=relieve_wall_folds,
                              work_budget=work_budget, dent_sections=dent_sections),
     )

@@ -45,6 +45,7 @@ class EndOptions:
     cap_distance: float = 1.0  # × radius
     dome_depth: float = 1.0  # wall distance ahead of a closed end's section, × its mean wall distance
     dome_max_retreat: float = 1.5  # × endpoint radius
+    dome_keep: float = 0.0  # × branch radius a yielding dome's section stays off the endpoint (0: none)
 
 
 @dataclass

@@ -282,8 +282,11 @@ class _Sections:
                 # a short closed branch (an aneurysm sac on its parent): the junction's
                 # half-sections need the room the dome's retreat took; the dome gets flatter
                 # rather than the sections between them standing inside the half-sections.
-                # A one-segment branch too: its dome's section is the only one there is
-                ends[-1] = min(br.arc[-1], lo + (0.3 + DOME_YIELD_ROOM) * rb)
+                # A one-segment branch too: its dome's section is the only one there is.
+                # ``dome_keep`` keeps it off the endpoint (not behind ``lo``): on a dome's
+                # tip the section's rays run along the wall and its cap has no height
+                top = br.arc[-1] - min(opt.ends.dome_keep * rb, max(br.arc[-1] - lo, 0.0))
+                ends[-1] = min(top, lo + (0.3 + DOME_YIELD_ROOM) * rb)
                 self.placed.retreat[(bi, 1)] = float(br.arc[-1] - ends[-1])
             if br.kinds[1] in (OPEN, CLOSED):
                 hi = ends[-1] - 0.3 * rb
