@@ -31,7 +31,7 @@ def test_frame_trials_equal_the_displaced_mesh():
     for v in nodes:
         z = rng.normal(size=3) * 0.05
         K.frame(X, hexes, scale, ptr, inc, cq, v, L)
-        r = K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], 1e-3, False, False, True, buf, np.int64(0), False, -np.inf)
+        r = K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], 1e-3, False, False, True, buf, np.int64(0), False, -np.inf, -np.inf)
         Y = X.copy()
         Y[v] += z
         moved = K.corner_qualities(Y, hexes, scale)
@@ -56,7 +56,7 @@ def test_frame_gradient_and_hessian_match_finite_differences():
     K.frame(X, hexes, scale, ptr, inc, cq, v, L)
 
     def f(z):
-        return K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], 1e-3, True, True, False, buf, np.int64(-1), False, -np.inf)
+        return K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], 1e-3, True, True, False, buf, np.int64(-1), False, -np.inf, -np.inf)
 
     r = f(np.zeros(3))
     g, H = np.array(r[1:4]), np.array([[r[4], r[5], r[6]], [r[5], r[7], r[8]], [r[6], r[8], r[9]]])
@@ -83,7 +83,7 @@ def test_frame_functional_equals_the_displaced_mesh():
     for v in rng.choice(np.flatnonzero(valence == valence.max()), 3, replace=False):
         z = rng.normal(size=3) * 0.05
         K.frame(X, hexes, scale, ptr, inc, cq, v, L)
-        f = K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], delta, True, True, True, buf, np.int64(0), False, -np.inf)[0]
+        f = K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], delta, True, True, True, buf, np.int64(0), False, -np.inf, -np.inf)[0]
         Y = X.copy()
         Y[v] += z
         want = 0.0
@@ -114,7 +114,7 @@ def test_colour_pass_with_prefetch_equals_its_steps_in_order():
             caps = K.step_caps(X, hexes, ptr, inc, nodes, n, 0.5)
             trial, state, buf = np.empty((len(nodes), 3)), np.empty((len(nodes), 4)), np.empty((len(nodes), width))
             dirty = np.ones(n, np.bool_)
-            args = (K.SMOOTH, 0.95, trial, state, dirty, buf, 0.01)
+            args = (K.SMOOTH, 0.95, trial, state, dirty, buf, 0.01, -np.inf)
             if kernel is not None:
                 kernel(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, caps, 1e-3, *args)
             else:
@@ -123,7 +123,7 @@ def test_colour_pass_with_prefetch_equals_its_steps_in_order():
                     state[j, 3] = 0.0
                     trial[j] = X[v]
                     dirty[v] = False
-                    K._step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, caps, 1e-3, *args[:2], trial, state, dirty, buf, 0.01, L)
+                    K._step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, caps, 1e-3, *args[:2], trial, state, dirty, buf, 0.01, L, -np.inf)
             runs.append((X, cq, state[:, 3].copy(), dirty))
         assert runs[0][2].any() or len(nodes) < 70  # the larger colours move nodes
         for other in runs[1:]:

@@ -29,20 +29,21 @@ def light_passed():
 
 
 def test_worst_pass_lifts_what_the_light_pass_leaves(light_passed):
-    """The light pass leaves the jittered cylinder's worst elements at 0.36 (a step that
-    lifts the worst element but lowers the node's sum of qualities is refused, and its climb
-    follows one corner); the max-min pass lifts them past 0.45 at no cost to the mean, walls
+    """The light pass leaves the jittered cylinder's worst elements at 0.41 (0.36 before its
+    over-relaxed steps; a step that lifts the worst element but lowers the node's sum of
+    qualities is refused, and its climb follows one corner); the max-min pass lifts them past
+    0.45 (0.52) at no cost to the mean, walls
     and cap planes kept, the first boundary-layer height kept."""
     sm, kw, X1 = light_passed
     q1 = hex8_scaled_jacobian(X1, sm.cells)
-    assert 0 < q1.min() < 0.4
+    assert 0 < q1.min() < 0.43
     kind, normal, height = _kinds(sm, kw)
     X2 = X1.copy()
     moved, _ = lift_worst(X2, sm.cells, 0.5, kind, normal, height, kw["project"], kw["wall_normals"], sweeps=20)
     q2 = hex8_scaled_jacobian(X2, sm.cells)
     assert moved > 0 and q2.min() > 0.45 and q2.mean() > q1.mean() - 1e-3
     check_boundary(sm, kw, X1, X2)
-    top = first_layer_nodes(sm)
+    top = first_layer_nodes(sm) & ~kw["cap_nodes"]  # cap nodes slide in their plane (no height kept there)
     assert np.abs(np.linalg.norm(X2[top, :2], axis=1) - np.linalg.norm(X1[top, :2], axis=1)).max() < 1e-9
 
 
@@ -220,6 +221,6 @@ def test_worst_pass_parallel_kernels_match_the_serial_ones():
         np.testing.assert_array_equal(a, b)
     T = X[nodes][:, None] + np.random.default_rng(6).normal(size=(len(nodes), 4, 3)) * 0.2
     T[2, 1] = np.nan
-    qp = W._trial_minima_parallel(X, hexes, ptr, inc, nodes, T)
-    np.testing.assert_array_equal(qp, W._trial_minima_serial(X, hexes, ptr, inc, nodes, T))
+    qp = W._trial_minima_parallel(X, hexes, ptr, inc, nodes, T, -np.inf)
+    np.testing.assert_array_equal(qp, W._trial_minima_serial(X, hexes, ptr, inc, nodes, T, -np.inf))
     assert qp[2, 1] == -np.inf and np.isfinite(np.delete(qp.ravel(), 2 * 4 + 1)).all()

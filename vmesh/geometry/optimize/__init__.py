@@ -78,11 +78,12 @@ def _offset(project, trial, height):
     return foot + up * (height / np.maximum(np.linalg.norm(up, axis=1), 1e-300))[:, None]
 
 
-def _sweep(X, st, cq, kind, normal, caps, delta, mode, goal, project, wall_normals, stats, height, dirty, tol=0.0):
+def _sweep(X, st, cq, kind, normal, caps, delta, mode, goal, project, wall_normals, stats, height, dirty, tol=0.0, ratio_floor=-np.inf):
     """One Gauss–Seidel sweep over every colour of the stage; returns the number of nodes moved.
     ``wall_normals`` (None: keep the current ones) gives the tangent planes of the wall and
     first-layer nodes; moves shorter than ``tol`` times a node's step cap leave its
-    neighbours clean."""
+    neighbours clean; ``ratio_floor``: the smoothing steps' Jacobian-ratio guard
+    (:func:`kernels.node_eval`, ``-inf`` off)."""
     moved = 0
     if wall_normals is not None:
         w = st.nodes[(kind[st.nodes] == K.WALL) | (kind[st.nodes] == K.OFFSET)]
@@ -95,7 +96,7 @@ def _sweep(X, st, cq, kind, normal, caps, delta, mode, goal, project, wall_norma
         buf = np.empty((len(nodes), width))  # the corner qualities of each node's last trial
         state = np.empty((len(nodes), 4))
         parallel = len(nodes) >= K.PARALLEL_FROM
-        (K.sweep_colour_parallel if parallel else K.sweep_colour_serial)(X, st.hexes, st.scale, st.ptr, st.inc, cq, nodes, kind, normal, caps, delta, mode, goal, trial, state, dirty, buf, tol)
+        (K.sweep_colour_parallel if parallel else K.sweep_colour_serial)(X, st.hexes, st.scale, st.ptr, st.inc, cq, nodes, kind, normal, caps, delta, mode, goal, trial, state, dirty, buf, tol, ratio_floor)
         stats["updates"] += int((state[:, 0] != -1.0).sum())
         kinds = kind[nodes]
         wall_trial = ((kinds == K.WALL) | (kinds == K.OFFSET)) & (state[:, 3] > 0)
@@ -108,13 +109,13 @@ def _sweep(X, st, cq, kind, normal, caps, delta, mode, goal, project, wall_norma
                 off = ids[~on]
                 proj[~on] = _offset(project, trial[off], height[nodes[off]])
             sub_state = np.ascontiguousarray(state[ids])
-            (K.accept_trials_parallel if len(ids) >= K.PARALLEL_FROM else K.accept_trials_serial)(X, st.hexes, st.scale, st.ptr, st.inc, cq, nodes[ids], proj, delta, mode, sub_state, dirty, buf, caps, tol)
+            (K.accept_trials_parallel if len(ids) >= K.PARALLEL_FROM else K.accept_trials_serial)(X, st.hexes, st.scale, st.ptr, st.inc, cq, nodes[ids], proj, delta, mode, sub_state, dirty, buf, caps, tol, ratio_floor)
             state[ids, 3] = sub_state[:, 3]
         moved += int((state[:, 3] > 0).sum())
     return moved
 
 
-def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats, sweeps, goal, moved_mask, height, X0, patience=10, climb_below=None, tol=0.0):
+def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats, sweeps, goal, moved_mask, height, X0, patience=10, climb_below=None, tol=0.0, ratio_floor=-np.inf):
     """Sweeps over a stage until its worst element reaches ``goal`` or stops improving; nodes
     whose worst incident element is below ``climb_below`` (default ``goal``) try a max-min
     step when their Newton step is refused."""
@@ -136,7 +137,7 @@ def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats
         # the tangent planes only steer the steps (the projection puts nodes back on the
         # wall): refreshed every few sweeps, the signed-distance queries cost more than a sweep
         normals = wall_normals if sweep % 8 == 0 else None
-        if _sweep(X, st, cq, kind, normal, caps, delta, mode, climb, project, normals, stats, height, dirty, tol) == 0:
+        if _sweep(X, st, cq, kind, normal, caps, delta, mode, climb, project, normals, stats, height, dirty, tol, ratio_floor) == 0:
             break
         q = cq.min(axis=1)
         if q.min() >= goal:
@@ -233,17 +234,12 @@ def optimise_linear(
     points: np.ndarray,
     cells: np.ndarray,
     *,
-    wall: np.ndarray | None = None,
-    wall_normals=None,
-    project=None,
-    cap_nodes: np.ndarray | None = None,
-    cap_normals: np.ndarray | None = None,
+    wall: np.ndarray | None = None, wall_normals=None, project=None,
+    cap_nodes: np.ndarray | None = None, cap_normals: np.ndarray | None = None,
     boundary: np.ndarray | None = None,
-    untangle_below: float = 0.2,
-    smooth_below: float = 0.5,
+    untangle_below: float = 0.2, smooth_below: float = 0.5,
     max_fraction: float = 0.01,
-    sweeps: int = 150,
-    smooth_sweeps: int = 8,
+    sweeps: int = 150, smooth_sweeps: int = 8,
     keep_first_layer: bool = True,
     untangle_mode: int = K.ESCOBAR,
     smooth_rings: int = 0,
@@ -251,6 +247,7 @@ def optimise_linear(
     smooth_tol: float = 0.0,
     keep_partial_free_layer: bool = False,
     untangle_patience: int | None = None,
+    ratio_floor: float = -np.inf,
 ) -> tuple[np.ndarray, dict]:
     """Untangle and smooth the neighbourhood of low-quality linear hexahedra.
 
@@ -300,6 +297,9 @@ def optimise_linear(
     untangle_patience : int, optional
         Rings in a row with neither fewer elements below ``untangle_below`` nor a higher minimum
         that end the growth (None: up to ``max_fraction``); rings, not ``_run_stage``'s sweeps.
+    ratio_floor : float
+        Light pass: a step may not lower its elements' least Jacobian ratio (min / max det J
+        over the corners) below the lesser of that before and this (``-inf``: no such guard).
 
     Returns
     -------
@@ -326,7 +326,7 @@ def optimise_linear(
         q = _untangle(X, sub, n, fixed, bad, run, untangle_below, max_fraction, sweeps, untangle_mode, grow_below_threshold, untangled, info)
     low = q < smooth_below
     if smooth_below > 0 and low.any():
-        _smooth_region(X, sub, n, fixed, low, run, smooth_below, smooth_sweeps, smooth_rings, smoothed, smooth_tol)
+        _smooth_region(X, sub, n, fixed, low, run, smooth_below, smooth_sweeps, smooth_rings, smoothed, smooth_tol, ratio_floor)
         q = hex8_scaled_jacobian(X, sub)
     return X, _linear_done(info, q, untangled, smoothed, run["stats"], t0)
 
@@ -522,10 +522,11 @@ def polish(points: np.ndarray, cells: np.ndarray, goals, **kw) -> tuple[np.ndarr
     return X, info
 
 
-def _smooth_region(X, sub, n, fixed, low, run, below, sweeps, rings, smoothed, tol=0.0):
+def _smooth_region(X, sub, n, fixed, low, run, below, sweeps, rings, smoothed, tol=0.0, ratio_floor=-np.inf):
     """The light pass: monotone steps for the nodes of the ``low`` elements (and ``rings``
     rings of elements around them); the nodes' neighbourhood minimum and sum of scaled
-    Jacobians never drop, and nodes whose worst element is below ``below`` climb it."""
+    Jacobians never drop, and nodes whose worst element is below ``below`` climb it
+    (``ratio_floor``: the Jacobian-ratio guard, :func:`optimise_linear`)."""
     active = np.zeros(n, bool)
     active[sub[low].ravel()] = True
     if rings:
@@ -533,4 +534,4 @@ def _smooth_region(X, sub, n, fixed, low, run, below, sweeps, rings, smoothed, t
         for _ in range(rings):
             active = K.grow_nodes(sub, ptr, inc, active)
     st = _Stage(run["X0"], sub, active, n, fixed)
-    _run_stage(X, st, run["kind"], run["normal"], lambda qmin: 1e-3 if qmin > 0 else _delta(qmin), K.SMOOTH, run["project"], run["wall_normals"], run["stats"], sweeps, 1.0, smoothed, run["height"], run["X0"], climb_below=below, tol=tol)
+    _run_stage(X, st, run["kind"], run["normal"], lambda qmin: 1e-3 if qmin > 0 else _delta(qmin), K.SMOOTH, run["project"], run["wall_normals"], run["stats"], sweeps, 1.0, smoothed, run["height"], run["X0"], climb_below=below, tol=tol, ratio_floor=ratio_floor)

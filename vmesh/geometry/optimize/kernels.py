@@ -32,6 +32,7 @@ from numba.core import types as nbtypes
 from numba.extending import intrinsic
 
 from .prefetch import ahead
+from .structure import colour_nodes, grow_nodes, incidence, step_caps, target_scales  # re-exported: the stage's structure
 
 #: node kinds: free in 3-D, sliding on the wall (tangent plane, then projection), sliding in a
 #: cap plane, fixed, sliding at a fixed distance from the wall (first boundary layer: tangent
@@ -43,6 +44,11 @@ UNTANGLE, SMOOTH, ESCOBAR = 0, 1, 2
 #: Newton trials (t = 1, 1/2, ...) of a smoothing step, and max-min trials of a refused one
 #: (4 and 3 cost the mean quality 1e-4 to 3e-4 on the real cases for ~10 % less time)
 SMOOTH_TRIALS = 8
+#: a smoothing Newton step is first tried this much longer (over-relaxed Gauss-Seidel, then
+#: 1, 1/2, ...): the sweeps' gain decays by ~1.3x a sweep at 1; 1.5 reaches the ICA's
+#: 8-sweep min / mean in 6 sweeps (docs/speed.md, session 21). Not for wall nodes (one
+#: trial per sweep, judged after the projection)
+OVER_RELAX = 1.5
 CLIMB_TRIALS = 6
 #: frame buffers per colour (parallel chunks of nodes)
 CHUNKS = 64
@@ -162,8 +168,10 @@ def _mark(hexes, ptr, inc, v, dirty):
 #: lengths (1) and the sum of their scaled squared lengths (1); the squared target scales
 #: (31:34) and their product (34); the minimum of the four corners the node does not move (35);
 #: then scratch for :func:`node_eval`: per moved corner q its functional's inputs (36 + 9 q:
-#: F, D, dF (3), dD (3), diag)
-NL = 72
+#: F, D, dF (3), dD (3), diag); then the Jacobian ratio's inputs: the least determinant of
+#: the four corners the node does not move (72), their largest magnitude (73) and the
+#: element's ratio (min det / max |det| over its 8 corners) where the frame was taken (74)
+NL = 75
 
 
 @nb.njit(cache=True)
@@ -216,6 +224,29 @@ def frame(X, hexes, scale, ptr, inc, cq, v, L):
             L[r, k + 4] = nb2 * nc2
             L[r, k + 5] = L[r, 31 + b] * nb2 + L[r, 31 + cc] * nc2
         L[r, 35] = min(min(cq[e, l ^ 3], cq[e, l ^ 5]), min(cq[e, l ^ 6], cq[e, l ^ 7]))
+        lo, hi = np.inf, 0.0
+        for c in (l ^ 3, l ^ 5, l ^ 6, l ^ 7):
+            d = _plain_det(X, hexes, e, c)
+            lo, hi = min(lo, d), max(hi, abs(d))
+        L[r, 72], L[r, 73] = lo, hi
+        for d in (L[r, 12], L[r, 16], L[r, 22], L[r, 28]):
+            lo, hi = min(lo, d), max(hi, abs(d))
+        L[r, 74] = lo / max(hi, 1e-300)
+
+
+@nb.njit(cache=True, inline="always")
+def _plain_det(X, hexes, e, c):
+    """Determinant of the (unscaled) edge matrix of corner ``c`` of hexahedron ``e``: its
+    Jacobian up to a constant factor."""
+    n0 = hexes[e, c]
+    s0 = 1.0 if c & 1 == 0 else -1.0
+    s1 = 1.0 if c & 2 == 0 else -1.0
+    s2 = 1.0 if c & 4 == 0 else -1.0
+    a, b, d = hexes[e, c ^ 1], hexes[e, c ^ 2], hexes[e, c ^ 4]
+    ax, ay, az = X[a, 0] - X[n0, 0], X[a, 1] - X[n0, 1], X[a, 2] - X[n0, 2]
+    bx, by, bz = X[b, 0] - X[n0, 0], X[b, 1] - X[n0, 1], X[b, 2] - X[n0, 2]
+    dx, dy, dz = X[d, 0] - X[n0, 0], X[d, 1] - X[n0, 1], X[d, 2] - X[n0, 2]
+    return s0 * s1 * s2 * (ax * (by * dz - bz * dy) + ay * (bz * dx - bx * dz) + az * (bx * dy - by * dx))
 
 
 @intrinsic
@@ -313,7 +344,7 @@ _NO, _YES = np.bool_(False), np.bool_(True)
 
 
 @nb.njit(cache=True)
-def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, buf, row, fused, floor):
+def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, buf, row, fused, floor, ratio_floor):
     """Functional and quality of node ``v`` displaced by ``z`` from where its frame ``L`` was
     taken (:func:`frame`), over the 4 corners of each incident hexahedron that it moves.
 
@@ -331,6 +362,14 @@ def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, bu
     -inf``, the trial's refusal known (the callers refuse any ``qmin`` below the start's);
     ``buf[row]`` is then incomplete, which only an accepted trial reads.
 
+    ``ratio_floor`` (with ``want_q``; ``-inf``: off): an incident hexahedron whose Jacobian
+    ratio (min det / max |det| over its corners) falls below the lesser of ``ratio_floor``
+    and the incident hexahedra's least ratio where the frame was taken ends the evaluation
+    the same way (a move may not taper an element: the corner scaled Jacobians do not see one
+    edge shrinking). Like the scaled Jacobians' minimum, the neighbourhood's, not each
+    element's: a per-element rule refuses every move that trades between two tapered
+    elements, and then the pass cannot repair them.
+
     Returns ``(f, g0, g1, g2, H00, H01, H02, H11, H12, H22, qmin, qsum)``: the minimum and
     sum over the incident hexahedra of their scaled Jacobian (``want_q``).
     """
@@ -339,10 +378,16 @@ def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, bu
     qmin = np.inf
     qsum = 0.0
     d2 = 4.0 * delta * delta
+    guard = want_q and ratio_floor > -np.inf
+    least = ratio_floor  # the incident hexahedra's least Jacobian ratio may not drop below this
+    if guard:
+        for r in range(ptr[v + 1] - ptr[v]):
+            least = min(least, L[r, 74])
     for t in range(ptr[v], ptr[v + 1]):
         r = t - ptr[v]
         hmin = L[r, 35]
         S = L[r, 34]
+        dlo, dhi = L[r, 72], L[r, 73]
         for q in range(4):
             if q == 0:  # the moving corner: its three edges u_a = p_a - z move
                 u0x, u0y, u0z = L[r, 0] - z0, L[r, 1] - z1, L[r, 2] - z2
@@ -380,10 +425,13 @@ def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, bu
                 if sj < floor:
                     return f, g0, g1, g2, h00, h01, h02, h11, h12, h22, -np.inf, qsum
                 hmin = min(hmin, sj)
+                dlo, dhi = min(dlo, D), max(dhi, abs(D))
             if want_f:  # the functional's inputs, for the second loop
                 k = 36 + 9 * q
                 L[r, k], L[r, k + 1], L[r, k + 2], L[r, k + 3], L[r, k + 4] = F, S * D, dFx, dFy, dFz
                 L[r, k + 5], L[r, k + 6], L[r, k + 7], L[r, k + 8] = S * gx, S * gy, S * gz, diag
+        if guard and dlo / max(dhi, 1e-300) < least:
+            return f, g0, g1, g2, h00, h01, h02, h11, h12, h22, -np.inf, qsum
         qsum += hmin
         qmin = min(qmin, hmin)
     if want_f and fused:  # only the Hessian's call fuses: a literal True keeps its contractions
@@ -484,7 +532,7 @@ def _moved(X, hexes, ptr, inc, cq, v, L, y0, y1, y2, dirty, buf, row, least):
     step = np.sqrt(z0 * z0 + z1 * z1 + z2 * z2)
     X[v, 0], X[v, 1], X[v, 2] = y0, y1, y2
     if row < 0:
-        node_eval(L, ptr, inc, cq, v, z0, z1, z2, 0.0, _NO, _NO, _YES, buf, np.int64(-2), _NO, -np.inf)
+        node_eval(L, ptr, inc, cq, v, z0, z1, z2, 0.0, _NO, _NO, _YES, buf, np.int64(-2), _NO, -np.inf, -np.inf)
     else:
         for t in range(ptr[v], ptr[v + 1]):
             e = inc[t] >> 3
@@ -502,7 +550,7 @@ def _chunk(n, chunks, i):
 
 
 @nb.njit(cache=True)
-def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol, L):
+def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol, L, ratio_floor):
     """One Newton step with backtracking for node ``v`` (row ``j`` of its colour), else a
     max-min climb; see :func:`_sweep_colour`."""
     frame(X, hexes, scale, ptr, inc, cq, v, L)
@@ -510,7 +558,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
     # the start's quality from the frame, as every trial's: the cache's values of the moved
     # corners (computed in other frames) differ in the last bits, enough to refuse the short
     # steps that climb the worst element
-    f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin0, qsum0 = node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, delta, _YES, _YES, _YES, buf, np.int64(-1), mode == SMOOTH, -np.inf)
+    f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin0, qsum0 = node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, delta, _YES, _YES, _YES, buf, np.int64(-1), mode == SMOOTH, -np.inf, -np.inf)
     if mode == ESCOBAR and not on_wall:
         qmin0, qsum0 = np.inf, 0.0
     state[j, 0], state[j, 1], state[j, 2] = f0, qmin0, qsum0
@@ -521,18 +569,18 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
     newton = length > 0.0 and np.isfinite(length)
     if newton and length > step_cap[v]:
         d0, d1, d2 = d0 * step_cap[v] / length, d1 * step_cap[v] / length, d2 * step_cap[v] / length
-    t = 1.0
     # smoothing is judged by the quality alone (no functional value needed), untangling
     # by the functional (and wall nodes again after their projection)
     smooth = mode == SMOOTH
     judge = mode != ESCOBAR and not on_wall
-    for _ in range((SMOOTH_TRIALS if smooth else 8) if newton else 0):
+    t = OVER_RELAX if smooth and not on_wall else 1.0
+    for _ in range((SMOOTH_TRIALS + (1 if t > 1.0 else 0) if smooth else 8) if newton else 0):
         z0, z1, z2 = t * d0, t * d1, t * d2
         if on_wall and smooth:  # judged after the projection
             trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2
             state[j, 3] = 1.0
             return
-        r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, not smooth, judge or smooth, buf, np.int64(j), _NO, qmin0 if smooth else -np.inf)
+        r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, not smooth, judge or smooth, buf, np.int64(j), _NO, qmin0 if smooth else -np.inf, ratio_floor if smooth else -np.inf)
         if (r[0] < f0) if not smooth else _acceptable(mode, r[0], r[10], r[11], f0, qmin0, qsum0):
             if on_wall:  # judged again after the projection
                 trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2
@@ -542,7 +590,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
                 _moved(X, hexes, ptr, inc, cq, v, L, X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2, dirty, buf, np.int64(j) if judge or smooth else np.int64(-1), 0.0 if r[10] > qmin0 else tol * step_cap[v])
                 state[j, 3] = 1.0
                 return
-        t *= 0.5
+        t = 1.0 if t > 1.0 else 0.5 * t
     if qmin0 < goal and mode != ESCOBAR:
         # no Newton step helps: climb the worst corner instead (max-min), judged by the
         # incident elements' minimum scaled Jacobian alone
@@ -563,7 +611,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
                 state[j, 0] = np.inf  # the functional is not asked for
                 state[j, 3] = 1.0
                 return
-            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, _NO, _YES, buf, np.int64(j), _NO, climb_floor)
+            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, _NO, _YES, buf, np.int64(j), _NO, climb_floor, ratio_floor if smooth else -np.inf)
             if _acceptable(mode, np.inf, r[10], r[11], np.inf, qmin0, qsum0):
                 # a climb raises a worst element: however short, the neighbours try again
                 _moved(X, hexes, ptr, inc, cq, v, L, X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2, dirty, buf, np.int64(j), 0.0)
@@ -572,14 +620,17 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
             t *= 0.5
 
 
-def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol):
+def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol, ratio_floor):
     """One Newton step with backtracking for every node of one colour (no two share a hexahedron).
 
     Free and plane nodes are updated in ``X``; wall nodes get their tangential trial
     position in ``trial`` (to be projected onto the wall and checked by :func:`accept_trials`),
     with their start values ``(f, qmin, qsum)`` in ``state``. ``cq`` holds the corner scaled
     Jacobians of the stage's hexahedra and follows every move. A move shorter than ``tol``
-    times the node's step cap does not make its neighbours dirty. Returns nothing;
+    times the node's step cap does not make its neighbours dirty. Smoothing trials
+    (``mode == SMOOTH``) must also keep each incident hexahedron's Jacobian ratio at or above
+    the lesser of its ratio before and ``ratio_floor`` (``-inf``: no such guard; see
+    :func:`node_eval`). Returns nothing;
     ``state[:, 3]`` is 1 where a node moved (or has a trial), else 0.
     """
     n = len(nodes)
@@ -596,10 +647,10 @@ def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, 
                 state[j, 0] = -1.0
                 continue
             dirty[v] = False
-            _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol, frames[i])
+            _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol, frames[i], ratio_floor)
 
 
-def _accept_trials(X, hexes, scale, ptr, inc, cq, nodes, projected, delta, mode, state, dirty, buf, step_cap, tol):
+def _accept_trials(X, hexes, scale, ptr, inc, cq, nodes, projected, delta, mode, state, dirty, buf, step_cap, tol, ratio_floor):
     """Move wall nodes to their projected trial positions where that still improves them
     (the functional decreases and, for untangling, no incident element gets worse than
     the worst before; for smoothing, their minimum and sum of scaled Jacobians do not drop)."""
@@ -614,7 +665,7 @@ def _accept_trials(X, hexes, scale, ptr, inc, cq, nodes, projected, delta, mode,
             v = nodes[j]
             frame(X, hexes, scale, ptr, inc, cq, v, L)
             z0, z1, z2 = projected[j, 0] - X[v, 0], projected[j, 1] - X[v, 1], projected[j, 2] - X[v, 2]
-            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, mode != SMOOTH, _YES, buf, np.int64(j), _NO, _trial_floor(mode, state[j, 0], state[j, 1]))
+            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, mode != SMOOTH, _YES, buf, np.int64(j), _NO, _trial_floor(mode, state[j, 0], state[j, 1]), ratio_floor if mode == SMOOTH else -np.inf)
             if _acceptable(mode, r[0], r[10], r[11], state[j, 0], state[j, 1], state[j, 2]):
                 _moved(X, hexes, ptr, inc, cq, v, L, projected[j, 0], projected[j, 1], projected[j, 2], dirty, buf, np.int64(j), 0.0 if state[j, 0] == np.inf or r[10] > state[j, 1] else tol * step_cap[v])
             else:
@@ -624,116 +675,6 @@ def _accept_trials(X, hexes, scale, ptr, inc, cq, nodes, projected, delta, mode,
                     # refused, it tries again next sweep with half the step
                     step_cap[v] *= 0.5
                     dirty[v] = True
-
-
-@nb.njit(cache=True)
-def incidence(hexes, n):
-    """Node-to-hexahedron incidence as CSR: ``ptr (n+1,)`` and ``inc`` = 8 * element + local corner."""
-    count = np.zeros(n + 1, np.int64)
-    m = hexes.shape[0]
-    for e in range(m):
-        for c in range(8):
-            count[hexes[e, c] + 1] += 1
-    ptr = np.cumsum(count)
-    fill = ptr[:-1].copy()
-    inc = np.empty(8 * m, np.int64)
-    for e in range(m):
-        for c in range(8):
-            v = hexes[e, c]
-            inc[fill[v]] = 8 * e + c
-            fill[v] += 1
-    return ptr, inc
-
-
-@nb.njit(cache=True)
-def colour_nodes(hexes, ptr, inc, nodes, n):
-    """Greedy colouring of ``nodes`` so that no two of one colour share a hexahedron
-    (deterministic: nodes in the given order, smallest free colour)."""
-    colour = np.full(n, -1, np.int64)
-    active = np.zeros(n, np.bool_)
-    for v in nodes:
-        active[v] = True
-    used = np.full(256, -1, np.int64)  # stamp per colour: used by a neighbour of the node `stamp`
-    out = np.empty(len(nodes), np.int64)
-    for j in range(len(nodes)):
-        v = nodes[j]
-        for t in range(ptr[v], ptr[v + 1]):
-            e = inc[t] >> 3
-            for c in range(8):
-                w = hexes[e, c]
-                if active[w] and colour[w] >= 0:
-                    used[colour[w]] = v
-        col = 0
-        while col < 255 and used[col] == v:
-            col += 1
-        colour[v] = col
-        out[j] = col
-    return out
-
-
-@nb.njit(cache=True)
-def step_caps(X, hexes, ptr, inc, nodes, n, fraction):
-    """Largest step per node: ``fraction`` of its longest incident edge."""
-    cap = np.zeros(n)
-    for v in nodes:
-        longest = 0.0
-        for t in range(ptr[v], ptr[v + 1]):
-            e = inc[t] >> 3
-            l = inc[t] & 7
-            for a in range(3):
-                w = hexes[e, l ^ (1 << a)]
-                d = (X[w, 0] - X[v, 0]) ** 2 + (X[w, 1] - X[v, 1]) ** 2 + (X[w, 2] - X[v, 2]) ** 2
-                longest = max(longest, d)
-        cap[v] = fraction * np.sqrt(longest)
-    return cap
-
-
-@nb.njit(parallel=True, cache=True)
-def target_scales(X, hexes, floor):
-    """``1 / target length`` per hexahedron and axis ``(m, 3)``: the element's thickness
-    across each axis.
-
-    With ``m_a`` the mean of the element's four edges along axis ``a``, the thickness is
-    ``|m_a . (m_b x m_c)| / |m_b x m_c|``, the height between its two faces across ``a``.
-    Unlike edge lengths it ignores shear: a boundary-layer element whose wall nodes were
-    shifted along the wall still asks for its first-layer height, not its slanted edge.
-    Where the element's mean frame is degenerate or inverted (a fold), the mean edge
-    length is used instead.
-    """
-    m = hexes.shape[0]
-    out = np.empty((m, 3))
-    for e in nb.prange(m):
-        M = np.zeros((3, 3))
-        for a in range(3):
-            for c in range(8):
-                if (c >> a) & 1 == 0:
-                    u, w = hexes[e, c], hexes[e, c ^ (1 << a)]
-                    for d in range(3):
-                        M[a, d] += 0.25 * (X[w, d] - X[u, d])
-        for a in range(3):
-            b, c2 = (a + 1) % 3, (a + 2) % 3
-            nx = M[b, 1] * M[c2, 2] - M[b, 2] * M[c2, 1]
-            ny = M[b, 2] * M[c2, 0] - M[b, 0] * M[c2, 2]
-            nz = M[b, 0] * M[c2, 1] - M[b, 1] * M[c2, 0]
-            area = np.sqrt(nx * nx + ny * ny + nz * nz)
-            length = np.sqrt(M[a, 0] ** 2 + M[a, 1] ** 2 + M[a, 2] ** 2)
-            height = (M[a, 0] * nx + M[a, 1] * ny + M[a, 2] * nz) / max(area, 1e-300)
-            t = height if height > 0.02 * length else length
-            out[e, a] = 1.0 / max(t, floor)
-    return out
-
-
-@nb.njit(cache=True)
-def grow_nodes(hexes, ptr, inc, mask):
-    """Nodes of every hexahedron that has a node in ``mask`` (one ring more)."""
-    out = mask.copy()
-    for v in range(len(mask)):
-        if mask[v]:
-            for t in range(ptr[v], ptr[v + 1]):
-                e = inc[t] >> 3
-                for c in range(8):
-                    out[hexes[e, c]] = True
-    return out
 
 
 #: parallel versions for large colours and serial ones for small colours (a parallel launch
@@ -766,12 +707,12 @@ def warm_up() -> None:
     kind, normal, caps = np.full(8, FIXED, np.int64), np.zeros((8, 3)), np.zeros(8)
     for sweep, accept in ((sweep_colour_serial, accept_trials_serial), (sweep_colour_parallel, accept_trials_parallel)):
         trial, state, dirty, buf = np.zeros((8, 3)), np.zeros((8, 4)), np.zeros(8, np.bool_), np.zeros((8, 32))
-        sweep(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, caps, 1e-3, SMOOTH, 0.5, trial, state, dirty, buf, 0.0)
-        accept(X, hexes, scale, ptr, inc, cq, nodes, trial, 1e-3, SMOOTH, state, dirty, buf, caps, 0.0)
+        sweep(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, caps, 1e-3, SMOOTH, 0.5, trial, state, dirty, buf, 0.0, 0.3)
+        accept(X, hexes, scale, ptr, inc, cq, nodes, trial, 1e-3, SMOOTH, state, dirty, buf, caps, 0.0, 0.3)
     # the max-min pass's last: every run needs the sweeps, only runs left below smooth_below
     # these, and a first run's optimiser may start while the background compile is still here
     from . import kernels_worst as KW
 
     for corners, minima in ((KW._worst_corners_serial, KW._trial_minima_serial), (KW._worst_corners_parallel, KW._trial_minima_parallel)):
         corners(X, hexes, ptr, inc, nodes)
-        minima(X, hexes, ptr, inc, nodes, np.ascontiguousarray(X[:, None]))
+        minima(X, hexes, ptr, inc, nodes, np.ascontiguousarray(X[:, None]), 0.3)

@@ -113,16 +113,41 @@ def _worst_corners(X, hexes, ptr, inc, group):
     return q, G, longest, shortest
 
 
-def _trial_minima(X, hexes, ptr, inc, group, T):
+@nb.njit(cache=True)
+def _ratio(X, hexes, e, v, y0, y1, y2):
+    """Jacobian ratio of hexahedron ``e`` (min det / max |det| over its 8 corners) with the
+    node ``v`` placed at ``y``."""
+    lo, hi = np.inf, 0.0
+    for cc in range(8):
+        a0, a1, a2, b0, b1, b2, c0, c1, c2, sj, ln = _corner_edges(X, hexes, e, cc, v, y0, y1, y2)
+        det = a0 * (b1 * c2 - b2 * c1) + a1 * (b2 * c0 - b0 * c2) + a2 * (b0 * c1 - b1 * c0)
+        lo, hi = min(lo, det), max(hi, abs(det))
+    return lo / max(hi, 1e-300)
+
+
+def _trial_minima(X, hexes, ptr, inc, group, T, ratio_floor):
     """``(c, trials)``: with node ``group[a]`` at ``T[a, t]``, the least scaled Jacobian of its
-    corners (-inf where one is NaN: a degenerate trial is no candidate)."""
+    corners (-inf where one is NaN: a degenerate trial is no candidate, and where an incident
+    hexahedron's Jacobian ratio falls below the lesser of ``ratio_floor`` and the incident
+    hexahedra's least ratio before, ``-inf`` for no such guard: the light pass's taper guard)."""
     c, nt = T.shape[0], T.shape[1]
     out = np.full((c, nt), np.inf)
     for a in nb.prange(c):
         v = group[a]
+        least = ratio_floor
+        if ratio_floor > -np.inf:
+            for s in range(ptr[v], ptr[v + 1]):
+                least = min(least, _ratio(X, hexes, inc[s] >> 3, v, X[v, 0], X[v, 1], X[v, 2]))
         for t in range(nt):
             y0, y1, y2 = T[a, t, 0], T[a, t, 1], T[a, t, 2]
             best = np.inf
+            if ratio_floor > -np.inf:
+                for s in range(ptr[v], ptr[v + 1]):
+                    if _ratio(X, hexes, inc[s] >> 3, v, y0, y1, y2) < least:
+                        best = -np.inf
+                if best == -np.inf:
+                    out[a, t] = best
+                    continue
             for s in range(ptr[v], ptr[v + 1]):
                 e, loc = inc[s] >> 3, inc[s] & 7
                 for cc in range(8):
@@ -150,6 +175,6 @@ def worst_corners(X, hexes, ptr, inc, group):
     return (_worst_corners_parallel if len(group) >= PARALLEL_FROM else _worst_corners_serial)(X, hexes, ptr, inc, group)
 
 
-def trial_minima(X, hexes, ptr, inc, group, T):
+def trial_minima(X, hexes, ptr, inc, group, T, ratio_floor=-np.inf):
     """:func:`_trial_minima`, in parallel for ``PARALLEL_FROM`` nodes or more."""
-    return (_trial_minima_parallel if len(group) >= PARALLEL_FROM else _trial_minima_serial)(X, hexes, ptr, inc, group, T)
+    return (_trial_minima_parallel if len(group) >= PARALLEL_FROM else _trial_minima_serial)(X, hexes, ptr, inc, group, T, float(ratio_floor))

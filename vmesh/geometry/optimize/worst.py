@@ -70,7 +70,7 @@ def _least_norm(G, ok):
     return best, bn
 
 
-def lift_worst(X, hexes, below, kind, normal, height, project=None, wall_normals=None, sweeps=10, X0=None):
+def lift_worst(X, hexes, below, kind, normal, height, project=None, wall_normals=None, sweeps=10, X0=None, ratio_floor=-np.inf):
     """Raise the worst elements of a valid linear mesh in place: every node of an element
     below ``below`` takes max-min steps (see the module), Gauss-Seidel over a colouring of
     the nodes (a colour's nodes share no hexahedron and move together), for at most
@@ -80,7 +80,9 @@ def lift_worst(X, hexes, below, kind, normal, height, project=None, wall_normals
 
     ``kind``, ``normal``, ``height``: :func:`vmesh.geometry.optimize._node_kinds`. Missing
     (NaN) heights of the nodes that may move are measured up front on ``X0`` (default ``X``)
-    and written into the caller's ``height`` array. ``hexes`` must be linear (8 columns)."""
+    and written into the caller's ``height`` array. ``hexes`` must be linear (8 columns).
+    ``ratio_floor``: a step may not lower an incident element's Jacobian ratio below the
+    lesser of its ratio before and this (the light pass's taper guard; ``-inf``: none)."""
     from ..quality import hex8_scaled_jacobian
 
     hexes = np.asarray(hexes)
@@ -119,7 +121,7 @@ def lift_worst(X, hexes, below, kind, normal, height, project=None, wall_normals
             group = group[dirty[group]]
             if not len(group):
                 continue
-            ok = _step(X, hexes, ptr, inc, group, kind, normal, height, project, nrm)  # a colour's nodes are independent
+            ok = _step(X, hexes, ptr, inc, group, kind, normal, height, project, nrm, ratio_floor)  # a colour's nodes are independent
             dirty[group[~ok]] = False
             if ok.any():
                 up = group[ok]
@@ -133,7 +135,7 @@ def lift_worst(X, hexes, below, kind, normal, height, project=None, wall_normals
     return int(moved.sum()), sweep
 
 
-def _step(X, hexes, ptr, inc, group, kind, normal, height, project, wall_nrm):
+def _step(X, hexes, ptr, inc, group, kind, normal, height, project, wall_nrm, ratio_floor=-np.inf):
     """One max-min step of each node of ``group`` (one colour); returns which moved (their
     incident minimum rose). ``wall_nrm (n, 3)``: the wall nodes' normals."""
     c = len(group)
@@ -164,7 +166,7 @@ def _step(X, hexes, ptr, inc, group, kind, normal, height, project, wall_nrm):
     o = np.flatnonzero(k == K.OFFSET)
     if len(o):
         T[o] = _offset(project, T[o].reshape(-1, 3), np.repeat(height[group[o]], trials)).reshape(len(o), trials, 3)
-    qt = KW.trial_minima(X, hexes, ptr, inc, group, np.ascontiguousarray(T))
+    qt = KW.trial_minima(X, hexes, ptr, inc, group, np.ascontiguousarray(T), ratio_floor)
     qt[~go] = -np.inf
     b = np.argmax(qt, axis=1)
     rose = qt[np.arange(c), b] > q0[:, 0] + 1e-9
