@@ -338,18 +338,55 @@ def stub_vessel(angle: float = 70.0, ratio: float = 0.45, length: float = 1.5, e
     d = np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle)), 0.0])
     tree.branches.append(T.Branch(*T.straight(parent[0][i], parent[0][i] + (1.0 + length * ratio) * d, ratio, ratio), 0, i, kind="stub"))
     tree.features["stub"] = 1
-    # duplicates: generate_vessel's surface pipeline without its random features, so that
-    # the stub is made as the corpus makes it
+    return _made_as_the_corpus(tree, end_style, name, "stub", {"angle": angle, "ratio": ratio, "length": length})
+
+
+def fork_vessel(angles=(8.0, 9.0), radii=(1.5, 1.2, 1.1), length: float = 12.0, end_style: str = "flat",
+                name: str = "fork") -> Vessel:
+    """A parent vessel along x (10 mm up to the origin) forking into two straight daughters
+    ``length`` long, ``angles`` degrees either side of +x in the xy plane, as the
+    generator's ``acute_angle`` feature makes them (6-11 degrees): the daughters' lumens run
+    fused several radii past the fork (issue 18, seed 0 g0006 extracted).
+
+    Parameters
+    ----------
+    angles : (float, float)
+        Degrees of each daughter from +x (towards +y, towards -y).
+    radii : (float, float, float)
+        The parent's and the daughters' radii, mm.
+    length : float
+        The daughters' length, mm.
+    end_style : {"open", "flat", "round"}
+    name : str
+
+    Returns
+    -------
+    Vessel
+        As :func:`stub_vessel`'s; the manifest's ``fork`` entry records ``angles`` and ``radii``.
+    """
+    parent = T.straight(np.array([-10.0, 0.0, 0.0]), np.zeros(3), radii[0], radii[0])
+    tree = T.Tree([T.Branch(*parent)])
+    for angle, radius, side in zip(angles, radii[1:], (1.0, -1.0)):
+        d = np.array([np.cos(np.radians(angle)), side * np.sin(np.radians(angle)), 0.0])
+        tree.branches.append(T.Branch(*T.straight(np.zeros(3), length * d, radius, radius), 0, len(parent[0]) - 1))
+    tree.features["acute_angle"] = 1
+    return _made_as_the_corpus(tree, end_style, name, "acute_angle", {"angles": list(angles), "radii": list(radii)})
+
+
+def _made_as_the_corpus(tree, end_style: str, name: str, feature: str, record: dict) -> Vessel:
+    """``tree``'s vessel by :func:`generate_vessel`'s surface pipeline without its random
+    features (contour, ends, smoothing, decimation), so that a hand-made shape is made as the
+    corpus makes it; the manifest records ``feature`` and, under its kind, ``record``."""
     xyz, radius, tags, edges = T.skeleton_of(tree)
     caps = [(e, n, r) for _, e, n, r in S.end_caps(tree)]
     tag_ends(tree, xyz, tags, caps)
     F, grid = S.implicit_field(tree, end_style, S.grid_spacing(tree, 2.6, 6e6))
     V, Tri = finish_surface(*S.contour(F, grid, False, smooth_iters=0), caps, end_style)
     manifest = {"name": name, "units": "mm", "unit_scale_per_mm": 1.0, "end_style": end_style, "surface_format": "vtp",
-                "features": {f: int(f == "stub") for f in FEATURES}, "requested": ["stub"], "closed": end_style != "open",
+                "features": {f: int(f == feature) for f in FEATURES}, "requested": [feature], "closed": end_style != "open",
                 "outward": True, "consistently_oriented": True, "components": 1, "skeleton_nodes": int(len(xyz)),
                 "skeleton_edges": int(len(edges)), "faces": int(len(Tri)), "vertices": int(len(V)),
-                "stub": {"angle": angle, "ratio": ratio, "length": length}}
+                "stub" if feature == "stub" else "fork": record}
     return Vessel(V, Tri, xyz, radius, tags, edges, manifest)
 
 

@@ -281,3 +281,115 @@ def test_a_stubs_end_is_trimmed_back_to_its_parent_only_without_spur_wall(outsid
         assert graph.pos(tip)[1] > R and r_ref == pytest.approx(STUB)
     else:
         assert graph.pos(tip)[1] < 0.5 * R and r_ref > 1.2 * STUB  # cut back inside its parent
+
+
+def _fork_graph(angle: float, length: float, radius: float):
+    """The rest: a parent (radius 1.5) from -x to a junction at the origin, a trunk (radius
+    1.0) along +x to a fork at x = 3 and its two daughters (radius 0.9); and a candidate of
+    ``radius`` and ``length`` from the origin at ``angle`` degrees from +x."""
+    from vmesh.geometry.skeleton.branch_graph import BranchGraph
+
+    graph, h = BranchGraph(), 0.1
+
+    def branch(a, b, r):
+        a_pos, b_pos = graph.pos(a), graph.pos(b)
+        t = np.arange(h, np.linalg.norm(b_pos - a_pos) - h / 2, h) / np.linalg.norm(b_pos - a_pos)
+        return graph.add_branch(a, b, a_pos + t[:, None] * (b_pos - a_pos), np.full(len(t), r))
+
+    j, fork = graph.add_node([0.0, 0, 0], 1.5), graph.add_node([3.0, 0, 0], 1.0)
+    branch(j, graph.add_node([-5.0, 0, 0], 1.5), 1.5)
+    branch(j, fork, 1.0)
+    for y in (1.5, -1.5):
+        branch(fork, graph.add_node([10.0, y, 0], 0.9), 0.9)
+    d = np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle)), 0.0])
+    tip = graph.add_node(length * d, radius)
+    return graph, [(j, tip, branch(j, tip, radius), tip, j)]
+
+
+@pytest.mark.parametrize("angle, length, radius, free", [(90.0, 1.7, 0.4, True), (55.0, 1.8, 0.7, True), (20.0, 2.6, 0.9, False)])
+def test_a_candidate_reaching_another_branch_of_the_rest_is_no_side_vessel(angle, length, radius, free):
+    """Session 20's rule held, on seed 0 g0006 extracted, a candidate along the main vessel's
+    axis beside its fused acute daughters (the rest's path 0.7 off that axis): own radius 0.89
+    of the rest's, 34 degrees from the rest's trunk, its tip 1.5 from the fork where the trunk
+    ends (its ball overlapping the daughters'); the builder could not block the two
+    near-parallel branches. A side vessel ends free of the rest: its tip's ball overlaps no
+    ball of a branch that does not meet its junction (stubs standing out of their parent at
+    55-90 degrees); a candidate reaching the fork joins two places of the rest."""
+    from vmesh.geometry.skeleton.spur_wall import _ends_free
+
+    graph, spurs = _fork_graph(angle, length, radius)
+    assert _ends_free(graph, spurs).tolist() == [free]
+
+
+def _two_stubs():
+    """A tube along x (radius 1) with an open stub B along +y (radius 0.7, its cap at y = 2.2)
+    and a closed stub A (radius 0.4) leaning away from it from the same place on the axis,
+    A's end 0.75 off B's axis (as seed 0 g0012's two stubs 0.8 radii from a junction): the
+    graph (the tube's axis and A's branch, held), A's tip, B's cap, the sdf."""
+    from types import SimpleNamespace
+
+    from vmesh.geometry.skeleton.branch_graph import BranchGraph
+
+    def sdf(p):
+        p = np.asarray(p, float).reshape(-1, 3)
+        value = np.maximum(closed_cylinder(p, [-5.0, 0, 0], [5.0, 0, 0], 1.0), closed_cylinder(p, [0, 0, 0], [0, 2.2, 0], 0.7))
+        s = np.clip(p @ A_AXIS, 0.0, A_LENGTH)
+        return np.maximum(value, 0.4 - np.linalg.norm(p - s[:, None] * A_AXIS, axis=1))
+
+    graph, h = BranchGraph(), 0.1
+    j = graph.add_node([0.0, 0, 0], 1.0)
+    for x in (-4.5, 4.5):
+        n = graph.add_node([x, 0, 0], 1.0)
+        s = np.arange(h, 4.5 - h / 2, h)[:, None] * np.sign(x)
+        graph.add_branch(j, n, np.c_[s, np.zeros((len(s), 2))], np.full(len(s), 1.0))
+    s = np.r_[np.arange(h, A_LENGTH - h / 2, h), A_LENGTH]
+    tip = graph.add_node(s[-1] * A_AXIS, 0.4)
+    graph.add_branch(j, tip, s[:-1, None] * A_AXIS, np.maximum(1.0 - s[:-1], 0.4))
+    cap = SimpleNamespace(center=np.array([0.0, 2.2, 0.0]), normal=np.array([0.0, 1.0, 0.0]), radius=0.7, needs_end=False)
+    return graph, tip, cap, sdf
+
+
+A_AXIS, A_LENGTH = np.array([0.6, 0.8, 0.0]), 1.25  # stub A of _two_stubs: its axis, its medial end
+
+
+@pytest.mark.parametrize("closed", [True, False])
+def test_a_held_stubs_end_is_not_matched_to_a_neighbours_cap(closed):
+    """Seed 0 g0012 extracted (session 20): the stub held for its wall had its end matched, by
+    nearness, to the cap of a second stub beside it, its branch run into that stub, and its
+    own end left out of the mesh (1.0 cross-sections missing). A stub the extraction keeps for
+    its wall (``closed_stub``: its balls reach no cap) ends where its axis meets the wall; the
+    neighbour's cap gets a branch of its own. Unmarked (``closed`` False), the nearest-cap
+    match still takes it (the ends of traced vessels, which reach their caps)."""
+    from vmesh.geometry.skeleton.ends import place_ends
+
+    graph, tip, cap, sdf = _two_stubs()
+    if closed:
+        graph.graph.nodes[tip]["closed_stub"] = True
+    counts = place_ends(graph, sdf, 0.1, caps=[cap])
+    end = graph.pos(tip)
+    at_cap = np.linalg.norm(end - cap.center) < 0.05
+    if not closed:
+        assert at_cap and counts["cap"] == 1
+        return
+    assert not at_cap and np.linalg.norm(end - (end @ A_AXIS) * A_AXIS) < 0.2 and end @ A_AXIS > 0.9 * A_LENGTH  # on A's axis, in its end
+    assert counts["added"] == 1  # B's cap: a branch of its own
+
+
+@pytest.mark.slow
+def test_an_acute_fork_extracted_and_meshed_holds_no_parallel_branch(tmp_path):
+    """The generator's acute fork (daughters 8 and 9 degrees off the parent's axis, radii
+    1.5 / 1.2 / 1.1, flat ends), its skeleton extracted, meshed valid and covered. With
+    session 20's rule a candidate along one daughter's axis inside the fused lumen was held
+    (own radius 0.90; it never leaves the rest's branch's lumen) and the builder failed (20
+    blocks invalid at skeleton node 0), as on seed 0 g0006 extracted."""
+    from data_synthetic.vessel_generator import fork_vessel, write_vessel
+    from vmesh.chain import FilterChain
+
+    m = write_vessel(fork_vessel((8.0, 9.0), (1.5, 1.2, 1.1)), tmp_path / "v")
+    chain = FilterChain.load("default")
+    chain.steps = [s for s in chain.steps if not s.filter.startswith("write")]
+    ctx = chain.run(surface=tmp_path / "v" / m["files"]["surface"])
+    assert ctx.skeleton.points[ctx.skeleton.degrees == 1].shape[0] == 3  # the parent's end, two daughters'
+    assert ctx.report.sections["quality"]["scaled_jacobian"]["n_invalid"] == 0
+    assert ctx.report.sections["quality"]["scaled_jacobian"]["min"] >= 0.3
+    assert ctx.report.sections["coverage"]["missing_parts"] == 0

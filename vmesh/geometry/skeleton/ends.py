@@ -207,7 +207,9 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
       the medial end.
 
     A terminal branch's wall-ward tail is cut first (:func:`_trim_end`; ``outside_junction``:
-    measured outside its junction's ball, as the extraction does with ``spur_wall``).
+    measured outside its junction's ball, as the extraction does with ``spur_wall``). An end
+    marked ``closed_stub`` (a side stub the extraction kept for its wall) is matched to no
+    cap: it is extended along its axis like the other free ends.
 
     Returns the number of ends of each kind (``cap``, ``flat``, ``rounded``, ``added``)
     and, when some cap could not be reached, the list ``unreached`` of their indices;
@@ -220,9 +222,14 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
     info = [(node, *_trim_end(graph, node, spacing, outside_junction)) for node in ends]
     caps = list(caps or [])
     matched = {}
-    if caps and ends:
-        end_pos = np.array([graph.pos(n) for n in ends])
-        matched = _match_caps(end_pos, np.array([i[2] for i in info]), caps, np.array([i[1] for i in info]))
+    # a side stub the extraction kept for its wall (``closed_stub``: its balls reach no cap)
+    # ends where its axis meets the wall (its dome, or a cap there); matched by nearness, it
+    # can run into a neighbouring stub's cap and leave its own end out (seed 0 g0012)
+    open_ends = [e for e, node in enumerate(ends) if not graph.graph.nodes[node].get("closed_stub")]
+    if caps and open_ends:
+        end_pos = np.array([graph.pos(ends[e]) for e in open_ends])
+        found = _match_caps(end_pos, np.array([info[e][2] for e in open_ends]), caps, np.array([info[e][1] for e in open_ends]))
+        matched = {open_ends[j]: c for j, c in found.items()}
     for e, (node, tangent, r_ref) in enumerate(info):
         if e in matched:
             cap = caps[matched[e]]

@@ -182,7 +182,12 @@ def clean_branch_graph(
                 seen[key[i]] = bool(flat)
             held = np.array([seen[k] for k in key], bool)
             if wall is not None:  # judged against the whole round's rest, the wall's tree built once
-                held |= spur_wall.spurs_explaining_wall(graph, wall, spurs, spacing)
+                side = spur_wall.spurs_explaining_wall(graph, wall, spurs, spacing)
+                for i in np.flatnonzero(side & ~held):
+                    # a side stub no cap's wall reaches: a closed end, which place_ends
+                    # extends to its own wall rather than to a neighbour's cap
+                    graph.graph.nodes[spurs[i][3]]["closed_stub"] = True
+                held |= side
             return held
 
     removed = {"specks": 0, "spurs": 0, "merged_junctions": 0, "small_cycles": 0, "bridges": 0}

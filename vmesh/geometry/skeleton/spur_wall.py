@@ -19,9 +19,11 @@ parent's path, which the rest keeps, and its wall stands out of the parent's bal
 more than its own radius.
 
 Only side vessels are held (judged by their own radius, narrower than the rest where they
-leave it, standing out of it by at least that radius), one at a time (the largest missing
-part first; it then joins the rest), and never a candidate reaching a cap, whose end
-:func:`~.ends.place_ends` gives (docs/coverage.md, h20/stubs).
+leave it, standing out of it by at least that radius, and ending free of the rest's other
+branches, :func:`_ends_free`), one at a time (the largest missing part first; it then joins
+the rest), and never a candidate reaching a cap, whose end :func:`~.ends.place_ends` gives
+(docs/coverage.md, h20/stubs, h21/stubs). A held stub's end is marked ``closed_stub``: it
+ends where its axis meets the wall, not at the nearest cap (:func:`~.ends.place_ends`).
 """
 
 from __future__ import annotations
@@ -126,19 +128,21 @@ def spurs_explaining_wall(
         # two branches into one short stub (as spurs_at_flat_ends leaves caps out)
         at_cap = _reaches(graph, spurs, wall.caps, spacing, distance)
         held[at_cap] = True  # out of the running (in the rest); cleared below
+        free = _ends_free(graph, spurs)
         judge = _Judge(graph, wall, spurs, np.flatnonzero(~held), spacing, distance, end_depth, k) if not held.all() else None
         while not held.all():
             open_ = np.flatnonzero(~held)
-            parts = [judge.parts[i] for i in open_]
-            area, deep, rest_r, own_r, at_end = (np.array([p[key] for p in parts]) for key in ("area", "depth", "rest_r", "own_r", "at_end"))
+            judged = [judge.parts[i] for i in open_]
+            area, deep, rest_r, own_r, at_end = (np.array([p[key] for p in judged]) for key in ("area", "depth", "rest_r", "own_r", "at_end"))
             missing, sections, depth_rel, _ = judge_patches(area, deep, rest_r, own_r, at_end, patch_area, depth, end_depth)
             # a side vessel: judged by its own radius, narrower than the rest where it leaves
             # it and standing out of it by at least that radius (as the verdict names one left
-            # out); wall a vessel-wide candidate explains is the vessel's own, which the rest's
-            # path runs beside where noise or a contact displaced it, and resampling centres
-            side = missing & ~at_end & (own_r < rest_r) & (deep >= own_r)
-            for i, p, sec, rel, is_side in zip(open_, parts, sections, depth_rel, side):
-                found[i].update(p, sections=float(sec), depth_rel=float(rel), side=bool(is_side))
+            # out), ending free of the rest; wall a vessel-wide candidate explains is the
+            # vessel's own, which the rest's path runs beside where noise or a contact
+            # displaced it, and resampling centres
+            side = missing & ~at_end & (own_r < rest_r) & (deep >= own_r) & free[open_]
+            for i, p, sec, rel, is_side in zip(open_, judged, sections, depth_rel, side):
+                found[i].update(p, sections=float(sec), depth_rel=float(rel), side=bool(is_side), ends_free=bool(free[i]))
             if not side.any():
                 break
             i = open_[np.argmax(np.where(side, area, -1.0))]
@@ -150,6 +154,43 @@ def spurs_explaining_wall(
     if details is not None:
         details.extend(found)
     return held
+
+
+def _ends_free(graph, spurs) -> np.ndarray:
+    """Which candidates end free of the rest: their tip's ball overlaps no ball of a branch
+    of the rest that does not meet their junction.
+
+    A side vessel leaves the rest at its junction and ends on its own. A candidate whose
+    tip reaches another branch of the rest joins two places of the rest through the lumen:
+    it runs beside the rest's path between them (the main vessel's axis beside its fused
+    acute daughters, the rest's path displaced towards one of them, seed 0 g0006 extracted),
+    and the wall it explains is that vessel's, which the rest carries past the branch it
+    reaches. Held, the junction gets two near-parallel vessel-wide branches that no block
+    structure separates (docs/coverage.md, h21/stubs). The rest is the graph without the
+    round's candidates.
+    """
+    from scipy.spatial import cKDTree
+
+    out = np.ones(len(spurs), bool)
+    candidate = {e for s in spurs for e in (s[:3], (s[1], s[0], s[2]))}
+    rest = [e for e in graph.branches() if e not in candidate]
+    if not spurs or not rest:
+        return out
+    centres, radii, ends = [], [], []
+    for u, v, key in rest:
+        pts, rad = graph.polyline(u, v, key)
+        centres.append(pts)
+        radii.append(rad)
+        ends.append(np.tile([u, v], (len(rad), 1)))
+    centres, radii, ends = np.concatenate(centres), np.concatenate(radii), np.concatenate(ends)
+    tips = np.array([graph.pos(s[3]) for s in spurs])
+    tip_r = np.array([graph.radius(s[3]) for s in spurs])
+    near = cKDTree(centres).query_ball_point(tips, tip_r + radii.max())
+    for i, (j, (_, _, _, _, base)) in enumerate(zip(near, spurs)):
+        j = np.asarray(j, np.int64)
+        j = j[(ends[j] != base).all(axis=1)]  # the branches of its own junction: where it leaves the rest
+        out[i] = not (np.linalg.norm(centres[j] - tips[i], axis=1) < radii[j] + tip_r[i]).any()
+    return out
 
 
 def _reaches(graph, spurs, points, spacing, distance) -> np.ndarray:
