@@ -63,6 +63,28 @@ def test_saddle_section_follows_the_waist():
     assert np.array_equal(first[:, 4:], second[:, :4])  # the halves share the new section
 
 
+def test_saddle_section_ignores_a_wall_beyond_the_column():
+    # s0 g0002 given: one ray of the new section left the branch through the junction and
+    # met a sibling's wall ten radii away; that wall vertex dragged the column into a fold
+    t = cs.o_grid_template(8)
+    sdf, cast = _waisted_tube(depth=0.2)
+    V, hexes, A_ids, B_ids = _column(t)
+    leak = t.outer[0]
+
+    def leaky_cast(origins, directions, scale):
+        hit = np.array(cast(origins, directions, scale), float)
+        hit[0] = 10.0  # the first loop ray (the template's ``outer[0]``) runs into another lumen
+        return hit
+
+    M = saddle_section(t, V[A_ids], V[B_ids], 0.3, leaky_cast)
+    blend = 0.7 * V[A_ids] + 0.3 * V[B_ids]
+    assert np.allclose(M[leak], blend[leak])  # not moved: no wall of this column there
+    rest = np.setdiff1d(t.outer, [leak])
+    assert np.abs(sdf(M[rest])).max() < 1e-9  # the other wall vertices still on the wall
+    blocks = type("B", (), {"vertices": V, "hexes": hexes})()
+    assert split_column(blocks, np.arange(len(hexes)), A_ids, B_ids, M) is not None
+
+
 def test_split_column_refuses_an_inverted_half():
     t = cs.o_grid_template(8)
     sdf, cast = _waisted_tube()

@@ -44,7 +44,7 @@ from ...errors import MeshingError
 from ...skeleton import Skeleton
 from .. import cross_sections as cs
 from .assemble import _Assembly
-from .checks import _Failure, fill_quality, wall_left_out
+from .checks import _Failure, fill_quality, filled, wall_left_out
 from .crotch import column_ends, split_saddle_columns
 from .dents import add_dent_sections
 from .junctions import _Junctions
@@ -574,7 +574,10 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _Stubs):
         columns = blocks.info.pop("_columns", None)
         ratio = self.opt.junction.saddle_split
         if self.project is not None and columns is not None and ratio > 0:  # the crotch's saddle (:mod:`.crotch`)
-            blocks, notes = split_saddle_columns(blocks, self.template, column_ends(columns, self.template.n_quads), self.sdf, self.cast, ratio)
+            def fill(b, rows):  # each split judged by its column's fill (:func:`.crotch.column_fill_score`)
+                return filled(b, rows, self.project, self.sdf, self.intersect_lines)
+
+            blocks, notes = split_saddle_columns(blocks, self.template, column_ends(columns, self.template.n_quads), self.sdf, self.cast, ratio, fill)
             self.fixes.extend(notes)
         if self.project is not None:  # of the blocks built (split columns included)
             self.report_wall_folds(blocks)

@@ -150,28 +150,13 @@ def fill_quality(blocks: BlockStructure, subset: np.ndarray, project, distance, 
     of each block's elements, or, where some are inverted, minus the share of its elements
     inverted less the mean of ``min(0, scaled Jacobian)`` (summed over the resolutions).
     """
-    from ..quality import hex8_scaled_jacobian
-    from ..transfinite import Refinement, mesh_blocks
-
     subset = np.asarray(subset, np.int64)
     refs = refinement or FILL_CHECKS
     if len(subset) == 0:
         return np.ones((len(refs), 0)) if per_resolution else np.ones(0)
-    # only the subset's vertices: the mesher projects every wall vertex it is given
-    used, hexes = np.unique(blocks.hexes[subset], return_inverse=True)
-    sub = BlockStructure(
-        vertices=blocks.vertices[used], hexes=hexes.reshape(-1, 8), vertex_on_surface=blocks.vertex_on_surface[used],
-        face_boundary=blocks.face_boundary[subset], axis_kind=blocks.axis_kind[subset],
-        block_radius=blocks.block_radius[subset], block_node=blocks.block_node[subset],
-        block_segment=blocks.block_segment[subset], block_layer=blocks.block_layer[subset],
-        boundary_names=dict(blocks.boundary_names),
-    )
     out = np.ones((len(refs), len(subset)))
     folded = np.zeros((len(refs), len(subset)))
-    for r, counts in enumerate(refs):
-        ref = Refinement(around=counts[0], core=counts[0], ring=counts[1], layer=counts[2], element_length=counts[3], first_layer=0.02 / counts[4])
-        sm = mesh_blocks(sub, project, ref, signed_distance=distance, intersect_lines=intersect_lines)
-        sj = hex8_scaled_jacobian(sm.points, sm.cells)
+    for r, (sm, sj) in enumerate(filled(blocks, subset, project, distance, intersect_lines, refs)):
         np.minimum.at(out[r], sm.cell_block, sj)
         # per element of the block at this resolution: each resolution weighs the same
         # each inverted element counts one, less its scaled Jacobian: fewer folds first, then shallower
@@ -181,6 +166,28 @@ def fill_quality(blocks: BlockStructure, subset: np.ndarray, project, distance, 
     if per_resolution:
         return np.where(folded < 0, folded, out)
     return np.where(folded.sum(axis=0) < 0, folded.sum(axis=0), out.min(axis=0))
+
+
+def filled(blocks: BlockStructure, subset: np.ndarray, project, distance, intersect_lines=None, refinement=None):
+    """Per resolution of ``refinement`` (default :data:`FILL_CHECKS`) the blocks ``subset``
+    filled as :func:`fill_quality` fills them, and each element's scaled Jacobian: pairs
+    ``(StructuredMesh, (n,) float)``, ``cell_block`` indexing ``subset``."""
+    from ..quality import hex8_scaled_jacobian
+    from ..transfinite import Refinement, mesh_blocks
+
+    # only the subset's vertices: the mesher projects every wall vertex it is given
+    used, hexes = np.unique(blocks.hexes[subset], return_inverse=True)
+    sub = BlockStructure(
+        vertices=blocks.vertices[used], hexes=hexes.reshape(-1, 8), vertex_on_surface=blocks.vertex_on_surface[used],
+        face_boundary=blocks.face_boundary[subset], axis_kind=blocks.axis_kind[subset],
+        block_radius=blocks.block_radius[subset], block_node=blocks.block_node[subset],
+        block_segment=blocks.block_segment[subset], block_layer=blocks.block_layer[subset],
+        boundary_names=dict(blocks.boundary_names),
+    )
+    for counts in refinement or FILL_CHECKS:
+        ref = Refinement(around=counts[0], core=counts[0], ring=counts[1], layer=counts[2], element_length=counts[3], first_layer=0.02 / counts[4])
+        sm = mesh_blocks(sub, project, ref, signed_distance=distance, intersect_lines=intersect_lines)
+        yield sm, hex8_scaled_jacobian(sm.points, sm.cells)
 
 
 def fill_score(quality: np.ndarray) -> float:

@@ -12,8 +12,11 @@ the segment is split in two at the fraction ``t`` of its along edges where the s
 wall faces dip deepest, and the new section is scaled ray by ray about its centre so that
 its wall vertices lie on the wall (:func:`saddle_section`): it follows the saddle, and no
 straight face spans the dip. Where a half would not be valid, the section takes half the
-scaling of its inner vertices, then moves halfway towards the column's middle; the halves
-are split again the same way (three rounds at most).
+scaling of its inner vertices, then moves halfway towards the column's middle; of the
+valid tries the one whose column fills best is taken, and only where the column fills
+better than unsplit (:func:`column_fill_score`; h21/crotch: s0 g0002 given's split section
+reached a sibling's wall through the junction and folded its column). The halves are split
+again the same way (three rounds at most).
 """
 
 from __future__ import annotations
@@ -65,17 +68,21 @@ def saddle_section(template, A: np.ndarray, B: np.ndarray, tau: float, cast, fol
     """Vertices (nv, 3) of the section at fraction ``tau`` between ``A`` and ``B`` that
     follows the wall: each loop ray's wall vertex moved along the ray from the section's
     centre (the mean of its core vertices) to where it meets the wall (``cast``: origins,
-    unit directions, scales -> distances; no wall found: not moved), every other vertex
+    unit directions, scales -> distances; no wall found, or one further from the centre than
+    both end sections' wall vertices on that ray from theirs: not moved), every other vertex
     scaled about the centre as its angle's ray (interpolated round the template's loop;
     ``follow`` < 1 takes that part of the scaling), so the section keeps its shape and its
     layer's share and shrinks into the dip."""
     M = (1 - tau) * A + tau * B
-    outer = template.outer
-    centre = M[template.kind == cs.VERTEX_CORE].mean(axis=0)
+    outer, core = template.outer, template.kind == cs.VERTEX_CORE
+    centre = M[core].mean(axis=0)
     arm = M[outer] - centre
     length = np.linalg.norm(arm, axis=1)
     hit = np.asarray(cast(np.repeat(centre[None], len(outer), 0), arm / length[:, None], length), float)
-    scale = np.where(np.isfinite(hit), hit / length, 1.0)
+    # a wall met further out than either end section's own arm on that ray is not this
+    # column's (the ray left through the junction into a sibling's lumen: s0 g0002 given)
+    reach = np.maximum(np.linalg.norm(A[outer] - A[core].mean(axis=0), axis=1), np.linalg.norm(B[outer] - B[core].mean(axis=0), axis=1))
+    scale = np.where(np.isfinite(hit) & (hit <= reach), hit / length, 1.0)
     phi = np.mod(np.arctan2(template.xy[:, 1], template.xy[:, 0]), 2 * np.pi)
     s = 1.0 + follow * (np.interp(phi, template.loop_angle, scale, period=2 * np.pi) - 1.0)
     out = centre + s[:, None] * (M - centre)
@@ -102,11 +109,26 @@ def split_column(blocks: BlockStructure, rows: np.ndarray, A_ids: np.ndarray, B_
     return first, second, M
 
 
-def split_saddle_columns(blocks: BlockStructure, template, ends: list, sdf, cast, ratio: float, rounds: int = 3) -> tuple[BlockStructure, list]:
+def column_fill_score(blocks: BlockStructure, rows: np.ndarray, fill) -> float:
+    """One number for how the blocks ``rows`` (a column) fill (``fill(blocks, rows)``: per
+    resolution the filled mesh and its elements' scaled Jacobians, :func:`~.checks.filled`):
+    the least scaled Jacobian where no element inverts, else minus, summed over the
+    resolutions, the share of the column's elements inverted and their mean depth below 0
+    (fewer and shallower folds score higher; any fold below every valid fill). Per element
+    of the column, not per block, so that a column split in more blocks weighs the same."""
+    least, folded = 1.0, 0.0
+    for _, sj in fill(blocks, rows):
+        least = min(least, float(sj.min(initial=1.0)))
+        folded -= float(np.mean(sj <= 0) + np.mean(np.maximum(-sj, 0.0))) if len(sj) else 0.0
+    return folded if folded < 0 else least
+
+
+def split_saddle_columns(blocks: BlockStructure, template, ends: list, sdf, cast, ratio: float, fill=None, rounds: int = 3) -> tuple[BlockStructure, list]:
     """``blocks`` with every junction end's first column (:func:`column_ends`) whose wall
     dips ``ratio`` or more of the layer (:func:`dip_fraction`) split at the dip
-    (:func:`saddle_section`) where both halves are valid, and the halves split again the
-    same way (``rounds`` in all); and the notes of the splits made."""
+    (:func:`saddle_section`) where both halves are valid and, given ``fill`` (see
+    :func:`column_fill_score`), where the column fills better split than not; and the
+    halves split again the same way (``rounds`` in all); and the notes of the splits made."""
     notes = []
     for _ in range(rounds):
         V = blocks.vertices
@@ -115,18 +137,40 @@ def split_saddle_columns(blocks: BlockStructure, template, ends: list, sdf, cast
             tau, dip = dip_fraction(template, V[A_ids], V[B_ids], sdf)
             if dip < ratio:
                 continue
-            # the dip itself, then halfway to the middle; the inner vertices' follow halved
-            for t, follow in ((tau, 1.0), (tau, 0.5), (0.5 * (tau + 0.5), 1.0), (0.5 * (tau + 0.5), 0.5)):
-                got = split_column(blocks, rows, A_ids, B_ids, saddle_section(template, V[A_ids], V[B_ids], t, cast, follow))
-                if got is not None:
-                    splits.append(((A_ids, B_ids, rows), got))
-                    notes.append(f"split the first blocks at node {int(blocks.block_node[rows[0]])} at {t:.2f} of their length (wall dip {dip:.2f} layers)")
-                    break
+            got, t = _best_split(blocks, template, (A_ids, B_ids, rows), tau, cast, fill)
+            if got is not None:
+                splits.append(((A_ids, B_ids, rows), got))
+                notes.append(f"split the first blocks at node {int(blocks.block_node[rows[0]])} (segment {int(blocks.block_segment[rows[0]])}) "
+                             f"at {t:.2f} of their length (wall dip {dip:.2f} layers)")
         if not splits:
             break
         blocks, halves = _with_splits(blocks, template, splits)
         ends = [h for pair in halves for h in pair]
     return blocks, notes
+
+
+def _best_split(blocks: BlockStructure, template, end: tuple, tau: float, cast, fill):
+    """The split of the column ``end`` (:func:`split_column`'s result) and its fraction: at
+    the dip ``tau``, then halfway to the middle, each with its inner vertices' full and half
+    scaling. Without ``fill`` the first whose halves are valid; with it the one whose column
+    fills best (:func:`column_fill_score`), and none where that is not better than the
+    unsplit column's fill (a split that folds the fill more than it was must not stand)."""
+    A_ids, B_ids, rows = end
+    V = blocks.vertices
+    best, best_t = None, None
+    best_score = column_fill_score(blocks, rows, fill) if fill is not None else -np.inf
+    halves = np.r_[rows, len(blocks.hexes) + np.arange(len(rows))]
+    # the dip itself, then halfway to the middle (the same where the dip is the middle)
+    for t, follow in dict.fromkeys(((tau, 1.0), (tau, 0.5), (0.5 * (tau + 0.5), 1.0), (0.5 * (tau + 0.5), 0.5))):
+        got = split_column(blocks, rows, A_ids, B_ids, saddle_section(template, V[A_ids], V[B_ids], t, cast, follow))
+        if got is None:
+            continue
+        if fill is None:
+            return got, t
+        score = column_fill_score(_with_splits(blocks, template, [(end, got)])[0], halves, fill)
+        if score > best_score + 1e-9:
+            best, best_t, best_score = got, t, score
+    return best, best_t
 
 
 def _with_splits(blocks: BlockStructure, template, splits: list):
