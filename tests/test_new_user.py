@@ -241,6 +241,16 @@ def test_a_truncated_binary_ply_is_one_line_not_a_crash(tmp_path):
     with pytest.raises(InputError, match=r"cut\.ply: the file ends early: 2000 bytes.*truncated"):
         read_surface(cut)
     assert len(read_surface(whole).faces) == len(f)
+    # a layout the numpy reader hands to VTK (a face colour) is checked before that hand-over
+    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(v)}\nproperty float x\n"
+              f"property float y\nproperty float z\nelement face {len(f)}\n"
+              "property list uchar int vertex_indices\nproperty uchar red\nend_header\n").encode()
+    faces = np.zeros(len(f), [("k", "u1"), ("v", "<i4", (3,)), ("red", "u1")])
+    faces["k"], faces["v"] = 3, f
+    coloured = header + v.astype("<f4").tobytes() + faces.tobytes()
+    cut.write_bytes(coloured[:2000])
+    with pytest.raises(InputError, match=r"cut\.ply: the file ends early: 2000 bytes"):
+        read_surface(cut)
 
 
 def test_an_off_file_with_normals_as_pymeshlab_writes_it(tmp_path):
@@ -261,3 +271,6 @@ def test_an_off_file_with_normals_as_pymeshlab_writes_it(tmp_path):
     (tmp_path / "bad.off").write_text("hello\n1 2\n")
     with pytest.raises(InputError, match="not an OFF keyword"):
         read_surface(tmp_path / "bad.off")
+    (tmp_path / "bin.off").write_bytes(b"OFF BINARY\n\x00\x00\x00\x08")
+    with pytest.raises(InputError, match="binary OFF is not read"):
+        read_surface(tmp_path / "bin.off")

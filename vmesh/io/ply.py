@@ -53,14 +53,6 @@ def ply_header(data: bytes):
     return fmt, elements, stop
 
 
-def _header(data: bytes):
-    """:func:`ply_header` of a vertex + face PLY (else :class:`UnsupportedPLY`)."""
-    fmt, elements, stop = ply_header(data)
-    if [e[0] for e in elements] != ["vertex", "face"]:
-        raise UnsupportedPLY("not a vertex + face PLY")
-    return fmt, elements, stop
-
-
 def read_ply_triangles(path: str | Path):
     """Vertices ``(n, 3)`` float64, triangles ``(m, 3)`` int64 and face data ``{}`` of a PLY file.
 
@@ -70,7 +62,11 @@ def read_ply_triangles(path: str | Path):
         For anything but the plain triangle surface described in the module docstring.
     """
     data = Path(path).read_bytes()
-    fmt, ((_, n, vprops), (_, m, fprops)), start = _header(data)
+    fmt, elements, start = ply_header(data)
+    _check_length(data, fmt, elements, start)  # before any layout test: VTK crashes on a short file
+    if [e[0] for e in elements] != ["vertex", "face"]:
+        raise UnsupportedPLY("not a vertex + face PLY")
+    ((_, n, vprops), (_, m, fprops)) = elements
     if len(fprops) != 1 or len(fprops[0]) != 3 or fprops[0][0] not in ("vertex_indices", "vertex_index"):
         raise UnsupportedPLY("faces carry more than their vertex list")
     if any(len(p) != 2 or p[1] not in _TYPES for p in vprops) or [p[0] for p in vprops][:3] != ["x", "y", "z"]:
@@ -101,6 +97,28 @@ def read_ply_triangles(path: str | Path):
         raise UnsupportedPLY("faces other than triangles")
     vertices = np.stack([vert["x"], vert["y"], vert["z"]], axis=1).astype(np.float64)
     return _first_use_order(vertices, faces["v"].astype(np.int64))
+
+
+def _check_length(data: bytes, fmt: str, elements, start: int) -> None:
+    """Raise :class:`TruncatedPLY` when a binary file is shorter than any layout its header
+    allows (scalars at their size; a list at its count plus 3 items for faces, none
+    otherwise), whatever the properties: a layout read here or handed to VTK."""
+    if fmt == "ascii":
+        return
+    least = start
+    for name, count, props in elements:
+        row = 0
+        for prop in props:
+            if len(prop) == 2:
+                row += np.dtype(_TYPES.get(prop[1], "u1")).itemsize
+            else:
+                items = 3 if name == "face" else 0
+                row += np.dtype(_TYPES.get(prop[1], "u1")).itemsize + items * np.dtype(_TYPES.get(prop[2], "u1")).itemsize
+        least += count * row
+    if len(data) < least:
+        counts = ", ".join(f"{count} {name}" for name, count, _ in elements)
+        raise TruncatedPLY(f"the file ends early: {len(data)} bytes, where its header's {counts} "
+                           f"need at least {least} (a truncated download or copy?)")
 
 
 def _first_use_order(vertices: np.ndarray, faces: np.ndarray):

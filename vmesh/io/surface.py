@@ -212,6 +212,8 @@ def _read_off(path: Path):
     head = rows[0] if rows else [""]
     if not re.fullmatch(r"(ST)?C?N?(OFF)", head[0]):
         raise ValueError(f"first word '{head[0][:20]}' is not an OFF keyword (OFF, NOFF, COFF, STOFF...; binary and 4D OFF are not read)")
+    if len(head) > 1 and head[1].upper() == "BINARY":
+        raise ValueError("binary OFF is not read: save it as ASCII OFF, PLY or STL")
     counts, body = (head[1:], rows[1:]) if len(head) > 1 else (rows[1] if len(rows) > 1 else [], rows[2:])
     if len(counts) < 2:
         raise ValueError("no vertex and face counts after the OFF keyword")

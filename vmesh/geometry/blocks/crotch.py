@@ -168,7 +168,7 @@ def _best_split(blocks: BlockStructure, template, end: tuple, tau: float, cast, 
         if fill is None:
             return got, t
         score = column_fill_score(_with_splits(blocks, template, [(end, got)])[0], halves, fill)
-        if score > best_score + 1e-9:
+        if score > best_score + 1e-9:  # strictly better: a tie with the unsplit column keeps it unsplit
             best, best_t, best_score = got, t, score
     return best, best_t
 

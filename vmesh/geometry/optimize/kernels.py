@@ -628,8 +628,9 @@ def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, 
     with their start values ``(f, qmin, qsum)`` in ``state``. ``cq`` holds the corner scaled
     Jacobians of the stage's hexahedra and follows every move. A move shorter than ``tol``
     times the node's step cap does not make its neighbours dirty. Smoothing trials
-    (``mode == SMOOTH``) must also keep each incident hexahedron's Jacobian ratio at or above
-    the lesser of its ratio before and ``ratio_floor`` (``-inf``: no such guard; see
+    (``mode == SMOOTH``) must also keep every incident hexahedron's Jacobian ratio at or above
+    the lesser of ``ratio_floor`` and the least ratio of the node's incident hexahedra before
+    the step (a neighbourhood rule, like the scaled Jacobian's) (``-inf``: no such guard; see
     :func:`node_eval`). Returns nothing;
     ``state[:, 3]`` is 1 where a node moved (or has a trial), else 0.
     """

@@ -145,6 +145,7 @@ def _trial_minima(X, hexes, ptr, inc, group, T, ratio_floor):
                 for s in range(ptr[v], ptr[v + 1]):
                     if _ratio(X, hexes, inc[s] >> 3, v, y0, y1, y2) < least:
                         best = -np.inf
+                        break
                 if best == -np.inf:
                     out[a, t] = best
                     continue

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+
 @nb.njit(cache=True)
 def incidence(hexes, n):
     """Node-to-hexahedron incidence as CSR: ``ptr (n+1,)`` and ``inc`` = 8 * element + local corner."""

@@ -81,8 +81,8 @@ def lift_worst(X, hexes, below, kind, normal, height, project=None, wall_normals
     ``kind``, ``normal``, ``height``: :func:`vmesh.geometry.optimize._node_kinds`. Missing
     (NaN) heights of the nodes that may move are measured up front on ``X0`` (default ``X``)
     and written into the caller's ``height`` array. ``hexes`` must be linear (8 columns).
-    ``ratio_floor``: a step may not lower an incident element's Jacobian ratio below the
-    lesser of its ratio before and this (the light pass's taper guard; ``-inf``: none)."""
+    ``ratio_floor``: a step may not lower any incident element's Jacobian ratio below the
+    lesser of this and the least ratio of the node's incident elements before the step (the light pass's taper guard; ``-inf``: none)."""
     from ..quality import hex8_scaled_jacobian
 
     hexes = np.asarray(hexes)
