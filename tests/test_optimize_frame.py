@@ -114,7 +114,7 @@ def test_colour_pass_with_prefetch_equals_its_steps_in_order():
             caps = K.step_caps(X, hexes, ptr, inc, nodes, n, 0.5)
             trial, state, buf = np.empty((len(nodes), 3)), np.empty((len(nodes), 4)), np.empty((len(nodes), width))
             dirty = np.ones(n, np.bool_)
-            args = (K.SMOOTH, 0.95, trial, state, dirty, buf, 0.01, -np.inf)
+            args = (K.SMOOTH, 0.95, trial, state, dirty, buf, 0.01, -np.inf, 1.0)
             if kernel is not None:
                 kernel(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, caps, 1e-3, *args)
             else:
@@ -123,7 +123,7 @@ def test_colour_pass_with_prefetch_equals_its_steps_in_order():
                     state[j, 3] = 0.0
                     trial[j] = X[v]
                     dirty[v] = False
-                    K._step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, caps, 1e-3, *args[:2], trial, state, dirty, buf, 0.01, L, -np.inf)
+                    K._step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, caps, 1e-3, *args[:2], trial, state, dirty, buf, 0.01, L, -np.inf, 1.0)
             runs.append((X, cq, state[:, 3].copy(), dirty))
         assert runs[0][2].any() or len(nodes) < 70  # the larger colours move nodes
         for other in runs[1:]:

@@ -78,7 +78,7 @@ def _offset(project, trial, height):
     return foot + up * (height / np.maximum(np.linalg.norm(up, axis=1), 1e-300))[:, None]
 
 
-def _sweep(X, st, cq, kind, normal, caps, delta, mode, goal, project, wall_normals, stats, height, dirty, tol=0.0, ratio_floor=-np.inf):
+def _sweep(X, st, cq, kind, normal, caps, delta, mode, goal, project, wall_normals, stats, height, dirty, tol=0.0, ratio_floor=-np.inf, over_relax=1.0):
     """One Gauss–Seidel sweep over every colour of the stage; returns the number of nodes moved.
     ``wall_normals`` (None: keep the current ones) gives the tangent planes of the wall and
     first-layer nodes; moves shorter than ``tol`` times a node's step cap leave its
@@ -96,7 +96,7 @@ def _sweep(X, st, cq, kind, normal, caps, delta, mode, goal, project, wall_norma
         buf = np.empty((len(nodes), width))  # the corner qualities of each node's last trial
         state = np.empty((len(nodes), 4))
         parallel = len(nodes) >= K.PARALLEL_FROM
-        (K.sweep_colour_parallel if parallel else K.sweep_colour_serial)(X, st.hexes, st.scale, st.ptr, st.inc, cq, nodes, kind, normal, caps, delta, mode, goal, trial, state, dirty, buf, tol, ratio_floor)
+        (K.sweep_colour_parallel if parallel else K.sweep_colour_serial)(X, st.hexes, st.scale, st.ptr, st.inc, cq, nodes, kind, normal, caps, delta, mode, goal, trial, state, dirty, buf, tol, ratio_floor, over_relax)
         stats["updates"] += int((state[:, 0] != -1.0).sum())
         kinds = kind[nodes]
         wall_trial = ((kinds == K.WALL) | (kinds == K.OFFSET)) & (state[:, 3] > 0)
@@ -115,7 +115,7 @@ def _sweep(X, st, cq, kind, normal, caps, delta, mode, goal, project, wall_norma
     return moved
 
 
-def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats, sweeps, goal, moved_mask, height, X0, patience=10, climb_below=None, tol=0.0, ratio_floor=-np.inf):
+def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats, sweeps, goal, moved_mask, height, X0, patience=10, climb_below=None, tol=0.0, ratio_floor=-np.inf, over_relax=1.0):
     """Sweeps over a stage until its worst element reaches ``goal`` or stops improving; nodes
     whose worst incident element is below ``climb_below`` (default ``goal``) try a max-min
     step when their Newton step is refused."""
@@ -137,7 +137,7 @@ def _run_stage(X, st, kind, normal, delta_of, mode, project, wall_normals, stats
         # the tangent planes only steer the steps (the projection puts nodes back on the
         # wall): refreshed every few sweeps, the signed-distance queries cost more than a sweep
         normals = wall_normals if sweep % 8 == 0 else None
-        if _sweep(X, st, cq, kind, normal, caps, delta, mode, climb, project, normals, stats, height, dirty, tol, ratio_floor) == 0:
+        if _sweep(X, st, cq, kind, normal, caps, delta, mode, climb, project, normals, stats, height, dirty, tol, ratio_floor, over_relax) == 0:
             break
         q = cq.min(axis=1)
         if q.min() >= goal:
@@ -248,6 +248,7 @@ def optimise_linear(
     keep_partial_free_layer: bool = False,
     untangle_patience: int | None = None,
     ratio_floor: float = -np.inf,
+    over_relax: float = 1.0,
 ) -> tuple[np.ndarray, dict]:
     """Untangle and smooth the neighbourhood of low-quality linear hexahedra.
 
@@ -300,6 +301,9 @@ def optimise_linear(
     ratio_floor : float
         Light pass: a step may not lower its elements' least Jacobian ratio (min / max det J
         over the corners) below the lesser of that before and this (``-inf``: no such guard).
+    over_relax : float
+        Smoothing steps (not wall nodes) are first tried this many times their Newton step
+        (over-relaxed Gauss-Seidel; 1: plain), then 1, 1/2, ...
 
     Returns
     -------
@@ -326,7 +330,7 @@ def optimise_linear(
         q = _untangle(X, sub, n, fixed, bad, run, untangle_below, max_fraction, sweeps, untangle_mode, grow_below_threshold, untangled, info)
     low = q < smooth_below
     if smooth_below > 0 and low.any():
-        _smooth_region(X, sub, n, fixed, low, run, smooth_below, smooth_sweeps, smooth_rings, smoothed, smooth_tol, ratio_floor)
+        _smooth_region(X, sub, n, fixed, low, run, smooth_below, smooth_sweeps, smooth_rings, smoothed, smooth_tol, ratio_floor, over_relax)
         q = hex8_scaled_jacobian(X, sub)
     return X, _linear_done(info, q, untangled, smoothed, run["stats"], t0)
 
@@ -522,7 +526,7 @@ def polish(points: np.ndarray, cells: np.ndarray, goals, **kw) -> tuple[np.ndarr
     return X, info
 
 
-def _smooth_region(X, sub, n, fixed, low, run, below, sweeps, rings, smoothed, tol=0.0, ratio_floor=-np.inf):
+def _smooth_region(X, sub, n, fixed, low, run, below, sweeps, rings, smoothed, tol=0.0, ratio_floor=-np.inf, over_relax=1.0):
     """The light pass: monotone steps for the nodes of the ``low`` elements (and ``rings``
     rings of elements around them); the nodes' neighbourhood minimum and sum of scaled
     Jacobians never drop, and nodes whose worst element is below ``below`` climb it
@@ -534,4 +538,4 @@ def _smooth_region(X, sub, n, fixed, low, run, below, sweeps, rings, smoothed, t
         for _ in range(rings):
             active = K.grow_nodes(sub, ptr, inc, active)
     st = _Stage(run["X0"], sub, active, n, fixed)
-    _run_stage(X, st, run["kind"], run["normal"], lambda qmin: 1e-3 if qmin > 0 else _delta(qmin), K.SMOOTH, run["project"], run["wall_normals"], run["stats"], sweeps, 1.0, smoothed, run["height"], run["X0"], climb_below=below, tol=tol, ratio_floor=ratio_floor)
+    _run_stage(X, st, run["kind"], run["normal"], lambda qmin: 1e-3 if qmin > 0 else _delta(qmin), K.SMOOTH, run["project"], run["wall_normals"], run["stats"], sweeps, 1.0, smoothed, run["height"], run["X0"], climb_below=below, tol=tol, ratio_floor=ratio_floor, over_relax=over_relax)

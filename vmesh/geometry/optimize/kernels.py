@@ -44,11 +44,6 @@ UNTANGLE, SMOOTH, ESCOBAR = 0, 1, 2
 #: Newton trials (t = 1, 1/2, ...) of a smoothing step, and max-min trials of a refused one
 #: (4 and 3 cost the mean quality 1e-4 to 3e-4 on the real cases for ~10 % less time)
 SMOOTH_TRIALS = 8
-#: a smoothing Newton step is first tried this much longer (over-relaxed Gauss-Seidel, then
-#: 1, 1/2, ...): the sweeps' gain decays by ~1.3x a sweep at 1; 1.5 reaches the ICA's
-#: 8-sweep min / mean in 6 sweeps (docs/speed.md, session 21). Not for wall nodes (one
-#: trial per sweep, judged after the projection)
-OVER_RELAX = 1.5
 CLIMB_TRIALS = 6
 #: frame buffers per colour (parallel chunks of nodes)
 CHUNKS = 64
@@ -550,7 +545,7 @@ def _chunk(n, chunks, i):
 
 
 @nb.njit(cache=True)
-def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol, L, ratio_floor):
+def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol, L, ratio_floor, over_relax):
     """One Newton step with backtracking for node ``v`` (row ``j`` of its colour), else a
     max-min climb; see :func:`_sweep_colour`."""
     frame(X, hexes, scale, ptr, inc, cq, v, L)
@@ -573,7 +568,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
     # by the functional (and wall nodes again after their projection)
     smooth = mode == SMOOTH
     judge = mode != ESCOBAR and not on_wall
-    t = OVER_RELAX if smooth and not on_wall else 1.0
+    t = over_relax if smooth and not on_wall else 1.0
     for _ in range((SMOOTH_TRIALS + (1 if t > 1.0 else 0) if smooth else 8) if newton else 0):
         z0, z1, z2 = t * d0, t * d1, t * d2
         if on_wall and smooth:  # judged after the projection
@@ -620,7 +615,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
             t *= 0.5
 
 
-def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol, ratio_floor):
+def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol, ratio_floor, over_relax):
     """One Newton step with backtracking for every node of one colour (no two share a hexahedron).
 
     Free and plane nodes are updated in ``X``; wall nodes get their tangential trial
@@ -648,7 +643,7 @@ def _sweep_colour(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, step_cap, 
                 state[j, 0] = -1.0
                 continue
             dirty[v] = False
-            _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol, frames[i], ratio_floor)
+            _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol, frames[i], ratio_floor, over_relax)
 
 
 def _accept_trials(X, hexes, scale, ptr, inc, cq, nodes, projected, delta, mode, state, dirty, buf, step_cap, tol, ratio_floor):
@@ -708,7 +703,7 @@ def warm_up() -> None:
     kind, normal, caps = np.full(8, FIXED, np.int64), np.zeros((8, 3)), np.zeros(8)
     for sweep, accept in ((sweep_colour_serial, accept_trials_serial), (sweep_colour_parallel, accept_trials_parallel)):
         trial, state, dirty, buf = np.zeros((8, 3)), np.zeros((8, 4)), np.zeros(8, np.bool_), np.zeros((8, 32))
-        sweep(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, caps, 1e-3, SMOOTH, 0.5, trial, state, dirty, buf, 0.0, 0.3)
+        sweep(X, hexes, scale, ptr, inc, cq, nodes, kind, normal, caps, 1e-3, SMOOTH, 0.5, trial, state, dirty, buf, 0.0, 0.3, 1.0)
         accept(X, hexes, scale, ptr, inc, cq, nodes, trial, 1e-3, SMOOTH, state, dirty, buf, caps, 0.0, 0.3)
     # the max-min pass's last: every run needs the sweeps, only runs left below smooth_below
     # these, and a first run's optimiser may start while the background compile is still here
