@@ -298,12 +298,8 @@ def optimise_linear(
     untangle_patience : int, optional
         Rings in a row with neither fewer elements below ``untangle_below`` nor a higher minimum
         that end the growth (None: up to ``max_fraction``); rings, not ``_run_stage``'s sweeps.
-    ratio_floor : float
-        Light pass: a step may not lower its elements' least Jacobian ratio (min / max det J
-        over the corners) below the lesser of that before and this (``-inf``: no such guard).
-    over_relax : float
-        Smoothing steps (not wall nodes) are first tried this many times their Newton step
-        (over-relaxed Gauss-Seidel; 1: plain), then 1, 1/2, ...
+    ratio_floor, over_relax : float
+        Smoothing steps' Jacobian-ratio guard (``-inf``: none; :func:`.kernels.node_eval`) and first trial length (x the Newton step, then 1, 1/2, ...; 1: plain).
 
     Returns
     -------
