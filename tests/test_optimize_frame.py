@@ -69,15 +69,19 @@ def test_frame_gradient_and_hessian_match_finite_differences():
         assert np.allclose((np.array(fp[1:4]) - np.array(fm[1:4])) / (2 * eps), H[a], rtol=1e-4, atol=1e-6)
 
 
+def frame_setup():
+    """The jittered mesh, its corner qualities, valences and a frame's buffers (``L``, ``buf``)
+    sized for its busiest node: what a test of ``kernels.node_eval`` starts from."""
+    X, hexes, scale, ptr, inc = _jittered_mesh()
+    valence = np.diff(ptr)
+    return X, hexes, scale, ptr, inc, K.corner_qualities(X, hexes, scale), valence, np.empty((valence.max(), K.NL)), np.empty((1, 4 * valence.max()))
+
+
 def test_frame_functional_equals_the_displaced_mesh():
     """The functional's value from the frame (summed in a loop of its own after the
     qualities) equals Escobar's measure of the displaced mesh's moved corners, computed
     directly in numpy from their scaled edges: |E|^2 / (3 h(det E)^(2/3))."""
-    X, hexes, scale, ptr, inc = _jittered_mesh()
-    cq = K.corner_qualities(X, hexes, scale)
-    valence = np.diff(ptr)
-    L = np.empty((valence.max(), K.NL))
-    buf = np.empty((1, 4 * valence.max()))
+    X, hexes, scale, ptr, inc, cq, valence, L, buf = frame_setup()
     rng = np.random.default_rng(2)
     delta = 1e-3
     for v in rng.choice(np.flatnonzero(valence == valence.max()), 3, replace=False):

@@ -4,7 +4,7 @@ tapering (one edge shrinking while the angles stay), the ratio min / max det J d
 
 import numpy as np
 
-from test_optimize_frame import _jittered_mesh
+from test_optimize_frame import frame_setup
 from test_optimize import R, cylinder, first_layer_nodes
 from vmesh.geometry.optimize import kernels as K
 from vmesh.geometry.optimize import optimise
@@ -20,11 +20,7 @@ def test_the_guard_refuses_exactly_the_trials_that_lower_the_least_ratio_below_t
     refused (``qmin = -inf``) exactly where the least Jacobian ratio of the node's elements,
     computed on the displaced mesh, falls below the lesser of the floor and that least ratio
     before; without it, never (the scaled Jacobians' floor off)."""
-    X, hexes, scale, ptr, inc = _jittered_mesh()
-    cq = K.corner_qualities(X, hexes, scale)
-    valence = np.diff(ptr)
-    L = np.empty((valence.max(), K.NL))
-    buf = np.empty((1, 4 * valence.max()))
+    X, hexes, scale, ptr, inc, cq, valence, L, buf = frame_setup()
     rng = np.random.default_rng(5)
     refused = kept = 0
     for v in rng.choice(np.flatnonzero(valence == 8), 12, replace=False):
