@@ -10,6 +10,7 @@ gives its boundary surface; both are noted for the run's warnings.
 from __future__ import annotations
 
 import re
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -54,6 +55,28 @@ def _quiet_vtk():
     import vtk
 
     vtk.vtkObject.GlobalWarningDisplayOff()
+
+
+@contextmanager
+def _vtk_errors():
+    """Collect VTK's error and warning messages (a list of their texts, filled on exit)
+    instead of printing them: VTK's legacy reader reports a file cut short only there and
+    returns what it could read."""
+    import vtk
+
+    window, previous = vtk.vtkStringOutputWindow(), vtk.vtkOutputWindow.GetInstance()
+    vtk.vtkLogger.SetStderrVerbosity(vtk.vtkLogger.VERBOSITY_OFF)  # its stderr copy of each message
+    vtk.vtkOutputWindow.SetInstance(window)
+    vtk.vtkObject.GlobalWarningDisplayOn()
+    messages: list = []
+    try:
+        yield messages
+    finally:
+        vtk.vtkObject.GlobalWarningDisplayOff()
+        vtk.vtkOutputWindow.SetInstance(previous)
+        # each message is "ERROR: In file.cxx, line N" or "Generic Warning: ..." then its text
+        lines = [line.strip() for line in window.GetOutput().splitlines() if line.strip()]
+        messages += [re.sub(r"^vtk\w+ \(0x[0-9a-f]+\): ", "", text) for head, text in zip(lines, lines[1:]) if re.search(r", line \d+$", head)]
 
 
 def read_surface(path: str | Path, notes: list | None = None) -> SurfaceMesh:
@@ -157,13 +180,48 @@ def _read_ply(path: Path, notes: list):
         return _read_pyvista(path, notes)
 
 
+def _legacy_vtk_shortfall(path: Path, found_cells: int) -> str | None:
+    """What a legacy ``.vtk`` file declares and VTK's reader did not find (it says nothing
+    when a cell list, or an ASCII point list, is cut short), else None."""
+    data = path.read_bytes()
+    version = re.match(rb"# vtk DataFile Version (\d+)", data)
+    offsets = version is not None and int(version.group(1)) >= 5  # "POLYGONS n_offsets n_ids": n_offsets - 1 cells
+    sections = re.findall(rb"(?m)^(?:VERTICES|LINES|POLYGONS|TRIANGLE_STRIPS|CELLS)[ \t]+(\d+)[ \t]+\d+[ \t]*\r?$", data)
+    if (declared := sum(max(int(n) - offsets, 0) for n in sections)) > found_cells:
+        return f"its header declares {declared} cells, VTK's legacy reader found {found_cells}"
+    head = data.split(b"\n", 3)
+    if len(head) > 2 and head[2].strip().upper() == b"ASCII":  # a binary point list cut short is VTK's error
+        # the numbers after "POINTS n type", up to the next keyword (keywords are upper case, nan is not)
+        points = re.search(rb"(?ms)^POINTS[ \t]+(\d+)[^\n]*\n(.*?)(?=^[A-Z_]{3,}\b|\Z)", data)
+        if points and len(points.group(2).split()) < 3 * int(points.group(1)):
+            return f"its header declares {int(points.group(1))} points, the file holds {len(points.group(2).split())} coordinates"
+    return None
+
+
+def _read_legacy_vtk(path: Path):
+    """A legacy ``.vtk`` file read by pyvista, refused in one line when VTK reports an error
+    or reads less than the file declares: its reader returns a truncated file's first part
+    without raising."""
+    import pyvista as pv
+
+    with _vtk_errors() as errors:
+        mesh = pv.read(str(path))
+    if errors:
+        raise InputError(f"the file ends early or is corrupt: VTK's legacy reader says '{errors[0][:160]}' (a truncated download or copy?)", path)
+    if isinstance(mesh, pv.MultiBlock):
+        mesh = mesh.combine()
+    if shortfall := _legacy_vtk_shortfall(path, mesh.n_cells if mesh is not None else 0):
+        raise InputError(f"the file ends early: {shortfall} (a truncated download or copy?)", path)
+    return mesh
+
+
 def _read_pyvista(path: Path, notes: list):
     """Vertices, triangles and per-triangle arrays of any VTK-readable file: surface cells
     (triangulated) of a surface, the boundary of a volume mesh; other cells are dropped."""
     import pyvista as pv
 
     _quiet_vtk()
-    mesh = pv.read(str(path))
+    mesh = _read_legacy_vtk(path) if path.suffix.lower() == ".vtk" else pv.read(str(path))
     if isinstance(mesh, pv.MultiBlock):
         mesh = mesh.combine()
     empty = np.zeros((0, 3)), np.zeros((0, 3), np.int64), {}
