@@ -154,6 +154,23 @@ def test_a_truncated_legacy_vtk_is_one_line(tmp_path, binary):
     assert vmesh.read_surface(whole).n_faces == cylinder().n_faces  # the whole file reads as before
 
 
+def test_off_mixed_triangles_and_quads(tmp_path):
+    """Session 22: OFF faces are grouped by size with numpy (was a per-line loop): triangles
+    first, then each quad's two triangles, in file order within each size; a face colour
+    after the indices is ignored, a face line shorter than its count is refused."""
+    from vmesh.io.surface import read_surface
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1]], float)
+    faces = ["4 0 1 2 3", "3 0 1 4", "4 1 5 4 0 255 0 0", "3 1 2 5 0.5 0.5 0.5"]
+    text = "OFF\n%d %d 0\n%s\n%s\n" % (len(v), len(faces), "\n".join("%g %g %g" % tuple(p) for p in v), "\n".join(faces))
+    (tmp_path / "m.off").write_text(text)
+    s = read_surface(tmp_path / "m.off")
+    assert s.faces.tolist() == [[0, 1, 4], [1, 2, 5], [0, 1, 2], [1, 5, 4], [0, 2, 3], [1, 4, 0]]
+    (tmp_path / "short.off").write_text(text.replace("4 0 1 2 3", "4 0 1 2"))
+    with pytest.raises(vmesh.InputError, match="short.off: could not read as OFF: face 0 lists fewer than the 4"):
+        read_surface(tmp_path / "short.off")
+
+
 def test_real_volume_mesh_lima(real_path):
     notes = []
     r = vmesh.read_surface(real_path("kd_lima_mesh.vtu"), notes)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import re
 from contextlib import contextmanager
+from itertools import chain
 from pathlib import Path
 
 import numpy as np
@@ -279,11 +280,25 @@ def _read_off(path: Path):
     if len(body) < nv + nf:
         raise ValueError(f"the file ends early: {len(body)} vertex and face lines, its header says {nv} + {nf}")
     vertices = np.array([r[:3] for r in body[:nv]], float)
-    by_size: dict = {}
-    for r in body[nv : nv + nf]:
-        k = int(r[0])
-        by_size.setdefault(k, []).append(r[1 : 1 + k])
-    return vertices, triangulate_polygons([np.array(b, np.int64) for k, b in sorted(by_size.items())]), {}
+    return vertices, triangulate_polygons(_off_faces_by_size(body[nv : nv + nf])), {}
+
+
+def _off_faces_by_size(rows: list) -> list:
+    """OFF face lines (token lists ``k i_1 ... i_k [colour]``) grouped by size ``k``: one
+    ``(m, k)`` index array per size, sizes ascending, faces in file order within each."""
+    lengths = np.fromiter(map(len, rows), np.int64, len(rows))
+    if len(rows) == 0:
+        return []
+    tokens = np.array(list(chain.from_iterable(rows)))  # the lines' tokens, as text: colours stay unread
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    sizes = tokens[starts].astype(np.int64)
+    if (short := np.flatnonzero(lengths < sizes + 1)).size:
+        raise ValueError(f"face {short[0]} lists fewer than the {sizes[short[0]]} vertex indices it declares")
+    groups = []
+    for k in np.unique(sizes):  # a few sizes (triangles, quads...), not one pass per line
+        first = starts[sizes == k]
+        groups.append(tokens[first[:, None] + 1 + np.arange(k)].astype(np.int64))
+    return groups
 
 
 def write_surface(path: str | Path, surface: SurfaceMesh, binary: bool = True) -> Path:
