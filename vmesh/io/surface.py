@@ -181,28 +181,26 @@ def _read_ply(path: Path, notes: list):
         return _read_pyvista(path, notes)
 
 
-def _legacy_vtk_shortfall(path: Path, found_cells: int) -> str | None:
-    """What a legacy ``.vtk`` file declares and VTK's reader did not find (it says nothing
-    when a cell list, or an ASCII point list, is cut short), else None."""
+def _legacy_vtk_shortfall(path: Path) -> str | None:
+    """The points an ASCII legacy ``.vtk`` file declares and does not hold (VTK's reader
+    says nothing when its point list is cut at a number boundary), else None. A binary
+    point list, and cell lists, cut short are VTK's own error."""
+    with open(path, "rb") as fh:
+        head = fh.read(256).split(b"\n", 3)
+    if len(head) < 3 or head[2].strip().upper() != b"ASCII":
+        return None
     data = path.read_bytes()
-    version = re.match(rb"# vtk DataFile Version (\d+)", data)
-    offsets = version is not None and int(version.group(1)) >= 5  # "POLYGONS n_offsets n_ids": n_offsets - 1 cells
-    sections = re.findall(rb"(?m)^(?:VERTICES|LINES|POLYGONS|TRIANGLE_STRIPS|CELLS)[ \t]+(\d+)[ \t]+\d+[ \t]*\r?$", data)
-    if (declared := sum(max(int(n) - offsets, 0) for n in sections)) > found_cells:
-        return f"its header declares {declared} cells, VTK's legacy reader found {found_cells}"
-    head = data.split(b"\n", 3)
-    if len(head) > 2 and head[2].strip().upper() == b"ASCII":  # a binary point list cut short is VTK's error
-        # the numbers after "POINTS n type", up to the next keyword (keywords are upper case, nan is not)
-        points = re.search(rb"(?ms)^POINTS[ \t]+(\d+)[^\n]*\n(.*?)(?=^[A-Z_]{3,}\b|\Z)", data)
-        if points and len(points.group(2).split()) < 3 * int(points.group(1)):
-            return f"its header declares {int(points.group(1))} points, the file holds {len(points.group(2).split())} coordinates"
+    # the numbers after "POINTS n type", up to the next keyword (keywords are upper case, nan is not)
+    points = re.search(rb"(?ms)^POINTS[ \t]+(\d+)[^\n]*\n(.*?)(?=^[A-Z_]{3,}\b|\Z)", data)
+    if points and (held := len(points.group(2).split())) < 3 * int(points.group(1)):
+        return f"its header declares {int(points.group(1))} points, the file holds {held} coordinates"
     return None
 
 
 def _read_legacy_vtk(path: Path):
     """A legacy ``.vtk`` file read by pyvista, refused in one line when VTK reports an error
-    or reads less than the file declares: its reader returns a truncated file's first part
-    without raising."""
+    or the file holds fewer points than it declares: its reader returns a truncated file's
+    first part without raising."""
     import pyvista as pv
 
     with _vtk_errors() as errors:
@@ -211,7 +209,7 @@ def _read_legacy_vtk(path: Path):
         raise InputError(f"the file ends early or is corrupt: VTK's legacy reader says '{errors[0][:160]}' (a truncated download or copy?)", path)
     if isinstance(mesh, pv.MultiBlock):
         mesh = mesh.combine()
-    if shortfall := _legacy_vtk_shortfall(path, mesh.n_cells if mesh is not None else 0):
+    if shortfall := _legacy_vtk_shortfall(path):
         raise InputError(f"the file ends early: {shortfall} (a truncated download or copy?)", path)
     return mesh
 
