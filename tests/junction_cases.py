@@ -162,6 +162,30 @@ def fan(n: int, spread: float, r0: float = 2.0) -> JunctionCase:
     return furcation(f"fan_{n}_{spread:g}", [(direction(a), r) for a, r in zip(angles, radii)], parent_radius=r0)
 
 
+def fan_close_junction(n: int, spread: float, gap: float, side: tuple = (-110.0, 0.0), ratio: float = 0.3, r0: float = 2.0) -> JunctionCase:
+    """:func:`fan` whose first daughter (at ``-spread``) is a junction ``gap`` parent radii
+    from the fan: it goes on straight and gives off a branch (``ratio`` x ``r0``) at
+    ``side`` = (azimuth, elevation) in degrees. The fan's neighbouring daughters part about
+    3 parent radii out, so a junction nearer than that lies inside the fan's half-sections
+    (s1 g0002 given: a 5-junction with a bifurcation 1.97 radii along a daughter 30 degrees
+    from its neighbour; docs/junctions.md, h22/pair)."""
+    w = np.linspace(1.0, 0.6, n)
+    radii = r0 * w / (w**3).sum() ** (1 / 3)
+    pts, edges, rad, a, b, r = [np.zeros(3)], [], [r0], [], [], []
+    add = _branch_adder(pts, edges, rad, a, b, r)
+    add(np.zeros(3), 0, np.array([-1.0, 0, 0]), r0, 8.0)
+    d0 = direction(-spread)
+    add(np.zeros(3), 0, d0, radii[0], gap * r0)
+    far = len(pts) - 1
+    b[-1] = pts[far]  # its tube ends at the junction: the tubes past it are the junction's
+    add(pts[far], far, d0, radii[0], 8 * r0)
+    add(pts[far], far, direction(*side), ratio * r0, 6 * r0)
+    for angle, rd in zip(np.linspace(-spread, spread, n)[1:], radii[1:]):
+        add(np.zeros(3), 0, direction(angle), rd, max(8.0, 6 * rd))
+    sk = Skeleton(np.asarray(pts), np.asarray(rad, float), np.asarray(edges))
+    return JunctionCase(f"fan_close_{n}_{gap:g}_{side[0]:g}_{side[1]:g}", np.asarray(a), np.asarray(b), np.asarray(r), sk)
+
+
 def junction_pair(gap: float, a1: float, a2: float, side: float) -> JunctionCase:
     """Two junctions in one plane: a trunk (radius 1) along +x, a side branch (0.6) at
     azimuth ``side`` at the origin, and ``gap`` on a junction into daughters (0.75, 0.7) at

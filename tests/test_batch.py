@@ -262,9 +262,9 @@ def test_resume_after_interrupt(dask_procs, tmp_path):
     assert rest and all(s["status"] == "ok" for s in rest)
     assert sum(s["resumed"] == "false" for s in rest) >= 1
     check_meshes(out, [s for n, s in summary.items() if n != "broken"])
-    # a failed row is retried once, then reported with its error; the others go on
+    # an unreadable row fails once (session 22: no retry), reported with its error; the others go on
     broken = summary["broken"]
-    assert broken["status"] == "failed" and broken["attempts"] == "2" and "corrupt.ply" in broken["error"]
+    assert broken["status"] == "failed" and broken["attempts"] == "1" and "corrupt.ply" in broken["error"]
     assert not (out / "broken").exists()
     assert "failed: broken:" in r.stderr
 
@@ -441,6 +441,23 @@ def test_scale_radius_keeps_the_centerline_and_caps():
     assert np.array_equal(same.surface.vertices, surface.vertices)
     with pytest.raises(vmesh.InputError, match="needs a skeleton"):
         vmesh.FilterChain([("scale_radius", {"scale": 1.1})]).run(surface=surface)
+
+
+def test_an_unreadable_row_is_not_retried(tmp_path):
+    """Session 22: a row whose input cannot be read was retried (``attempts`` 2): the same
+    file fails the same way. It fails once with its one-line reason; other failures
+    (a meshing error, a lost worker) are still retried."""
+    broken = tmp_path / "cut.off"
+    broken.write_text("OFF\n40 76 0\n0 0 0\n")  # read with numpy: no VTK import in this fast test
+    task = batch.prepare(batch.manifest_from_rows([{"surface": str(broken), "name": "cut"}]), vmesh.FilterChain.load("default"))[0]
+    payload = {"name": task.name, "out": str(tmp_path / "out"), "surface": task.row.surface, "skeleton": task.row.skeleton,
+               "chain": task.chain_toml, "key": task.key, "overrides": task.overrides}
+    res = batch.mesh_row(payload)
+    assert res["status"] == "failed" and res["retry"] is False and "cut.off: could not read as OFF: the file ends early" in res["error"] and "\n" not in res["error"]
+    assert not batch._retried(res, attempts=1, retries=1)
+    assert batch._retried({"status": "failed", "error": "MeshingError: ..."}, attempts=1, retries=1)  # a lost worker's row has no "retry"
+    assert not batch._retried({"status": "failed", "retry": True}, attempts=2, retries=1)
+    assert "retry" not in batch._summary_row(res, task, attempts=1, resumed=False)
 
 
 @pytest.mark.slow

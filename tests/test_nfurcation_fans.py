@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from junction_cases import JunctionCase, _branch_adder, direction, fan, furcation, junction_pair
+from junction_cases import JunctionCase, _branch_adder, direction, fan, fan_close_junction, furcation, junction_pair
 from vmesh.geometry import skeleton_ops as ops
 from vmesh.geometry.block_builder import BlockOptions, block_structure_checks, build_blocks
 from vmesh.geometry.skeleton import clean
@@ -126,6 +126,24 @@ def test_fan_after_separation_blocks_valid(n, spread):
     case = fan(n, spread)
     sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
     blocks = build_blocks(sk, case.distance, None, BlockOptions(), project=case.project, warn=lambda m: None)
+    checks = block_structure_checks(blocks)
+    assert checks["invalid_blocks"] == checks["face_use_errors"] == 0
+    assert checks["boundary_components"] == 1
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("gap", [
+    pytest.param(2.0, marks=pytest.mark.xfail(strict=True, reason="a junction inside the fan's half-sections: they reach 6.0 along "
+                                              "a link 4.0 long, its first ring inverts (s1 g0002 given / extracted; docs/junctions.md h22/pair)")),
+    8.0,
+])
+def test_fan_with_close_junction_blocks_valid(gap):
+    # a 5-daughter fan whose first daughter is a bifurcation gap parent radii out: the fan's
+    # neighbouring daughters (27.5 degrees apart) part about 3 parent radii out, and a
+    # junction nearer than that has no room for the link's first section past the fan's
+    # half-sections, whichever way its side branch leaves
+    case = fan_close_junction(5, 55.0, gap)
+    blocks = build_blocks(case.skeleton, case.distance, None, BlockOptions(), project=case.project, warn=lambda m: None)
     checks = block_structure_checks(blocks)
     assert checks["invalid_blocks"] == checks["face_use_errors"] == 0
     assert checks["boundary_components"] == 1

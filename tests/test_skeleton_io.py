@@ -82,6 +82,38 @@ def test_vmtk_carotid_merges_into_one_bifurcation(real_path):
     assert 25 < trunk < 45
 
 
+def test_vmtk_cell_group_ids_become_segment_tags(tmp_path):
+    """Session 22: VMTK centerlines kept point arrays only, so vmtkbranchextractor's cell
+    array ``GroupIds`` was dropped; each segment now carries the group of its tract (a
+    joint point belongs to both tracts, a segment to the tract of both its ends)."""
+    import pyvista as pv
+
+    trunk = np.c_[np.linspace(0, 10, 21), np.zeros(21), np.zeros(21)]
+    pts, cells, groups, centerline, tract = [], [], [], [], []
+    for c, side in enumerate((1.0, -1.0)):  # two inlet-to-outlet lines sharing the trunk
+        branch = np.c_[np.linspace(10, 15, 11), side * np.linspace(0, 5, 11), np.zeros(11)]
+        for t, piece in enumerate((trunk, branch)):  # the branch tract repeats the joint point
+            start = sum(len(p) for p in pts)
+            pts.append(piece)
+            cells.append([len(piece), *range(start, start + len(piece))])
+            groups.append(0 if t == 0 else 1 + c)
+            centerline.append(c)
+            tract.append(t)
+    mesh = pv.PolyData(np.concatenate(pts), lines=np.concatenate(cells))
+    mesh.cell_data["GroupIds"] = np.array(groups)
+    mesh.cell_data["CenterlineIds"] = np.array(centerline)
+    mesh.cell_data["TractIds"] = np.array(tract)
+    mesh.point_data["MaximumInscribedSphereRadius"] = np.full(mesh.n_points, 1.0)
+    mesh.save(tmp_path / "groups.vtp")
+    skel = read_skeleton(tmp_path / "groups.vtp")
+    assert fmt.vtk_centerline_kind(mesh) == "vmtk" and skel.summary()["junctions"] == 1
+    assert all(len(t) == 1 for t in skel.edge_tags)  # one group per segment
+    mid = skel.points[skel.edges].mean(axis=1)
+    expect = np.where(mid[:, 0] < 10, "group_0", np.where(mid[:, 1] > 0, "group_1", "group_2"))
+    assert [t[0] for t in skel.edge_tags] == expect.tolist()
+    assert sorted(t for e in skel.endpoints.tolist() for t in skel.node_tags[e]) == ["inlet", "outlet", "outlet"]
+
+
 def test_vmtk_thoracic_aorta(real_path):
     skel = read_skeleton(real_path("thoracic_aorta_centerlines.vtp"))
     n, e, j, ends, cycles, comps = counts(skel)

@@ -82,6 +82,20 @@ def _fan_graph():
     return graph, spurs
 
 
+def test_a_tip_judged_again_loses_its_closed_stub_mark():
+    """Session 22 (review): ``closed_stub`` was set when a pruning round held a tip as a side
+    stub and never cleared, so a tip a later round held as a flat end (or no longer as a
+    stub) still went unmatched to any cap in place_ends. The mark follows the last verdict."""
+    from vmesh.geometry.skeleton.extract import mark_closed_stubs
+
+    graph, spurs = _fan_graph()
+    tips = [tip for _, _, _, tip, _ in spurs]
+    mark_closed_stubs(graph, spurs, np.array([True, True, True]))
+    assert all(graph.graph.nodes[t].get("closed_stub") for t in tips)
+    mark_closed_stubs(graph, spurs, np.array([True, False, False]))  # judged again: one still a held stub
+    assert [bool(graph.graph.nodes[t].get("closed_stub")) for t in tips] == [True, False, False]
+
+
 def test_the_fans_towards_a_flat_ends_rim_are_still_pruned(monkeypatch):
     """The wall the fan alone explains is the rim's, past the rest's free end (J, once the
     fan is gone), which the vessel's end reaches (place_ends): judged with the verdict's

@@ -10,7 +10,7 @@ from cfd_meshes import cylinder_mesh
 from conftest import synthetic_case
 from vmesh.cli import main
 from vmesh.errors import ParameterError
-from vmesh.geometry.boundary_layer import guess_units
+from vmesh.geometry.boundary_layer import guess_units, resolve_units
 from vmesh.io.export import convert_units, export_mesh
 
 
@@ -19,6 +19,32 @@ def test_guess_units():
     assert guess_units(1.9) == "m"
     assert guess_units(12.0) == "mm"  # a small aneurysm in mm
     assert guess_units(150.0) == "mm"
+
+
+def test_a_doubtful_unit_guess_is_said_once():
+    """Session 22: kd_lima (cm, PROVENANCE) was meshed as mm without a word; a guessed unit
+    other than mm says why, and mm guessed for a model small for mm vessels says so; never
+    a failure, once per run, nothing when --units is given or the model is mm-sized."""
+    from vmesh.context import Context
+    from vmesh.skeleton import Skeleton
+    from vmesh.surface import SurfaceMesh
+
+    def ctx_for(scale, radius, units=None):
+        ctx = Context(inputs={"units": units} if units else {})
+        box = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float) * scale
+        ctx.surface = SurfaceMesh(box, np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]))
+        ctx.skeleton = Skeleton(box[:2], np.full(2, radius), np.array([[0, 1]]))
+        return ctx
+
+    lima = ctx_for(6.2, 0.106)  # kd_lima's size: diagonal 10.7, median radius 0.106
+    assert resolve_units(lima)["length"] == "mm" and resolve_units(lima)["length"] == "mm"
+    assert len(lima.report.warnings) == 1 and "median vessel radius 0.106" in lima.report.warnings[0]
+    assert "give --units cm" in lima.report.warnings[0]
+    tiny = ctx_for(0.05, 0.002)
+    assert resolve_units(tiny)["length"] == "m" and "length unit m assumed: the surface's bounding-box diagonal 0.0866" in tiny.report.warnings[0]
+    for quiet in (ctx_for(30.0, 0.42), ctx_for(6.2, 0.106, units="cm")):  # BraVa's median radius; a unit given
+        resolve_units(quiet)
+        assert quiet.report.warnings == []
 
 
 def test_run_states_guessed_units(y_run):

@@ -11,7 +11,8 @@ when pyarrow is installed) with one row per manifest row.
 * **Resume**: re-running the same batch skips finished rows whose inputs and resolved
   chain are unchanged (a changed parameter or surface is recomputed).
 * **Failures**: a failed row (an error, or a worker that died) is retried once
-  (``retries``), then reported with its error; the other rows go on.
+  (``retries``), then reported with its error; the other rows go on. A row whose input
+  cannot be read (:class:`~vmesh.errors.InputError`) fails once: a retry reads the same file.
 * **Memory**: each worker process keeps a :class:`~vmesh.cache.PrefixCache`, so the
   steps up to the signed distance run once per worker for each distinct surface and
   preprocessing, not once per row.
@@ -235,6 +236,7 @@ def mesh_row(task: dict) -> dict:
         if stop is not None:  # a stop, not this row's failure
             raise stop from None
         result["status"] = "failed"
+        result["retry"] = not isinstance(exc, InputError)  # the same file fails the same way again
         result["error"] = " ".join(f"{exc}".split()) if isinstance(exc, VmeshError) else " ".join(f"{type(exc).__name__}: {exc}".split())
         result["error"] = _keep_row_diagnostics(tmp, out / f"{name}.failed", result["error"])
         result["seconds"], result["cpu_seconds"] = round(time.perf_counter() - t0, 3), round(time.thread_time() - c0, 3)
@@ -333,7 +335,7 @@ def run(manifest, chain="default", out=None, *, client=None, scheduler: str | No
         ``{"filter.param": value}`` for every row (rows' own columns win).
     retries : int
         Extra attempts of a failed row (an error or a lost worker) before it is
-        reported as failed.
+        reported as failed; a row whose input cannot be read is not retried.
     progress : bool or callable
         Print a progress line/bar to stderr, or call ``progress(done, total, row)`` after
         each row (``row`` is the summary row; ``{"resumed_rows": n}`` once for the rows
@@ -479,7 +481,7 @@ def _run_pending(pending, rows, out, client, scheduler, workers, retries, cache_
             except Exception as exc:  # lost worker (KilledWorker), cancelled...
                 res = {"name": name, "status": "failed", "error": " ".join(f"{type(exc).__name__}: {exc}".split()), "worker": ""}
             f.release()
-            if res.get("status") != "ok" and attempts[name] <= retries:
+            if _retried(res, attempts[name], retries):
                 queue.add(submit(by_name[name]))
                 continue
             rows[name] = _summary_row(res, by_name[name], attempts=attempts[name], resumed=False)
@@ -501,6 +503,12 @@ def _run_pending(pending, rows, out, client, scheduler, workers, retries, cache_
             own_client.close()
         if own_cluster is not None:
             own_cluster.close()
+
+
+def _retried(res: dict, attempts: int, retries: int) -> bool:
+    """Whether a row's result calls for another attempt: a failure other than an unreadable
+    input (``res["retry"]`` False), with fewer than ``1 + retries`` attempts made."""
+    return res.get("status") != "ok" and res.get("retry", True) and attempts <= retries
 
 
 def _local_cluster(n: int):

@@ -35,6 +35,12 @@ LENGTH_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6, "µm": 1e-6}
 INPUT_UNITS = ("mm", "cm", "m")
 #: Inputs whose bounding-box diagonal is below this are guessed to be in metres, else mm.
 METRE_GUESS_BELOW = 2.0
+#: A guessed mm is doubted (a warning, :func:`resolve_units`) below this diagonal (a vessel
+#: model under 1 cm across) or below :data:`MM_SMALL_RADIUS` median vessel radius (finer
+#: than imaged human vessels: BraVa's whole-brain tree has a median 0.42 mm); a model in
+#: cm read as mm looks like this (kd_lima: diagonal 10.7, median radius 0.106).
+MM_SMALL_DIAGONAL = 10.0
+MM_SMALL_RADIUS = 0.2
 
 _LENGTH = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([a-zµ]*)\s*$")
 
@@ -61,6 +67,8 @@ def resolve_units(ctx) -> dict:
         diagonal = float(ctx.surface.diagonal) if ctx.surface is not None else float("nan")
         length = guess_units(diagonal) if math.isfinite(diagonal) else "mm"
         units = {"length": length, "source": f"guessed from the bounding-box diagonal {diagonal:.4g} (give --units mm|cm|m)"}
+        if doubt := _guess_doubt(length, diagonal, ctx.skeleton):
+            ctx.warn(doubt)
     units["metres_per_unit"] = LENGTH_UNITS[units["length"]]
     ctx.report.sections["units"] = units
     ctx.count(units=units["length"])
@@ -291,6 +299,21 @@ def first_cell_heights(mesh, local=None) -> np.ndarray:
     normal = np.cross(own[:, 2] - own[:, 0], own[:, 3] - own[:, 1])
     normal /= np.linalg.norm(normal, axis=1)[:, None]
     return np.abs(np.einsum("ij,ij->i", opp.mean(axis=1) - own.mean(axis=1), normal))
+
+
+def _guess_doubt(length: str, diagonal: float, skeleton) -> str | None:
+    """A warning when a guessed unit is not mm (why it was guessed) or when mm is guessed
+    for a model small for mm vessels (:data:`MM_SMALL_DIAGONAL`, :data:`MM_SMALL_RADIUS`)."""
+    if length == "m":
+        return (f"length unit m assumed: the surface's bounding-box diagonal {diagonal:.4g} is below {METRE_GUESS_BELOW:g}, "
+                "too small for a vessel model in mm; give --units mm|cm if it is not in metres")
+    radii = np.asarray(skeleton.radii, float) if skeleton is not None else np.zeros(0)
+    radius = float(np.median(radii[np.isfinite(radii) & (radii > 0)])) if np.any(np.isfinite(radii) & (radii > 0)) else math.nan
+    if diagonal < MM_SMALL_DIAGONAL or radius < MM_SMALL_RADIUS:
+        return (f"length unit mm assumed (bounding-box diagonal {diagonal:.4g}, median vessel radius {radius:.3g}): small for "
+                f"a vessel in mm (under {MM_SMALL_DIAGONAL:g} across or a radius under {MM_SMALL_RADIUS:g}), as a model in cm "
+                "read as mm is; give --units cm, or --units mm to confirm")
+    return None
 
 
 def setup_boundary_layer(ctx, refinement, elements_layer, grading, first_layer, growth, first_layer_height, boundary_layer_thickness,

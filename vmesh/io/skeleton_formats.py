@@ -183,8 +183,9 @@ def read_centerline_vtk(path, kind: str = "auto", merge_tolerance: float = 0.2) 
     ptags = _tags_from_arrays(mesh.point_data, mesh.n_points)
     ctags = _tags_from_arrays(mesh.cell_data, mesh.n_cells)[mesh.n_verts : mesh.n_verts + len(lines)]
     if kind == "vmtk":
+        cell_tags = _point_cell_tags(lines, ctags, pts)  # before the tracts are joined: a line is a cell
         lines = join_tracts(lines, mesh.cell_data, mesh.n_verts, pts)
-        return _vmtk_skeleton(pts, radius, ptags, [l for l in lines if len(l)], merge_tolerance, name)
+        return _vmtk_skeleton(pts, radius, ptags, [l for l in lines if len(l)], merge_tolerance, name, cell_tags)
     if kind == "simvascular":
         key, gid = _array(mesh.point_data, ("GlobalNodeId",))
         if gid is None:
@@ -275,11 +276,33 @@ def _tag_ends_by_path(skel: Skeleton, path_length: np.ndarray) -> Skeleton:
     return skel.copy(node_tags=tags)
 
 
-def _vmtk_skeleton(pts, radius, ptags, lines, tolerance, name) -> Skeleton:
+def _point_cell_tags(lines: list[np.ndarray], ctags: list[tuple], pts: np.ndarray) -> list[tuple]:
+    """The tags of the line cells through each point (VMTK's ``GroupIds`` -> ``group_3``...),
+    united over points at one position: a VMTK tract's first point repeats the previous
+    tract's last under another id, so a joint point carries both tracts' tags."""
+    out: list[tuple] = [()] * len(pts)
+    tagged = [(l, t) for l, t in zip(lines, ctags) if t and len(l)]
+    if not tagged:
+        return out
+    scale = float(np.ptp(pts, axis=0).max()) or 1.0
+    rep, _ = sk_polylines.merge_coincident_points(pts, np.zeros((0, 2), np.int64), 1e-6 * scale)
+    for line, t in tagged:  # one step per cell and point of it: cells are few
+        for r in np.unique(rep[line]).tolist():
+            out[r] = sk_graph._union(out[r], t)
+    return [out[r] for r in rep.tolist()]
+
+
+def _vmtk_skeleton(pts, radius, ptags, lines, tolerance, name, cell_tags=None) -> Skeleton:
+    """The tree of overlapping VMTK centerlines; a segment's tags are those of the cells
+    through both its end points (``cell_tags``, :func:`_point_cell_tags`)."""
     merged = sk_polylines.merge_overlapping_polylines([pts[l] for l in lines], [radius[l] for l in lines], tolerance)
     src = np.array([lines[li][k] for li, k in merged.origin.tolist()], np.int64)
     tags = [ptags[p] for p in src.tolist()]
-    skel = Skeleton(merged.points, merged.radii, merged.edges, tags, name=name)
+    edge_tags = None
+    if cell_tags is not None and any(cell_tags):
+        ends = [cell_tags[p] for p in src.tolist()]
+        edge_tags = [tuple(t for t in ends[a] if t in ends[b]) for a, b in merged.edges.tolist()]
+    skel = Skeleton(merged.points, merged.radii, merged.edges, tags, edge_tags or [], name=name)
     deg = skel.degrees
     ends = np.flatnonzero(deg == 1)
     last = {(li, len(lines[li]) - 1) for li in range(len(lines))}

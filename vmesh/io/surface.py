@@ -10,6 +10,8 @@ gives its boundary surface; both are noted for the run's warnings.
 from __future__ import annotations
 
 import re
+from contextlib import contextmanager
+from itertools import chain
 from pathlib import Path
 
 import numpy as np
@@ -54,6 +56,28 @@ def _quiet_vtk():
     import vtk
 
     vtk.vtkObject.GlobalWarningDisplayOff()
+
+
+@contextmanager
+def _vtk_errors():
+    """Collect VTK's error and warning messages (a list of their texts, filled on exit)
+    instead of printing them: VTK's legacy reader reports a file cut short only there and
+    returns what it could read."""
+    import vtk
+
+    window, previous = vtk.vtkStringOutputWindow(), vtk.vtkOutputWindow.GetInstance()
+    vtk.vtkLogger.SetStderrVerbosity(vtk.vtkLogger.VERBOSITY_OFF)  # its stderr copy of each message
+    vtk.vtkOutputWindow.SetInstance(window)
+    vtk.vtkObject.GlobalWarningDisplayOn()
+    messages: list = []
+    try:
+        yield messages
+    finally:
+        vtk.vtkObject.GlobalWarningDisplayOff()
+        vtk.vtkOutputWindow.SetInstance(previous)
+        # each message is "ERROR: In file.cxx, line N" or "Generic Warning: ..." then its text
+        lines = [line.strip() for line in window.GetOutput().splitlines() if line.strip()]
+        messages += [re.sub(r"^vtk\w+ \(0x[0-9a-f]+\): ", "", text) for head, text in zip(lines, lines[1:]) if re.search(r", line \d+$", head)]
 
 
 def read_surface(path: str | Path, notes: list | None = None) -> SurfaceMesh:
@@ -157,13 +181,46 @@ def _read_ply(path: Path, notes: list):
         return _read_pyvista(path, notes)
 
 
+def _legacy_vtk_shortfall(path: Path) -> str | None:
+    """The points an ASCII legacy ``.vtk`` file declares and does not hold (VTK's reader
+    says nothing when its point list is cut at a number boundary), else None. A binary
+    point list, and cell lists, cut short are VTK's own error."""
+    with open(path, "rb") as fh:
+        head = fh.read(256).split(b"\n", 3)
+    if len(head) < 3 or head[2].strip().upper() != b"ASCII":
+        return None
+    data = path.read_bytes()
+    # the numbers after "POINTS n type", up to the next keyword (keywords are upper case, nan is not)
+    points = re.search(rb"(?ms)^POINTS[ \t]+(\d+)[^\n]*\n(.*?)(?=^[A-Z_]{3,}\b|\Z)", data)
+    if points and (held := len(points.group(2).split())) < 3 * int(points.group(1)):
+        return f"its header declares {int(points.group(1))} points, the file holds {held} coordinates"
+    return None
+
+
+def _read_legacy_vtk(path: Path):
+    """A legacy ``.vtk`` file read by pyvista, refused in one line when VTK reports an error
+    or the file holds fewer points than it declares: its reader returns a truncated file's
+    first part without raising."""
+    import pyvista as pv
+
+    with _vtk_errors() as errors:
+        mesh = pv.read(str(path))
+    if errors:
+        raise InputError(f"the file ends early or is corrupt: VTK's legacy reader says '{errors[0][:160]}' (a truncated download or copy?)", path)
+    if isinstance(mesh, pv.MultiBlock):
+        mesh = mesh.combine()
+    if shortfall := _legacy_vtk_shortfall(path):
+        raise InputError(f"the file ends early: {shortfall} (a truncated download or copy?)", path)
+    return mesh
+
+
 def _read_pyvista(path: Path, notes: list):
     """Vertices, triangles and per-triangle arrays of any VTK-readable file: surface cells
     (triangulated) of a surface, the boundary of a volume mesh; other cells are dropped."""
     import pyvista as pv
 
     _quiet_vtk()
-    mesh = pv.read(str(path))
+    mesh = _read_legacy_vtk(path) if path.suffix.lower() == ".vtk" else pv.read(str(path))
     if isinstance(mesh, pv.MultiBlock):
         mesh = mesh.combine()
     empty = np.zeros((0, 3)), np.zeros((0, 3), np.int64), {}
@@ -221,11 +278,25 @@ def _read_off(path: Path):
     if len(body) < nv + nf:
         raise ValueError(f"the file ends early: {len(body)} vertex and face lines, its header says {nv} + {nf}")
     vertices = np.array([r[:3] for r in body[:nv]], float)
-    by_size: dict = {}
-    for r in body[nv : nv + nf]:
-        k = int(r[0])
-        by_size.setdefault(k, []).append(r[1 : 1 + k])
-    return vertices, triangulate_polygons([np.array(b, np.int64) for k, b in sorted(by_size.items())]), {}
+    return vertices, triangulate_polygons(_off_faces_by_size(body[nv : nv + nf])), {}
+
+
+def _off_faces_by_size(rows: list) -> list:
+    """OFF face lines (token lists ``k i_1 ... i_k [colour]``) grouped by size ``k``: one
+    ``(m, k)`` index array per size, sizes ascending, faces in file order within each."""
+    lengths = np.fromiter(map(len, rows), np.int64, len(rows))
+    if len(rows) == 0:
+        return []
+    tokens = np.array(list(chain.from_iterable(rows)))  # the lines' tokens, as text: colours stay unread
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    sizes = tokens[starts].astype(np.int64)
+    if (short := np.flatnonzero(lengths < sizes + 1)).size:
+        raise ValueError(f"face {short[0]} lists fewer than the {sizes[short[0]]} vertex indices it declares")
+    groups = []
+    for k in np.unique(sizes):  # a few sizes (triangles, quads...), not one pass per line
+        first = starts[sizes == k]
+        groups.append(tokens[first[:, None] + 1 + np.arange(k)].astype(np.int64))
+    return groups
 
 
 def write_surface(path: str | Path, surface: SurfaceMesh, binary: bool = True) -> Path:

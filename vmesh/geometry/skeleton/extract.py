@@ -153,6 +153,18 @@ def _voxel_branch_graph(sdf, bounds, spacing: float, tick, stats: dict, timings:
     return graph
 
 
+def mark_closed_stubs(graph: BranchGraph, spurs: list, stub: np.ndarray) -> None:
+    """Mark the tips of the spur candidates held as side stubs (``stub``) ``closed_stub``: a
+    closed end no cap's wall reaches, which place_ends extends to its own wall rather than
+    to a neighbour's cap. A tip judged again and no longer a held stub (a flat end now, or
+    not explaining wall) loses the mark."""
+    for (_, _, _, tip, _), is_stub in zip(spurs, stub.tolist()):
+        if is_stub:
+            graph.graph.nodes[tip]["closed_stub"] = True
+        else:
+            graph.graph.nodes[tip].pop("closed_stub", None)
+
+
 def clean_branch_graph(
     graph: BranchGraph, settings: ExtractionSettings, expected_cycles: int | None, sdf=None, spacing=None, caps=(), wall=None
 ) -> dict:
@@ -183,10 +195,7 @@ def clean_branch_graph(
             held = np.array([seen[k] for k in key], bool)
             if wall is not None:  # judged against the whole round's rest, the wall's tree built once
                 side = spur_wall.spurs_explaining_wall(graph, wall, spurs, spacing)
-                for i in np.flatnonzero(side & ~held):
-                    # a side stub no cap's wall reaches: a closed end, which place_ends
-                    # extends to its own wall rather than to a neighbour's cap
-                    graph.graph.nodes[spurs[i][3]]["closed_stub"] = True
+                mark_closed_stubs(graph, spurs, side & ~held)
                 held |= side
             return held
 
