@@ -70,3 +70,28 @@ def acute_fork(folder, angle: float, parallel: float = 0.0, apart: float = 1.8, 
     V, Tri = finish_surface(*S.contour(F, grid, False, smooth_iters=0), caps, "open", target_faces=(10_000, 10**9))
     manifest = {"name": f"acute_fork_{angle:g}_{parallel:g}", "units": units, "surface_format": "ply"}
     return write_vessel(Vessel(V, Tri, xyz, rad, tags, edges, manifest), Path(folder))
+
+
+def end_cut_through_neighbour(folder, offset: float = 1.5, units: str = "mm") -> dict:
+    """A tube along x (radius 1.2) from x = -10 that ends open at x = 0, and a thin branch
+    (radius 0.45) leaving it at x = -8 that runs nearly alongside, its axis ``offset`` from
+    the tube's axis at x = 0 (the walls touching there), and ends open at x = 3. The tube's
+    end is cut raggedly as the generator cuts open ends, through the thin branch's wall too
+    (docs/robustness.md h22/fold: s0 g0015): one boundary loop, the tube's rim with a window
+    of the thin branch's wall spliced in. Writes the vessel's files; returns its manifest."""
+    tree = T.Tree()
+    p, r = T.straight(np.array([-10.0, 0, 0]), np.zeros(3), 1.2, 1.2)
+    tree.branches.append(T.Branch(p, r))
+    at = int(np.argmin(np.abs(p[:, 0] + 8.0)))
+    tip = np.array([3.0, offset * 11.0 / 8.0, 0.0])
+    p_k, r_k = T.straight(p[at], tip, 0.45, 0.45)
+    tree.branches.append(T.Branch(p_k, r_k, 0, at, kind="kissing"))
+    xyz, radius, tags, edges = T.skeleton_of(tree)
+    caps = [(e, n, rr) for _, e, n, rr in S.end_caps(tree)]
+    tag_ends(tree, xyz, tags, caps)
+    F, grid = S.implicit_field(tree, "open", 0.45 / 2.6)
+    V, Tri = finish_surface(*S.contour(F, grid, False, smooth_iters=0), caps, "open", target_faces=(10_000, 10**9))
+    tube_end = [c for c in caps if abs(c[0][0]) < 1e-9 and np.linalg.norm(c[0][1:]) < 1e-9]
+    V, Tri = S.ragged_cut(V, Tri, tube_end, np.random.default_rng(0))
+    manifest = {"name": f"end_cut_through_neighbour_{offset:g}", "units": units, "surface_format": "ply"}
+    return write_vessel(Vessel(V, Tri, xyz, radius, tags, edges, manifest), Path(folder))

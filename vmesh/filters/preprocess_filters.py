@@ -247,6 +247,26 @@ def _report_dropped_components(ctx, report) -> None:
         )
 
 
+def _centerline_with_radii(ctx):
+    """The given centerline as ``(points, radii, edges)`` when every node has a radius."""
+    sk = ctx.skeleton
+    if sk is None or not len(sk.edges) or not np.all(np.isfinite(sk.radii)) or not np.all(sk.radii > 0):
+        return None
+    return sk.points, sk.radii, sk.edges
+
+
+def _warn_windows(ctx, windows: list) -> None:
+    """Name the open ends whose rim took in a passing vessel's wall (report section ``cap_windows``)."""
+    if not windows:
+        return
+    ctx.report.sections["cap_windows"] = windows
+    for w in windows:
+        ctx.warn(
+            f"open end {w['label']} (rim of {w['rim']} vertices) runs over the wall of a vessel of the centerline that passes it "
+            f"({w['window']} rim vertices around ({', '.join(f'{x:.4g}' for x in w['center'])})): that part was closed as wall, the rest capped"
+        )
+
+
 @register_filter(
     description="Close every open end with a flat cap and record the caps as named inlet/outlet boundaries.",
     parameters=[
@@ -261,13 +281,23 @@ def _report_dropped_components(ctx, report) -> None:
         ),
         Parameter("rings", "int", None, "Inner rings per cap for method 'rings' (0: a plain centre fan). Automatic: about radius / rim edge length.", min=0, max=200),
         Parameter("detect_if_closed", "bool", True, "On a surface without open ends, find its flat end caps instead (as detect_caps with default settings)."),
+        Parameter(
+            "split_windows",
+            "bool",
+            False,
+            "Where a centerline with radii is given (method 'rings'): an open end whose rim also runs over the wall of a vessel "
+            "passing it (a cut through two touching vessels) has that part of the rim closed as wall, faired into it, and only "
+            "the rest capped (a flat cap across the whole rim would cross the passing vessel's lumen). Off by default: it changes "
+            "the capped surface and so the decimated one everywhere (docs/robustness.md, h22/fold).",
+        ),
         *INLET_PARAMETERS,
     ],
     reads=("surface",),
+    optional_reads=("skeleton",),
     writes=("surface", "caps"),
     category="preprocessing",
 )
-def cap_open_ends(ctx, method, rings, detect_if_closed, inlet, inlet_point):
+def cap_open_ends(ctx, method, rings, detect_if_closed, split_windows, inlet, inlet_point):
     """Cap each boundary loop; the largest cap (by rim radius) becomes ``inlet``, the
     others ``outlet_1``, ``outlet_2``, ... by decreasing radius, with ids 1..n.
 
@@ -290,7 +320,14 @@ def cap_open_ends(ctx, method, rings, detect_if_closed, inlet, inlet_point):
         set_caps(ctx, s.copy(), cap_labels(ctx), inlet, inlet_point)
         ctx.count(caps=len(ctx.caps))
         return
-    v, f, labels = pre.cap_boundary_loops(s.vertices, s.faces, rings=rings, method=method)
+    centerline = _centerline_with_radii(ctx) if split_windows and method == "rings" else None
+    if centerline is not None:
+        from ..rim_windows import cap_loops_splitting_windows
+
+        v, f, labels, windows = cap_loops_splitting_windows(s.vertices, s.faces, centerline, rings=rings)
+        _warn_windows(ctx, windows)
+    else:
+        v, f, labels = pre.cap_boundary_loops(s.vertices, s.faces, rings=rings, method=method)
     old = np.asarray(s.face_data.get(pre.CAP_LABEL, np.zeros(s.n_faces)), np.int64)
     if old.any():  # keep caps found earlier, number the new ones after them
         labels = np.where(labels > 0, labels + old.max(), np.concatenate([old, np.zeros(len(f) - s.n_faces, np.int64)]))

@@ -1,0 +1,68 @@
+"""An open end whose rim takes in a window of a passing vessel's wall (h22/fold, s0 g0015):
+with the centerline given, ``cap_open_ends.split_windows`` closes the window as wall and
+caps only the end, so no cap crosses the passing vessel's lumen."""
+
+from __future__ import annotations
+
+import glob
+
+import numpy as np
+import pytest
+
+from contact_vessels import end_cut_through_neighbour
+from vmesh.chain import FilterChain
+from vmesh.geometry import topology
+from vmesh.io.skeleton import read_skeleton
+from vmesh.io.surface import read_surface
+from vmesh.rim_windows import split_rim, window_on_passing_branch
+
+
+@pytest.fixture(scope="module")
+def cut_vessel(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("end_cut")
+    end_cut_through_neighbour(folder)
+    return read_surface(glob.glob(str(folder / "surface.*"))[0]), read_skeleton(folder / "skeleton.json")
+
+
+def _thin_axis_distance(points, skeleton):
+    """Distance to the thin branch's axis (radius 0.45) over its radius: the nearest point on its polyline."""
+    thin = np.flatnonzero(np.isclose(skeleton.radii, 0.45))
+    a, b = skeleton.points[thin[:-1]], skeleton.points[thin[1:]]
+    ab = b - a
+    t = np.clip(np.einsum("psk,sk->ps", points[:, None] - a[None], ab) / (ab * ab).sum(1), 0, 1)
+    return np.linalg.norm(points[:, None] - (a[None] + t[..., None] * ab[None]), axis=2).min(axis=1) / 0.45
+
+
+def test_the_window_is_the_rims_run_on_the_passing_branch(cut_vessel):
+    surface, skeleton = cut_vessel
+    loops = topology.join_touching(topology.boundary_loops(surface.faces))
+    windows = [window_on_passing_branch(surface.vertices[lp], skeleton.points, skeleton.radii, skeleton.edges) for lp in loops]
+    assert [int(w.any()) for w in windows].count(1) == 1  # the tube's end only, not the thin branch's own end
+    loop, window = next((lp, w) for lp, w in zip(loops, windows) if w.any())
+    on_thin = np.abs(_thin_axis_distance(surface.vertices[loop], skeleton) - 1.0) < 0.25
+    assert on_thin[window].all() and 3 <= window.sum() <= len(loop) - 3
+    chord, end_loop, window_loop = split_rim(surface.vertices, loop, window)
+    assert len(end_loop) + len(window_loop) == len(loop) + 2 + 2 * len(chord)  # the chord's ends and points shared
+    assert set(end_loop) | set(window_loop) == set(loop) | set(range(len(surface.vertices), len(surface.vertices) + len(chord)))
+
+
+@pytest.mark.parametrize("split", [False, True])
+def test_split_windows_keeps_the_cap_out_of_the_passing_lumen(cut_vessel, split):
+    """Without the split the flat cap spans the window: cap vertices deep in the thin lumen.
+    With it the surface is closed, the cap stays out of the thin lumen, the window's patch
+    lies near the thin branch's wall, and the report names the window."""
+    surface, skeleton = cut_vessel
+    chain = FilterChain(["repair_surface", ("cap_open_ends", {"split_windows": split})])
+    ctx = chain.run(surface=surface, skeleton=skeleton)
+    s = ctx.surface
+    assert not topology.boundary_loops(s.faces)
+    cap = max(ctx.caps, key=lambda c: c.radius)  # the tube's end (radius 1.2); the thin end is 0.45
+    cap_vertices = np.unique(s.faces[cap.faces])
+    depth = _thin_axis_distance(s.vertices[cap_vertices], skeleton)
+    if not split:
+        assert depth.min() < 0.5 and "cap_windows" not in ctx.report.sections
+        return
+    assert depth.min() > 0.7
+    assert len(ctx.report.sections["cap_windows"]) == 1
+    patch = np.setdiff1d(np.arange(surface.n_vertices, s.n_vertices), np.unique(s.faces[np.concatenate([c.faces for c in ctx.caps])]))  # not on a cap: the window patch
+    assert len(patch) and np.abs(_thin_axis_distance(s.vertices[patch], skeleton) - 1.0).max() < 0.5
