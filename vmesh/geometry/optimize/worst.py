@@ -18,6 +18,8 @@ height above the wall, cap nodes stay in their plane, rim and other boundary nod
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from . import _offset
@@ -36,8 +38,16 @@ STEP, TRIALS = 0.25, 8
 MORE = 8
 
 
-#: faces of the hull of three gradients (the least-norm point of a 3-D hull lies in one)
-_FACES = [(0,), (1,), (2,), (0, 1), (0, 2), (1, 2), (0, 1, 2)]
+#: with the taper guard on: a node whose incident hexahedra's least Jacobian ratio is within
+#: this of the guard's limit takes that hexahedron's ratio gradient as one more row of its
+#: max-min direction (a ratio difference, like ACTIVE)
+RATIO_ACTIVE = 0.01
+
+
+def _faces(rows):
+    """Faces of the hull of ``rows`` gradients in 3-D that its least-norm point can lie in:
+    every set of one to three of them."""
+    return [f for k in (1, 2, 3) for f in itertools.combinations(range(rows), k)]
 
 
 def _least_norm(G, ok):
@@ -47,7 +57,7 @@ def _least_norm(G, ok):
     c = len(G)
     best = np.zeros((c, 3))
     bn = np.full(c, np.inf)
-    for face in _FACES:
+    for face in _faces(G.shape[1]):
         A = G[:, face]  # (c, r, 3)
         if len(face) == 1:
             lam = np.ones((c, 1))
@@ -148,6 +158,10 @@ def _step(X, hexes, ptr, inc, group, kind, normal, height, project, wall_nrm, ra
     onwall = (k == K.WALL) | (k == K.OFFSET)
     nrm[onwall] = wall_nrm[group[onwall]]
     nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+    if ratio_floor > -np.inf:
+        margin, RG = KW.ratio_rows(X, hexes, ptr, inc, group, ratio_floor)
+        G = np.concatenate([G, RG[:, None]], 1)
+        ok = np.concatenate([ok, (margin <= RATIO_ACTIVE)[:, None]], 1)
     G = G - np.einsum("crd,cd->cr", G, nrm)[..., None] * nrm[:, None]
     d, dn = _least_norm(G, ok)
     go = np.isfinite(dn) & (dn > 1e-24) & np.isfinite(d).all(1)
