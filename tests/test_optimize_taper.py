@@ -131,3 +131,27 @@ def test_guarded_worst_pass_climbs_without_lowering_the_ratio():
     blind, guarded, free = lifted(1.0, -1.0), lifted(1.0), lifted(-np.inf)
     assert min(blind[1], guarded[1]) >= r0 - 1e-12 and free[1] < r0
     assert q0 < blind[0] < guarded[0] - 0.03 and guarded[0] < free[0]
+
+
+def test_ratio_rows_give_the_least_ratio_around_a_node_and_its_gradient():
+    """``kernels_worst.ratio_rows`` on a jittered 3x3x3 block: the least Jacobian ratio of each
+    node's hexahedra less the guard's limit (0 below the floor), and that hexahedron's ratio
+    gradient against central differences of ``jacobian_ratio``."""
+    from vmesh.geometry.optimize.kernels_worst import ratio_rows
+
+    from test_worst_pass import _jittered_block
+
+    _, X, hexes, ptr, inc, nodes = _jittered_block()
+    margin, G = ratio_rows(X, hexes, ptr, inc, nodes, 0.3)
+    for a, v in enumerate(nodes):
+        around = hexes[np.any(hexes == v, axis=1)]
+        least = jacobian_ratio(X, around, 1).min()
+        assert np.isclose(margin[a], least - min(0.3, least), atol=1e-12)
+        fd = np.zeros(3)
+        for d in range(3):
+            Y = X.copy()
+            Y[v, d] += 1e-6
+            up = jacobian_ratio(Y, around, 1).min()
+            Y[v, d] -= 2e-6
+            fd[d] = (up - jacobian_ratio(Y, around, 1).min()) / 2e-6
+        np.testing.assert_allclose(G[a], fd, atol=1e-6)
