@@ -68,7 +68,7 @@ def _least_norm(G, ok, cone=False):
             continue  # the constraint's ray alone holds the origin
         A = G[:, face]  # (c, r, 3)
         if len(face) == 1:
-            lam, p = np.ones((c, 1)), A[:, 0]
+            lam = np.ones((c, 1))
         else:
             D = A[:, 1:] - A[:, :1]
             if face[-1] == last:
@@ -80,10 +80,10 @@ def _least_norm(G, ok, cone=False):
             mu = np.zeros((c, len(face) - 1))
             if good.any():
                 mu[good] = np.linalg.solve(M[good], rhs[good][..., None])[..., 0]
-            p = A[:, 0] + np.einsum("ci,cid->cd", mu, D)
             hull = mu[:, :-1] if face[-1] == last else mu
-            lam = np.concatenate([1 - hull.sum(1, keepdims=True), mu], 1)
+            lam = np.concatenate([1 - hull.sum(1, keepdims=True), mu], 1)  # the ray's weight last
             lam[~good] = -1.0
+        p = np.einsum("cr,crd->cd", lam, A)
         pn = (p * p).sum(1)
         ahead = np.einsum("crd,cd->cr", G, p)
         seen = ahead >= pn[:, None] * (1 - 1e-9) - 1e-15
