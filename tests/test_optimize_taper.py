@@ -78,3 +78,80 @@ def test_light_pass_keeps_a_tapered_layer_from_tapering_more_and_the_first_heigh
     height = lambda P: R - np.linalg.norm(P[top, :2], axis=1)  # noqa: E731
     assert np.abs(height(Y) - height(X)).max() < 1e-9
     assert np.abs(np.linalg.norm(Y[kw["wall"], :2], axis=1) - R).max() < 1e-9
+
+
+def test_max_min_direction_keeps_a_constraint_row_from_falling():
+    """``worst._least_norm(cone=True)``: the last row is a constraint (its rate may not be
+    negative), the others objectives; against a brute-force search over unit directions, the
+    direction found keeps the constraint and raises the objectives' least rate as far as the
+    best feasible direction does (or there is none)."""
+    from vmesh.geometry.optimize.worst import _least_norm
+
+    rng = np.random.default_rng(1)
+    P = rng.normal(size=(40000, 3))
+    P /= np.linalg.norm(P, axis=1)[:, None]
+    G = rng.normal(size=(60, 4, 3))
+    ok = np.column_stack([np.ones(60, bool), rng.random(60) < 0.7, rng.random(60) < 0.5, np.ones(60, bool)])
+    p, pn = _least_norm(G, ok, cone=True)
+    for c in range(60):
+        rows = G[c, :3][ok[c, :3]]
+        rate = np.where(P @ G[c, 3] >= 0, (P @ rows.T).min(axis=1), -np.inf)
+        if np.isfinite(pn[c]) and pn[c] > 1e-20:
+            d = p[c] / np.sqrt(pn[c])
+            assert d @ G[c, 3] >= -1e-9
+            assert (rows @ d).min() >= rate.max() - 1e-12 and np.isclose((rows @ d).min(), np.sqrt(pn[c]))
+        else:
+            assert rate.max() < 1e-2
+
+
+def test_guarded_worst_pass_climbs_without_lowering_the_ratio():
+    """The max-min pass with the guard on a jittered 3x3x3 block (boundary fixed; floor 1: every
+    node's least ratio is at the guard's limit). The session-21 form (its direction blind to the
+    ratio, ``RATIO_ACTIVE = -1``) has its steps refused wherever they lower that ratio and
+    stops at 0.721; with the ratio a constraint of the direction it reaches 0.77, the ratio
+    rising too (0.30 -> 0.42); unguarded it reaches 0.80 with the ratio down to 0.24."""
+    import vmesh.geometry.optimize.worst as W
+
+    from test_worst_pass import _jittered_block
+
+    g, _, hexes, _, _, _ = _jittered_block()
+    X = g + np.random.default_rng(1).normal(size=g.shape) * 0.12
+    kind = np.where(((g == 0) | (g == 3)).any(axis=1), K.FIXED, K.FREE).astype(np.int64)
+    q0, r0 = hex8_scaled_jacobian(X, hexes).min(), jacobian_ratio(X, hexes, 1).min()
+
+    def lifted(ratio_floor, active=W.RATIO_ACTIVE):
+        Y, keep = X.copy(), W.RATIO_ACTIVE
+        W.RATIO_ACTIVE = active
+        try:
+            W.lift_worst(Y, hexes, 0.99, kind, np.zeros((64, 3)), np.zeros(64), sweeps=30, ratio_floor=ratio_floor)
+        finally:
+            W.RATIO_ACTIVE = keep
+        return hex8_scaled_jacobian(Y, hexes).min(), jacobian_ratio(Y, hexes, 1).min()
+
+    blind, guarded, free = lifted(1.0, -1.0), lifted(1.0), lifted(-np.inf)
+    assert min(blind[1], guarded[1]) >= r0 - 1e-12 and free[1] < r0
+    assert q0 < blind[0] < guarded[0] - 0.03 and guarded[0] < free[0]
+
+
+def test_ratio_rows_give_the_least_ratio_around_a_node_and_its_gradient():
+    """``kernels_worst.ratio_rows`` on a jittered 3x3x3 block: the least Jacobian ratio of each
+    node's hexahedra less the guard's limit (0 below the floor), and that hexahedron's ratio
+    gradient against central differences of ``jacobian_ratio``."""
+    from vmesh.geometry.optimize.kernels_worst import ratio_rows
+
+    from test_worst_pass import _jittered_block
+
+    _, X, hexes, ptr, inc, nodes = _jittered_block()
+    margin, G = ratio_rows(X, hexes, ptr, inc, nodes, 0.3)
+    for a, v in enumerate(nodes):
+        around = hexes[np.any(hexes == v, axis=1)]
+        least = jacobian_ratio(X, around, 1).min()
+        assert np.isclose(margin[a], least - min(0.3, least), atol=1e-12)
+        fd = np.zeros(3)
+        for d in range(3):
+            Y = X.copy()
+            Y[v, d] += 1e-6
+            up = jacobian_ratio(Y, around, 1).min()
+            Y[v, d] -= 2e-6
+            fd[d] = (up - jacobian_ratio(Y, around, 1).min()) / 2e-6
+        np.testing.assert_allclose(G[a], fd, atol=1e-6)

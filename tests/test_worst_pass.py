@@ -224,3 +224,5 @@ def test_worst_pass_parallel_kernels_match_the_serial_ones():
     qp = W._trial_minima_parallel(X, hexes, ptr, inc, nodes, T, -np.inf)
     np.testing.assert_array_equal(qp, W._trial_minima_serial(X, hexes, ptr, inc, nodes, T, -np.inf))
     assert qp[2, 1] == -np.inf and np.isfinite(np.delete(qp.ravel(), 2 * 4 + 1)).all()
+    for a, b in zip(W._ratio_rows_parallel(X, hexes, ptr, inc, nodes, 0.3), W._ratio_rows_serial(X, hexes, ptr, inc, nodes, 0.3)):
+        np.testing.assert_array_equal(a, b)

@@ -38,7 +38,7 @@ from ..registry import Parameter, register_filter
         Parameter("light_pass_sweeps", "int", 8, "Most Gauss–Seidel sweeps of the light pass (4 give most of the gain at less cost; with light_pass_over_relax=1.5, 6 reach what 8 plain ones do on the ICA).", min=1, max=100),
         Parameter("light_pass_over_relax", "float", 1.0, "Light pass and the untanglers' smoothing phase: a smoothing Newton step (not a wall node's) is first tried this many times longer, then 1, 1/2, ... (over-relaxed Gauss-Seidel: fewer sweeps for the same gain; 1 = plain; docs/optimiser.md).", min=1.0, max=2.0),
         Parameter("light_pass_tol", "float", 0.01, "Light pass: a node that moves less than this fraction of half its longest edge does not send its neighbours back to work (converged regions stop early; 0 = every move does; docs/speed.md).", min=0.0, max=0.5),
-        Parameter("light_pass_ratio_floor", "float", 0.0, "Light and worst passes: a step may not lower the Jacobian ratio (min / max det J over the corners) of any element the node touches below the lesser of this and the least ratio of those elements before the step, so the passes do not taper the boundary layer (the corner scaled Jacobian they climb does not see an element thinning at one edge); 0 = no guard; 0.3 removes the taper but lowers most runs' corner minimum (docs/optimiser.md, session 21). The untanglers' smooth_below phase is not guarded.", min=0.0, max=1.0),
+        Parameter("light_pass_ratio_floor", "float", 0.0, "Light and worst passes: a step may not lower the Jacobian ratio (min / max det J over the corners) of any element the node touches below the lesser of this and the least ratio of those elements before the step, so the passes do not taper the boundary layer (the corner scaled Jacobian they climb does not see an element thinning at one edge); the worst pass's max-min direction keeps the ratio of an element at that limit from falling; 0 = no guard; 0.3 removes the taper (docs/optimiser.md, sessions 21-22). The untanglers' smooth_below phase is not guarded.", min=0.0, max=1.0),
         Parameter("curved_sections", "bool", True, "Curve the core/ring and ring/boundary-layer interfaces of the cross-sections so that the element angles at their corners balance (120° at core corners instead of 90°/135°/135°; docs/optimiser.md)."),
         Parameter("smooth_below", "float", 0.5, "Light pass after untangling (optimiser = local): nodes of elements below this move only where their elements' minimum and mean scaled Jacobian do not drop; 0 = off.", min=0.0, max=0.95),
         Parameter("worst_pass_sweeps", "int", 60, "After the light pass, only with untangle = true, optimiser = local and light_pass_below > 0 (p = 1, a valid mesh): the nodes of elements still below smooth_below (its threshold) take max-min steps judged by their worst incident element alone (wall nodes on the wall, first boundary-layer heights kept), then the light pass runs again; most sweeps, 0 = off (docs/optimiser.md).", min=0, max=200),
@@ -99,18 +99,19 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         from ..geometry.boundary_layer import offset_to_thickness
 
         offset_to_thickness(ctx, sm, blocks, node_distribution)
+    ratio_floor = light_pass_ratio_floor if light_pass_ratio_floor > 0 else -np.inf  # 0: no guard
     if untangle:
         _untangle(ctx, sm, projector, sdf, untangle_below, untangle_restart_below, optimiser, smooth_below, node_distribution, light_pass_over_relax)
         if optimiser == "local" and light_pass_below > 0:
-            _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps, light_pass_tol, ratio_floor=light_pass_ratio_floor, over_relax=light_pass_over_relax)
+            _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps, light_pass_tol, ratio_floor=ratio_floor, over_relax=light_pass_over_relax)
         # the max-min steps let better elements give way: only with the light pass on, which
         # then restores the mean (it never lowers an element's neighbourhood minimum)
         if optimiser == "local" and light_pass_below > 0 and worst_pass_sweeps > 0 and smooth_below > 0:
-            lifted = _worst_pass(ctx, sm, projector, sdf, smooth_below, worst_pass_sweeps, light_pass_ratio_floor)
+            lifted = _worst_pass(ctx, sm, projector, sdf, smooth_below, worst_pass_sweeps, ratio_floor)
         else:
             lifted = False
         if lifted:
-            _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps, light_pass_tol, name="light_pass_after_worst", ratio_floor=light_pass_ratio_floor, over_relax=light_pass_over_relax)
+            _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps, light_pass_tol, name="light_pass_after_worst", ratio_floor=ratio_floor, over_relax=light_pass_over_relax)
     if exact_first_layer and layer["first_layer_absolute"]:  # after the optimisers, which move layer nodes
         from ..geometry.boundary_layer import exact_first_layer as place_first_layer
 
@@ -240,13 +241,13 @@ def _polish(X, sm, info, goals, constraints):
 LIGHT_PASS_PATIENCE = 3
 
 
-def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol=0.0, name="light_pass", ratio_floor=0.0, over_relax=1.0):
+def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol=0.0, name="light_pass", ratio_floor=-np.inf, over_relax=1.0):
     """The default light pass of :mod:`vmesh.geometry.optimize` over every element below
     ``below`` (no untangling): raises the mean without lowering any element's neighbourhood
     minimum. For p > 1 the corners move and the other nodes follow, which can lower the
     order-p quality: the result is kept only when it does not. ``name``: its report section
     (and ``<name>_nodes`` count); ``ratio_floor``: the Jacobian-ratio guard of its steps
-    (``optimise_linear``; 0 = none); ``over_relax``: its steps' first trial length."""
+    (``optimise_linear``; ``-inf`` = none); ``over_relax``: its steps' first trial length."""
     from ..geometry.optimize import optimise
     from ..geometry.quality import scaled_jacobian
     from ..geometry.transfinite import reference_points
@@ -258,7 +259,7 @@ def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol
     X, info = optimise(
         sm.points, sm.cells, p, ref_nodes=ref_nodes, wall=wall, wall_normals=sdf.gradient, project=projector, cap_nodes=cap_nodes, cap_normals=cap_normals,
         boundary=boundary, untangle_below=0.0, smooth_below=below, smooth_sweeps=sweeps, smooth_tol=tol, untangle_patience=LIGHT_PASS_PATIENCE,
-        ratio_floor=ratio_floor if ratio_floor > 0 else -np.inf, over_relax=over_relax,
+        ratio_floor=ratio_floor, over_relax=over_relax,
     )
     if p > 1:
         before = scaled_jacobian(sm.points, sm.cells, p, ref_nodes)
@@ -274,12 +275,12 @@ def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol
     ctx.count(**{f"{name}_nodes": info["smoothed_nodes"]})
 
 
-def _worst_pass(ctx, sm, projector, sdf, below, sweeps, ratio_floor=0.0):
+def _worst_pass(ctx, sm, projector, sdf, below, sweeps, ratio_floor=-np.inf):
     """Max-min steps for the nodes of the elements the light pass left below ``below``
     (:func:`vmesh.geometry.optimize.worst.lift_worst`; linear, valid meshes only): the light
     pass keeps each node's sum of qualities from dropping and climbs one corner at a time,
     so where an untangler left several poor elements balanced around a node it stops.
-    ``ratio_floor``: the light pass's Jacobian-ratio guard (0 = none). Returns whether a node moved."""
+    ``ratio_floor``: the light pass's Jacobian-ratio guard (``-inf`` = none). Returns whether a node moved."""
     import time
 
     from ..geometry.optimize import _node_kinds
@@ -295,7 +296,7 @@ def _worst_pass(ctx, sm, projector, sdf, below, sweeps, ratio_floor=0.0):
     t0 = time.perf_counter()
     cap_nodes, cap_normals, wall, boundary = _constraints(sm)
     kind, normal, height = _node_kinds(sm.cells, len(sm.points), wall, projector, sdf.gradient, cap_nodes, cap_normals, boundary, True)
-    moved, sweeps_run = lift_worst(sm.points, sm.cells, below, kind, normal, height, projector, sdf.gradient, sweeps=sweeps, ratio_floor=ratio_floor if ratio_floor > 0 else -np.inf)
+    moved, sweeps_run = lift_worst(sm.points, sm.cells, below, kind, normal, height, projector, sdf.gradient, sweeps=sweeps, ratio_floor=ratio_floor)
     after = hex8_scaled_jacobian(sm.points, sm.cells)
     ctx.report.sections["worst_pass"] = {
         "before": {"min": float(q.min()), "mean": float(q.mean())}, "after": {"min": float(after.min()), "mean": float(after.mean())},

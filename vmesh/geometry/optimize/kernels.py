@@ -170,8 +170,10 @@ NL = 75
 
 
 @nb.njit(cache=True)
-def frame(X, hexes, scale, ptr, inc, cq, v, L):
-    """Local frame of node ``v`` at its current position into ``L`` (valence, NL).
+def frame(X, hexes, scale, ptr, inc, cq, v, L, ratio=True):
+    """Local frame of node ``v`` at its current position into ``L`` (valence, NL); the
+    Jacobian ratio's columns (72:75: four more determinants per hexahedron) only with
+    ``ratio`` (the taper guard on).
 
     Moving one node changes 4 corners of each incident hexahedron, and each of their edge
     matrices' determinants is affine in the node's position (a tetrahedron's volume is
@@ -219,6 +221,8 @@ def frame(X, hexes, scale, ptr, inc, cq, v, L):
             L[r, k + 4] = nb2 * nc2
             L[r, k + 5] = L[r, 31 + b] * nb2 + L[r, 31 + cc] * nc2
         L[r, 35] = min(min(cq[e, l ^ 3], cq[e, l ^ 5]), min(cq[e, l ^ 6], cq[e, l ^ 7]))
+        if not ratio:
+            continue
         lo, hi = np.inf, 0.0
         for c in (l ^ 3, l ^ 5, l ^ 6, l ^ 7):
             d = _plain_det(X, hexes, e, c)
@@ -548,7 +552,7 @@ def _chunk(n, chunks, i):
 def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delta, mode, goal, trial, state, dirty, buf, tol, L, ratio_floor, over_relax):
     """One Newton step with backtracking for node ``v`` (row ``j`` of its colour), else a
     max-min climb; see :func:`_sweep_colour`."""
-    frame(X, hexes, scale, ptr, inc, cq, v, L)
+    frame(X, hexes, scale, ptr, inc, cq, v, L, mode == SMOOTH and ratio_floor > -np.inf)
     on_wall = kind[v] == WALL or kind[v] == OFFSET
     # the start's quality from the frame, as every trial's: the cache's values of the moved
     # corners (computed in other frames) differ in the last bits, enough to refuse the short
@@ -659,7 +663,7 @@ def _accept_trials(X, hexes, scale, ptr, inc, cq, nodes, projected, delta, mode,
         for j in range(lo, hi):
             ahead(X, hexes, scale, cq, ptr, inc, nodes, dirty, False, j, hi)
             v = nodes[j]
-            frame(X, hexes, scale, ptr, inc, cq, v, L)
+            frame(X, hexes, scale, ptr, inc, cq, v, L, mode == SMOOTH and ratio_floor > -np.inf)
             z0, z1, z2 = projected[j, 0] - X[v, 0], projected[j, 1] - X[v, 1], projected[j, 2] - X[v, 2]
             r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, mode != SMOOTH, _YES, buf, np.int64(j), _NO, _trial_floor(mode, state[j, 0], state[j, 1]), ratio_floor if mode == SMOOTH else -np.inf)
             if _acceptable(mode, r[0], r[10], r[11], state[j, 0], state[j, 1], state[j, 2]):
@@ -709,6 +713,8 @@ def warm_up() -> None:
     # these, and a first run's optimiser may start while the background compile is still here
     from . import kernels_worst as KW
 
-    for corners, minima in ((KW._worst_corners_serial, KW._trial_minima_serial), (KW._worst_corners_parallel, KW._trial_minima_parallel)):
+    for corners, minima, rows in ((KW._worst_corners_serial, KW._trial_minima_serial, KW._ratio_rows_serial),
+                                  (KW._worst_corners_parallel, KW._trial_minima_parallel, KW._ratio_rows_parallel)):
         corners(X, hexes, ptr, inc, nodes)
         minima(X, hexes, ptr, inc, nodes, np.ascontiguousarray(X[:, None]), 0.3)
+        rows(X, hexes, ptr, inc, nodes, 0.3)

@@ -125,6 +125,52 @@ def _ratio(X, hexes, e, v, y0, y1, y2):
     return lo / max(hi, 1e-300)
 
 
+def _ratio_rows(X, hexes, ptr, inc, group, ratio_floor):
+    """For each node of ``group``: its incident hexahedra's least Jacobian ratio less the
+    guard's limit (the lesser of ``ratio_floor`` and that least ratio: so <= 0 when the least
+    is below the floor), and that hexahedron's ratio gradient with respect to the node ``(c,
+    3)``: ``(d_min' - r |d_max|') / |d_max|``, through the four corners the node moves (the
+    other four are constant). The max-min direction takes it as one more row, so its step
+    raises the ratio of a hexahedron at the guard's limit instead of being refused by it."""
+    c = len(group)
+    margin = np.full(c, np.inf)
+    G = np.zeros((c, 3))
+    for a in nb.prange(c):
+        v = group[a]
+        y0, y1, y2 = X[v, 0], X[v, 1], X[v, 2]
+        least = np.inf
+        for s in range(ptr[v], ptr[v + 1]):
+            e, loc = inc[s] >> 3, inc[s] & 7
+            lo, hi = np.inf, 0.0
+            glo0 = glo1 = glo2 = ghi0 = ghi1 = ghi2 = 0.0
+            for cc in range(8):
+                a0, a1, a2, b0, b1, b2, c0, c1, c2, sj, ln = _corner_edges(X, hexes, e, cc, v, y0, y1, y2)
+                det = a0 * (b1 * c2 - b2 * c1) + a1 * (b2 * c0 - b0 * c2) + a2 * (b0 * c1 - b1 * c0)
+                g0 = g1 = g2 = 0.0
+                x = cc ^ loc
+                if not x & (x - 1):  # one of the node's corners: det moves with it
+                    i, j, k = cc & 1, (cc >> 1) & 1, (cc >> 2) & 1
+                    sa = (1.0 if 1 + 2 * j + 4 * k == loc else 0.0) - (1.0 if 2 * j + 4 * k == loc else 0.0)
+                    sb = (1.0 if i + 2 + 4 * k == loc else 0.0) - (1.0 if i + 4 * k == loc else 0.0)
+                    sc = (1.0 if i + 2 * j + 4 == loc else 0.0) - (1.0 if i + 2 * j == loc else 0.0)
+                    # d det = sa (b x c) + sb (c x a) + sc (a x b)
+                    g0 = sa * (b1 * c2 - b2 * c1) + sb * (c1 * a2 - c2 * a1) + sc * (a1 * b2 - a2 * b1)
+                    g1 = sa * (b2 * c0 - b0 * c2) + sb * (c2 * a0 - c0 * a2) + sc * (a2 * b0 - a0 * b2)
+                    g2 = sa * (b0 * c1 - b1 * c0) + sb * (c0 * a1 - c1 * a0) + sc * (a0 * b1 - a1 * b0)
+                if det < lo:
+                    lo, glo0, glo1, glo2 = det, g0, g1, g2
+                if abs(det) > hi:
+                    sg = 1.0 if det >= 0.0 else -1.0
+                    hi, ghi0, ghi1, ghi2 = abs(det), sg * g0, sg * g1, sg * g2
+            hi = max(hi, 1e-300)
+            r = lo / hi
+            if r < least:
+                least = r
+                G[a, 0], G[a, 1], G[a, 2] = (glo0 - r * ghi0) / hi, (glo1 - r * ghi1) / hi, (glo2 - r * ghi2) / hi
+        margin[a] = least - min(ratio_floor, least)
+    return margin, G
+
+
 def _trial_minima(X, hexes, ptr, inc, group, T, ratio_floor):
     """``(c, trials)``: with node ``group[a]`` at ``T[a, t]``, the least scaled Jacobian of its
     corners (-inf where one is NaN: a degenerate trial is no candidate, and where an incident
@@ -167,6 +213,8 @@ def _trial_minima(X, hexes, ptr, inc, group, T, ratio_floor):
 #: parallel versions for large colours, serial ones for small colours (as ``kernels``)
 _worst_corners_parallel = nb.njit(parallel=True, cache=True)(_variant(_worst_corners, "worst_corners_parallel"))
 _worst_corners_serial = nb.njit(cache=True)(_variant(_worst_corners, "worst_corners_serial"))
+_ratio_rows_parallel = nb.njit(parallel=True, cache=True)(_variant(_ratio_rows, "ratio_rows_parallel"))
+_ratio_rows_serial = nb.njit(cache=True)(_variant(_ratio_rows, "ratio_rows_serial"))
 _trial_minima_parallel = nb.njit(parallel=True, cache=True)(_variant(_trial_minima, "trial_minima_parallel"))
 _trial_minima_serial = nb.njit(cache=True)(_variant(_trial_minima, "trial_minima_serial"))
 
@@ -174,6 +222,11 @@ _trial_minima_serial = nb.njit(cache=True)(_variant(_trial_minima, "trial_minima
 def worst_corners(X, hexes, ptr, inc, group):
     """:func:`_worst_corners`, in parallel for ``PARALLEL_FROM`` nodes or more."""
     return (_worst_corners_parallel if len(group) >= PARALLEL_FROM else _worst_corners_serial)(X, hexes, ptr, inc, group)
+
+
+def ratio_rows(X, hexes, ptr, inc, group, ratio_floor):
+    """:func:`_ratio_rows`, in parallel for ``PARALLEL_FROM`` nodes or more."""
+    return (_ratio_rows_parallel if len(group) >= PARALLEL_FROM else _ratio_rows_serial)(X, hexes, ptr, inc, group, float(ratio_floor))
 
 
 def trial_minima(X, hexes, ptr, inc, group, T, ratio_floor=-np.inf):

@@ -18,6 +18,8 @@ height above the wall, cap nodes stay in their plane, rim and other boundary nod
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from . import _offset
@@ -36,23 +38,41 @@ STEP, TRIALS = 0.25, 8
 MORE = 8
 
 
-#: faces of the hull of three gradients (the least-norm point of a 3-D hull lies in one)
-_FACES = [(0,), (1,), (2,), (0, 1), (0, 2), (1, 2), (0, 1, 2)]
+#: with the taper guard on: a node whose incident hexahedra's least Jacobian ratio is within
+#: this of the guard's limit keeps that hexahedron's ratio from falling in its max-min
+#: direction (:func:`_least_norm`'s ``cone``; a ratio difference, like ACTIVE)
+RATIO_ACTIVE = 0.01
 
 
-def _least_norm(G, ok):
-    """Least-norm points ``(c, 3)`` of the convex hulls of the rows of ``G (c, 3, 3)`` that
-    ``ok (c, 3)`` marks (the first always): over the faces, the affine least-norm point that
-    lies in its face and that every marked row sees ahead (``g . p >= |p|^2``)."""
-    c = len(G)
+def _faces(rows):
+    """Faces of the hull of ``rows`` gradients in 3-D that its least-norm point can lie in:
+    every set of one to three of them."""
+    return [f for k in (1, 2, 3) for f in itertools.combinations(range(rows), k)]
+
+
+def _least_norm(G, ok, cone=False):
+    """Least-norm points ``(c, 3)`` of the convex hulls of the rows of ``G (c, rows, 3)`` that
+    ``ok (c, rows)`` marks (the first always): over the faces, the affine least-norm point that
+    lies in its face and that every marked row sees ahead (``g . p >= |p|^2``).
+
+    ``cone``: the last row is a constraint, not an objective: it enters with any weight
+    ``>= 0`` (the hull of the others plus its ray) and need only be seen ``g . p >= 0``, so
+    the direction ``p`` raises the others at the best common rate without lowering it (the
+    dual of ``max min_i g_i . p`` over ``|p| <= 1`` and ``g_last . p >= 0``)."""
+    c, rows = G.shape[0], G.shape[1]
     best = np.zeros((c, 3))
     bn = np.full(c, np.inf)
-    for face in _FACES:
+    last = rows - 1 if cone else -1
+    for face in _faces(rows):
+        if face[0] == last:
+            continue  # the constraint's ray alone holds the origin
         A = G[:, face]  # (c, r, 3)
         if len(face) == 1:
             lam = np.ones((c, 1))
         else:
             D = A[:, 1:] - A[:, :1]
+            if face[-1] == last:
+                D[:, -1] = A[:, -1]  # a ray from the hull, not an edge of it
             M = np.einsum("cid,cjd->cij", D, D)
             rhs = -np.einsum("cid,cd->ci", D, A[:, 0])
             det = np.linalg.det(M)
@@ -60,11 +80,15 @@ def _least_norm(G, ok):
             mu = np.zeros((c, len(face) - 1))
             if good.any():
                 mu[good] = np.linalg.solve(M[good], rhs[good][..., None])[..., 0]
-            lam = np.concatenate([1 - mu.sum(1, keepdims=True), mu], 1)
+            hull = mu[:, :-1] if face[-1] == last else mu
+            lam = np.concatenate([1 - hull.sum(1, keepdims=True), mu], 1)  # the ray's weight last
             lam[~good] = -1.0
         p = np.einsum("cr,crd->cd", lam, A)
         pn = (p * p).sum(1)
-        seen = np.einsum("crd,cd->cr", G, p) >= pn[:, None] * (1 - 1e-9) - 1e-15
+        ahead = np.einsum("crd,cd->cr", G, p)
+        seen = ahead >= pn[:, None] * (1 - 1e-9) - 1e-15
+        if cone:
+            seen[:, last] = ahead[:, last] >= -1e-9 * pn - 1e-15
         valid = (lam >= -1e-12).all(1) & ok[:, list(face)].all(1) & (seen | ~ok).all(1) & (pn < bn)
         best[valid], bn[valid] = p[valid], pn[valid]
     return best, bn
@@ -135,6 +159,14 @@ def lift_worst(X, hexes, below, kind, normal, height, project=None, wall_normals
     return int(moved.sum()), sweep
 
 
+def _direction(G, ok, cone=False):
+    """Unit max-min directions ``(c, 3)`` over the rows of ``G`` that ``ok`` marks
+    (:func:`_least_norm`) and where one exists."""
+    d, dn = _least_norm(G, ok, cone)
+    go = np.isfinite(dn) & (dn > 1e-24) & np.isfinite(d).all(1)
+    return d / np.maximum(np.sqrt(np.where(go, dn, 1.0)), 1e-300)[:, None], go
+
+
 def _step(X, hexes, ptr, inc, group, kind, normal, height, project, wall_nrm, ratio_floor=-np.inf):
     """One max-min step of each node of ``group`` (one colour); returns which moved (their
     incident minimum rose). ``wall_nrm (n, 3)``: the wall nodes' normals."""
@@ -149,11 +181,17 @@ def _step(X, hexes, ptr, inc, group, kind, normal, height, project, wall_nrm, ra
     nrm[onwall] = wall_nrm[group[onwall]]
     nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
     G = G - np.einsum("crd,cd->cr", G, nrm)[..., None] * nrm[:, None]
-    d, dn = _least_norm(G, ok)
-    go = np.isfinite(dn) & (dn > 1e-24) & np.isfinite(d).all(1)
+    if ratio_floor > -np.inf:
+        # the guard refuses any trial that lowers a ratio at its limit: the direction keeps
+        # that ratio from falling (a constraint of the max-min direction, not one more
+        # objective: one that must climb it too lifts the scaled Jacobian less)
+        margin, RG = KW.ratio_rows(X, hexes, ptr, inc, group, ratio_floor)
+        RG = RG - np.einsum("cd,cd->c", RG, nrm)[:, None] * nrm
+        d, go = _direction(np.concatenate([G, RG[:, None]], 1), np.concatenate([ok, (margin <= RATIO_ACTIVE)[:, None]], 1), cone=True)
+    else:
+        d, go = _direction(G, ok)
     if not go.any():
         return go
-    d = d / np.maximum(np.sqrt(dn), 1e-300)[:, None]
     # halvings from the longest edge's step down past TRIALS halvings of the shortest's, so a
     # wall or first-layer node (shortest edge: the first-layer height) still tries short steps
     extra = np.clip(np.ceil(np.log2(np.maximum(edge, 1e-300) / np.maximum(short, 1e-300))), 0, MORE).astype(np.int64)
