@@ -139,3 +139,39 @@ def test_acute_bifurcation_fills_without_folds_once_split():
     assert blocks.info["wall_fold_blocks"] == np.flatnonzero(q <= 0).tolist()
     sj = fill(case, blocks, DEFAULT)
     assert sj.min() > 0  # main folds 4 elements at this crotch (tests/test_junctions.py KNOWN_FOLDS)
+
+
+@pytest.mark.slow
+def test_split_judged_with_its_neighbours_lifts_the_whole_fill():
+    # the column filled alone refused this split (it fills worse alone at the fine
+    # resolution), but the whole fill rises with it: the along edges' bulges are averaged
+    # with the neighbouring blocks', so the judge fills the column with them (h22/crotch)
+    from test_junctions import DEFAULT, fill
+
+    from junction_cases import bifurcation
+    from vmesh.geometry import skeleton_ops as ops
+    from vmesh.geometry.block_builder import BlockOptions, build_blocks
+
+    case = bifurcation(60, 2)
+    sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
+    least = []
+    for ratio in (0.0, 0.5):
+        blocks = build_blocks(sk, case.distance, None, BlockOptions(saddle_split=ratio), project=case.project)
+        assert blocks.corner_jacobians().min() > 0
+        assert any(f.startswith("split the first blocks") for f in blocks.info["fixes"]) == (ratio > 0)
+        least.append(fill(case, blocks, DEFAULT).min())
+    assert least[0] > 0 and least[1] > least[0]  # 0.205 unsplit, 0.242 split
+
+
+def test_neighbour_blocks_share_a_vertex():
+    t = cs.o_grid_template(8)
+    V, hexes, A_ids, B_ids = _column(t)
+    nv = t.n_vertices
+    # a second column on from B, and a third from there: only the second touches the first
+    V = np.vstack([V, V[B_ids] + [0.0, 0.0, 10.0], V[B_ids] + [0.0, 0.0, 20.0]])
+    hexes = np.vstack([hexes, np.c_[t.quads + nv, t.quads + 2 * nv], np.c_[t.quads + 2 * nv, t.quads + 3 * nv]])
+    nq = len(t.quads)
+    from vmesh.geometry.blocks.crotch import neighbour_blocks
+
+    blocks = _structure(t, V, hexes)
+    assert np.array_equal(neighbour_blocks(blocks, np.arange(nq)), nq + np.arange(nq))

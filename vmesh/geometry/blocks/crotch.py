@@ -15,8 +15,9 @@ straight face spans the dip. Where a half would not be valid, the section takes 
 scaling of its inner vertices, then moves halfway towards the column's middle; of the
 valid tries the one whose column fills best is taken, and only where the column fills
 better than unsplit (:func:`column_fill_score`; h21/crotch: s0 g0002 given's split section
-reached a sibling's wall through the junction and folded its column). The halves are split
-again the same way (three rounds at most).
+reached a sibling's wall through the junction and folded its column), the column filled
+with the blocks that share a vertex with it (h22/crotch: a split moves its neighbours' fill
+too). The halves are split again the same way (three rounds at most).
 """
 
 from __future__ import annotations
@@ -123,6 +124,13 @@ def column_fill_score(blocks: BlockStructure, rows: np.ndarray, fill) -> float:
     return folded if folded < 0 else least
 
 
+def neighbour_blocks(blocks: BlockStructure, rows: np.ndarray) -> np.ndarray:
+    """The blocks, other than ``rows``, that share a vertex with them."""
+    touching = np.isin(blocks.hexes, np.unique(blocks.hexes[rows])).any(axis=1)
+    touching[rows] = False
+    return np.flatnonzero(touching)
+
+
 def split_saddle_columns(blocks: BlockStructure, template, ends: list, sdf, cast, ratio: float, fill=None, rounds: int = 3) -> tuple[BlockStructure, list]:
     """``blocks`` with every junction end's first column (:func:`column_ends`) whose wall
     dips ``ratio`` or more of the layer (:func:`dip_fraction`) split at the dip
@@ -153,13 +161,19 @@ def _best_split(blocks: BlockStructure, template, end: tuple, tau: float, cast, 
     """The split of the column ``end`` (:func:`split_column`'s result) and its fraction: at
     the dip ``tau``, then halfway to the middle, each with its inner vertices' full and half
     scaling. Without ``fill`` the first whose halves are valid; with it the one whose column
-    fills best (:func:`column_fill_score`), and none where that is not better than the
-    unsplit column's fill (a split that folds the fill more than it was must not stand)."""
+    and its neighbours (:func:`neighbour_blocks`) fill best (:func:`column_fill_score`), and
+    none where that is not better than their fill unsplit (a split that folds the fill more
+    than it was must not stand)."""
     A_ids, B_ids, rows = end
     V = blocks.vertices
     best, best_t = None, None
-    best_score = column_fill_score(blocks, rows, fill) if fill is not None else -np.inf
-    halves = np.r_[rows, len(blocks.hexes) + np.arange(len(rows))]
+    # the column with the blocks that share a vertex with it: a split moves their fill too
+    # (the along edges' bulges are averaged over the blocks that share them,
+    # transfinite_curves._smooth_bulges), which the column filled alone does not see
+    # (s0 g0002 given: its least sits in an unsplit neighbour column at the same junction)
+    judged = np.r_[rows, neighbour_blocks(blocks, rows)]
+    best_score = column_fill_score(blocks, judged, fill) if fill is not None else -np.inf
+    halves = np.r_[judged, len(blocks.hexes) + np.arange(len(rows))]
     # the dip itself, then halfway to the middle (the same where the dip is the middle)
     for t, follow in dict.fromkeys(((tau, 1.0), (tau, 0.5), (0.5 * (tau + 0.5), 1.0), (0.5 * (tau + 0.5), 0.5))):
         got = split_column(blocks, rows, A_ids, B_ids, saddle_section(template, V[A_ids], V[B_ids], t, cast, follow))
