@@ -23,7 +23,9 @@ leave it, standing out of it by at least that radius, and ending free of the res
 branches, :func:`_ends_free`), one at a time (the largest missing part first; it then joins
 the rest), and never a candidate reaching a cap, whose end :func:`~.ends.place_ends` gives
 (docs/coverage.md, h20/stubs, h21/stubs). A held stub's end is marked ``closed_stub``: it
-ends where its axis meets the wall, not at the nearest cap (:func:`~.ends.place_ends`).
+ends where its axis meets the wall, not at the nearest cap (:func:`~.ends.place_ends`). Placed,
+a held stub whose end lies in another branch's lumen, or whose end section meets a neighbour's
+wall, is dropped again (:func:`drop_stubs_in_neighbours`, h22/stubs).
 """
 
 from __future__ import annotations
