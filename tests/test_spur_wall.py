@@ -407,3 +407,64 @@ def test_an_acute_fork_extracted_and_meshed_holds_no_parallel_branch(tmp_path):
     assert ctx.report.sections["quality"]["scaled_jacobian"]["n_invalid"] == 0
     assert ctx.report.sections["quality"]["scaled_jacobian"]["min"] >= 0.3
     assert ctx.report.sections["coverage"]["missing_parts"] == 0
+
+
+@pytest.mark.parametrize("angle, length, dropped", [(10.0, 3.4, True), (90.0, 3.4, False), (10.0, 1.2, False)])
+def test_a_held_stub_ending_inside_a_neighbours_lumen_is_dropped(angle, length, dropped):
+    """Real sv_rpa extracted (session 20-21): the rule held a stub 10 degrees from its sibling
+    (radius 1.0); placed, its end lay 0.64 from the sibling's axis, inside its lumen, so the
+    two never parted and the junction was beyond the junction scheme. A held stub
+    (``closed_stub``) whose placed end lies inside another branch's ball runs along that
+    branch's lumen: its wall is the neighbour's, it is dropped and its junction dissolved.
+    A stub standing out at 90 degrees ends outside every other ball and stays; one ending
+    within its junction's ball (seed 0 g0012's stub, ending at its own cap 0.42 from its
+    junction of radius 0.73) has not left it and stays too."""
+    from vmesh.geometry.skeleton.spur_wall import drop_stubs_in_neighbours
+
+    graph, spurs = _fork_graph(angle, length, 0.8)
+    j, tip = spurs[0][4], spurs[0][3]
+    graph.graph.nodes[tip]["closed_stub"] = True
+    assert drop_stubs_in_neighbours(graph) == int(dropped)
+    assert (tip not in graph.graph) == dropped and (j not in graph.graph) == dropped  # the junction dissolved
+    assert graph.graph.number_of_edges() == (3 if dropped else 5)
+
+
+@pytest.mark.parametrize("kissing", [False, True])
+def test_a_held_stub_whose_end_section_runs_along_a_neighbours_lumen_is_dropped(kissing):
+    """Seed 1 g0004 and real hepatic_artery extracted: a held stub's end section (the plane
+    across its end tangent) runs along a neighbour's lumen (a vessel in contact with its end,
+    the siblings' fused lumens), rays in it meet wall the neighbour's balls explain and the
+    stub's do not, and the block builder's section there found no wall within reach. A stub
+    (radius 0.4, leaning 20 degrees from +y out of a tube of radius 1) standing free meets its
+    own wall all round and stays; with a vessel (radius 0.5) passing along x in contact with its
+    end (the end 0.61 from its axis, in no ball of it), its end section's plane crosses that
+    vessel's lumen, its wall there is that vessel's, and it is dropped."""
+    from vmesh.geometry.skeleton.branch_graph import BranchGraph
+    from vmesh.geometry.skeleton.spur_wall import drop_stubs_in_neighbours
+
+    graph, h = BranchGraph(), 0.1
+
+    def branch(a, b, r):
+        a_pos, b_pos = graph.pos(a), graph.pos(b)
+        t = np.arange(h, np.linalg.norm(b_pos - a_pos) - h / 2, h) / np.linalg.norm(b_pos - a_pos)
+        return graph.add_branch(a, b, a_pos + t[:, None] * (b_pos - a_pos), np.full(len(t), r))
+
+    j = graph.add_node([0.0, 0, 0], 1.0)
+    for x in (-5.0, 5.0):
+        branch(j, graph.add_node([x, 0, 0], 1.0), 1.0)
+    axis = np.array([np.sin(np.radians(20.0)), np.cos(np.radians(20.0)), 0.0])  # the stub leans 20 degrees
+    tip = graph.add_node(1.9 * axis, 0.4)
+    branch(j, tip, 0.4)
+    graph.graph.nodes[tip]["closed_stub"] = True
+    graph.graph.nodes[tip]["end"] = ("rounded",)
+    if kissing:
+        branch(graph.add_node([-5.0, 2.4, 0], 0.5), graph.add_node([5.0, 2.4, 0], 0.5), 0.5)
+
+    def sdf(p):
+        p = np.asarray(p, float).reshape(-1, 3)
+        value = np.maximum(closed_cylinder(p, [-6.0, 0, 0], [6.0, 0, 0], 1.0), closed_cylinder(p, [0, 0, 0], 2.3 * axis, 0.4))
+        return np.maximum(value, closed_cylinder(p, [-6.0, 2.4, 0], [6.0, 2.4, 0], 0.5)) if kissing else value
+
+    assert drop_stubs_in_neighbours(graph) == 0  # the end lies in no other ball: the ball test alone keeps it
+    assert drop_stubs_in_neighbours(graph, sdf, 0.1) == int(kissing)
+    assert (tip not in graph.graph) == kissing

@@ -283,6 +283,8 @@ def extract_skeleton(
         tick(0.85, "placing the ends")
         # spur_wall=false: the extraction before the rule, the tail measured over the whole window
         stats["ends"] = place_ends(graph, sdf, spacing, caps=caps, end_depth=settings.end_depth, outside_junction=settings.spur_wall)
+        if wall is not None:  # a held stub whose end runs in a neighbour's lumen: its wall is the neighbour's
+            stats["stubs_in_neighbours"] = spur_wall.drop_stubs_in_neighbours(graph, sdf, spacing)
     with _timed(timings, "resample"):
         tick(0.9, "resampling and centring the branches")
         skeleton = resample_branches(

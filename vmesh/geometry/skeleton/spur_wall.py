@@ -23,7 +23,9 @@ leave it, standing out of it by at least that radius, and ending free of the res
 branches, :func:`_ends_free`), one at a time (the largest missing part first; it then joins
 the rest), and never a candidate reaching a cap, whose end :func:`~.ends.place_ends` gives
 (docs/coverage.md, h20/stubs, h21/stubs). A held stub's end is marked ``closed_stub``: it
-ends where its axis meets the wall, not at the nearest cap (:func:`~.ends.place_ends`).
+ends where its axis meets the wall, not at the nearest cap (:func:`~.ends.place_ends`). Placed,
+a held stub whose end lies in another branch's lumen, or whose end section meets a neighbour's
+wall, is dropped again (:func:`drop_stubs_in_neighbours`, h22/stubs).
 """
 
 from __future__ import annotations
@@ -344,3 +346,81 @@ class _Judge:
             x, kth = self.probe[i][:2]
             if changed or (new_tree.query(x)[0] <= kth).any():
                 self.judge(i)
+
+
+def drop_stubs_in_neighbours(graph, sdf=None, spacing: float = 0.0, rays: int = 16) -> int:
+    """Drop the held stubs whose placed end lies in a neighbour's lumen.
+
+    A stub held for its wall (``closed_stub``) is extended by :func:`~.ends.place_ends`
+    along its axis to the wall. When that end lies inside a ball of another branch (its
+    centre closer to the end than its radius), the stub runs along that branch's lumen
+    rather than out of it: the wall it was held for is the neighbour's, which the
+    neighbour's section reaches, and the stub never parts from it, so no block structure
+    separates the two (real sv_rpa extracted: a held stub 10 degrees from its sibling, its
+    end 0.64 from the sibling's axis at radius 1.01). With ``sdf``, a stub's end section is
+    judged too (:func:`_section_leaves`): where one of its ``rays`` meets wall that another
+    branch's balls explain and its own do not, the section's plane runs along a
+    neighbour's lumen, and its wall there is the neighbour's. A side vessel's end stands out
+    of its parent by at least its own radius: it lies in no other ball, and its section meets
+    its own wall all round. Such a stub is removed and its junction, left with two branches,
+    dissolved. Every stub is judged on the graph :func:`~.ends.place_ends` gave: held stubs
+    whose sections meet each other's wall (pieces of one wide lumen's medial sheet, real
+    hepatic_artery) are all dropped, not the last of them kept for the wall the others left. An end within its own junction's ball (a stub shorter than its parent's
+    radius, ending at its own cap: seed 0 g0012) has not left the ball it shares with its
+    siblings and is not judged, nor is an end at a cap (an open end's section lies in the
+    cap's plane). Returns how many were dropped.
+    """
+    from scipy.spatial import cKDTree
+
+    stubs = [n for n, data in graph.graph.nodes(data=True) if data.get("closed_stub") and graph.degree(n) == 1]
+    drop = []  # judged on the graph place_ends gave: two held stubs in one lumen explain each other's wall
+    for node in stubs:
+        (u, v, key), = list(graph.graph.edges(node, keys=True))
+        end, base = graph.pos(node), graph.other(u, v, node)
+        if np.linalg.norm(end - graph.pos(base)) <= graph.radius(base) or graph.graph.nodes[node].get("end", ("",))[0] == "cap":
+            continue  # it ends within its junction's ball, which it shares with its siblings, or at a cap
+        lines = [graph.polyline(*e) for e in graph.branches() if not (set(e[:2]) == {u, v} and e[2] == key)]
+        if not lines:
+            continue
+        centres, radii = np.concatenate([p for p, _ in lines]), np.concatenate([r for _, r in lines])
+        near = np.asarray(cKDTree(centres).query_ball_point(end, float(radii.max())), np.int64)
+        if (np.linalg.norm(centres[near] - end, axis=1) < radii[near]).any() or (
+            sdf is not None and _section_leaves(graph, (u, v, key), base, centres, radii, sdf, spacing, rays)
+        ):
+            drop.append(node)
+    bases = set()
+    for node in drop:  # all removed before any junction is dissolved (two at one junction)
+        (u, v, key), = list(graph.graph.edges(node, keys=True))
+        bases.add(graph.other(u, v, node))
+        graph.graph.remove_edge(u, v, key)
+        graph.graph.remove_node(node)
+    for base in bases:
+        if graph.degree(base) == 2:
+            graph.dissolve(base)
+    return len(drop)
+
+
+def _section_leaves(graph, branch, base, centres, radii, sdf, spacing, rays, reach: float = 12.0) -> bool:
+    """Whether a stub's end section (the plane through its end across its end tangent) has a
+    ray whose wall another branch's balls (``centres``, ``radii``) explain and the stub's own
+    balls outside its junction's ball do not, by the verdict's rule (within ``DISTANCE`` radii
+    plus ``spacing``); rays look ``reach`` end radii far, as the block builder's sections do."""
+    from .ends import _end_tangent
+    from .probe import distance_to_wall, plane_basis
+
+    pts, rad = graph.polyline(*branch, start=base)
+    own = np.linalg.norm(pts - graph.pos(base), axis=1) > graph.radius(base)
+    if not own.any():
+        return False
+    end, r_end = pts[-1], rad[-1]
+    e1, e2 = plane_basis(_end_tangent(pts, max(2.0 * r_end, 4 * spacing))[None])
+    angle = np.linspace(0.0, 2.0 * np.pi, rays, endpoint=False)
+    dirs = np.cos(angle)[:, None] * e1 + np.sin(angle)[:, None] * e2
+    length = distance_to_wall(sdf, np.tile(end, (rays, 1)), dirs, reach * r_end, samples=48)
+    hits = end + length[np.isfinite(length), None] * dirs[np.isfinite(length)]
+
+    def explained(c, r):
+        gap = np.linalg.norm(hits[:, None] - c[None], axis=2) - r[None]
+        return (gap <= DISTANCE * r[None] + spacing).any(axis=1)
+
+    return bool(len(hits)) and bool((explained(centres, radii) & ~explained(pts[own], rad[own])).any())
