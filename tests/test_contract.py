@@ -219,3 +219,24 @@ def test_cached_prefix_restores_a_transformed_skeleton():
     for ctx in runs:
         np.testing.assert_allclose(ctx.skeleton.points, raw.points * 2.0 + [1.0, 0.0, 0.0])
         np.testing.assert_allclose(ctx.skeleton.radii, raw.radii * 2.0)
+
+
+def test_a_prefix_without_the_window_split_is_not_keyed_on_the_centerline():
+    """cap_open_ends reads the centerline only with ``split_windows``: without it, runs of one
+    surface with different centerlines (an uncertainty study) share the cached prefix."""
+    from vmesh.cache import PrefixCache
+    from vmesh.io.skeleton import read_skeleton
+    from vmesh.io.surface import read_surface
+
+    surface, skeleton = synthetic_case("straight_tube")
+    cache = PrefixCache(max_entries=2)
+
+    def key(scale, split):
+        sk = read_skeleton(skeleton)
+        sk.radii = sk.radii * scale
+        ctx = Context(surface=read_surface(surface), skeleton=sk)
+        chain = FilterChain(["repair_surface", ("cap_open_ends", {"split_windows": split}), "build_sdf"])
+        return cache.key(ctx, chain.steps)
+
+    assert key(1.0, False) == key(1.1, False)
+    assert key(1.0, True) != key(1.1, True)

@@ -11,8 +11,9 @@ when pyarrow is installed) with one row per manifest row.
 * **Resume**: re-running the same batch skips finished rows whose inputs and resolved
   chain are unchanged (a changed parameter or surface is recomputed).
 * **Failures**: a failed row (an error, or a worker that died) is retried once
-  (``retries``), then reported with its error; the other rows go on. A row whose input
-  cannot be read (:class:`~vmesh.errors.InputError`) fails once: a retry reads the same file.
+  (``retries``), then reported with its error; the other rows go on. A row that fails on
+  its input (:class:`~vmesh.errors.InputError`: unreadable, open, wrong units...) fails
+  once: a retry reads the same input.
 * **Memory**: each worker process keeps a :class:`~vmesh.cache.PrefixCache`, so the
   steps up to the signed distance run once per worker for each distinct surface and
   preprocessing, not once per row.

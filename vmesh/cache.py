@@ -174,8 +174,7 @@ class PrefixCache:
 
         reads = []
         for s in steps:
-            f = get_filter(s.filter)
-            reads += [layer for layer in (*f.reads, *f.optional_reads) if layer not in reads]
+            reads += [layer for layer in get_filter(s.filter).layers_read(s.params) if layer not in reads]
         prints = {}
         for layer in sorted(reads):
             if ctx.has(layer):

@@ -168,7 +168,9 @@ class Filter:
     validated and filled in. ``reads`` are the context layers it needs, ``optional_reads``
     the ones it uses when present, ``writes`` the ones it produces or changes, and
     ``updates`` those of ``writes`` it only changes when they are present (a chain's
-    check does not count them as provided by the filter).
+    check does not count them as provided by the filter). ``reads_when`` maps an optional
+    layer to the boolean parameter without which the filter never uses it (a cached prefix
+    is then not keyed on that layer).
     """
 
     name: str
@@ -182,6 +184,14 @@ class Filter:
     category: str = "misc"
     doc: str = ""
     check: Callable | None = None
+    reads_when: tuple[tuple[str, str], ...] = ()  # (optional layer, boolean parameter) pairs
+
+    def layers_read(self, params: dict | None = None) -> list[str]:
+        """The layers the filter reads with ``params``: ``reads``, then the optional ones
+        not switched off by their ``reads_when`` parameter."""
+        params, when = params or {}, dict(self.reads_when)
+        used = [layer for layer in self.optional_reads if layer not in when or params.get(when[layer], self.parameter(when[layer]).default)]
+        return [*self.reads, *used]
 
     @property
     def parameter_names(self) -> list[str]:
@@ -249,6 +259,7 @@ def register_filter(
     updates=(),
     category: str = "misc",
     check: Callable | None = None,
+    reads_when: dict | None = None,
 ):
     """Decorator registering ``function(ctx, **params)`` as a filter.
 
@@ -275,6 +286,8 @@ def register_filter(
         if not set(updates) <= set(writes) & set(optional_reads):
             raise ValueError(f"filter '{fname}': 'updates' must be layers it writes and optionally reads")
         names = [p.name for p in parameters]
+        if not set(reads_when or {}) <= set(optional_reads) or not set((reads_when or {}).values()) <= set(names):
+            raise ValueError(f"filter '{fname}': 'reads_when' must map optional layers to its parameters")
         if len(set(names)) != len(names):
             raise ValueError(f"filter '{fname}': duplicate parameter names")
         _check_signature(fname, function, names)
@@ -291,6 +304,7 @@ def register_filter(
             category=category,
             doc=doc if doc != description else "",
             check=check,
+            reads_when=tuple((reads_when or {}).items()),
         )
         return function
 

@@ -294,6 +294,7 @@ def _warn_windows(ctx, windows: list) -> None:
     ],
     reads=("surface",),
     optional_reads=("skeleton",),
+    reads_when={"skeleton": "split_windows"},  # a prefix without the split is shared by every centerline
     writes=("surface", "caps"),
     category="preprocessing",
 )
@@ -321,6 +322,8 @@ def cap_open_ends(ctx, method, rings, detect_if_closed, split_windows, inlet, in
         ctx.count(caps=len(ctx.caps))
         return
     centerline = _centerline_with_radii(ctx) if split_windows and method == "rings" else None
+    if split_windows and centerline is None:  # asked for, and nothing to split by
+        ctx.warn("cap_open_ends: split_windows needs method 'rings' and a given centerline with radii; every open end is capped whole")
     if centerline is not None:
         from ..rim_windows import cap_loops_splitting_windows
 

@@ -13,13 +13,15 @@ from __future__ import annotations
 
 import numpy as np
 
+RAY_REACH = 12.0  # how far a section's ray looks for the wall, in radii of its section
+
 
 def cast_rays(
     distance,
     origins: np.ndarray,
     directions: np.ndarray,
     scale: np.ndarray,
-    reach: float = 12.0,
+    reach: float = RAY_REACH,
     step: float = 0.2,
     iterations: int = 24,
     intersect_lines=None,
@@ -222,7 +224,7 @@ class RayCache(RowCache):
     def __init__(self, limit: int = 4_000_000):
         super().__init__(8, limit)
 
-    def cast(self, distance, origins, directions, scale, reach: float = 12.0, intersect_lines=None) -> np.ndarray:
+    def cast(self, distance, origins, directions, scale, reach: float = RAY_REACH, intersect_lines=None) -> np.ndarray:
         """:func:`cast_rays` with the rays cast before answered from the cache (bit for bit
         the same: each ray is cast on its own)."""
         o = np.asarray(origins, float).reshape(-1, 3)
@@ -370,7 +372,7 @@ def clip_to_territory(
     return out
 
 
-def cut_at_necks(distance, origins: np.ndarray, directions: np.ndarray, scale: np.ndarray, reach: float = 12.0,
+def cut_at_necks(distance, origins: np.ndarray, directions: np.ndarray, scale: np.ndarray, reach: float = RAY_REACH,
                  step: float = 0.2, neck: float = 0.5) -> np.ndarray:
     """Where rays that find no wall within reach pass through a neck, the neck's distance.
 

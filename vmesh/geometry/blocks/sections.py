@@ -10,6 +10,7 @@ from .. import cross_sections as cs
 from .checks import _Failure
 from .options import CLOSED, CYCLE, JUNCTION, OPEN, _Branch
 from ..skeleton.graph import polyline_at
+from ..rays import RAY_REACH
 from ..skeleton.pairs import PAIR_REACH
 from .prep import Territory, endpoint_caps, redistribute_sections
 from ..rays import clip_to_territory, cut_at_necks
@@ -389,7 +390,7 @@ class _Sections:
         self.frames.max_twist = float(np.degrees(np.concatenate(tw).max())) if tw else 0.0
 
 
-    def cast(self, origins, directions, scale, reach: float = 12.0) -> np.ndarray:
+    def cast(self, origins, directions, scale, reach: float = RAY_REACH) -> np.ndarray:
         """:func:`~vmesh.geometry.rays.cast_rays` through the build's ray cache
         (:class:`~vmesh.geometry.rays.RayCache`, ``self.work.rays``): a section that did not
         move is cast once per build."""

@@ -258,6 +258,21 @@ def place_ends(graph: BranchGraph, sdf: SdfFunction, spacing: float, caps=None, 
 
 
 
+def extend_left_ends(graph: BranchGraph, sdf: SdfFunction, nodes, spacing: float, caps=None, end_depth: float = 0.5, outside_junction: bool = True) -> dict:
+    """Give ``nodes`` (ends made after :func:`place_ends`, e.g. a junction whose other
+    branches were all dropped) their end: trimmed and extended to the wall as a free end.
+
+    Caps an end already reached (an ``end`` mark of ``("cap", c)``) are not taken again;
+    another cap the end's axis meets is, as in :func:`place_ends`. Returns the counts of
+    ``flat`` / ``rounded`` / ``cap`` ends."""
+    nodes = [n for n in nodes if graph.degree(n) == 1]
+    if not nodes:
+        return {}
+    taken = {data["end"][1] for _, data in graph.graph.nodes(data=True) if data.get("end", ("",))[0] == "cap"}
+    free = [(node, *_trim_end(graph, node, spacing, outside_junction)) for node in nodes]
+    return _extend_to_wall(graph, sdf, free, spacing, end_depth, list(caps or []), taken)
+
+
 def _trim_end(graph: BranchGraph, node: int, spacing: float, outside_junction: bool = True) -> tuple[np.ndarray, float]:
     """Cut the wall-ward tail off a terminal branch and return its end tangent and radius.
 

@@ -45,7 +45,7 @@ import numpy as np
 from ...skeleton import Skeleton
 from . import spur_wall
 from .branch_graph import BranchGraph
-from .ends import place_ends, spurs_at_flat_ends
+from .ends import extend_left_ends, place_ends, spurs_at_flat_ends
 from .probe import SdfFunction, evaluate_sdf
 from .resample import resample_branches
 from .sacs import split_side_sacs
@@ -284,7 +284,9 @@ def extract_skeleton(
         # spur_wall=false: the extraction before the rule, the tail measured over the whole window
         stats["ends"] = place_ends(graph, sdf, spacing, caps=caps, end_depth=settings.end_depth, outside_junction=settings.spur_wall)
         if wall is not None:  # a held stub whose end runs in a neighbour's lumen: its wall is the neighbour's
-            stats["stubs_in_neighbours"] = spur_wall.drop_stubs_in_neighbours(graph, sdf, spacing)
+            stats["stubs_in_neighbours"], left = spur_wall.drop_stubs_in_neighbours(graph, sdf, spacing)
+            if left:  # a junction whose every sibling was dropped ends its vessel there
+                stats["left_ends"] = extend_left_ends(graph, sdf, left, spacing, caps, settings.end_depth, settings.spur_wall)
     with _timed(timings, "resample"):
         tick(0.9, "resampling and centring the branches")
         skeleton = resample_branches(

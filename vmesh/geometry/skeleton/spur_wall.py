@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..coverage import DEPTH, DISTANCE, END_DEPTH, PATCH_AREA, judge_patches
+from ..rays import RAY_REACH
 
 
 def surface_samples(vertices, faces, caps=()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -368,7 +369,8 @@ def drop_stubs_in_neighbours(graph, sdf=None, spacing: float = 0.0, rays: int = 
     hepatic_artery) are all dropped, not the last of them kept for the wall the others left. An end within its own junction's ball (a stub shorter than its parent's
     radius, ending at its own cap: seed 0 g0012) has not left the ball it shares with its
     siblings and is not judged, nor is an end at a cap (an open end's section lies in the
-    cap's plane). Returns how many were dropped.
+    cap's plane). Returns how many were dropped and the junctions left with one branch
+    (every sibling dropped): ends the caller must place (:func:`~.ends.extend_left_ends`).
     """
     from scipy.spatial import cKDTree
 
@@ -394,13 +396,18 @@ def drop_stubs_in_neighbours(graph, sdf=None, spacing: float = 0.0, rays: int = 
         bases.add(graph.other(u, v, node))
         graph.graph.remove_edge(u, v, key)
         graph.graph.remove_node(node)
+    left = []
     for base in bases:
         if graph.degree(base) == 2:
             graph.dissolve(base)
-    return len(drop)
+        elif graph.degree(base) == 1:  # every sibling dropped: the base is now its vessel's end
+            left.append(base)
+        elif graph.degree(base) == 0:
+            graph.graph.remove_node(base)
+    return len(drop), left
 
 
-def _section_leaves(graph, branch, base, centres, radii, sdf, spacing, rays, reach: float = 12.0) -> bool:
+def _section_leaves(graph, branch, base, centres, radii, sdf, spacing, rays, reach: float = RAY_REACH) -> bool:
     """Whether a stub's end section (the plane through its end across its end tangent) has a
     ray whose wall another branch's balls (``centres``, ``radii``) explain and the stub's own
     balls outside its junction's ball do not, by the verdict's rule (within ``DISTANCE`` radii
