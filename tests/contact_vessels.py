@@ -30,11 +30,7 @@ def passing_vessels(folder, gap: float, cross: float = 0.0, units: str = "mm") -
     d = passing / np.linalg.norm(passing)
     p_k, r_k = T.straight(p[at_k], p[at_k] + (np.linalg.norm(passing) + 3.0) * d, 0.7, 0.7)
     tree.branches.append(T.Branch(p_k, r_k, 0, at_k, kind="kissing"))
-    xyz, radius, tags, edges = T.skeleton_of(tree)
-    caps = [(e, n, rr) for _, e, n, rr in S.end_caps(tree)]
-    tag_ends(tree, xyz, tags, caps)
-    F, grid = S.implicit_field(tree, "open", 0.7 / 2.6)
-    V, Tri = finish_surface(*S.contour(F, grid, False, smooth_iters=0), caps, "open", target_faces=(10_000, 10**9))
+    xyz, radius, tags, edges, caps, V, Tri = _open_vessel(tree, 0.7 / 2.6)
     manifest = {"name": f"passing_{gap:g}_{cross:g}", "units": units, "surface_format": "ply"}
     return write_vessel(Vessel(V, Tri, xyz, radius, tags, edges, manifest), Path(folder))
 
@@ -63,11 +59,7 @@ def acute_fork(folder, angle: float, parallel: float = 0.0, apart: float = 1.8, 
             legs = [(np.zeros(3), length * d)]
         q = np.concatenate([T.straight(u, v, rd, rd)[0][(0 if k == 0 else 1):] for k, (u, v) in enumerate(legs)])
         tree.branches.append(T.Branch(q, np.full(len(q), rd), 0, len(p) - 1))
-    xyz, rad, tags, edges = T.skeleton_of(tree)
-    caps = [(e, n, rr) for _, e, n, rr in S.end_caps(tree)]
-    tag_ends(tree, xyz, tags, caps)
-    F, grid = S.implicit_field(tree, "open", rd / 2.6)
-    V, Tri = finish_surface(*S.contour(F, grid, False, smooth_iters=0), caps, "open", target_faces=(10_000, 10**9))
+    xyz, rad, tags, edges, caps, V, Tri = _open_vessel(tree, rd / 2.6)
     manifest = {"name": f"acute_fork_{angle:g}_{parallel:g}", "units": units, "surface_format": "ply"}
     return write_vessel(Vessel(V, Tri, xyz, rad, tags, edges, manifest), Path(folder))
 
@@ -86,12 +78,19 @@ def end_cut_through_neighbour(folder, offset: float = 1.5, units: str = "mm") ->
     tip = np.array([3.0, offset * 11.0 / 8.0, 0.0])
     p_k, r_k = T.straight(p[at], tip, 0.45, 0.45)
     tree.branches.append(T.Branch(p_k, r_k, 0, at, kind="kissing"))
-    xyz, radius, tags, edges = T.skeleton_of(tree)
-    caps = [(e, n, rr) for _, e, n, rr in S.end_caps(tree)]
-    tag_ends(tree, xyz, tags, caps)
-    F, grid = S.implicit_field(tree, "open", 0.45 / 2.6)
-    V, Tri = finish_surface(*S.contour(F, grid, False, smooth_iters=0), caps, "open", target_faces=(10_000, 10**9))
+    xyz, radius, tags, edges, caps, V, Tri = _open_vessel(tree, 0.45 / 2.6)
     tube_end = [c for c in caps if abs(c[0][0]) < 1e-9 and np.linalg.norm(c[0][1:]) < 1e-9]
     V, Tri = S.ragged_cut(V, Tri, tube_end, np.random.default_rng(0))
     manifest = {"name": f"end_cut_through_neighbour_{offset:g}", "units": units, "surface_format": "ply"}
     return write_vessel(Vessel(V, Tri, xyz, radius, tags, edges, manifest), Path(folder))
+
+
+def _open_vessel(tree, spacing: float):
+    """The tree's skeleton (points, radii, tags with its ends tagged, edges), its end caps
+    and its open surface contoured at grid ``spacing``."""
+    xyz, radius, tags, edges = T.skeleton_of(tree)
+    caps = [(e, n, rr) for _, e, n, rr in S.end_caps(tree)]
+    tag_ends(tree, xyz, tags, caps)
+    F, grid = S.implicit_field(tree, "open", spacing)
+    V, Tri = finish_surface(*S.contour(F, grid, False, smooth_iters=0), caps, "open", target_faces=(10_000, 10**9))
+    return xyz, radius, tags, edges, caps, V, Tri

@@ -10,6 +10,8 @@ vessel's end reaches, and are still pruned."""
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -304,11 +306,7 @@ def _fork_graph(angle: float, length: float, radius: float):
     from vmesh.geometry.skeleton.branch_graph import BranchGraph
 
     graph, h = BranchGraph(), 0.1
-
-    def branch(a, b, r):
-        a_pos, b_pos = graph.pos(a), graph.pos(b)
-        t = np.arange(h, np.linalg.norm(b_pos - a_pos) - h / 2, h) / np.linalg.norm(b_pos - a_pos)
-        return graph.add_branch(a, b, a_pos + t[:, None] * (b_pos - a_pos), np.full(len(t), r))
+    branch = functools.partial(_straight_branch, graph, h)
 
     j, fork = graph.add_node([0.0, 0, 0], 1.5), graph.add_node([3.0, 0, 0], 1.0)
     branch(j, graph.add_node([-5.0, 0, 0], 1.5), 1.5)
@@ -443,11 +441,7 @@ def test_a_held_stub_whose_end_section_runs_along_a_neighbours_lumen_is_dropped(
     from vmesh.geometry.skeleton.spur_wall import drop_stubs_in_neighbours
 
     graph, h = BranchGraph(), 0.1
-
-    def branch(a, b, r):
-        a_pos, b_pos = graph.pos(a), graph.pos(b)
-        t = np.arange(h, np.linalg.norm(b_pos - a_pos) - h / 2, h) / np.linalg.norm(b_pos - a_pos)
-        return graph.add_branch(a, b, a_pos + t[:, None] * (b_pos - a_pos), np.full(len(t), r))
+    branch = functools.partial(_straight_branch, graph, h)
 
     j = graph.add_node([0.0, 0, 0], 1.0)
     for x in (-5.0, 5.0):
@@ -481,11 +475,7 @@ def test_a_junction_whose_every_held_stub_is_dropped_becomes_its_vessels_end():
     from vmesh.geometry.skeleton.spur_wall import drop_stubs_in_neighbours
 
     graph, h = BranchGraph(), 0.1
-
-    def branch(a, b, r):
-        a_pos, b_pos = graph.pos(a), graph.pos(b)
-        t = np.arange(h, np.linalg.norm(b_pos - a_pos) - h / 2, h) / np.linalg.norm(b_pos - a_pos)
-        return graph.add_branch(a, b, a_pos + t[:, None] * (b_pos - a_pos), np.full(len(t), r))
+    branch = functools.partial(_straight_branch, graph, h)
 
     j = graph.add_node([0.0, 0, 0], 1.0)
     branch(graph.add_node([-5.0, 0, 0], 1.0), j, 1.0)
@@ -505,3 +495,10 @@ def test_a_junction_whose_every_held_stub_is_dropped_becomes_its_vessels_end():
     assert sum(counts.values()) == 1
     end = graph.pos(j)
     assert 2.0 < end[0] < 3.5 and np.hypot(end[1], end[2]) < 0.1  # on the axis, in the end face's reach
+
+
+def _straight_branch(graph, h, a, b, r):
+    """A straight branch of radius ``r`` from node ``a`` to node ``b``, sampled every ``h``."""
+    a_pos, b_pos = graph.pos(a), graph.pos(b)
+    t = np.arange(h, np.linalg.norm(b_pos - a_pos) - h / 2, h) / np.linalg.norm(b_pos - a_pos)
+    return graph.add_branch(a, b, a_pos + t[:, None] * (b_pos - a_pos), np.full(len(t), r))
