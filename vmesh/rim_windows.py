@@ -22,18 +22,20 @@ WALL_FIT = 0.25
 
 
 def _feet(points: np.ndarray, a: np.ndarray, b: np.ndarray, ra: np.ndarray, rb: np.ndarray):
-    """Each point's foot on each segment ``a -> b`` (``(p, s, 3)``), the foot's parameter
-    in [0, 1] and the radius there, interpolated between ``ra`` and ``rb``."""
-    ab = b - a
-    t = np.clip(np.einsum("psk,sk->ps", points[:, None, :] - a[None], ab) / np.maximum((ab * ab).sum(1), 1e-300), 0.0, 1.0)
-    return a[None] + t[..., None] * ab[None], t, ra[None] + t * (rb - ra)[None]
+    """Each point's foot on each segment ``a -> b`` (``(p, s, 3)``,
+    :func:`~vmesh.geometry.variation.closest_on_segments`), the foot's parameter in [0, 1],
+    the radius there (interpolated between ``ra`` and ``rb``) and the point's distance to it."""
+    from .geometry.variation import closest_on_segments
+
+    shape = (len(points), len(a))
+    foot, t, d = closest_on_segments(points, np.broadcast_to(a, (*shape, 3)), np.broadcast_to(b, (*shape, 3)), np.zeros(shape), np.ones(shape))
+    return foot, t, ra[None] + t * (rb - ra)[None], d
 
 
 def _segment_fit(points: np.ndarray, a: np.ndarray, b: np.ndarray, ra: np.ndarray, rb: np.ndarray):
     """Distance of each point to each segment's wall over its radius, ``|d - r| / r``
     (``(p, s)``), and the foot's parameter along the segment in [0, 1]."""
-    foot, t, r = _feet(points, a, b, ra, rb)
-    d = np.linalg.norm(points[:, None, :] - foot, axis=2)
+    _, t, r, d = _feet(points, a, b, ra, rb)
     return np.abs(d - r) / np.maximum(r, 1e-300), t
 
 
@@ -109,9 +111,8 @@ def window_on_passing_branch(rim: np.ndarray, points: np.ndarray, radii: np.ndar
 
 def onto_tubes(p: np.ndarray, points: np.ndarray, radii: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """Points moved radially onto the wall of the nearest of the tubes along ``edges``."""
-    foot, _, r = _feet(p, points[edges[:, 0]], points[edges[:, 1]], radii[edges[:, 0]], radii[edges[:, 1]])
+    foot, _, r, d = _feet(p, points[edges[:, 0]], points[edges[:, 1]], radii[edges[:, 0]], radii[edges[:, 1]])
     off = p[:, None, :] - foot
-    d = np.linalg.norm(off, axis=2)
     j = d.argmin(axis=1)
     rows = np.arange(len(p))
     return foot[rows, j] + off[rows, j] * (r[rows, j] / np.maximum(d[rows, j], 1e-300))[:, None]

@@ -207,8 +207,6 @@ def _read_legacy_vtk(path: Path):
         mesh = pv.read(str(path))
     if errors:
         raise InputError(f"the file ends early or is corrupt: VTK's legacy reader says '{errors[0][:160]}' (a truncated download or copy?)", path)
-    if isinstance(mesh, pv.MultiBlock):
-        mesh = mesh.combine()
     if shortfall := _legacy_vtk_shortfall(path):
         raise InputError(f"the file ends early: {shortfall} (a truncated download or copy?)", path)
     return mesh

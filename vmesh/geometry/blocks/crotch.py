@@ -171,7 +171,7 @@ def _best_split(blocks: BlockStructure, template, end: tuple, tau: float, cast, 
     # (the along edges' bulges are averaged over the blocks that share them,
     # transfinite_curves._smooth_bulges), which the column filled alone does not see
     # (s0 g0002 given: its least sits in an unsplit neighbour column at the same junction)
-    judged = np.r_[rows, neighbour_blocks(blocks, rows)]
+    judged = np.r_[rows, neighbour_blocks(blocks, rows)] if fill is not None else rows
     best_score = column_fill_score(blocks, judged, fill) if fill is not None else -np.inf
     halves = np.r_[judged, len(blocks.hexes) + np.arange(len(rows))]
     # the dip itself, then halfway to the middle (the same where the dip is the middle)

@@ -349,7 +349,7 @@ class _Judge:
                 self.judge(i)
 
 
-def drop_stubs_in_neighbours(graph, sdf=None, spacing: float = 0.0, rays: int = 16) -> int:
+def drop_stubs_in_neighbours(graph, sdf=None, spacing: float = 0.0, rays: int = 16) -> tuple[int, list]:
     """Drop the held stubs whose placed end lies in a neighbour's lumen.
 
     A stub held for its wall (``closed_stub``) is extended by :func:`~.ends.place_ends`
@@ -357,17 +357,18 @@ def drop_stubs_in_neighbours(graph, sdf=None, spacing: float = 0.0, rays: int = 
     centre closer to the end than its radius), the stub runs along that branch's lumen
     rather than out of it: the wall it was held for is the neighbour's, which the
     neighbour's section reaches, and the stub never parts from it, so no block structure
-    separates the two (real sv_rpa extracted: a held stub 10 degrees from its sibling, its
-    end 0.64 from the sibling's axis at radius 1.01). With ``sdf``, a stub's end section is
+    separates the two (a held stub 10 degrees from its sibling, its end 0.64 from the
+    sibling's axis at radius 1.01; docs/coverage.md, h22/stubs). With ``sdf``, a stub's end section is
     judged too (:func:`_section_leaves`): where one of its ``rays`` meets wall that another
     branch's balls explain and its own do not, the section's plane runs along a
     neighbour's lumen, and its wall there is the neighbour's. A side vessel's end stands out
     of its parent by at least its own radius: it lies in no other ball, and its section meets
     its own wall all round. Such a stub is removed and its junction, left with two branches,
     dissolved. Every stub is judged on the graph :func:`~.ends.place_ends` gave: held stubs
-    whose sections meet each other's wall (pieces of one wide lumen's medial sheet, real
-    hepatic_artery) are all dropped, not the last of them kept for the wall the others left. An end within its own junction's ball (a stub shorter than its parent's
-    radius, ending at its own cap: seed 0 g0012) has not left the ball it shares with its
+    whose sections meet each other's wall (pieces of one wide lumen's medial sheet) are all
+    dropped, not the last of them kept for the wall the others left. An end within its own
+    junction's ball (a stub shorter than its parent's radius, ending at its own cap) has not
+    left the ball it shares with its
     siblings and is not judged, nor is an end at a cap (an open end's section lies in the
     cap's plane). Returns how many were dropped and the junctions left with one branch
     (every sibling dropped): ends the caller must place (:func:`~.ends.extend_left_ends`).
@@ -375,19 +376,29 @@ def drop_stubs_in_neighbours(graph, sdf=None, spacing: float = 0.0, rays: int = 
     from scipy.spatial import cKDTree
 
     stubs = [n for n, data in graph.graph.nodes(data=True) if data.get("closed_stub") and graph.degree(n) == 1]
-    drop = []  # judged on the graph place_ends gave: two held stubs in one lumen explain each other's wall
+    if not stubs:
+        return 0, []
+    # every branch's balls once, with the branch each belongs to: the graph is not changed
+    # while the stubs are judged (two held stubs in one lumen explain each other's wall)
+    branches = graph.branches()
+    index = {(frozenset(e[:2]), e[2]): i for i, e in enumerate(branches)}
+    lines = [graph.polyline(*e) for e in branches]
+    centres, radii = np.concatenate([p for p, _ in lines]), np.concatenate([r for _, r in lines])
+    owner = np.repeat(np.arange(len(lines)), [len(p) for p, _ in lines])
+    tree = cKDTree(centres)
+    drop = []
     for node in stubs:
         (u, v, key), = list(graph.graph.edges(node, keys=True))
         end, base = graph.pos(node), graph.other(u, v, node)
         if np.linalg.norm(end - graph.pos(base)) <= graph.radius(base) or graph.graph.nodes[node].get("end", ("",))[0] == "cap":
             continue  # it ends within its junction's ball, which it shares with its siblings, or at a cap
-        lines = [graph.polyline(*e) for e in graph.branches() if not (set(e[:2]) == {u, v} and e[2] == key)]
-        if not lines:
+        others = owner != index[(frozenset((u, v)), key)]
+        if not others.any():
             continue
-        centres, radii = np.concatenate([p for p, _ in lines]), np.concatenate([r for _, r in lines])
-        near = np.asarray(cKDTree(centres).query_ball_point(end, float(radii.max())), np.int64)
+        near = np.asarray(tree.query_ball_point(end, float(radii[others].max())), np.int64)
+        near = near[others[near]]
         if (np.linalg.norm(centres[near] - end, axis=1) < radii[near]).any() or (
-            sdf is not None and _section_leaves(graph, (u, v, key), base, centres, radii, sdf, spacing, rays)
+            sdf is not None and _section_leaves(graph, (u, v, key), base, centres[others], radii[others], sdf, spacing, rays)
         ):
             drop.append(node)
     bases = set()
