@@ -7,8 +7,9 @@ spanning that loop crosses the neighbour's lumen. Where a centerline is given,
 :func:`window_on_passing_branch` finds the rim's run on the wall of a branch that passes
 the end (does not end there); :func:`split_rim` cuts the loop there into the end's rim
 (capped flat) and the window's rim (closed as wall: faired into it, then put onto the
-passing tube's wall, :func:`onto_tubes`). Used by ``cap_open_ends.split_windows``
-(opt-in); see ``docs/robustness.md`` (h22/fold).
+passing tube's wall, :func:`onto_tubes`). The wall of the parent a short branch grows
+out of is no window (:func:`_own_lumen`). Used by ``cap_open_ends.split_windows`` (on by
+default); see ``docs/robustness.md`` (h22/fold, h23/windows).
 """
 
 from __future__ import annotations
@@ -62,8 +63,8 @@ def window_on_passing_branch(rim: np.ndarray, points: np.ndarray, radii: np.ndar
 
     The end's own branch is the one ending at the centerline end nearest the rim's
     centre; a branch whose tube holds the own branch's root near the end is the parent it
-    grows out of (:func:`_own_lumen`), its wall no window. A rim vertex is on another branch's wall when it fits that branch's tube
-    (:data:`WALL_FIT`), with its foot inside the branch (not beyond an end of the
+    grows out of (:func:`_own_lumen`), its wall no window. A rim vertex is on another
+    branch's wall when it fits that branch's tube (:data:`WALL_FIT`), with its foot inside the branch (not beyond an end of the
     centerline: a vessel that ends short of the rim leaves no wall there). Vertices on
     the crease where the two walls meet fit both and count to the window, so that the
     chord that closes the end's cap runs outside the passing lumen.
