@@ -64,10 +64,11 @@ def window_on_passing_branch(rim: np.ndarray, points: np.ndarray, radii: np.ndar
     The end's own branch is the one ending at the centerline end nearest the rim's
     centre; a branch whose tube holds the own branch's root near the end is the parent it
     grows out of (:func:`_own_lumen`), its wall no window. A rim vertex is on another
-    branch's wall when it fits that branch's tube (:data:`WALL_FIT`), with its foot inside the branch (not beyond an end of the
-    centerline: a vessel that ends short of the rim leaves no wall there). Vertices on
-    the crease where the two walls meet fit both and count to the window, so that the
-    chord that closes the end's cap runs outside the passing lumen.
+    branch's wall when it fits that branch's tube (:data:`WALL_FIT`), with its foot inside
+    the branch (not beyond an end of the centerline: a vessel that ends short of the rim
+    leaves no wall there). Vertices on the crease where the two walls meet fit both and
+    count to the window, so that the chord that closes the end's cap runs outside the
+    passing lumen.
 
     Parameters
     ----------
