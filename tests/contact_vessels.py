@@ -85,6 +85,27 @@ def end_cut_through_neighbour(folder, offset: float = 1.5, units: str = "mm") ->
     return write_vessel(Vessel(V, Tri, xyz, radius, tags, edges, manifest), Path(folder))
 
 
+def end_cut_at_parent_wall(folder, angle: float = 45.0, length: float = 1.0, units: str = "mm") -> dict:
+    """A tube along x (radius 1.2, x = -8 to 8) with a short side branch (radius 0.45) leaving
+    its axis at the origin ``angle`` degrees from +x and ending open ``length`` of its radii
+    past the tube's wall (a stub). The stub's end is cut raggedly as the generator cuts open
+    ends, through the tube's wall on the acute side too (docs/robustness.md h23/windows: s0
+    g0009, g0007): one boundary loop whose rim runs over the wall of the vessel the stub
+    grows out of, not of one passing it. Writes the vessel's files; returns its manifest."""
+    tree = T.Tree()
+    p, r = T.straight(np.array([-8.0, 0, 0]), np.array([8.0, 0, 0]), 1.2, 1.2)
+    tree.branches.append(T.Branch(p, r))
+    at = int(np.argmin(np.abs(p[:, 0])))
+    d = np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle)), 0.0])
+    tip = p[at] + (1.2 / np.sin(np.radians(angle)) + length * 0.45) * d
+    tree.branches.append(T.Branch(*T.straight(p[at], tip, 0.45, 0.45), 0, at, kind="stub"))
+    xyz, radius, tags, edges, caps, V, Tri = _open_vessel(tree, 0.45 / 2.6)
+    stub_end = [c for c in caps if np.linalg.norm(c[0] - tip) < 1e-9]
+    V, Tri = S.ragged_cut(V, Tri, stub_end, np.random.default_rng(0))
+    manifest = {"name": f"end_cut_at_parent_wall_{angle:g}_{length:g}", "units": units, "surface_format": "ply"}
+    return write_vessel(Vessel(V, Tri, xyz, radius, tags, edges, manifest), Path(folder))
+
+
 def _open_vessel(tree, spacing: float):
     """The tree's skeleton (points, radii, tags with its ends tagged, edges), its end caps
     and its open surface contoured at grid ``spacing``."""

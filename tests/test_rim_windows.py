@@ -1,6 +1,8 @@
 """An open end whose rim takes in a window of a passing vessel's wall (h22/fold, s0 g0015):
 with the centerline given, ``cap_open_ends.split_windows`` closes the window as wall and
-caps only the end, so no cap crosses the passing vessel's lumen."""
+caps only the end, so no cap crosses the passing vessel's lumen. A short branch whose rim
+runs over the wall of the parent it grows out of (h23/windows, s0 g0009, g0007) has no
+window: its end is capped whole."""
 
 from __future__ import annotations
 
@@ -9,12 +11,12 @@ import glob
 import numpy as np
 import pytest
 
-from contact_vessels import end_cut_through_neighbour
+from contact_vessels import end_cut_at_parent_wall, end_cut_through_neighbour
 from vmesh.chain import FilterChain
 from vmesh.geometry import topology
 from vmesh.io.skeleton import read_skeleton
 from vmesh.io.surface import read_surface
-from vmesh.rim_windows import split_rim, window_on_passing_branch
+from vmesh.rim_windows import WALL_FIT, split_rim, window_on_passing_branch
 
 
 @pytest.fixture(scope="module")
@@ -66,3 +68,30 @@ def test_split_windows_keeps_the_cap_out_of_the_passing_lumen(cut_vessel, split)
     assert len(ctx.report.sections["cap_windows"]) == 1
     patch = np.setdiff1d(np.arange(surface.n_vertices, s.n_vertices), np.unique(s.faces[np.concatenate([c.faces for c in ctx.caps])]))  # not on a cap: the window patch
     assert len(patch) and np.abs(_thin_axis_distance(s.vertices[patch], skeleton) - 1.0).max() < 0.5
+
+
+@pytest.fixture(scope="module")
+def stub_vessel(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("stub_cut")
+    end_cut_at_parent_wall(folder)
+    return read_surface(glob.glob(str(folder / "surface.*"))[0]), read_skeleton(folder / "skeleton.json")
+
+
+def test_a_stub_ending_against_its_parent_has_no_window(stub_vessel):
+    """The stub's rim runs over the parent tube's wall (radius 1.2 about the x axis), which
+    passes the stub's end; the stub grows out of that tube (its root lies on the tube's
+    axis), so that is no passing vessel's window, and split_windows caps every end whole:
+    the same closed surface as without it."""
+    surface, skeleton = stub_vessel
+    repaired = FilterChain(["repair_surface"]).run(surface=surface, skeleton=skeleton).surface
+    loops = topology.join_touching(topology.boundary_loops(repaired.faces))
+    stub_end = max(loops, key=lambda lp: repaired.vertices[lp, 1].mean())  # the stub rises towards +y
+    rim = repaired.vertices[stub_end]
+    on_parent = np.abs(np.linalg.norm(rim[:, 1:], axis=1) / 1.2 - 1.0) < WALL_FIT
+    assert on_parent.sum() >= 3 and (~on_parent).sum() >= 3  # the rim does run over the parent's wall
+    for lp in loops:
+        assert not window_on_passing_branch(repaired.vertices[lp], skeleton.points, skeleton.radii, skeleton.edges).any()
+    capped = [FilterChain(["repair_surface", ("cap_open_ends", {"split_windows": split})]).run(surface=surface, skeleton=skeleton) for split in (False, True)]
+    assert not topology.boundary_loops(capped[1].surface.faces) and "cap_windows" not in capped[1].report.sections
+    np.testing.assert_array_equal(capped[0].surface.vertices, capped[1].surface.vertices)
+    np.testing.assert_array_equal(capped[0].surface.faces, capped[1].surface.faces)

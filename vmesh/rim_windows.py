@@ -7,8 +7,9 @@ spanning that loop crosses the neighbour's lumen. Where a centerline is given,
 :func:`window_on_passing_branch` finds the rim's run on the wall of a branch that passes
 the end (does not end there); :func:`split_rim` cuts the loop there into the end's rim
 (capped flat) and the window's rim (closed as wall: faired into it, then put onto the
-passing tube's wall, :func:`onto_tubes`). Used by ``cap_open_ends.split_windows``
-(opt-in); see ``docs/robustness.md`` (h22/fold).
+passing tube's wall, :func:`onto_tubes`). The wall of the parent a short branch grows
+out of is no window (:func:`_own_lumen`). Used by ``cap_open_ends.split_windows`` (on by
+default); see ``docs/robustness.md`` (h22/fold, h23/windows).
 """
 
 from __future__ import annotations
@@ -39,15 +40,35 @@ def _segment_fit(points: np.ndarray, a: np.ndarray, b: np.ndarray, ra: np.ndarra
     return np.abs(d - r) / np.maximum(r, 1e-300), t
 
 
+def _own_lumen(own: int, paths: list, branch_of_edge: np.ndarray, own_end: int, points, radii, edges, near: np.ndarray) -> np.ndarray:
+    """The end's own branch and the branches it grows out of near the end: those whose tube
+    (over the ``near`` edges) holds the own branch's root, the node at its other end.
+
+    A short branch that ends against its parent's wall (a stub cut just past the wall) has
+    its root on the parent's axis, inside the parent's lumen: the parent's wall in its rim
+    is where the two lumens join, not a vessel passing the end. A vessel that passes the
+    end is joined to the branch, if at all, far from the end (its near tube holds no root).
+    """
+    if own < 0:
+        return np.array([own])
+    path = paths[own]
+    root = path[-1] if path[0] == own_end else path[0]
+    ids = np.flatnonzero(near & (branch_of_edge != own))
+    _, _, r, d = _feet(points[root][None], points[edges[ids, 0]], points[edges[ids, 1]], radii[edges[ids, 0]], radii[edges[ids, 1]])
+    return np.union1d([own], branch_of_edge[ids[d[0] < r[0]]])
+
+
 def window_on_passing_branch(rim: np.ndarray, points: np.ndarray, radii: np.ndarray, edges: np.ndarray, with_edges: bool = False):
     """The rim vertices on the wall of a centerline branch that passes an open end.
 
     The end's own branch is the one ending at the centerline end nearest the rim's
-    centre. A rim vertex is on another branch's wall when it fits that branch's tube
-    (:data:`WALL_FIT`), with its foot inside the branch (not beyond an end of the
-    centerline: a vessel that ends short of the rim leaves no wall there). Vertices on
-    the crease where the two walls meet fit both and count to the window, so that the
-    chord that closes the end's cap runs outside the passing lumen.
+    centre; a branch whose tube holds the own branch's root near the end is the parent it
+    grows out of (:func:`_own_lumen`), its wall no window. A rim vertex is on another
+    branch's wall when it fits that branch's tube (:data:`WALL_FIT`), with its foot inside
+    the branch (not beyond an end of the centerline: a vessel that ends short of the rim
+    leaves no wall there). Vertices on the crease where the two walls meet fit both and
+    count to the window, so that the chord that closes the end's cap runs outside the
+    passing lumen.
 
     Parameters
     ----------
@@ -84,8 +105,7 @@ def window_on_passing_branch(rim: np.ndarray, points: np.ndarray, radii: np.ndar
     if not near.any():
         return none
     fit, t = _segment_fit(rim, a[near], b[near], radii[edges[near, 0]], radii[edges[near, 1]])
-    mine = branch_of_edge[near] == own
-    own_fit = np.where(mine[None], fit, np.inf).min(axis=1)
+    mine = np.isin(branch_of_edge[near], _own_lumen(own, paths, branch_of_edge, own_end, points, radii, edges, near))
     # a foot on a centerline end (degree 1) lies beyond that vessel's end
     at_end = ((t <= 0.0) & (degree[edges[near, 0]] == 1)[None]) | ((t >= 1.0) & (degree[edges[near, 1]] == 1)[None])
     others = np.where(~mine[None] & ~at_end, fit, np.inf)

@@ -284,11 +284,12 @@ def _warn_windows(ctx, windows: list) -> None:
         Parameter(
             "split_windows",
             "bool",
-            False,
+            True,
             "Where a centerline with radii is given (method 'rings'): an open end whose rim also runs over the wall of a vessel "
             "passing it (a cut through two touching vessels) has that part of the rim closed as wall, faired into it, and only "
-            "the rest capped (a flat cap across the whole rim would cross the passing vessel's lumen). Off by default: it changes "
-            "the capped surface and so the decimated one everywhere (docs/robustness.md, h22/fold).",
+            "the rest capped (a flat cap across the whole rim would cross the passing vessel's lumen). The wall of the parent a "
+            "short branch grows out of is no such window. Without a centerline (extracted runs) every end is capped whole; "
+            "off, the capped prefix is not keyed on the centerline (docs/robustness.md, h22/fold, h23/windows).",
         ),
         *INLET_PARAMETERS,
     ],
@@ -321,9 +322,10 @@ def cap_open_ends(ctx, method, rings, detect_if_closed, split_windows, inlet, in
         set_caps(ctx, s.copy(), cap_labels(ctx), inlet, inlet_point)
         ctx.count(caps=len(ctx.caps))
         return
-    centerline = _centerline_with_radii(ctx) if split_windows and method == "rings" else None
-    if split_windows and centerline is None:  # asked for, and nothing to split by
-        ctx.warn("cap_open_ends: split_windows needs method 'rings' and a given centerline with radii; every open end is capped whole")
+    centerline = _centerline_with_radii(ctx) if split_windows else None
+    if centerline is not None and method != "rings":  # a centerline to split by, and a method that cannot
+        ctx.warn("cap_open_ends: split_windows needs method 'rings'; every open end is capped whole")
+        centerline = None
     if centerline is not None:
         from ..rim_windows import cap_loops_splitting_windows
 
