@@ -32,6 +32,7 @@ from numba.core import types as nbtypes
 from numba.extending import intrinsic
 
 from .prefetch import ahead
+from .trials import row_below, trial_quality
 from .structure import colour_nodes, grow_nodes, incidence, step_caps, target_scales  # re-exported: the stage's structure
 
 #: node kinds: free in 3-D, sliding on the wall (tangent plane, then projection), sliding in a
@@ -372,7 +373,7 @@ def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, bu
     Returns ``(f, g0, g1, g2, H00, H01, H02, H11, H12, H22, qmin, qsum, below)``: the
     minimum and sum over the incident hexahedra of their scaled Jacobian (``want_q``), and the
     frame row whose corner fell below ``floor`` (-1: none; a hint for the node's next trial,
-    :func:`_row_below`).
+    :func:`.trials.row_below`).
     """
     f = g0 = g1 = g2 = 0.0
     h00 = h01 = h02 = h11 = h12 = h22 = 0.0
@@ -440,73 +441,6 @@ def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, bu
     elif want_f:
         f, g0, g1, g2, h00, h01, h02, h11, h12, h22 = _escobar_sums(L, ptr[v + 1] - ptr[v], d2, hessian)
     return f, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin, qsum, np.int64(-1)
-
-
-@nb.njit(cache=True)
-def _row_below(L, r, z0, z1, z2, floor):
-    """Whether one of the 4 corners that node displacement ``z`` moves in frame row ``r``
-    (:func:`frame`) has a scaled Jacobian below ``floor``: the same arithmetic as
-    :func:`node_eval`'s, so the same values and decisions.
-
-    A trial judged by its minimum is refused at its first corner below the start's minimum,
-    and the corner that refused a node's trial usually refuses its next, shorter one too: the
-    node's trials check that row first (:func:`_step_node`) instead of reaching it after up
-    to 7 other hexahedra. Only a refusal is decided here; a trial that passes is evaluated
-    whole by :func:`node_eval`."""
-    u0x, u0y, u0z = L[r, 0] - z0, L[r, 1] - z1, L[r, 2] - z2
-    u1x, u1y, u1z = L[r, 3] - z0, L[r, 4] - z1, L[r, 5] - z2
-    u2x, u2y, u2z = L[r, 6] - z0, L[r, 7] - z1, L[r, 8] - z2
-    m0, m1, m2 = u0x * u0x + u0y * u0y + u0z * u0z, u1x * u1x + u1y * u1y + u1z * u1z, u2x * u2x + u2y * u2y + u2z * u2z
-    D = L[r, 12] + L[r, 9] * z0 + L[r, 10] * z1 + L[r, 11] * z2
-    if D / max(np.sqrt(m0 * m1 * m2), 1e-300) < floor:
-        return True
-    for a in range(3):
-        k = 13 + 6 * a
-        wx, wy, wz = z0 - L[r, 3 * a], z1 - L[r, 3 * a + 1], z2 - L[r, 3 * a + 2]
-        m = wx * wx + wy * wy + wz * wz
-        D = L[r, k + 3] + L[r, k] * z0 + L[r, k + 1] * z1 + L[r, k + 2] * z2
-        if D / max(np.sqrt(m * L[r, k + 4]), 1e-300) < floor:
-            return True
-    return False
-
-
-@nb.njit(cache=True)
-def _trial_quality(L, ptr, v, z0, z1, z2, buf, row, floor):
-    """:func:`node_eval` of a trial judged by the scaled Jacobians alone (``want_q`` only, no
-    functional, no Jacobian-ratio guard): the same arithmetic in the same order, so the same
-    values, without the functional's inputs that such a trial does not read (most of a
-    light-pass update's time is its trials: ~4 per update on the ICA).
-
-    Returns ``(qmin, qsum, below)`` as :func:`node_eval`'s last three values; the moved
-    corners' scaled Jacobians go to ``buf[row]``."""
-    qmin = np.inf
-    qsum = 0.0
-    for t in range(ptr[v], ptr[v + 1]):
-        r = t - ptr[v]
-        hmin = L[r, 35]
-        u0x, u0y, u0z = L[r, 0] - z0, L[r, 1] - z1, L[r, 2] - z2
-        u1x, u1y, u1z = L[r, 3] - z0, L[r, 4] - z1, L[r, 5] - z2
-        u2x, u2y, u2z = L[r, 6] - z0, L[r, 7] - z1, L[r, 8] - z2
-        m0, m1, m2 = u0x * u0x + u0y * u0y + u0z * u0z, u1x * u1x + u1y * u1y + u1z * u1z, u2x * u2x + u2y * u2y + u2z * u2z
-        D = L[r, 12] + L[r, 9] * z0 + L[r, 10] * z1 + L[r, 11] * z2
-        sj = D / max(np.sqrt(m0 * m1 * m2), 1e-300)
-        buf[row, 4 * r] = sj
-        if sj < floor:
-            return -np.inf, qsum, r
-        hmin = min(hmin, sj)
-        for a in range(3):
-            k = 13 + 6 * a
-            wx, wy, wz = z0 - L[r, 3 * a], z1 - L[r, 3 * a + 1], z2 - L[r, 3 * a + 2]
-            m = wx * wx + wy * wy + wz * wz
-            D = L[r, k + 3] + L[r, k] * z0 + L[r, k + 1] * z1 + L[r, k + 2] * z2
-            sj = D / max(np.sqrt(m * L[r, k + 4]), 1e-300)
-            buf[row, 4 * r + 1 + a] = sj
-            if sj < floor:
-                return -np.inf, qsum, r
-            hmin = min(hmin, sj)
-        qsum += hmin
-        qmin = min(qmin, hmin)
-    return qmin, qsum, np.int64(-1)
 
 
 @nb.njit(cache=True)
@@ -642,18 +576,18 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
     smooth = mode == SMOOTH
     judge = mode != ESCOBAR and not on_wall
     t = over_relax if smooth and not on_wall else 1.0
-    hint = -1  # the frame row whose corner refused the last trial: checked first (_row_below)
+    hint = -1  # the frame row whose corner refused the last trial: checked first (trials.row_below)
     for _ in range((SMOOTH_TRIALS + (1 if t > 1.0 else 0) if smooth else 8) if newton else 0):
         z0, z1, z2 = t * d0, t * d1, t * d2
         if on_wall and smooth:  # judged after the projection
             trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2
             state[j, 3] = 1.0
             return
-        if smooth and hint >= 0 and _row_below(L, hint, z0, z1, z2, qmin0):
+        if smooth and hint >= 0 and row_below(L, hint, z0, z1, z2, qmin0):
             t = 1.0 if t > 1.0 else 0.5 * t
             continue
         if smooth and ratio_floor == -np.inf:
-            qmin, qsum, below = _trial_quality(L, ptr, v, z0, z1, z2, buf, np.int64(j), qmin0)
+            qmin, qsum, below = trial_quality(L, ptr, v, z0, z1, z2, buf, np.int64(j), qmin0)
             r = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, qmin, qsum, below)
         else:
             r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, not smooth, judge or smooth, buf, np.int64(j), _NO, qmin0 if smooth else -np.inf, ratio_floor if smooth else -np.inf)
@@ -689,11 +623,11 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
                 state[j, 0] = np.inf  # the functional is not asked for
                 state[j, 3] = 1.0
                 return
-            if hint >= 0 and _row_below(L, hint, z0, z1, z2, climb_floor):
+            if hint >= 0 and row_below(L, hint, z0, z1, z2, climb_floor):
                 t *= 0.5
                 continue
             if not smooth or ratio_floor == -np.inf:
-                qmin, qsum, below = _trial_quality(L, ptr, v, z0, z1, z2, buf, np.int64(j), climb_floor)
+                qmin, qsum, below = trial_quality(L, ptr, v, z0, z1, z2, buf, np.int64(j), climb_floor)
             else:
                 r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, _NO, _YES, buf, np.int64(j), _NO, climb_floor, ratio_floor)
                 qmin, qsum, below = r[10], r[11], r[12]
