@@ -5,6 +5,7 @@ import numpy as np
 
 from cylinder_blocks import cylinder_blocks, project_cylinder
 from vmesh.geometry.optimize import kernels as K
+from vmesh.geometry.optimize import trials
 from vmesh.geometry.transfinite import Refinement, mesh_blocks
 
 
@@ -133,3 +134,33 @@ def test_colour_pass_with_prefetch_equals_its_steps_in_order():
         for other in runs[1:]:
             for a, b in zip(runs[0], other):
                 assert np.array_equal(a, b)
+
+
+def test_trial_quality_equals_node_eval_bit_for_bit():
+    """A trial judged by the scaled Jacobians alone (``trials.trial_quality``, the light
+    pass's trials) gives exactly node_eval's minimum, sum, refusing row and stored corner
+    values, with and without a floor; ``trials.row_below`` refuses exactly where a floor check of
+    that row's corners would."""
+    X, hexes, scale, ptr, inc, cq, valence, L, buf = frame_setup()
+    other = np.empty_like(buf)
+    rng = np.random.default_rng(3)
+    refused = accepted = 0
+    for v in np.concatenate([rng.choice(np.flatnonzero(valence == k), 3) for k in np.unique(valence)]):
+        K.frame(X, hexes, scale, ptr, inc, cq, v, L, False)
+        start = K.node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, 1e-3, False, False, True, buf, np.int64(-1), False, -np.inf, -np.inf)
+        for size in (0.01, 0.05, 0.2):
+            z = rng.normal(size=3) * size
+            for floor in (-np.inf, start[10], np.nextafter(start[10], np.inf)):
+                want = K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], 1e-3, False, False, True, buf, np.int64(0), False, floor, -np.inf)
+                got = trials.trial_quality(L, ptr, v, z[0], z[1], z[2], other, np.int64(0), floor)
+                assert got[0] == want[10] and got[1] == want[11] and got[2] == want[12]
+                if want[12] >= 0:  # refused at that row: it holds a corner below the floor
+                    refused += 1
+                    assert trials.row_below(L, np.int64(want[12]), z[0], z[1], z[2], floor)
+                    continue
+                accepted += 1
+                n = 4 * (ptr[v + 1] - ptr[v])
+                assert np.array_equal(buf[0, :n], other[0, :n])
+                for r in range(n // 4):
+                    assert trials.row_below(L, np.int64(r), z[0], z[1], z[2], floor) == bool((other[0, 4 * r : 4 * r + 4] < floor).any())
+    assert refused and accepted

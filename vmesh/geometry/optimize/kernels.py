@@ -32,6 +32,7 @@ from numba.core import types as nbtypes
 from numba.extending import intrinsic
 
 from .prefetch import ahead
+from .trials import row_below, trial_quality
 from .structure import colour_nodes, grow_nodes, incidence, step_caps, target_scales  # re-exported: the stage's structure
 
 #: node kinds: free in 3-D, sliding on the wall (tangent plane, then projection), sliding in a
@@ -369,8 +370,10 @@ def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, bu
     element's: a per-element rule refuses every move that trades between two tapered
     elements, and then the pass cannot repair them.
 
-    Returns ``(f, g0, g1, g2, H00, H01, H02, H11, H12, H22, qmin, qsum)``: the minimum and
-    sum over the incident hexahedra of their scaled Jacobian (``want_q``).
+    Returns ``(f, g0, g1, g2, H00, H01, H02, H11, H12, H22, qmin, qsum, below)``: the
+    minimum and sum over the incident hexahedra of their scaled Jacobian (``want_q``), and the
+    frame row whose corner fell below ``floor`` (-1: none; a hint for the node's next trial,
+    :func:`.trials.row_below`).
     """
     f = g0 = g1 = g2 = 0.0
     h00 = h01 = h02 = h11 = h12 = h22 = 0.0
@@ -422,7 +425,7 @@ def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, bu
                     l = inc[t] & 7
                     cq[e, l if q == 0 else l ^ (1 << (q - 1))] = sj
                 if sj < floor:
-                    return f, g0, g1, g2, h00, h01, h02, h11, h12, h22, -np.inf, qsum
+                    return f, g0, g1, g2, h00, h01, h02, h11, h12, h22, -np.inf, qsum, r
                 hmin = min(hmin, sj)
                 dlo, dhi = min(dlo, D), max(dhi, abs(D))
             if want_f:  # the functional's inputs, for the second loop
@@ -430,14 +433,14 @@ def node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, hessian, want_f, want_q, bu
                 L[r, k], L[r, k + 1], L[r, k + 2], L[r, k + 3], L[r, k + 4] = F, S * D, dFx, dFy, dFz
                 L[r, k + 5], L[r, k + 6], L[r, k + 7], L[r, k + 8] = S * gx, S * gy, S * gz, diag
         if guard and dlo / max(dhi, 1e-300) < least:
-            return f, g0, g1, g2, h00, h01, h02, h11, h12, h22, -np.inf, qsum
+            return f, g0, g1, g2, h00, h01, h02, h11, h12, h22, -np.inf, qsum, np.int64(-1)
         qsum += hmin
         qmin = min(qmin, hmin)
     if want_f and fused:  # only the Hessian's call fuses: a literal True keeps its contractions
         f, g0, g1, g2, h00, h01, h02, h11, h12, h22 = _escobar_sums_fused(L, ptr[v + 1] - ptr[v], d2, True)
     elif want_f:
         f, g0, g1, g2, h00, h01, h02, h11, h12, h22 = _escobar_sums(L, ptr[v + 1] - ptr[v], d2, hessian)
-    return f, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin, qsum
+    return f, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin, qsum, np.int64(-1)
 
 
 @nb.njit(cache=True)
@@ -557,7 +560,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
     # the start's quality from the frame, as every trial's: the cache's values of the moved
     # corners (computed in other frames) differ in the last bits, enough to refuse the short
     # steps that climb the worst element
-    f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin0, qsum0 = node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, delta, _YES, _YES, _YES, buf, np.int64(-1), mode == SMOOTH, -np.inf, -np.inf)
+    f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin0, qsum0, _ = node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, delta, _YES, _YES, _YES, buf, np.int64(-1), mode == SMOOTH, -np.inf, -np.inf)
     if mode == ESCOBAR and not on_wall:
         qmin0, qsum0 = np.inf, 0.0
     state[j, 0], state[j, 1], state[j, 2] = f0, qmin0, qsum0
@@ -573,13 +576,23 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
     smooth = mode == SMOOTH
     judge = mode != ESCOBAR and not on_wall
     t = over_relax if smooth and not on_wall else 1.0
+    hint = -1  # the frame row whose corner refused the last trial: checked first (trials.row_below)
     for _ in range((SMOOTH_TRIALS + (1 if t > 1.0 else 0) if smooth else 8) if newton else 0):
         z0, z1, z2 = t * d0, t * d1, t * d2
         if on_wall and smooth:  # judged after the projection
             trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2
             state[j, 3] = 1.0
             return
-        r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, not smooth, judge or smooth, buf, np.int64(j), _NO, qmin0 if smooth else -np.inf, ratio_floor if smooth else -np.inf)
+        if smooth and hint >= 0 and row_below(L, hint, z0, z1, z2, qmin0):
+            t = 1.0 if t > 1.0 else 0.5 * t
+            continue
+        if smooth and ratio_floor == -np.inf:
+            qmin, qsum, below = trial_quality(L, ptr, v, z0, z1, z2, buf, np.int64(j), qmin0)
+            r = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, qmin, qsum, below)
+        else:
+            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, not smooth, judge or smooth, buf, np.int64(j), _NO, qmin0 if smooth else -np.inf, ratio_floor if smooth else -np.inf)
+        if r[12] >= 0:
+            hint = r[12]
         if (r[0] < f0) if not smooth else _acceptable(mode, r[0], r[10], r[11], f0, qmin0, qsum0):
             if on_wall:  # judged again after the projection
                 trial[j, 0], trial[j, 1], trial[j, 2] = X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2
@@ -610,8 +623,17 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
                 state[j, 0] = np.inf  # the functional is not asked for
                 state[j, 3] = 1.0
                 return
-            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, _NO, _YES, buf, np.int64(j), _NO, climb_floor, ratio_floor if smooth else -np.inf)
-            if _acceptable(mode, np.inf, r[10], r[11], np.inf, qmin0, qsum0):
+            if hint >= 0 and row_below(L, hint, z0, z1, z2, climb_floor):
+                t *= 0.5
+                continue
+            if not smooth or ratio_floor == -np.inf:
+                qmin, qsum, below = trial_quality(L, ptr, v, z0, z1, z2, buf, np.int64(j), climb_floor)
+            else:
+                r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, _NO, _YES, buf, np.int64(j), _NO, climb_floor, ratio_floor)
+                qmin, qsum, below = r[10], r[11], r[12]
+            if below >= 0:
+                hint = below
+            if _acceptable(mode, np.inf, qmin, qsum, np.inf, qmin0, qsum0):
                 # a climb raises a worst element: however short, the neighbours try again
                 _moved(X, hexes, ptr, inc, cq, v, L, X[v, 0] + z0, X[v, 1] + z1, X[v, 2] + z2, dirty, buf, np.int64(j), 0.0)
                 state[j, 3] = 1.0

@@ -1,0 +1,80 @@
+"""Trials of the light pass judged by the scaled Jacobians alone (:mod:`.kernels`).
+
+A light-pass update evaluates its frame, its Newton direction and ~4 trials (on the ICA at
+vascularmd's resolution); most refused trials keep the minimum but not the sum of minima and
+are evaluated in full. These kernels evaluate such trials with exactly the arithmetic of
+:func:`.kernels.node_eval` (so the same values and decisions) without the functional's
+inputs, and decide a refusal from one frame row (docs/speed.md, *Seventeenth round*).
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+
+@nb.njit(cache=True)
+def row_below(L, r, z0, z1, z2, floor):
+    """Whether one of the 4 corners that node displacement ``z`` moves in frame row ``r``
+    (:func:`.kernels.frame`) has a scaled Jacobian below ``floor``: the same arithmetic as
+    :func:`.kernels.node_eval`'s, so the same values and decisions.
+
+    A trial judged by its minimum is refused at its first corner below the start's minimum,
+    and the corner that refused a node's trial usually refuses its next, shorter one too: the
+    node's trials check that row first (:func:`.kernels._step_node`) instead of reaching it after up
+    to 7 other hexahedra. Only a refusal is decided here; a trial that passes is evaluated
+    whole by :func:`.kernels.node_eval`."""
+    u0x, u0y, u0z = L[r, 0] - z0, L[r, 1] - z1, L[r, 2] - z2
+    u1x, u1y, u1z = L[r, 3] - z0, L[r, 4] - z1, L[r, 5] - z2
+    u2x, u2y, u2z = L[r, 6] - z0, L[r, 7] - z1, L[r, 8] - z2
+    m0, m1, m2 = u0x * u0x + u0y * u0y + u0z * u0z, u1x * u1x + u1y * u1y + u1z * u1z, u2x * u2x + u2y * u2y + u2z * u2z
+    D = L[r, 12] + L[r, 9] * z0 + L[r, 10] * z1 + L[r, 11] * z2
+    if D / max(np.sqrt(m0 * m1 * m2), 1e-300) < floor:
+        return True
+    for a in range(3):
+        k = 13 + 6 * a
+        wx, wy, wz = z0 - L[r, 3 * a], z1 - L[r, 3 * a + 1], z2 - L[r, 3 * a + 2]
+        m = wx * wx + wy * wy + wz * wz
+        D = L[r, k + 3] + L[r, k] * z0 + L[r, k + 1] * z1 + L[r, k + 2] * z2
+        if D / max(np.sqrt(m * L[r, k + 4]), 1e-300) < floor:
+            return True
+    return False
+
+
+@nb.njit(cache=True)
+def trial_quality(L, ptr, v, z0, z1, z2, buf, row, floor):
+    """:func:`.kernels.node_eval` of a trial judged by the scaled Jacobians alone (``want_q`` only, no
+    functional, no Jacobian-ratio guard): the same arithmetic in the same order, so the same
+    values, without the functional's inputs that such a trial does not read (most of a
+    light-pass update's time is its trials: ~4 per update on the ICA).
+
+    Returns ``(qmin, qsum, below)`` as :func:`.kernels.node_eval`'s last three values; the moved
+    corners' scaled Jacobians go to ``buf[row]``."""
+    qmin = np.inf
+    qsum = 0.0
+    for t in range(ptr[v], ptr[v + 1]):
+        r = t - ptr[v]
+        hmin = L[r, 35]
+        u0x, u0y, u0z = L[r, 0] - z0, L[r, 1] - z1, L[r, 2] - z2
+        u1x, u1y, u1z = L[r, 3] - z0, L[r, 4] - z1, L[r, 5] - z2
+        u2x, u2y, u2z = L[r, 6] - z0, L[r, 7] - z1, L[r, 8] - z2
+        m0, m1, m2 = u0x * u0x + u0y * u0y + u0z * u0z, u1x * u1x + u1y * u1y + u1z * u1z, u2x * u2x + u2y * u2y + u2z * u2z
+        D = L[r, 12] + L[r, 9] * z0 + L[r, 10] * z1 + L[r, 11] * z2
+        sj = D / max(np.sqrt(m0 * m1 * m2), 1e-300)
+        buf[row, 4 * r] = sj
+        if sj < floor:
+            return -np.inf, qsum, r
+        hmin = min(hmin, sj)
+        for a in range(3):
+            k = 13 + 6 * a
+            wx, wy, wz = z0 - L[r, 3 * a], z1 - L[r, 3 * a + 1], z2 - L[r, 3 * a + 2]
+            m = wx * wx + wy * wy + wz * wz
+            D = L[r, k + 3] + L[r, k] * z0 + L[r, k + 1] * z1 + L[r, k + 2] * z2
+            sj = D / max(np.sqrt(m * L[r, k + 4]), 1e-300)
+            buf[row, 4 * r + 1 + a] = sj
+            if sj < floor:
+                return -np.inf, qsum, r
+            hmin = min(hmin, sj)
+        qsum += hmin
+        qmin = min(qmin, hmin)
+    return qmin, qsum, np.int64(-1)
