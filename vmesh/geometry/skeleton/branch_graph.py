@@ -4,8 +4,9 @@ Specks are dropped, spurs short relative to the radius of the vessel they sprout
 from are pruned, junctions closer than about a radius merge (a 5-furcation becomes
 one degree-5 node), tiny cycles made by voxel noise collapse (true cycles are long
 compared to the radius) or, when the number of cycles is known, the extra ones are
-cut at their narrowest branch; junctions are then centred where their branch axes
-meet.
+cut at their narrowest branch (cycles thinner everywhere than any vessel, tunnels
+where the wall pinches, are cut whatever the count); junctions are then centred
+where their branch axes meet.
 """
 
 from __future__ import annotations

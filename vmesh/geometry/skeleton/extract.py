@@ -177,7 +177,8 @@ def clean_branch_graph(
 ) -> dict:
     """Stage 4: clean a raw branch graph until nothing changes (at most 20 rounds).
 
-    One round drops specks, cuts the cycles beyond ``expected_cycles`` (or, when it
+    One round drops specks, cuts the cycles too thin everywhere to be a vessel
+    (``PINCHED_LUMEN``), cuts the cycles beyond ``expected_cycles`` (or, when it
     is unknown, collapses short cycles), merges close junctions and prunes spurs;
     removing one defect can expose another (a spur left after a merge), hence the
     rounds. Returns how many of each were removed. With ``sdf`` (and the voxel
