@@ -184,19 +184,25 @@ def test_pinched_cycles_are_cut_and_vessel_loops_kept():
 
     graph = BranchGraph()
     a, j, b = graph.add_node([-3.0, 0, 0], 1.0), graph.add_node([0.0, 0, 0], 0.05), graph.add_node([3.0, 0, 0], 1.0)
+    for end, x in ((a, -6.0), (b, 6.0)):  # the vessel goes on beyond a and b
+        graph.add_branch(end, graph.add_node([x, 0, 0], 1.0), [[(x + graph.pos(end)[0]) / 2, 0.0, 0.0]], [1.0])
     for u, v in ((a, j), (j, b)):
         x = np.linspace(graph.pos(u)[0], graph.pos(v)[0], 8)[1:-1]
         graph.add_branch(u, v, np.c_[x, np.zeros((6, 2))], 1.0 - 0.9 * (1 - np.abs(x) / 3))
     _loop(graph, j, 0.04)  # the pinch
     ring = graph.add_node([0.0, 0, 10.0], 1.0)
     _loop(graph, ring, 1.0, size=20.0)  # a vessel ring (its own piece)
-    bridge = graph.add_node([0.0, 5.0, 0.0], 0.05)  # a thin bridge between thick ends: a cycle not thin everywhere
-    graph.add_branch(a, bridge, [[-1.5, 2.5, 0.0]], [0.05])
-    graph.add_branch(bridge, b, [[1.5, 2.5, 0.0]], [0.05])
+    bridge = graph.add_node([0.0, 5.0, 0.0], 0.02)  # a thin bridge between thick ends: a cycle not thin everywhere
+    graph.add_branch(a, bridge, [[-1.5, 2.5, 0.0]], [0.02])
+    graph.add_branch(bridge, b, [[1.5, 2.5, 0.0]], [0.02])
     assert graph.n_cycles() == 3
     assert graph.break_pinched_cycles(0.3) == 1
     assert graph.n_cycles() == 2 and j not in graph.graph  # the pinch's junction dissolved into the branch a-b
     assert graph.break_pinched_cycles(0.3) == 0
+    assert graph.break_extra_cycles(1) == 1  # beyond a genus of 1: the bridge (narrowest) goes, the ring stays
+    assert graph.n_cycles() == 1 and graph.graph.has_edge(ring, ring)
+    (vessel,) = [e for e in graph.graph.edges(keys=True) if e[0] != ring]  # a and b dissolved into one branch
+    assert np.abs(graph.polyline(*vessel)[0][:, 1]).max() < 1e-9  # the straight vessel is left, not the bridge
 
 
 @pytest.mark.slow
