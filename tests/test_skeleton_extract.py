@@ -166,6 +166,64 @@ def test_pure_ring_has_one_cycle_and_no_ends():
     assert np.allclose(skeleton.radii, 1.5, atol=0.1)
 
 
+def _loop(graph, node, radius, size=0.2, n=8):
+    """A loop of ``n`` points and ``radius`` from ``node`` back to it, ``size`` across."""
+    a = np.linspace(0.0, 2 * np.pi, n + 2)[1:-1]
+    pts = graph.pos(node) + size * np.c_[np.sin(a), 1 - np.cos(a), np.zeros(n)] / 2
+    return graph.add_branch(node, node, pts, np.full(n, radius))
+
+
+def test_pinched_cycles_are_cut_and_vessel_loops_kept():
+    """s1 g0004 extracted (session 23): where a stub's end touches a passing vessel, thinning
+    leaves a loop a voxel wide around the pinch (radii 0.03-0.06 beside vessels of 0.3-0.7)
+    that the surface's genus counts; the junction it makes stands on the wall and pulls the
+    stub's branch out of its lumen ("no wall within reach" at the next node). A cycle whose
+    every radius is below the bound goes, whatever the genus; a ring of vessel, or a cycle a
+    thin bridge closes between thick vessels, stays."""
+    from vmesh.geometry.skeleton.branch_graph import BranchGraph
+
+    graph = BranchGraph()
+    a, j, b = graph.add_node([-3.0, 0, 0], 1.0), graph.add_node([0.0, 0, 0], 0.05), graph.add_node([3.0, 0, 0], 1.0)
+    for end, x in ((a, -6.0), (b, 6.0)):  # the vessel goes on beyond a and b
+        graph.add_branch(end, graph.add_node([x, 0, 0], 1.0), [[(x + graph.pos(end)[0]) / 2, 0.0, 0.0]], [1.0])
+    for u, v in ((a, j), (j, b)):
+        x = np.linspace(graph.pos(u)[0], graph.pos(v)[0], 8)[1:-1]
+        graph.add_branch(u, v, np.c_[x, np.zeros((6, 2))], 1.0 - 0.9 * (1 - np.abs(x) / 3))
+    _loop(graph, j, 0.04)  # the pinch
+    ring = graph.add_node([0.0, 0, 10.0], 1.0)
+    _loop(graph, ring, 1.0, size=20.0)  # a vessel ring (its own piece)
+    bridge = graph.add_node([0.0, 5.0, 0.0], 0.02)  # a thin bridge between thick ends: a cycle not thin everywhere
+    graph.add_branch(a, bridge, [[-1.5, 2.5, 0.0]], [0.02])
+    graph.add_branch(bridge, b, [[1.5, 2.5, 0.0]], [0.02])
+    assert graph.n_cycles() == 3
+    assert graph.break_pinched_cycles(0.3) == 1
+    assert graph.n_cycles() == 2 and j not in graph.graph  # the pinch's junction dissolved into the branch a-b
+    assert graph.break_pinched_cycles(0.3) == 0
+    assert graph.break_extra_cycles(1) == 1  # beyond a genus of 1: the bridge (narrowest) goes, the ring stays
+    assert graph.n_cycles() == 1 and graph.graph.has_edge(ring, ring)
+    (vessel,) = [e for e in graph.graph.edges(keys=True) if e[0] != ring]  # a and b dissolved into one branch
+    assert np.abs(graph.polyline(*vessel)[0][:, 1]).max() < 1e-9  # the straight vessel is left, not the bridge
+
+
+@pytest.mark.slow
+def test_a_stub_touching_a_passing_vessel_leaves_no_junction_on_the_wall(tmp_path):
+    """The generated vessel s1 g0004 (a stub whose open end a passing vessel touches): its
+    two pinched loops are cut, no cycle is left and every junction of the extracted skeleton
+    lies in a lumen at least half as wide as the thinnest vessel resolved (the pinch's
+    junction had a radius of 0.06, a fifth of it)."""
+    from data_synthetic.vessel_generator import generate_one
+    from vmesh.geometry.skeleton.extract import PINCHED_LUMEN
+    from vmesh.io import read_surface
+
+    m = generate_one(tmp_path, 4, 1, "mixed")
+    surface = read_surface(str(tmp_path / "g0004" / m["files"]["surface"]))
+    ctx = _chain_on(surface, ["repair_surface", "cap_open_ends", "build_sdf", "extract_skeleton"])
+    skeleton, stats = ctx.skeleton, ctx.report.sections["skeleton_extraction"]
+    assert stats["pinched_cycles"] == 2 and topology(skeleton)["cycles"] == 0
+    degree = np.bincount(skeleton.edges.ravel(), minlength=skeleton.n_nodes)
+    assert skeleton.radii[degree >= 3].min() >= PINCHED_LUMEN * stats["min_radius"]
+
+
 def test_grid_aligned_cylinder_ends_a_quarter_radius_inside_its_end_faces():
     skeleton, stats = se.extract_skeleton(cylinder_sdf(40.0, 3.0), ([-20, -3, -3], [20, 3, 3]), min_radius=3.0)
     assert topology(skeleton)["endpoints"] == 2 and topology(skeleton)["junctions"] == 0

@@ -4,8 +4,9 @@ Specks are dropped, spurs short relative to the radius of the vessel they sprout
 from are pruned, junctions closer than about a radius merge (a 5-furcation becomes
 one degree-5 node), tiny cycles made by voxel noise collapse (true cycles are long
 compared to the radius) or, when the number of cycles is known, the extra ones are
-cut at their narrowest branch; junctions are then centred where their branch axes
-meet.
+cut at their narrowest branch (cycles thinner everywhere than any vessel, tunnels
+where the wall pinches, are cut whatever the count); junctions are then centred
+where their branch axes meet.
 """
 
 from __future__ import annotations
@@ -324,6 +325,55 @@ class BranchGraph:
         _, rad = self.polyline(u, v, key)
         return float(rad[1:-1].min()) if len(rad) > 2 else float(rad.min())
 
+    def _narrowest_on_cycle(self, g):
+        """``(bottleneck, u, v, key)`` of the narrowest branch of ``g`` (this graph's
+        branches, or a sub-multigraph of them) that lies on a cycle of ``g``; ``None``
+        when ``g`` has no cycle."""
+        import networkx as nx
+
+        simple = nx.Graph(g)
+        bridges = {frozenset(e) for e in nx.bridges(simple)} if simple.number_of_edges() else set()
+        on_cycle = [
+            (self.bottleneck(u, v, k), u, v, k)
+            for u, v, k in g.edges(keys=True)
+            if u == v or g.number_of_edges(u, v) > 1 or frozenset((u, v)) not in bridges
+        ]
+        return min(on_cycle) if on_cycle else None
+
+    def _cut(self, u: int, v: int, key: int) -> None:
+        """Remove a branch (and an end node it leaves alone), then join degree-2 nodes."""
+        g = self.graph
+        g.remove_edge(u, v, key)
+        for node in (u, v):
+            if node in g and g.degree(node) == 0:
+                g.remove_node(node)
+        self.dissolve_all()
+
+    def break_pinched_cycles(self, least_radius: float) -> int:
+        """Cut cycles every point of which lies closer than ``least_radius`` to the wall.
+
+        Where the wall pinches (two vessels touching at a point, a ragged rim, noise) the
+        surface can have a tunnel a voxel or two wide: a handle that counts in its genus, so
+        that :meth:`break_extra_cycles` keeps the loop thinning makes around it. No vessel
+        runs there (its lumen is thinner than any vessel the voxels resolve), and the
+        junction the loop leaves stands on the wall, pulling the branch it sits on out of
+        its vessel. Of the branches whose every radius (end nodes included) is below
+        ``least_radius``, those on a cycle of such branches are removed, narrowest first.
+        """
+        import networkx as nx
+
+        removed = 0
+        while True:
+            thin = nx.MultiGraph()
+            for u, v, k in self.graph.edges(keys=True):
+                if self.polyline(u, v, k)[1].max() < least_radius:
+                    thin.add_edge(u, v, key=k)
+            found = self._narrowest_on_cycle(thin)
+            if found is None:
+                return removed
+            self._cut(*found[1:])
+            removed += 1
+
     def break_extra_cycles(self, keep: int) -> int:
         """Cut cycles until ``keep`` independent ones are left (the genus of the surface).
 
@@ -333,28 +383,13 @@ class BranchGraph:
         the one with the narrowest passage (smallest radius along it) is such a
         bridge and is removed, one at a time.
         """
-        import networkx as nx
-
         removed = 0
         while self.n_cycles() > keep:
-            g = self.graph
-            simple = nx.Graph(g)
-            bridges = {frozenset(e) for e in nx.bridges(simple)} if simple.number_of_edges() else set()
-            parallel = {frozenset((u, v)) for u, v in g.edges() if g.number_of_edges(u, v) > 1}
-            on_cycle = [
-                (self.bottleneck(u, v, k), u, v, k)
-                for u, v, k in g.edges(keys=True)
-                if u == v or frozenset((u, v)) in parallel or frozenset((u, v)) not in bridges
-            ]
-            if not on_cycle:
+            found = self._narrowest_on_cycle(self.graph)
+            if found is None:
                 break
-            _, u, v, k = min(on_cycle)
-            g.remove_edge(u, v, k)
+            self._cut(*found[1:])
             removed += 1
-            for node in (u, v):
-                if node in g and g.degree(node) == 0:
-                    g.remove_node(node)
-            self.dissolve_all()
         return removed
 
     def collapse_small_cycles(self, ratio: float) -> int:

@@ -54,6 +54,13 @@ from .trace import build_branch_graph, trace_branches, voxel_adjacency
 from .voxelize import choose_spacing, estimate_min_radius, grid_for_bounds, inside_mask
 
 
+#: A cycle of the voxel skeleton whose lumen is everywhere thinner than this fraction of
+#: the thinnest vessel the voxels resolve (``voxels_per_radius`` voxels) is a tunnel where
+#: the wall pinches (touching vessels, a ragged rim), not a vessel: it is cut even where
+#: the surface's genus counts it (:meth:`~.branch_graph.BranchGraph.break_pinched_cycles`).
+PINCHED_LUMEN = 0.5
+
+
 @dataclass
 class ExtractionSettings:
     """Parameters of :func:`extract_skeleton` (lengths relative to the local radius)."""
@@ -170,7 +177,8 @@ def clean_branch_graph(
 ) -> dict:
     """Stage 4: clean a raw branch graph until nothing changes (at most 20 rounds).
 
-    One round drops specks, cuts the cycles beyond ``expected_cycles`` (or, when it
+    One round drops specks, cuts the cycles too thin everywhere to be a vessel
+    (``PINCHED_LUMEN``), cuts the cycles beyond ``expected_cycles`` (or, when it
     is unknown, collapses short cycles), merges close junctions and prunes spurs;
     removing one defect can expose another (a spur left after a merge), hence the
     rounds. Returns how many of each were removed. With ``sdf`` (and the voxel
@@ -199,11 +207,12 @@ def clean_branch_graph(
                 held |= side
             return held
 
-    removed = {"specks": 0, "spurs": 0, "merged_junctions": 0, "small_cycles": 0, "bridges": 0}
+    removed = {"specks": 0, "spurs": 0, "merged_junctions": 0, "small_cycles": 0, "pinched_cycles": 0, "bridges": 0}
     graph.dissolve_all()
     for _ in range(20):
         step = {
             "specks": graph.drop_small_components(2.0 * settings.spur_ratio),
+            "pinched_cycles": graph.break_pinched_cycles(PINCHED_LUMEN * settings.voxels_per_radius * spacing) if spacing else 0,
             "bridges": graph.break_extra_cycles(expected_cycles) if expected_cycles is not None else 0,
             "merged_junctions": graph.merge_junctions(settings.merge_ratio),
             "small_cycles": graph.collapse_small_cycles(settings.cycle_ratio) if expected_cycles is None else 0,
