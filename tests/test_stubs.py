@@ -269,3 +269,23 @@ def test_short_stub_meshes_with_its_open_end_kept(tmp_path, wall_beyond):
     assert ctx.report.sections["quality"]["scaled_jacobian"]["min"] >= 0.3
     assert ctx.report.sections["coverage"]["missing_parts"] == 0
     assert "outlet_2" in ctx.blocks.boundary_names.values()
+
+
+@pytest.mark.parametrize("args", [(20, 0.3, 5.0), (30, 0.4, 4.0)])
+def test_a_long_side_branch_is_no_stub_with_stub_within_reach(args):
+    """A side branch five (four) of its radii past its parent's wall, leaving it 20 (30)
+    degrees apart: the junction's half-sections run along the parent past its cap, so by
+    default it is cut as a stub; with ``stub_within_reach`` (longer than ``REACH_RADII`` of
+    its radii past the junction's radius: no half-section bounded by its own wall reaches
+    that far) it is no stub, and the build fails rather than leave it out. A stub one radius
+    past the wall is cut either way (docs/junctions.md h23/fans)."""
+    from vmesh.errors import MeshingError
+
+    case, caps = side_stub(*args)
+    blocks = build_blocks(case.skeleton, case.distance, caps, BlockOptions(), project=case.project, warn=lambda m: None)
+    assert [s["cap"] for s in blocks.info["cut_stubs"]] == ["outlet_2"]
+    with pytest.raises(MeshingError):
+        build_blocks(case.skeleton, case.distance, caps, BlockOptions(stub_within_reach=True), project=case.project, warn=lambda m: None)
+    case, caps = side_stub(55, 0.3, 1.0)
+    blocks = build_blocks(case.skeleton, case.distance, caps, BlockOptions(stub_within_reach=True), project=case.project, warn=lambda m: None)
+    assert [s["cap"] for s in blocks.info["cut_stubs"]] == ["outlet_2"] and blocks.corner_jacobians().min() > 0

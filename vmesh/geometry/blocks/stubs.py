@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from .options import JUNCTION, OPEN
+from .sections import REACH_RADII
 
 
 class _Stubs:
@@ -62,6 +63,12 @@ class _Stubs:
         reach = self._junction_reach(bi, 0)
         if br.arc[-1] > reach + opt.junction.junction_margin * rb:
             return None  # room for a section between the half-sections and the cap
+        own = float(np.median(sk.radii[br.nodes[1:]]))  # its own radius, the junction's node left out
+        if opt.repair.stub_within_reach and br.arc[-1] > j.radius + REACH_RADII * own:
+            # longer than any half-section bounded by its own wall reaches along it: the reach
+            # runs along a fused neighbour (a merged fan's 9.9 along daughters 8 long), the
+            # junction is what fails, and the branch is no stub (docs/junctions.md, h23/fans)
+            return None
         end = int(br.nodes[-1])
         cap = self.ends.cap_of.get(end)
         return {
