@@ -13,6 +13,27 @@ import numba as nb
 import numpy as np
 
 
+@nb.njit(inline="always", cache=True)
+def _sj_own(L, r, z0, z1, z2):
+    """Scaled Jacobian of frame row ``r``'s corner at the node moved to ``z`` (:func:`.kernels.node_eval`'s arithmetic)."""
+    u0x, u0y, u0z = L[r, 0] - z0, L[r, 1] - z1, L[r, 2] - z2
+    u1x, u1y, u1z = L[r, 3] - z0, L[r, 4] - z1, L[r, 5] - z2
+    u2x, u2y, u2z = L[r, 6] - z0, L[r, 7] - z1, L[r, 8] - z2
+    m0, m1, m2 = u0x * u0x + u0y * u0y + u0z * u0z, u1x * u1x + u1y * u1y + u1z * u1z, u2x * u2x + u2y * u2y + u2z * u2z
+    D = L[r, 12] + L[r, 9] * z0 + L[r, 10] * z1 + L[r, 11] * z2
+    return D / max(np.sqrt(m0 * m1 * m2), 1e-300)
+
+
+@nb.njit(inline="always", cache=True)
+def _sj_adjacent(L, r, a, z0, z1, z2):
+    """Scaled Jacobian of frame row ``r``'s corner at its edge neighbour ``a`` (0-2) with the node at ``z``."""
+    k = 13 + 6 * a
+    wx, wy, wz = z0 - L[r, 3 * a], z1 - L[r, 3 * a + 1], z2 - L[r, 3 * a + 2]
+    m = wx * wx + wy * wy + wz * wz
+    D = L[r, k + 3] + L[r, k] * z0 + L[r, k + 1] * z1 + L[r, k + 2] * z2
+    return D / max(np.sqrt(m * L[r, k + 4]), 1e-300)
+
+
 @nb.njit(cache=True)
 def row_below(L, r, z0, z1, z2, floor):
     """Whether one of the 4 corners that node displacement ``z`` moves in frame row ``r``
@@ -24,19 +45,10 @@ def row_below(L, r, z0, z1, z2, floor):
     node's trials check that row first (:func:`.kernels._step_node`) instead of reaching it after up
     to 7 other hexahedra. Only a refusal is decided here; a trial that passes is evaluated
     whole by :func:`.kernels.node_eval`."""
-    u0x, u0y, u0z = L[r, 0] - z0, L[r, 1] - z1, L[r, 2] - z2
-    u1x, u1y, u1z = L[r, 3] - z0, L[r, 4] - z1, L[r, 5] - z2
-    u2x, u2y, u2z = L[r, 6] - z0, L[r, 7] - z1, L[r, 8] - z2
-    m0, m1, m2 = u0x * u0x + u0y * u0y + u0z * u0z, u1x * u1x + u1y * u1y + u1z * u1z, u2x * u2x + u2y * u2y + u2z * u2z
-    D = L[r, 12] + L[r, 9] * z0 + L[r, 10] * z1 + L[r, 11] * z2
-    if D / max(np.sqrt(m0 * m1 * m2), 1e-300) < floor:
+    if _sj_own(L, r, z0, z1, z2) < floor:
         return True
     for a in range(3):
-        k = 13 + 6 * a
-        wx, wy, wz = z0 - L[r, 3 * a], z1 - L[r, 3 * a + 1], z2 - L[r, 3 * a + 2]
-        m = wx * wx + wy * wy + wz * wz
-        D = L[r, k + 3] + L[r, k] * z0 + L[r, k + 1] * z1 + L[r, k + 2] * z2
-        if D / max(np.sqrt(m * L[r, k + 4]), 1e-300) < floor:
+        if _sj_adjacent(L, r, a, z0, z1, z2) < floor:
             return True
     return False
 
@@ -55,22 +67,13 @@ def trial_quality(L, ptr, v, z0, z1, z2, buf, row, floor):
     for t in range(ptr[v], ptr[v + 1]):
         r = t - ptr[v]
         hmin = L[r, 35]
-        u0x, u0y, u0z = L[r, 0] - z0, L[r, 1] - z1, L[r, 2] - z2
-        u1x, u1y, u1z = L[r, 3] - z0, L[r, 4] - z1, L[r, 5] - z2
-        u2x, u2y, u2z = L[r, 6] - z0, L[r, 7] - z1, L[r, 8] - z2
-        m0, m1, m2 = u0x * u0x + u0y * u0y + u0z * u0z, u1x * u1x + u1y * u1y + u1z * u1z, u2x * u2x + u2y * u2y + u2z * u2z
-        D = L[r, 12] + L[r, 9] * z0 + L[r, 10] * z1 + L[r, 11] * z2
-        sj = D / max(np.sqrt(m0 * m1 * m2), 1e-300)
+        sj = _sj_own(L, r, z0, z1, z2)
         buf[row, 4 * r] = sj
         if sj < floor:
             return -np.inf, qsum, r
         hmin = min(hmin, sj)
         for a in range(3):
-            k = 13 + 6 * a
-            wx, wy, wz = z0 - L[r, 3 * a], z1 - L[r, 3 * a + 1], z2 - L[r, 3 * a + 2]
-            m = wx * wx + wy * wy + wz * wz
-            D = L[r, k + 3] + L[r, k] * z0 + L[r, k + 1] * z1 + L[r, k + 2] * z2
-            sj = D / max(np.sqrt(m * L[r, k + 4]), 1e-300)
+            sj = _sj_adjacent(L, r, a, z0, z1, z2)
             buf[row, 4 * r + 1 + a] = sj
             if sj < floor:
                 return -np.inf, qsum, r

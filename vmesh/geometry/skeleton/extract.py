@@ -55,7 +55,9 @@ from .voxelize import choose_spacing, estimate_min_radius, grid_for_bounds, insi
 
 
 #: A cycle of the voxel skeleton whose lumen is everywhere thinner than this fraction of
-#: the thinnest vessel the voxels resolve (``voxels_per_radius`` voxels) is a tunnel where
+#: the thinnest vessel the voxels resolve (``voxels_per_radius`` voxels) and of the thinnest
+#: vessel estimated on the surface (a grid coarsened by ``max_voxels`` resolves less than
+#: the surface holds, and a loop of such vessels is anatomy) is a tunnel where
 #: the wall pinches (touching vessels, a ragged rim), not a vessel: it is cut even where
 #: the surface's genus counts it (:meth:`~.branch_graph.BranchGraph.break_pinched_cycles`).
 PINCHED_LUMEN = 0.5
@@ -173,7 +175,8 @@ def mark_closed_stubs(graph: BranchGraph, spurs: list, stub: np.ndarray) -> None
 
 
 def clean_branch_graph(
-    graph: BranchGraph, settings: ExtractionSettings, expected_cycles: int | None, sdf=None, spacing=None, caps=(), wall=None
+    graph: BranchGraph, settings: ExtractionSettings, expected_cycles: int | None, sdf=None, spacing=None, caps=(), wall=None,
+    min_radius: float | None = None,
 ) -> dict:
     """Stage 4: clean a raw branch graph until nothing changes (at most 20 rounds).
 
@@ -189,7 +192,9 @@ def clean_branch_graph(
     surface's triangle centroids and areas, :func:`~.spur_wall.surface_samples`, or their
     :class:`~.spur_wall.Wall`), a
     candidate that alone explains wall the coverage verdict would call missing stays too
-    (:func:`~.spur_wall.spurs_explaining_wall`: a side stub).
+    (:func:`~.spur_wall.spurs_explaining_wall`: a side stub). ``min_radius`` (the thinnest
+    vessel estimated on the surface) bounds the pinched-cycle cut where the grid, coarsened
+    by ``max_voxels``, resolves less than the surface holds.
     """
     keep = None
     if sdf is not None:
@@ -208,11 +213,15 @@ def clean_branch_graph(
             return held
 
     removed = {"specks": 0, "spurs": 0, "merged_junctions": 0, "small_cycles": 0, "pinched_cycles": 0, "bridges": 0}
+    pinched = None
+    if spacing:
+        resolved = settings.voxels_per_radius * spacing
+        pinched = PINCHED_LUMEN * (min(resolved, min_radius) if min_radius else resolved)
     graph.dissolve_all()
     for _ in range(20):
         step = {
             "specks": graph.drop_small_components(2.0 * settings.spur_ratio),
-            "pinched_cycles": graph.break_pinched_cycles(PINCHED_LUMEN * settings.voxels_per_radius * spacing) if spacing else 0,
+            "pinched_cycles": graph.break_pinched_cycles(pinched) if pinched else 0,
             "bridges": graph.break_extra_cycles(expected_cycles) if expected_cycles is not None else 0,
             "merged_junctions": graph.merge_junctions(settings.merge_ratio),
             "small_cycles": graph.collapse_small_cycles(settings.cycle_ratio) if expected_cycles is None else 0,
@@ -286,7 +295,7 @@ def extract_skeleton(
             expected_cycles = surface_genus(*surface)
         stats["expected_cycles"] = expected_cycles
         wall = spur_wall.Wall(spur_wall.surface_samples(*surface, caps)) if surface is not None and settings.spur_wall else None
-        stats.update(clean_branch_graph(graph, settings, expected_cycles, sdf, spacing, caps, wall))
+        stats.update(clean_branch_graph(graph, settings, expected_cycles, sdf, spacing, caps, wall, stats.get("min_radius")))
         stats["centred_junctions"] = graph.center_junctions(sdf, spacing)
     with _timed(timings, "ends"):
         tick(0.85, "placing the ends")
