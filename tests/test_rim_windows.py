@@ -1,8 +1,8 @@
 """An open end whose rim takes in a window of a passing vessel's wall (h22/fold, s0 g0015):
 with the centerline given, ``cap_open_ends.split_windows`` closes the window as wall and
 caps only the end, so no cap crosses the passing vessel's lumen. A short branch whose rim
-runs over the wall of the parent it grows out of (h23/windows, s0 g0009, g0007) has no
-window: its end is capped whole."""
+runs over the wall of the parent it grows out of (h23/windows, s0 g0009, g0007), at any
+angle, has no window: its end is capped whole."""
 
 from __future__ import annotations
 
@@ -70,10 +70,12 @@ def test_split_windows_keeps_the_cap_out_of_the_passing_lumen(cut_vessel, split)
     assert len(patch) and np.abs(_thin_axis_distance(s.vertices[patch], skeleton) - 1.0).max() < 0.5
 
 
-@pytest.fixture(scope="module")
-def stub_vessel(tmp_path_factory):
+@pytest.fixture(scope="module", params=[12.0, 20.0, 45.0, 80.0])
+def stub_vessel(tmp_path_factory, request):
+    """The stub at shallow to steep angles: the shallower, the farther its root lies behind
+    its end and the longer its rim's run over the parent's wall."""
     folder = tmp_path_factory.mktemp("stub_cut")
-    end_cut_at_parent_wall(folder)
+    end_cut_at_parent_wall(folder, angle=request.param)
     return read_surface(glob.glob(str(folder / "surface.*"))[0]), read_skeleton(folder / "skeleton.json")
 
 
@@ -95,3 +97,16 @@ def test_a_stub_ending_against_its_parent_has_no_window(stub_vessel):
     assert not topology.boundary_loops(capped[1].surface.faces) and "cap_windows" not in capped[1].report.sections
     np.testing.assert_array_equal(capped[0].surface.vertices, capped[1].surface.vertices)
     np.testing.assert_array_equal(capped[0].surface.faces, capped[1].surface.faces)
+
+
+def _warnings_with_meshlab(surface, skeleton):
+    ctx = FilterChain(["repair_surface", ("cap_open_ends", {"method": "meshlab"})]).run(surface=surface, skeleton=skeleton)
+    assert not topology.boundary_loops(ctx.surface.faces)
+    return [w for w in ctx.report.warnings if "split_windows" in w]
+
+
+def test_meshlab_warns_only_where_a_window_is_left_unsplit(cut_vessel, stub_vessel):
+    """split_windows (on) cannot split with method 'meshlab': a warning where an end has a
+    window (the cut through the neighbour), none where no end has one (the stub)."""
+    assert len(_warnings_with_meshlab(*cut_vessel)) == 1
+    assert not _warnings_with_meshlab(*stub_vessel)

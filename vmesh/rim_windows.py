@@ -40,30 +40,49 @@ def _segment_fit(points: np.ndarray, a: np.ndarray, b: np.ndarray, ra: np.ndarra
     return np.abs(d - r) / np.maximum(r, 1e-300), t
 
 
-def _own_lumen(own: int, paths: list, branch_of_edge: np.ndarray, own_end: int, points, radii, edges, near: np.ndarray) -> np.ndarray:
-    """The end's own branch and the branches it grows out of near the end: those whose tube
-    (over the ``near`` edges) holds the own branch's root, the node at its other end.
+def _own_lumen(own: int, paths: list, branch_of_edge: np.ndarray, own_end: int, points, radii, edges, near: np.ndarray, centre: np.ndarray, reach: float) -> np.ndarray:
+    """The end's own branch and the branches it grows out of just behind the end: those
+    whose tube (over all their edges) holds the own branch's root, the node at its other
+    end, and holds the own branch's path from the root on to within ``reach`` of the rim's
+    ``centre``.
 
     A short branch that ends against its parent's wall (a stub cut just past the wall) has
-    its root on the parent's axis, inside the parent's lumen: the parent's wall in its rim
-    is where the two lumens join, not a vessel passing the end. A vessel that passes the
-    end is joined to the branch, if at all, far from the end (its near tube holds no root).
+    its root on the parent's axis and leaves the parent's lumen only just behind its end,
+    however shallow its angle: the parent's wall in its rim is where the two lumens join,
+    not a vessel passing the end. A vessel that passes the end is joined to the branch, if
+    at all, far from the end: the branch has left its tube long before (a sibling leaving
+    the same junction, a neighbour the branch left some radii back).
+
+    Only branches with an edge among the ``near`` ones (those whose wall could be in the
+    rim) are examined.
     """
     if own < 0:
         return np.array([own])
-    path = paths[own]
-    root = path[-1] if path[0] == own_end else path[0]
-    ids = np.flatnonzero(near & (branch_of_edge != own))
-    _, _, r, d = _feet(points[root][None], points[edges[ids, 0]], points[edges[ids, 1]], radii[edges[ids, 0]], radii[edges[ids, 1]])
-    return np.union1d([own], branch_of_edge[ids[d[0] < r[0]]])
+    path = np.asarray(paths[own])
+    if path[0] != own_end:
+        path = path[::-1]
+    from_root = path[::-1]  # root first, the end last
+    mine = [own]
+    for b in np.unique(branch_of_edge[near & (branch_of_edge != own) & (branch_of_edge >= 0)]):
+        ids = np.flatnonzero(branch_of_edge == b)
+        _, _, r, d = _feet(points[from_root], points[edges[ids, 0]], points[edges[ids, 1]], radii[edges[ids, 0]], radii[edges[ids, 1]])
+        inside = (d < r).any(axis=1)
+        if not inside[0]:
+            continue
+        # the last point of the path's run inside the tube that starts at the root
+        last = from_root[(len(inside) if inside.all() else int(np.argmin(inside))) - 1]
+        if np.linalg.norm(points[last] - centre) < reach:
+            mine.append(int(b))
+    return np.array(mine)
 
 
 def window_on_passing_branch(rim: np.ndarray, points: np.ndarray, radii: np.ndarray, edges: np.ndarray, with_edges: bool = False):
     """The rim vertices on the wall of a centerline branch that passes an open end.
 
     The end's own branch is the one ending at the centerline end nearest the rim's
-    centre; a branch whose tube holds the own branch's root near the end is the parent it
-    grows out of (:func:`_own_lumen`), its wall no window. A rim vertex is on another
+    centre; a branch whose tube holds the own branch's path from its root on to within
+    ``reach`` of the rim's centre is the parent it grows out of (:func:`_own_lumen`), its wall
+    no window. A rim vertex is on another
     branch's wall when it fits that branch's tube (:data:`WALL_FIT`), with its foot inside
     the branch (not beyond an end of the centerline: a vessel that ends short of the rim
     leaves no wall there). Vertices on the crease where the two walls meet fit both and
@@ -105,7 +124,7 @@ def window_on_passing_branch(rim: np.ndarray, points: np.ndarray, radii: np.ndar
     if not near.any():
         return none
     fit, t = _segment_fit(rim, a[near], b[near], radii[edges[near, 0]], radii[edges[near, 1]])
-    mine = np.isin(branch_of_edge[near], _own_lumen(own, paths, branch_of_edge, own_end, points, radii, edges, near))
+    mine = np.isin(branch_of_edge[near], _own_lumen(own, paths, branch_of_edge, own_end, points, radii, edges, near, centre, reach))
     # a foot on a centerline end (degree 1) lies beyond that vessel's end
     at_end = ((t <= 0.0) & (degree[edges[near, 0]] == 1)[None]) | ((t >= 1.0) & (degree[edges[near, 1]] == 1)[None])
     others = np.where(~mine[None] & ~at_end, fit, np.inf)

@@ -288,8 +288,9 @@ def _warn_windows(ctx, windows: list) -> None:
             "Where a centerline with radii is given (method 'rings'): an open end whose rim also runs over the wall of a vessel "
             "passing it (a cut through two touching vessels) has that part of the rim closed as wall, faired into it, and only "
             "the rest capped (a flat cap across the whole rim would cross the passing vessel's lumen). The wall of the parent a "
-            "short branch grows out of is no such window. Without a centerline (extracted runs) every end is capped whole; "
-            "off, the capped prefix is not keyed on the centerline (docs/robustness.md, h22/fold, h23/windows).",
+            "short branch grows out of is no such window. Without a centerline (extracted runs) every end is capped whole. "
+            "On, a given centerline keys the cached prefix (with either method, whether or not an end has a window); "
+            "off, it does not (docs/robustness.md, h22/fold, h23/windows).",
         ),
         *INLET_PARAMETERS,
     ],
@@ -324,7 +325,11 @@ def cap_open_ends(ctx, method, rings, detect_if_closed, split_windows, inlet, in
         return
     centerline = _centerline_with_radii(ctx) if split_windows else None
     if centerline is not None and method != "rings":  # a centerline to split by, and a method that cannot
-        ctx.warn("cap_open_ends: split_windows needs method 'rings'; every open end is capped whole")
+        from ..rim_windows import window_on_passing_branch
+
+        points, radii, edges = centerline
+        if any(window_on_passing_branch(s.vertices[lp], points, radii, edges).any() for lp in topology.join_touching(loops)):
+            ctx.warn(f"an open end's rim runs over the wall of a passing vessel, which split_windows closes only with method 'rings'; with '{method}' every open end is capped whole")
         centerline = None
     if centerline is not None:
         from ..rim_windows import cap_loops_splitting_windows
