@@ -312,9 +312,7 @@ def measure_coverage(
     wall_tree = TriangleBVH(V, WF) if wall_tree is None else wall_tree
     off = _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree if wall_projector is None else wall_projector, *skeleton, on_wall)
     node_of_branch = _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3)))
-    # wall an end face explains: its closest mesh face is an end face, or it lies past an end
-    # face's plane within reach of its axis (the end cap's region, however deep)
-    missing, n_patches, n_missing = _missing_parts(
+    missing, n_patches, n_missing = _missing_parts(  # end wall: closest to an end face, or past one near its axis
         V, WF, area, rel, far, beyond | past[:, None], face_r, face_node, cap_of_vertex, cap_names,
         patch_area, depth, end_depth, node_of_branch, off, F if own_radius else None, surface_tree,
     )
