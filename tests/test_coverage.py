@@ -209,6 +209,51 @@ def test_vessel_running_on_past_the_mesh_end_is_missing(cylinder_mesh):
     assert summary["uncovered_share"] > 0.3 and summary["uncovered_share"] + summary["beyond_ends_share"] > 0.4
 
 
+def _end_tapered(points, pull):
+    """The cylinder mesh with its last two units narrowed linearly to ``1 - pull`` of the
+    radius at its end face (``pull`` < 0 widens it): a light pass moving the end ring."""
+    Q = np.array(points, float)
+    w = np.clip((Q[:, 2] - (LENGTH - 2.0)) / 2.0, 0.0, 1.0) * pull
+    Q[:, :2] *= (1.0 - w)[:, None]
+    return Q
+
+
+@pytest.mark.parametrize("pull", [0.0, 0.08, -0.08])
+def test_mesh_stopping_short_of_a_flat_cap_is_its_end_not_a_missing_part(cylinder_mesh, pull):
+    """Real kd_lima extracted (session 22): the mesh ends 0.66 radii before the inlet's flat
+    cap; the wall ring between is as close to the end face's rim as to the mesh wall's, so
+    which of the two is closest (the old majority vote: more than half of the patch closest
+    to an end face) flipped with any smoothing of the rim. Here the same ring, with the mesh's
+    end narrowed or widened by 8 %: the vote put the plain and the narrowed end at the wall
+    side (a missing part 0.64 radii deep, by the ring's own radius), the widened one at the
+    end. Every sample of the ring lies past the end face's plane near its axis: end wall, no
+    side wall, 0.66 radii deep (limit ``end_depth`` 1.5): not missing, rim or not."""
+    sm, skeleton = cylinder_mesh
+    V, F, caps = tube([0, 0, 0], [0, 0, 1], RADIUS, LENGTH + 0.66 * RADIUS)
+    pts = _end_tapered(sm.points, pull)
+    summary, missing = measure_coverage(V, F, caps, ["inlet", "outlet"], pts, sm.boundary_faces, sm.boundary_ids, sm.order,
+                                        *skeleton, branches=[np.arange(11)])
+    assert missing == [] and summary["patches"] >= 1
+    assert summary["uncovered_share"] < 0.01 and summary["beyond_ends_share"] > 0.05
+
+
+@pytest.mark.parametrize("z, radius, past", [(5.0, 0.8, 0.5), (8.5, 0.8, 0.5), (5.0, 0.5, 1.0), (8.5, 0.6, 1.0)])
+def test_short_wide_branch_is_missing_beside_the_vessel_and_next_to_its_end(cylinder_mesh, z, radius, past):
+    """A whole short, wide branch the skeleton never entered (issue 17's silent bad meshes):
+    a capped stub of ``radius`` x the parent's, ending ``past`` of its own radii beyond the
+    parent's wall, at mid-vessel or with its mouth 0.3 radii from the mesh's end face. Its
+    wall is side wall (beside the meshed vessel, no end face's), several of its cross-sections
+    and deeper than its own radius: missing wherever it leaves the vessel."""
+    sm, skeleton = cylinder_mesh
+    V1, F1, caps1 = tube([0, 0, 0], [0, 0, 1], RADIUS, LENGTH)
+    V2, F2, caps2 = tube([1.5, 0, z], [1, 0, 0], radius * RADIUS, RADIUS - 1.5 + past * radius * RADIUS, n_around=32, n_along=12, start_cap=False)
+    V, F = np.vstack([V1, V2]), np.vstack([F1, F2 + len(V1)])
+    summary, missing = _measure(sm, skeleton, V, F, [caps1[0], caps1[1], caps2[1] + len(F1)], ["inlet", "outlet", "stub"])
+    assert summary["missing_parts"] == 1 and missing[0].caps == ["stub"]
+    assert missing[0].cross_sections > 1.5 and missing[0].depth > 1.0
+    assert "the skeleton does not reach into it" in missing[0].message()
+
+
 def test_warning_threshold_parameters(cylinder_mesh):
     """A larger patch threshold or depth lets the same missing part through."""
     sm, skeleton = cylinder_mesh

@@ -312,8 +312,8 @@ def measure_coverage(
     wall_tree = TriangleBVH(V, WF) if wall_tree is None else wall_tree
     off = _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree if wall_projector is None else wall_projector, *skeleton, on_wall)
     node_of_branch = _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3)))
-    missing, n_patches, n_missing = _missing_parts(
-        V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names,
+    missing, n_patches, n_missing = _missing_parts(  # end wall: closest to an end face, or past one near its axis
+        V, WF, area, rel, far, beyond | past[:, None], face_r, face_node, cap_of_vertex, cap_names,
         patch_area, depth, end_depth, node_of_branch, off, F if own_radius else None, surface_tree,
     )
     volumes = (enclosed_volume(V, F), enclosed_volume(X, tri))
@@ -421,66 +421,83 @@ def _wall_and_caps(F, n_vertices, cap_faces):
     return wall, cap_of_vertex
 
 
-def _missing_parts(V, WF, area, rel, far, beyond, face_r, face_node, cap_of_vertex, cap_names, patch_area, depth, end_depth, node_of_branch, off, F, tree=None):
+def _missing_parts(V, WF, area, rel, far, at_end_face, face_r, face_node, cap_of_vertex, cap_names, patch_area, depth, end_depth, node_of_branch, off, F, tree=None):
     """Connected uncovered patches of the wall (a face is uncovered when at least two of its
     four samples are) and the missing parts among them, largest first; ``off``: the mesh
     wall nodes, their distances off the wall (x local radius) and whether the mesher put them
     on the wall, for a part's ``wall_off``: the farthest node put on the wall within the
     part's depth (plus half a radius) of its faces, where the mesh wall that misses it lies
-    (and ``over_opening``: the nodes there the mesher left off the wall). A patch's radius
-    is the smaller of the skeleton's at its deepest face and its own (:func:`_own_radius`,
-    across the closed surface ``F``, ``tree`` its BVH where built; None: the skeleton's
-    alone), except past an end face.
+    (and ``over_opening``: the nodes there the mesher left off the wall).
+
+    Each patch is split by ``at_end_face`` (per sample: wall an end face of the mesh
+    explains, :func:`measure_coverage`) into its **end wall** and its **side wall**, and
+    each is judged on its own by :func:`judge_patches`: the side wall as a part beside the
+    meshed vessel (by the smaller of the skeleton's radius at its deepest face and the
+    patch's own, :func:`_own_radius`, across the closed surface ``F``, ``tree`` its BVH
+    where built; None: the skeleton's alone; ``depth``), the end wall as the vessel running
+    on past an end face (by the skeleton's radius; ``end_depth``). A patch is missing when
+    either is. A branch the skeleton never entered is side wall, several of its own
+    cross-sections and deeper than its radius; the wall between an end face and the cap
+    or rounded end beyond it is end wall, whatever mesh face lies closest to it. (Up to
+    session 22 a patch was *at an end* when more than half of its far area had an end face
+    as its closest mesh face: a vote that any smoothing of the end face's rim could flip,
+    e.g. real kd_lima extracted, 0.511 of an end patch on main.)
 
     Returns the parts (at most :data:`MAX_PATCHES`), the patch count and the count of
     missing parts."""
     total = float(area.sum())
     label, n_patches = _patches(WF, len(V), far.sum(axis=1) >= 2)
     missing = []
-    if n_patches:
-        face_rel = rel.max(axis=1)
-        face_area = area * far.mean(axis=1)
-        sel = label >= 0
-        lab = label[sel]
-        patch_area_sum = np.bincount(lab, weights=face_area[sel], minlength=n_patches)
-        beyond_sum = np.bincount(lab, weights=(area * (far & beyond).mean(axis=1))[sel], minlength=n_patches)
-        at_end = beyond_sum > 0.5 * patch_area_sum
-        # deepest face of each patch: its local radius sets the patch's cross-section
-        order_ = np.lexsort((-face_rel[sel], lab))
-        first = order_[np.searchsorted(lab[order_], np.arange(n_patches))]
-        deep_face = np.flatnonzero(sel)[first]
-        # the deepest face's distance, relative to the patch's own radius where judge_patches takes it
-        own = _own_radius(V, F, WF, label, n_patches, tree) if F is not None else np.full(n_patches, np.inf)
-        real_depth = face_rel[deep_face] * face_r[deep_face]
-        is_missing, sections, patch_depth, patch_r = judge_patches(
-            patch_area_sum, real_depth, face_r[deep_face], own, at_end, patch_area, depth, end_depth
-        )
-        big = np.flatnonzero(is_missing)
-        big = big[np.argsort(-patch_area_sum[big])]
-        for k in big[:MAX_PATCHES]:
-            faces_k = np.flatnonzero(label == k)
-            verts = np.unique(WF[faces_k])
-            caps = sorted({cap_names[c] for c in cap_of_vertex[verts] if c >= 0})
-            node = int(face_node[faces_k[np.argmin(face_rel[faces_k])]])  # where the part leaves the meshed vessel
-            w = face_area[faces_k]
-            centre = (V[WF[faces_k]].mean(axis=1) * w[:, None]).sum(axis=0) / max(w.sum(), 1e-300)
-            missing.append(
-                MissingPart(
-                    area=float(patch_area_sum[k]),
-                    cross_sections=float(sections[k]),
-                    share=float(patch_area_sum[k] / total) if total > 0 else 0.0,
-                    depth=float(patch_depth[k]),
-                    position=centre,
-                    caps=caps,
-                    skeleton_node=node,
-                    branch=int(node_of_branch[node]) if node_of_branch is not None else -1,
-                    **_wall_off(V[WF[faces_k]].mean(axis=1), (patch_depth[k] + 0.5) * patch_r[k], off),
-                )
+    if not n_patches:
+        return missing, 0, 0
+    sel = label >= 0
+    lab = label[sel]
+    face_area = area * far.mean(axis=1)
+    patch_area_sum = np.bincount(lab, weights=face_area[sel], minlength=n_patches)
+    own = _own_radius(V, F, WF, label, n_patches, tree) if F is not None else np.full(n_patches, np.inf)
+    # the side wall and the end wall of each patch, judged apart
+    judged = {}
+    for kind, part, at_end in (("side", far & ~at_end_face, False), ("end", far & at_end_face, True)):
+        part_rel = np.where(part, rel, 0.0).max(axis=1)
+        part_area = np.bincount(lab, weights=(area * part.mean(axis=1))[sel], minlength=n_patches)
+        deep_face = np.flatnonzero(sel)[_deepest(part_rel[sel], lab, n_patches)]
+        real_depth = part_rel[deep_face] * face_r[deep_face]
+        judged[kind] = judge_patches(part_area, real_depth, face_r[deep_face], own, np.full(n_patches, at_end), patch_area, depth, end_depth)
+    side_missing = judged["side"][0]
+    is_missing = side_missing | judged["end"][0]
+    # a part is described by the wall that makes it missing (its side wall where both do)
+    pick = lambda j: np.where(side_missing, judged["side"][j], judged["end"][j])  # noqa: E731
+    sections, patch_depth, patch_r = pick(1), pick(2), pick(3)
+    face_rel = rel.max(axis=1)
+    big = np.flatnonzero(is_missing)
+    big = big[np.argsort(-patch_area_sum[big])]
+    for k in big[:MAX_PATCHES]:
+        faces_k = np.flatnonzero(label == k)
+        verts = np.unique(WF[faces_k])
+        caps = sorted({cap_names[c] for c in cap_of_vertex[verts] if c >= 0})
+        node = int(face_node[faces_k[np.argmin(face_rel[faces_k])]])  # where the part leaves the meshed vessel
+        w = face_area[faces_k]
+        centre = (V[WF[faces_k]].mean(axis=1) * w[:, None]).sum(axis=0) / max(w.sum(), 1e-300)
+        missing.append(
+            MissingPart(
+                area=float(patch_area_sum[k]),
+                cross_sections=float(sections[k]),
+                share=float(patch_area_sum[k] / total) if total > 0 else 0.0,
+                depth=float(patch_depth[k]),
+                position=centre,
+                caps=caps,
+                skeleton_node=node,
+                branch=int(node_of_branch[node]) if node_of_branch is not None else -1,
+                **_wall_off(V[WF[faces_k]].mean(axis=1), (patch_depth[k] + 0.5) * patch_r[k], off),
             )
-        n_missing = len(big)
-    else:
-        n_missing = 0
-    return missing, n_patches, n_missing
+        )
+    return missing, n_patches, len(big)
+
+
+def _deepest(values, lab, n_patches):
+    """Index (into ``values``) of the largest value of each label ``0 .. n_patches - 1``."""
+    order_ = np.lexsort((-values, lab))
+    return order_[np.searchsorted(lab[order_], np.arange(n_patches))]
 
 
 def judge_patches(area, real_depth, skeleton_r, own_r, at_end, patch_area=PATCH_AREA, depth=DEPTH, end_depth=END_DEPTH):
