@@ -436,6 +436,8 @@ class _Sections:
         R = self.cast(np.repeat(origin, len(ang), axis=0), dirs.reshape(-1, 3), np.repeat(rad, len(ang))).reshape(len(idx), -1)
         R = self._own_territory(idx, origin, dirs, R, rad)
         R = self._through_necks(idx, origin, dirs, R, rad, is_open)
+        if self.opt.ends.short_end_rays > 0:
+            C, R = self._back_from_short_rays(idx, C, origin, dirs, R, rad, is_open, Nn * outward[:, None])
         if np.any(~np.isfinite(R)):
             lost = np.flatnonzero(~np.all(np.isfinite(R), axis=1))
             b, k = idx[int(lost[0])]
@@ -498,6 +500,33 @@ class _Sections:
             prev = self.frames.X[b, 1 if k == 0 else k - 1]
             back[n] = min(need, 0.5 * abs(float((C[n] - prev) @ out[n])))
         return back
+
+
+    def _back_from_short_rays(self, idx, C, origin, dirs, R, rad, is_open, out):
+        """Open ends' sections whose rays reach less than ``ends.short_end_rays`` of the
+        previous section's at the same azimuth move half way back towards it (along the
+        outward normal ``out``), kept where their shortest share rises: the end's own plane
+        can run along the wall (a flat closed end taken for an opening, whose section stands
+        in the end's plane; a voxel staircase's terraces by it), and the boundary layer between
+        a round section and a cut-short one folds (s1 g0010 given: wall vertices 0.09-0.71 from
+        the end node against 0.63-0.71 one section before). Returns the new centres and rays."""
+        where = {key: n for n, key in enumerate(idx)}
+        C, R = C.copy(), R.copy()
+        for n in np.flatnonzero(is_open).tolist():
+            b, k = idx[n]
+            p = where.get((b, 1 if k == 0 else k - 1))
+            if p is None:
+                continue
+            share = R[n] / np.maximum(R[p], 1e-300)
+            if not np.all(np.isfinite(share)) or share.min() >= self.opt.ends.short_end_rays:
+                continue
+            back = 0.5 * abs(float((C[n] - C[p]) @ out[n]))
+            o = origin[n] - back * out[n]
+            r = self.cast(np.repeat(o[None], len(dirs[n]), axis=0), dirs[n], np.full(len(dirs[n]), rad[n]))
+            r = self._own_territory([idx[n]], o[None], dirs[n : n + 1], r[None], rad[n : n + 1])[0]
+            if np.all(np.isfinite(r)) and (r / np.maximum(R[p], 1e-300)).min() > share.min():
+                C[n], R[n] = C[n] - back * out[n], r
+        return C, R
 
 
     def _through_necks(self, idx, origin, dirs, R, rad, is_open) -> np.ndarray:
