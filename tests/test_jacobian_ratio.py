@@ -94,3 +94,16 @@ def test_compute_quality_writes_the_column(y_run):
     section = json.loads((y_run / "report.json").read_text())["quality"]["jacobian_ratio"]
     assert section["min"] == pytest.approx(float(ratio.min()))
     assert sum(v["n"] for v in section["by_layer"].values()) == mesh.n_cells
+
+
+def test_default_chain_keeps_the_boundary_layer_untapered(y_run):
+    """The taper guard is on by default (``light_pass_ratio_floor`` 0.3, session 23): on the
+    Y-bifurcation, whose fill has no element below that ratio, the light pass leaves none
+    below it either (without the guard it thinned boundary-layer elements at one edge)."""
+    from vmesh.chain import FilterChain
+
+    chain = FilterChain.load(y_run / "chain.toml")
+    floors = [s.params.get("light_pass_ratio_floor") for s in chain.steps if s.filter == "mesh_transfinite"]
+    assert floors == [0.3]
+    assert json.loads((y_run / "report.json").read_text())["quality"]["jacobian_ratio"]["min"] >= 0.3 - 1e-9
+

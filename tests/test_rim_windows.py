@@ -99,6 +99,26 @@ def test_a_stub_ending_against_its_parent_has_no_window(stub_vessel):
     np.testing.assert_array_equal(capped[0].surface.faces, capped[1].surface.faces)
 
 
+def test_a_stub_given_as_one_segment_has_no_window(stub_vessel):
+    """The same stub with its centerline given as one segment, root to tip (a sparse SWC):
+    where the path leaves the parent's tube is found between its two nodes, not at its last
+    node inside (the root, farther from the rim than the reach at 45 degrees): no window."""
+    surface, skeleton = stub_vessel
+    repaired = FilterChain(["repair_surface"]).run(surface=surface, skeleton=skeleton).surface
+    thin = np.flatnonzero(np.isclose(skeleton.radii, 0.45))
+    tip = thin[np.argmax(np.linalg.norm(skeleton.points[thin], axis=1))]
+    keep = np.setdiff1d(np.arange(skeleton.n_nodes), np.setdiff1d(thin, [tip]))
+    root = keep[np.argmin(np.linalg.norm(skeleton.points[keep], axis=1) + 1e9 * (keep == tip))]
+    index = -np.ones(skeleton.n_nodes, np.int64)
+    index[keep] = np.arange(len(keep))
+    tube = skeleton.edges[(index[skeleton.edges] >= 0).all(axis=1)]
+    edges = np.vstack([index[tube], [[index[root], index[tip]]]])
+    points, radii = skeleton.points[keep], skeleton.radii[keep]
+    assert len(edges) == len(keep) - 1  # still a tree: the tube and the stub's one segment
+    for lp in topology.join_touching(topology.boundary_loops(repaired.faces)):
+        assert not window_on_passing_branch(repaired.vertices[lp], points, radii, edges).any()
+
+
 def _warnings_with_meshlab(surface, skeleton):
     ctx = FilterChain(["repair_surface", ("cap_open_ends", {"method": "meshlab"})]).run(surface=surface, skeleton=skeleton)
     assert not topology.boundary_loops(ctx.surface.faces)

@@ -66,12 +66,19 @@ def _own_lumen(own: int, paths: list, branch_of_edge: np.ndarray, own_end: int, 
     for b in np.unique(branch_of_edge[near & (branch_of_edge != own) & (branch_of_edge >= 0)]):
         ids = np.flatnonzero(branch_of_edge == b)
         _, _, r, d = _feet(points[from_root], points[edges[ids, 0]], points[edges[ids, 1]], radii[edges[ids, 0]], radii[edges[ids, 1]])
-        inside = (d < r).any(axis=1)
-        if not inside[0]:
+        gap = (d - r).min(axis=1)  # < 0 inside the tube
+        if not gap[0] < 0:
             continue
-        # the last point of the path's run inside the tube that starts at the root
-        last = from_root[(len(inside) if inside.all() else int(np.argmin(inside))) - 1]
-        if np.linalg.norm(points[last] - centre) < reach:
+        # where the path's run inside the tube that starts at the root leaves it: between
+        # its last node inside and the next, interpolated (not the node itself, so a path
+        # given by few nodes, a stub as one segment, is judged as a dense one)
+        if (gap < 0).all():
+            exit_point = points[from_root[-1]]
+        else:
+            k = int(np.argmax(gap >= 0))
+            w = gap[k - 1] / (gap[k - 1] - gap[k])
+            exit_point = (1.0 - w) * points[from_root[k - 1]] + w * points[from_root[k]]
+        if np.linalg.norm(exit_point - centre) < reach:
             mine.append(int(b))
     return np.array(mine)
 

@@ -30,7 +30,9 @@ class _Stubs:
         holds invalid blocks itself) to an open end (a cap), is the narrowest branch of
         that junction (a side branch, not the vessel's continuation), and ends before the
         junction's half-sections plus the margin the builder keeps (``junction_margin``)
-        along it: its cap section cannot stand clear of the junction.
+        along it: its cap section cannot stand clear of the junction. With the opt-in
+        ``stub_within_reach`` it must also end within ``REACH_RADII`` of its own radii past
+        the junction's radius (:meth:`stub_of`).
 
         Returns
         -------
@@ -50,7 +52,9 @@ class _Stubs:
     def stub_of(self, bi: int) -> dict | None:
         """Branch ``bi`` as a stub (see :meth:`short_stubs`), or None when it is no stub: it
         does not run from a junction to an open end, is not its junction's narrowest branch,
-        or has room for a section past the junction's half-sections."""
+        or has room for a section past the junction's half-sections; with the opt-in
+        ``stub_within_reach``, also when it runs farther past the junction's radius than a
+        half-section bounded by its own wall could reach (``REACH_RADII`` of its radii)."""
         sk, opt = self.topo.sk, self.opt
         br = self.topo.branches[bi]
         if br.kinds != [JUNCTION, OPEN]:
