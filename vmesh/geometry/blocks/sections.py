@@ -10,10 +10,9 @@ from .. import cross_sections as cs
 from .checks import _Failure
 from .options import CLOSED, CYCLE, JUNCTION, OPEN, _Branch
 from ..skeleton.graph import polyline_at
-from ..rays import RAY_REACH
 from ..skeleton.pairs import PAIR_REACH
 from .prep import Territory, endpoint_caps, redistribute_sections
-from ..rays import clip_to_territory, cut_at_necks
+from ..rays import RAY_REACH, clip_to_territory, cut_at_necks
 
 
 #: How far (× radius) inside an open end's section its rays start (a flat cap gives the

@@ -735,7 +735,9 @@ def warm_up() -> None:
     # these, and a first run's optimiser may start while the background compile is still here
     from . import kernels_worst as KW
 
-    # (the taper guard's ratio_rows is left to its first use: the guard is opt-in)
-    for corners, minima in ((KW._worst_corners_serial, KW._trial_minima_serial), (KW._worst_corners_parallel, KW._trial_minima_parallel)):
+    # with the taper guard (on by default since session 23) the worst pass also needs ratio_rows
+    for corners, minima, rows in ((KW._worst_corners_serial, KW._trial_minima_serial, KW._ratio_rows_serial),
+                                  (KW._worst_corners_parallel, KW._trial_minima_parallel, KW._ratio_rows_parallel)):
         corners(X, hexes, ptr, inc, nodes)
         minima(X, hexes, ptr, inc, nodes, np.ascontiguousarray(X[:, None]), 0.3)
+        rows(X, hexes, ptr, inc, nodes, 0.3)
