@@ -269,6 +269,14 @@ def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol
             info["kept"] = False
             ctx.report.sections[name] = info
             return
+    elif info.get("before") and info["before"]["min"] <= 0 and info["after"]["min"] < info["before"]["min"]:
+        # an inverted input: the pass's own untangling (Newton steps on the functional, not
+        # judged by the minimum) can fold the mesh further (seed-1 g0016 extracted: 5
+        # inverted at -0.419 in, 7 at -0.467 out); on a valid input every step is monotone
+        info["kept"] = False
+        info["refused"] = "minimum dropped on an inverted mesh"
+        ctx.report.sections[name] = info
+        return
     sm.points[:] = X
     info["kept"] = True
     ctx.report.sections[name] = info
@@ -407,17 +415,27 @@ def compute_quality(ctx, histogram, fail_on_invalid, bins, jacobian_ratio_below=
             from ..plots import quality_histogram
 
             quality_histogram(sj, path, title=f"{ctx.surface.name or 'mesh'}: {mesh.n_cells} elements, p = {mesh.order}", bins=bins)
-    if fail_on_invalid and summary["n_invalid"]:
-        bad = np.flatnonzero(sj <= 0)
-        blocks = np.unique(mesh.cell_data["block_id"][bad])[:10]
-        nodes = np.unique(mesh.cell_data["node_id"][bad])[:10] if "node_id" in mesh.cell_data else []
-        where = ""
-        if folds is not None and folds["invalid_inside"]:
-            where = (f"; {folds['invalid_inside']} of them lie in the {folds['blocks']} boundary-layer block(s) that the block builder found folding "
-                     f"when their wall faces are projected onto the wall (report.json: quality.wall_fold_blocks): a fold of the block structure")
-        raise MeshingError(f"{summary['n_invalid']} elements have a scaled Jacobian <= 0 next to skeleton node(s) {list(map(int, nodes))} "
-                           f"(blocks {blocks.tolist()}): mesh_transfinite's untangling could not unfold them (report.json: untangle){where}; "
-                           f"compute_quality.fail_on_invalid=false writes the mesh to inspect them")
+    if summary["n_invalid"]:
+        message = _invalid_message(mesh, sj, summary, folds)
+        if fail_on_invalid:
+            raise MeshingError(f"{message}; compute_quality.fail_on_invalid=false writes the mesh to inspect them")
+        # the mesh is written (to inspect it), but never silently: the run's warnings say so
+        ctx.warn(f"the mesh is INVALID: {message} (written because compute_quality.fail_on_invalid=false)")
+
+
+def _invalid_message(mesh, sj: np.ndarray, summary: dict, folds: dict | None) -> str:
+    """What :func:`compute_quality` says about the elements with a scaled Jacobian <= 0:
+    how many, their skeleton nodes and blocks (the first ten), the share in the blocks the
+    builder flagged as folding on the wall."""
+    bad = np.flatnonzero(sj <= 0)
+    blocks = np.unique(mesh.cell_data["block_id"][bad])[:10]
+    nodes = np.unique(mesh.cell_data["node_id"][bad])[:10] if "node_id" in mesh.cell_data else []
+    where = ""
+    if folds is not None and folds["invalid_inside"]:
+        where = (f"; {folds['invalid_inside']} of them lie in the {folds['blocks']} boundary-layer block(s) that the block builder found folding "
+                 f"when their wall faces are projected onto the wall (report.json: quality.wall_fold_blocks): a fold of the block structure")
+    return (f"{summary['n_invalid']} elements have a scaled Jacobian <= 0 (min {summary['min']:.3f}) next to skeleton node(s) {list(map(int, nodes))} "
+            f"(blocks {blocks.tolist()}): mesh_transfinite's untangling could not unfold them (report.json: untangle){where}")
 
 
 def wall_fold_share(sj: np.ndarray, block_id: np.ndarray, fold_blocks) -> dict | None:
