@@ -406,7 +406,7 @@ class SignedDistance(SurfaceQueries):
         crossings (:meth:`~vmesh.geometry.bvh.TriangleBVH.crossings`), so one ray through an
         edge or a vertex (counted twice or not at all) does not change it. On such a surface
         it equals the generalised winding number rounded, without libigl (whose import and
-        tree over the fine surface were ~0.4 s of the ICA's ``build_sdf``, docs/speed.md)."""
+        tree over the fine surface were ~0.14 s CPU of the ICA's ``build_sdf``, docs/speed.md)."""
         p = _as_points(points)
         counts = np.stack([self._tree.crossings(p, np.broadcast_to(d, p.shape)) for d in _WINDING_RAYS])
         return np.median(counts, axis=0)
@@ -540,6 +540,10 @@ class TwoStepSignedDistance(SurfaceQueries):
     def winding_number(self, points) -> np.ndarray:
         """Winding number of the fine surface."""
         return self.fine.winding_number(points)
+
+    def ray_winding_number(self, points) -> np.ndarray:
+        """Winding number of the fine surface from rays (:meth:`SignedDistance.ray_winding_number`)."""
+        return self.fine.ray_winding_number(points)
 
     def intersect_lines(self, points, directions, reach, side=None) -> tuple[np.ndarray, np.ndarray]:
         """Nearest crossings of lines with the fine surface (:meth:`SignedDistance.intersect_lines`)."""
