@@ -314,13 +314,6 @@ class TriangleBVH:
                 _line_kernel(o, d, r, sd, order, *tree, _BLOCK)
         return t, np.where(slot >= 0, self.order[np.maximum(slot, 0)], -1)
 
-    def crossings(self, origins, directions):
-        """Signed count ``(n,)`` of the crossings of the rays ``origins + t * directions``
-        (``t > 0``) with the triangles (:func:`vmesh.geometry.ray_crossings.crossings`)."""
-        from .ray_crossings import crossings
-
-        return crossings(self, origins, directions)
-
 
 @contextlib.contextmanager
 def _dynamic_chunks(blocks: int = 8):

@@ -403,12 +403,14 @@ class SignedDistance(SurfaceQueries):
     def ray_winding_number(self, points) -> np.ndarray:
         """Winding number ``(n,)`` of a closed, consistently oriented surface (the pseudonormal
         sign's surfaces), exactly: the median over three fixed ray directions of the signed
-        crossings (:meth:`~vmesh.geometry.bvh.TriangleBVH.crossings`), so one ray through an
+        crossings (:func:`~vmesh.geometry.ray_crossings.crossings`), so one ray through an
         edge or a vertex (counted twice or not at all) does not change it. On such a surface
         it equals the generalised winding number rounded, without libigl (whose import and
         tree over the fine surface were ~0.14 s CPU of the ICA's ``build_sdf``, docs/speed.md)."""
         p = _as_points(points)
-        counts = np.stack([self._tree.crossings(p, np.broadcast_to(d, p.shape)) for d in _WINDING_RAYS])
+        from .ray_crossings import crossings
+
+        counts = np.stack([crossings(self._tree, p, np.broadcast_to(d, p.shape)) for d in _WINDING_RAYS])
         return np.median(counts, axis=0)
 
     def intersect_lines(self, points, directions, reach, side=None) -> tuple[np.ndarray, np.ndarray]:
