@@ -164,3 +164,34 @@ def test_trial_quality_equals_node_eval_bit_for_bit():
                 for r in range(n // 4):
                     assert trials.row_below(L, np.int64(r), z[0], z[1], z[2], floor) == bool((other[0, 4 * r : 4 * r + 4] < floor).any())
     assert refused and accepted
+
+
+def test_guarded_trial_quality_equals_node_eval_bit_for_bit():
+    """With the taper guard (the default light pass), ``trials.trial_quality_guarded`` gives
+    exactly node_eval's minimum, sum, refusing row and stored corner values: refusals by a
+    corner below the floor and by a hexahedron's Jacobian ratio below the guard's least ratio
+    (``trials.least_ratio``) both occur."""
+    X, hexes, scale, ptr, inc, cq, valence, L, buf = frame_setup()
+    other = np.empty_like(buf)
+    rng = np.random.default_rng(5)
+    by_ratio = by_corner = accepted = 0
+    for v in np.concatenate([rng.choice(np.flatnonzero(valence == k), 3) for k in np.unique(valence)]):
+        K.frame(X, hexes, scale, ptr, inc, cq, v, L, True)
+        start = K.node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, 1e-3, False, False, True, buf, np.int64(-1), False, -np.inf, -np.inf)
+        for ratio_floor in (0.3, 0.8, 0.95):
+            least = trials.least_ratio(L, np.int64(valence[v]), ratio_floor)
+            for size in (0.01, 0.05, 0.2):
+                z = rng.normal(size=3) * size
+                for floor in (-np.inf, start[10], np.nextafter(start[10], np.inf)):
+                    want = K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], 1e-3, False, False, True, buf, np.int64(0), False, floor, ratio_floor)
+                    got = trials.trial_quality_guarded(L, ptr, v, z[0], z[1], z[2], other, np.int64(0), floor, least)
+                    assert got[0] == want[10] and got[1] == want[11] and got[2] == want[12]
+                    if want[12] >= 0:
+                        by_corner += 1
+                    elif want[10] == -np.inf:
+                        by_ratio += 1
+                    else:
+                        accepted += 1
+                        n = 4 * (ptr[v + 1] - ptr[v])
+                        assert np.array_equal(buf[0, :n], other[0, :n])
+    assert by_ratio and by_corner and accepted

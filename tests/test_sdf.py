@@ -137,6 +137,8 @@ def _check_sign_and_projection(surface, n=20000):
     wn = sdf.winding_number(p)
     decided = np.abs(d) > 1e-9 * sdf.diagonal
     assert np.array_equal((d > 0)[decided], (wn > 0.5)[decided]), f"{surface.name}: sign disagrees with the winding number"
+    if sdf.sign_method == "pseudonormal":  # build_sdf's sign check counts crossings instead of asking libigl
+        assert np.array_equal((d > 0)[decided], (sdf.ray_winding_number(p) > 0.5)[decided]), f"{surface.name}: sign disagrees with the rays' crossings"
     # projected points lie on the surface
     assert np.abs(sdf.distance(closest)).max() <= 1e-6 * sdf.diagonal
     assert np.allclose(np.abs(d), np.linalg.norm(p - closest, axis=1))
@@ -152,6 +154,28 @@ def test_real_signs_agree_with_winding_number(real_path, name):
 @pytest.mark.slow
 def test_synthetic_signs_agree_with_winding_number(name):
     _check_sign_and_projection(prepared("synthetic", name), n=4000)
+
+
+def test_ray_winding_number_counts_overlapping_closed_pieces():
+    """The rays' signed crossings are the winding number of a closed oriented surface: 1
+    inside a sphere, 0 outside, 2 where two spheres (one surface of two pieces) overlap, for
+    either orientation of the input (flipped to outward first), and libigl's rounded answer
+    agrees away from the surface."""
+    V, F = icosphere(1.0, 4)
+    V2 = np.vstack([V, V + [1.0, 0.0, 0.0]])
+    F2 = np.vstack([F, F + len(V)])
+    rng = np.random.default_rng(7)
+    p = rng.uniform([-1.5, -1.5, -1.5], [2.5, 1.5, 1.5], (4000, 3))
+    want = (np.linalg.norm(p, axis=1) < 1.0).astype(int) + (np.linalg.norm(p - [1.0, 0.0, 0.0], axis=1) < 1.0)
+    r = np.minimum(np.abs(np.linalg.norm(p, axis=1) - 1.0), np.abs(np.linalg.norm(p - [1.0, 0.0, 0.0], axis=1) - 1.0))
+    clear = r > 0.01  # farther from either sphere than the polygon's chords
+    for faces in (F2, F2[:, ::-1]):
+        sdf = SignedDistance(V2, faces)
+        wn = sdf.ray_winding_number(p)
+        assert np.array_equal(wn[clear], want[clear])
+        assert set(np.unique(wn)) == {0, 1, 2}
+    one = SignedDistance(V, F)
+    assert np.array_equal(one.ray_winding_number(p) > 0.5, one.winding_number(p) > 0.5)
 
 
 def test_two_step_projection_lies_on_fine_surface(real_path):

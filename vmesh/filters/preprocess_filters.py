@@ -704,7 +704,9 @@ def build_sdf(ctx, source, sign, refine_on_fine, check_points, index, octree_err
         lo, hi = sdf.bounds
         pts = rng.uniform(lo, hi, size=(check_points, 3))
         inside = sdf.distance(pts) > 0
-        wn_inside = base.winding_number(pts) > 0.5
+        # the pseudonormal sign's surface is closed and oriented: its winding number is the
+        # rays' signed crossings, exactly and without libigl (its import and tree: ~0.14 s CPU of the ICA's step)
+        wn_inside = (base.ray_winding_number(pts) if base.sign_method == "pseudonormal" else base.winding_number(pts)) > 0.5
         disagree = int(np.sum(inside != wn_inside))
         info["sign_check_points"] = check_points
         info["sign_disagreements"] = disagree

@@ -384,6 +384,10 @@ class OctreeSignedDistance(SurfaceQueries):
         """Winding number of the surface (:meth:`SignedDistance.winding_number`)."""
         return self.exact.winding_number(points)
 
+    def ray_winding_number(self, points) -> np.ndarray:
+        """Winding number of a closed oriented surface from rays (:meth:`SignedDistance.ray_winding_number`)."""
+        return self.exact.ray_winding_number(points)
+
     def intersect_lines(self, points, directions, reach, side=None):
         """Exact line casts on the surface (:meth:`SignedDistance.intersect_lines`)."""
         return self.exact.intersect_lines(points, directions, reach, side)

@@ -32,7 +32,7 @@ from numba.core import types as nbtypes
 from numba.extending import intrinsic
 
 from .prefetch import ahead
-from .trials import row_below, trial_quality
+from .trials import least_ratio, row_below, trial_quality, trial_quality_guarded
 from .structure import colour_nodes, grow_nodes, incidence, step_caps, target_scales  # re-exported: the stage's structure
 
 #: node kinds: free in 3-D, sliding on the wall (tangent plane, then projection), sliding in a
@@ -576,6 +576,8 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
     smooth = mode == SMOOTH
     judge = mode != ESCOBAR and not on_wall
     t = over_relax if smooth and not on_wall else 1.0
+    guarded = smooth and ratio_floor > -np.inf  # the taper guard (the default): trial_quality_guarded
+    least = least_ratio(L, ptr[v + 1] - ptr[v], ratio_floor) if guarded else -np.inf
     hint = -1  # the frame row whose corner refused the last trial: checked first (trials.row_below)
     for _ in range((SMOOTH_TRIALS + (1 if t > 1.0 else 0) if smooth else 8) if newton else 0):
         z0, z1, z2 = t * d0, t * d1, t * d2
@@ -586,8 +588,11 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
         if smooth and hint >= 0 and row_below(L, hint, z0, z1, z2, qmin0):
             t = 1.0 if t > 1.0 else 0.5 * t
             continue
-        if smooth and ratio_floor == -np.inf:
+        if smooth and not guarded:
             qmin, qsum, below = trial_quality(L, ptr, v, z0, z1, z2, buf, np.int64(j), qmin0)
+            r = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, qmin, qsum, below)
+        elif smooth:
+            qmin, qsum, below = trial_quality_guarded(L, ptr, v, z0, z1, z2, buf, np.int64(j), qmin0, least)
             r = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, qmin, qsum, below)
         else:
             r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, not smooth, judge or smooth, buf, np.int64(j), _NO, qmin0 if smooth else -np.inf, ratio_floor if smooth else -np.inf)
@@ -626,11 +631,10 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
             if hint >= 0 and row_below(L, hint, z0, z1, z2, climb_floor):
                 t *= 0.5
                 continue
-            if not smooth or ratio_floor == -np.inf:
+            if not guarded:
                 qmin, qsum, below = trial_quality(L, ptr, v, z0, z1, z2, buf, np.int64(j), climb_floor)
             else:
-                r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, _NO, _YES, buf, np.int64(j), _NO, climb_floor, ratio_floor)
-                qmin, qsum, below = r[10], r[11], r[12]
+                qmin, qsum, below = trial_quality_guarded(L, ptr, v, z0, z1, z2, buf, np.int64(j), climb_floor, least)
             if below >= 0:
                 hint = below
             if _acceptable(mode, np.inf, qmin, qsum, np.inf, qmin0, qsum0):

@@ -16,22 +16,34 @@ import numpy as np
 @nb.njit(inline="always", cache=True)
 def _sj_own(L, r, z0, z1, z2):
     """Scaled Jacobian of frame row ``r``'s corner at the node moved to ``z`` (:func:`.kernels.node_eval`'s arithmetic)."""
-    u0x, u0y, u0z = L[r, 0] - z0, L[r, 1] - z1, L[r, 2] - z2
-    u1x, u1y, u1z = L[r, 3] - z0, L[r, 4] - z1, L[r, 5] - z2
-    u2x, u2y, u2z = L[r, 6] - z0, L[r, 7] - z1, L[r, 8] - z2
-    m0, m1, m2 = u0x * u0x + u0y * u0y + u0z * u0z, u1x * u1x + u1y * u1y + u1z * u1z, u2x * u2x + u2y * u2y + u2z * u2z
-    D = L[r, 12] + L[r, 9] * z0 + L[r, 10] * z1 + L[r, 11] * z2
-    return D / max(np.sqrt(m0 * m1 * m2), 1e-300)
+    return _sj_det_own(L, r, z0, z1, z2)[0]
 
 
 @nb.njit(inline="always", cache=True)
 def _sj_adjacent(L, r, a, z0, z1, z2):
     """Scaled Jacobian of frame row ``r``'s corner at its edge neighbour ``a`` (0-2) with the node at ``z``."""
+    return _sj_det_adjacent(L, r, a, z0, z1, z2)[0]
+
+
+@nb.njit(inline="always", cache=True)
+def _sj_det_own(L, r, z0, z1, z2):
+    """:func:`_sj_own` and the corner's (plain) determinant ``D``."""
+    u0x, u0y, u0z = L[r, 0] - z0, L[r, 1] - z1, L[r, 2] - z2
+    u1x, u1y, u1z = L[r, 3] - z0, L[r, 4] - z1, L[r, 5] - z2
+    u2x, u2y, u2z = L[r, 6] - z0, L[r, 7] - z1, L[r, 8] - z2
+    m0, m1, m2 = u0x * u0x + u0y * u0y + u0z * u0z, u1x * u1x + u1y * u1y + u1z * u1z, u2x * u2x + u2y * u2y + u2z * u2z
+    D = L[r, 12] + L[r, 9] * z0 + L[r, 10] * z1 + L[r, 11] * z2
+    return D / max(np.sqrt(m0 * m1 * m2), 1e-300), D
+
+
+@nb.njit(inline="always", cache=True)
+def _sj_det_adjacent(L, r, a, z0, z1, z2):
+    """:func:`_sj_adjacent` and the corner's (plain) determinant ``D``."""
     k = 13 + 6 * a
     wx, wy, wz = z0 - L[r, 3 * a], z1 - L[r, 3 * a + 1], z2 - L[r, 3 * a + 2]
     m = wx * wx + wy * wy + wz * wz
     D = L[r, k + 3] + L[r, k] * z0 + L[r, k + 1] * z1 + L[r, k + 2] * z2
-    return D / max(np.sqrt(m * L[r, k + 4]), 1e-300)
+    return D / max(np.sqrt(m * L[r, k + 4]), 1e-300), D
 
 
 @nb.njit(cache=True)
@@ -78,6 +90,53 @@ def trial_quality(L, ptr, v, z0, z1, z2, buf, row, floor):
             if sj < floor:
                 return -np.inf, qsum, r
             hmin = min(hmin, sj)
+        qsum += hmin
+        qmin = min(qmin, hmin)
+    return qmin, qsum, np.int64(-1)
+
+
+@nb.njit(cache=True)
+def least_ratio(L, valence, ratio_floor):
+    """The Jacobian ratio a guarded trial may not go below: the lesser of ``ratio_floor`` and
+    the least ratio of the node's incident hexahedra where its frame was taken (column 74 of
+    :func:`.kernels.frame`; :func:`.kernels.node_eval` takes the same minimum in every call)."""
+    least = ratio_floor
+    for r in range(valence):
+        least = min(least, L[r, 74])
+    return least
+
+
+@nb.njit(cache=True)
+def trial_quality_guarded(L, ptr, v, z0, z1, z2, buf, row, floor, least):
+    """:func:`trial_quality` with the taper guard (on by default): :func:`.kernels.node_eval`
+    with ``want_q`` and a ``ratio_floor`` but no functional, the same arithmetic in the same
+    order, so the same values and decisions. A hexahedron whose Jacobian ratio (least
+    determinant over largest magnitude of its 8 corners; the 4 the node does not move come
+    from the frame, columns 72-73) falls below ``least`` (:func:`least_ratio`) refuses the
+    trial like a corner below ``floor``, without a row hint.
+
+    Returns ``(qmin, qsum, below)`` as :func:`trial_quality`."""
+    qmin = np.inf
+    qsum = 0.0
+    for t in range(ptr[v], ptr[v + 1]):
+        r = t - ptr[v]
+        hmin = L[r, 35]
+        dlo, dhi = L[r, 72], L[r, 73]
+        sj, D = _sj_det_own(L, r, z0, z1, z2)
+        buf[row, 4 * r] = sj
+        if sj < floor:
+            return -np.inf, qsum, r
+        hmin = min(hmin, sj)
+        dlo, dhi = min(dlo, D), max(dhi, abs(D))
+        for a in range(3):
+            sj, D = _sj_det_adjacent(L, r, a, z0, z1, z2)
+            buf[row, 4 * r + 1 + a] = sj
+            if sj < floor:
+                return -np.inf, qsum, r
+            hmin = min(hmin, sj)
+            dlo, dhi = min(dlo, D), max(dhi, abs(D))
+        if dlo / max(dhi, 1e-300) < least:
+            return -np.inf, qsum, np.int64(-1)
         qsum += hmin
         qmin = min(qmin, hmin)
     return qmin, qsum, np.int64(-1)
