@@ -1,5 +1,5 @@
 """Cross-sections that cross their neighbour in a bend: the bend's node dropped after every
-other try failed (issue 17, session 24, branch h24/realbuild; :mod:`vmesh.geometry.blocks.bends`).
+other try failed (issue 17, session 24, branch h24/realbuild; :mod:`vmesh.geometry.blocks.crossings`).
 
 Real hepatic_artery extracted: the trunk flattens to a lumen about 21 x 11 wide, the
 extracted skeleton wanders over its medial sheet with node radii of 2.7-2.9 (the thin
@@ -17,7 +17,7 @@ from junction_cases import JunctionCase
 from test_dent_sections import DEFAULT
 from vmesh.errors import MeshingError
 from vmesh.geometry.block_builder import BlockOptions, block_structure_checks, build_blocks
-from vmesh.geometry.blocks.bends import crossing_bends, without_bends
+from vmesh.geometry.blocks.crossings import crossing_bends, without_bends
 from vmesh.geometry.quality import scaled_jacobian
 from vmesh.geometry.transfinite import mesh_blocks
 from vmesh.skeleton import Skeleton
@@ -43,15 +43,16 @@ def winding_skeleton(turns=(36.0, 4.0, -29.0, -32.0, 19.0), gaps=(3.4, 3.3, 5.6,
 
 
 def test_sections_crossing_in_a_bend_fail_without_the_drop():
+    """As on main: ``bend_drops`` is opt-in (0 by default)."""
     case, sk = winding_skeleton()
     assert case.distance(sk.points).min() > 2.0  # every node well inside
     with pytest.raises(MeshingError, match="stay invalid"):
-        build_blocks(sk, case.distance, None, BlockOptions(bend_drops=0, dent_sections=0), project=case.project)
+        build_blocks(sk, case.distance, None, BlockOptions(dent_sections=0), project=case.project)
 
 
 def test_the_bend_node_dropped_gives_valid_blocks_and_elements():
     case, sk = winding_skeleton()
-    blocks = build_blocks(sk, case.distance, None, BlockOptions(dent_sections=0), project=case.project)
+    blocks = build_blocks(sk, case.distance, None, BlockOptions(bend_drops=1, dent_sections=0), project=case.project)
     checks = block_structure_checks(blocks)
     assert checks["invalid_blocks"] == checks["face_use_errors"] == 0
     assert blocks.corner_jacobians().min() > 0

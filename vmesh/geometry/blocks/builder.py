@@ -44,7 +44,7 @@ from ...errors import MeshingError
 from ...skeleton import Skeleton
 from .. import cross_sections as cs
 from .assemble import _Assembly
-from .bends import bend_note, without_bends
+from .crossings import bend_note, without_bends
 from .checks import _Failure, fill_quality, filled, wall_left_out
 from .crotch import column_ends, split_saddle_columns
 from .dents import add_dent_sections
@@ -113,7 +113,7 @@ def build_blocks(
     def fill(b, subset):
         return fill_quality(b, subset, project, distance, intersect_lines)
 
-    plain = options.replace(bend_drops=0)  # the dent step's builds stay as they were without :mod:`.bends`
+    plain = options if options.repair.bend_drops == 0 else options.replace(bend_drops=0)  # the dent step's builds: without :mod:`.crossings`
 
     rebuild = _Rebuilds(lambda sk, heard, w: _build_blocks(sk, distance, caps, plain, None, heard.append, None, project, intersect_lines, w),
                         options.repair.work_budget, work.rays)
@@ -302,7 +302,7 @@ def _last_resort(skeleton, distance, caps, options: BlockOptions, hooks: tuple, 
 
 def _without_bends(first, distance, caps, options: BlockOptions, hooks: tuple, work) -> BlockStructure | None:
     """:func:`build_blocks` on the skeleton of the first failure without the bend nodes whose
-    sections crossed their neighbours (:mod:`.bends`), after every other try and the last
+    sections crossed their neighbours (:mod:`.crossings`), after every other try and the last
     tries failed; the structure built, or None.
 
     It gets a work budget of its own (the failed tries have spent theirs; the rays are

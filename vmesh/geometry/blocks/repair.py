@@ -12,7 +12,7 @@ from .checks import (
     fill_score,
     projected_wall_quality,
 )
-from .bends import crossing_bends
+from .crossings import crossing_bends
 from .options import CYCLE, JUNCTION
 
 

@@ -15,7 +15,10 @@ Jacobians of -30 against +40).
 Dropping the sharper bend's node from the skeleton leaves its neighbours, now two
 segments apart, turned by the bend against each other over twice the gap: they part. This
 runs only where every other try of the build failed (:func:`~.builder._build_blocks`),
-so no structure the builder makes without it changes.
+so no structure the builder makes without it changes. Opt-in (``bend_drops``, default 0): on
+hepatic the build then succeeds but the run fails later (the joined segment leaves the
+bend's outer wall uncovered), and it won no run of the corpora (docs/junctions.md
+h24/realbuild).
 """
 
 from __future__ import annotations
