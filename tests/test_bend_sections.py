@@ -78,7 +78,7 @@ def test_crossing_bends_picks_the_sharper_turn_of_a_stuck_segment():
     from vmesh.geometry.blocks.checks import _Failure
     from vmesh.geometry.blocks.work import WorkBudget
 
-    b = _Builder(sk, case.distance, None, BlockOptions(bend_drops=0, dent_sections=0), None, None, work=WorkBudget(160))
+    b = _Builder(sk, case.distance, None, BlockOptions(bend_drops=1, dent_sections=0), None, None, work=WorkBudget(160))
     with pytest.raises(_Failure) as got:
         b.make_valid()
     bends = got.value.bends
