@@ -44,6 +44,7 @@ from ...errors import MeshingError
 from ...skeleton import Skeleton
 from .. import cross_sections as cs
 from .assemble import _Assembly
+from .crossings import bend_note, without_bends
 from .checks import _Failure, fill_quality, filled, wall_left_out
 from .crotch import column_ends, split_saddle_columns
 from .dents import add_dent_sections
@@ -112,7 +113,9 @@ def build_blocks(
     def fill(b, subset):
         return fill_quality(b, subset, project, distance, intersect_lines)
 
-    rebuild = _Rebuilds(lambda sk, heard, w: _build_blocks(sk, distance, caps, options, None, heard.append, None, project, intersect_lines, w),
+    plain = options if options.repair.bend_drops == 0 else options.replace(bend_drops=0)  # the dent step's builds: without :mod:`.crossings`
+
+    rebuild = _Rebuilds(lambda sk, heard, w: _build_blocks(sk, distance, caps, plain, None, heard.append, None, project, intersect_lines, w),
                         options.repair.work_budget, work.rays)
     dented = add_dent_sections(blocks, rebuild, fill, distance, project, options.repair.dent_sections, warn)
     if dented is not blocks:  # built again on the changed skeleton: what the first build did to the skeleton still holds
@@ -274,6 +277,8 @@ def _build_blocks(skeleton, distance, caps, options: BlockOptions, bad_blocks_pa
     # succeed without it stay as they are)
     if (blocks := _last_resort(skeleton, distance, caps, options, (warn, progress, project, intersect_lines), work)) is not None:
         return blocks
+    if (blocks := _without_bends(first, distance, caps, options, (warn, progress, project, intersect_lines), work)) is not None:
+        return blocks
     first.hint += work.stop_note()
     raise first.error(bad_blocks_path, sum(tries))
 
@@ -293,6 +298,33 @@ def _last_resort(skeleton, distance, caps, options: BlockOptions, hooks: tuple, 
                                            "branches between two junctions without room spread between the junctions' reaches")
         return blocks
     return None
+
+
+def _without_bends(first, distance, caps, options: BlockOptions, hooks: tuple, work) -> BlockStructure | None:
+    """:func:`build_blocks` on the skeleton of the first failure without the bend nodes whose
+    sections crossed their neighbours (:mod:`.crossings`), after every other try and the last
+    tries failed; the structure built, or None.
+
+    It gets a work budget of its own (the failed tries have spent theirs; the rays are
+    shared), one round less of drops, and is not offered inside a last try (its own last
+    tries run inside it)."""
+    repair = options.repair
+    if repair.bend_drops <= 0 or not first.bends or repair.straighten_stuck_ends or repair.spread_tight:
+        return None
+    fresh = WorkBudget(repair.work_budget)
+    fresh.rays = work.rays
+    note = bend_note(first.bends)
+    try:
+        blocks = _build_blocks(without_bends(first.skeleton, first.bends), distance, caps, options.replace(bend_drops=repair.bend_drops - 1),
+                               None, *hooks, fresh)
+    except MeshingError:
+        first.hint += f"; {note.split(':')[0]} did not help either"
+        return None
+    blocks.info["fixes"].insert(0, note)
+    blocks.info["skeleton_fixes"] = [note] + blocks.info.get("skeleton_fixes", [])
+    if hooks[0]:
+        hooks[0](note)
+    return blocks
 
 
 def _last_tries(options: BlockOptions) -> list:

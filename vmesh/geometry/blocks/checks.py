@@ -283,6 +283,7 @@ class _Failure(Exception):
         self.skeleton, self.nfurcations, self.crowded, self.hint = skeleton, nfurcations, crowded, hint
         self.stubs = []  # side-branch stubs too short for a block (:mod:`.stubs`)
         self.leaned = False  # some n-furcation's half-sections leaned (:meth:`_Junctions._leaned`)
+        self.bends = []  # nodes whose crossing sections straightening could not part (:mod:`.crossings`)
 
     def error(self, path, tries: int = 1) -> MeshingError:
         written = ""

@@ -12,6 +12,7 @@ from .checks import (
     fill_score,
     projected_wall_quality,
 )
+from .crossings import crossing_bends
 from .options import CYCLE, JUNCTION
 
 
@@ -518,6 +519,7 @@ class _Repair:
         )
         failure = _Failure(message, blocks, bad, self.topo.sk, nfurc, crowded, hint)
         failure.stubs = self.short_stubs(bad)
+        failure.bends = crossing_bends(self, bad) if self.opt.repair.bend_drops > 0 else []  # opt-in (:mod:`.crossings`)
         # leaning moves only its junction's half-sections: a try failing away from every
         # leaning junction fails the same with half-planes (:func:`~.builder._fallback`)
         failure.leaned = any(self.leans(self.topo.junctions[c]) for c in ends.tolist() if c in self.topo.junctions)

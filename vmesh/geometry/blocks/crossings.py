@@ -1,0 +1,84 @@
+"""Cross-sections that cross their neighbour in a bend: the bend's node dropped.
+
+A regular cross-section's rays reach the wall in its plane. Where the vessel narrows into a
+bend (a funnel: real hepatic_artery extracted, a trunk of radius 8.3 dropping to 3.25 and
+turning 30-37 degrees at each node), the planes of the first narrow sections cut the
+funnel's wall obliquely and their rays reach three to four times the node's radius (8-13
+against 2.7-2.9). Two neighbouring sections tilted by the bend then cross each other
+within that reach, though their centres are a radius apart: a plane turned by ``theta``
+against its neighbour ``gap`` away crosses it ``gap / tan(theta)`` from the axis, inside
+rays of length ``R`` once ``tan(theta) > gap / R``. The fix loop straightens both
+planes towards their chords (:meth:`~.repair._Repair.fix`), which turns them by at most
+half the bend and leaves them crossing; the blocks between them stay inverted (corner
+Jacobians of -30 against +40).
+
+Dropping the sharper bend's node from the skeleton leaves its neighbours, now two
+segments apart, turned by the bend against each other over twice the gap: they part. This
+runs only where every other try of the build failed (:func:`~.builder._build_blocks`),
+so no structure the builder makes without it changes. Opt-in (``bend_drops``, default 0): on
+hepatic the build then succeeds but the run fails later (the joined segment leaves the
+bend's outer wall uncovered), and it won no run of the corpora (docs/junctions.md
+h24/realbuild).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..skeleton.graph import remove_nodes
+from .options import JUNCTION
+
+STRAIGHT = 0.99  # a section's straighten weight at which the fix loop has none left to give
+MIN_BRANCH_NODES = 4  # a branch keeps at least one regular section after the drop (3 nodes, 2 segments)
+
+
+def crossing_bends(builder, bad: np.ndarray) -> list:
+    """The skeleton nodes to drop for the invalid blocks ``bad`` of ``builder`` (a
+    :class:`~.builder._Builder` whose fix loop gave up): per failing segment between two
+    regular sections that are both straightened as far as they go, its interior node where
+    the skeleton turns more (the bend whose tilted section crosses its neighbour).
+
+    Parameters
+    ----------
+    builder : _Builder
+        After its fix loop, with ``built.block_where`` and ``topo``.
+    bad : (m,) int array
+        The invalid blocks.
+
+    Returns
+    -------
+    list of int
+        Skeleton nodes, sorted, each of degree 2; empty where no failing segment is such a
+        stuck regular one.
+    """
+    out = set()
+    for bi, k in np.unique(builder.built.block_where[np.asarray(bad)], axis=0).tolist():
+        br = builder.topo.branches[bi]
+        K = len(br.nodes)
+        at_junction = (k == 0 and br.kinds[0] == JUNCTION) or (k + 1 == K - 1 and br.kinds[1] == JUNCTION)
+        if at_junction or K < MIN_BRANCH_NODES or br.straighten is None or min(br.straighten[k], br.straighten[k + 1]) < STRAIGHT:
+            continue
+        inner = [kk for kk in (k, k + 1) if 0 < kk < K - 1]
+        if inner:
+            turn = [_turn(builder.topo.pos[br.nodes[kk - 1: kk + 2]]) for kk in inner]
+            out.add(int(br.nodes[inner[int(np.argmax(turn))]]))
+    return sorted(out)
+
+
+def _turn(P: np.ndarray) -> float:
+    """The angle (radians) between the two segments of the three points ``P``."""
+    a, b = P[1] - P[0], P[2] - P[1]
+    return float(np.arccos(np.clip(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-300), -1.0, 1.0)))
+
+
+def without_bends(skeleton, nodes: list):
+    """``skeleton`` with the degree-2 ``nodes`` dropped, their two segments joined."""
+    drop = np.zeros(skeleton.n_nodes, bool)
+    drop[np.asarray(nodes, np.int64)] = True
+    return remove_nodes(skeleton, drop, bridge=True)
+
+
+def bend_note(nodes: list) -> str:
+    """The fix's line in ``info["fixes"]``."""
+    return (f"dropped the cross-section(s) at skeleton node(s) {nodes}: in a bend, straightened as far as they go, they still crossed "
+            "their neighbours within the reach of their rays (every other try failed)")
