@@ -200,7 +200,8 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", 
     )
     constraints = dict(wall=wall, wall_normals=sdf.gradient, project=projector, cap_nodes=cap_nodes, cap_normals=cap_normals, boundary=boundary)
     if local is not None and scaled_jacobian(X, sm.cells, p, ref_nodes).min() < local[2]:
-        X, info = local[0], {**local[1], "lbfgs_tried": True}
+        held = {"lbfgs_" + k: info[k] for k in ("keep_valid", "keep_valid_reruns") if k in info}  # what the L-BFGS untangler held
+        X, info = local[0], {**local[1], "lbfgs_tried": True, **held}
         X = _polish(X, sm, info, (below, smooth_below), constraints)
         _keep_untangled(ctx, sm, X, info, info["moved"], untangled_nodes=info["untangled_nodes"], smoothed_nodes=info["smoothed_nodes"])
         return

@@ -313,6 +313,7 @@ def untangle(
     boundary: np.ndarray | None = None,
     restart_below: float | None = None,
     budget: float | None = 20000.0,
+    keep_valid: bool = True,
 ) -> tuple[np.ndarray, dict]:
     """Move the nodes around elements of low scaled Jacobian to make them valid.
 
@@ -352,6 +353,15 @@ def untangle(
         node count is spent, so the work grows with the fold and never with the mesh or the
         number of rounds (the default is about twice what the generated g0002 and g0018
         folds take to their end, docs/optimiser.md). ``None``: unbounded.
+    keep_valid : bool
+        When the result has elements at or below 0 that were valid in ``points`` (the
+        functional's sum over a region is minimised, not its minimum, so a wide fold can be
+        eased by folding a valid neighbour), untangle again from ``points`` with every node of
+        those elements held, up to :data:`KEEP_VALID_RERUNS` times (each rerun holds the nodes
+        of the elements the last one folded too), and keep the first rerun that folds no
+        valid element and has no more inverted elements and no lower minimum than the plain
+        result (``info["keep_valid"]``). A result that folds no valid element is returned as
+        it is: the reruns never run.
 
     Returns
     -------
@@ -365,10 +375,23 @@ def untangle(
     sub, _parent = sub_hexahedra(cells, order)
     q = linear_scaled_jacobian(np.asarray(points, float), sub)
     fold = np.unique(sub[q < threshold]) if len(sub) else np.zeros(0, np.int64)
-    work = _Work(None if budget is None else float(budget) * len(fold))
     if boundary is None:  # the mesh's own boundary: a pass sees only a piece of the mesh
         boundary = _mesh_boundary(sub, len(points))
-    kw = dict(wall=wall, wall_normals=wall_normals, project=project, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=threshold, rings=rings, iterations=iterations, rounds=rounds, boundary=boundary, work=work)
+    kw = dict(wall=wall, wall_normals=wall_normals, project=project, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=threshold, rings=rings, iterations=iterations, rounds=rounds, boundary=boundary)
+    limit = None if budget is None else float(budget) * len(fold)
+    X, info = _untangle_run(points, sub, q, restart_below, limit, None, kw)
+    if keep_valid:
+        X, info = _keep_valid(points, sub, q, X, info, lambda held: _untangle_run(points, sub, q, restart_below, limit, held, kw))
+    info["work"]["fold_nodes"] = int(len(fold))
+    return X, info
+
+
+def _untangle_run(points, sub, q, restart_below, limit, held, kw):
+    """One untangling from ``points`` (sub-hexahedra ``sub``, their scaled Jacobians ``q``):
+    the local pass, and its restart when it ends below ``restart_below``; ``held``: nodes
+    that do not move (None: none); ``limit``: the work bound in node updates."""
+    work = _Work(limit)
+    kw = dict(kw, work=work, held=held)
     X, info, moved = _local_pass(points, sub, q, **kw)
     if restart_below is not None and info["rounds"] and info["after"] < restart_below and not work.spent():
         X2, info2, moved2 = _local_pass(X, sub, linear_scaled_jacobian(X, sub), **kw)
@@ -376,8 +399,55 @@ def untangle(
         if info2["after"] > info["after"]:
             X = X2
             info = {**info2, "before": info["before"], "moved": int((moved | moved2).sum()), "rounds": info["rounds"] + info2["rounds"], "restart": info["restart"]}
-    info["work"] = {"node_updates": work.updates, "evaluations": work.evaluations, "fold_nodes": int(len(fold)), "limit": work.limit, "exhausted": work.spent()}
+    info["work"] = {"node_updates": work.updates, "evaluations": work.evaluations, "limit": work.limit, "exhausted": work.spent()}
     return X, info
+
+
+#: Reruns of the untangler, per ladder, with nodes of the valid elements it folded held
+#: (:func:`_keep_valid`). Each rerun holds the nodes of every element folded so far, so the
+#: held set only grows; the reruns run only where a result folds a valid element (s0 g0015
+#: extracted of the generated corpus), never on a result that ends valid.
+KEEP_VALID_RERUNS = 3
+
+
+def _keep_valid(points, sub, q0, X, info, rerun):
+    """Rerun the untangling (``rerun(held) -> (X, info)``) with nodes of the elements it
+    folded that were valid at the start (``q0 > 0``) held at their start positions, while a
+    result folds such elements; keep the first rerun that folds none and is no worse than
+    ``X`` (no more inverted elements, no lower minimum). Two ladders of up to
+    :data:`KEEP_VALID_RERUNS` reruns each: first those nodes that no element inverted at the
+    start has (held, such nodes would keep that element folded: s0 g0015 extracted, 47
+    inverted elements at the start's minimum instead of 35), then all their nodes (which
+    keeps the element as it was). ``info["keep_valid"]`` reports the reruns; ``(X, info)`` is
+    returned unchanged when ``X`` folds no valid element."""
+    q = linear_scaled_jacobian(X, sub)
+    first = (q0 > 0) & (q <= 0)
+    if not first.any():
+        return X, info
+    report = {"folded_valid": int(first.sum()), "inverted": int((q <= 0).sum()), "min": float(q.min()), "reruns": [], "kept": False}
+    unfolding = np.zeros(len(X), bool)
+    unfolding[sub[q0 <= 0].ravel()] = True
+    for free in (unfolding, np.zeros(len(X), bool)):
+        held, folded = np.zeros(len(X), bool), first
+        for _ in range(KEEP_VALID_RERUNS):
+            grown = held.copy()
+            grown[sub[folded].ravel()] = True
+            grown &= ~free
+            if (grown == held).all():
+                break  # nothing more to hold on this ladder
+            held = grown
+            Y, info_y = rerun(held)
+            qy = linear_scaled_jacobian(Y, sub)
+            folded = (q0 > 0) & (qy <= 0)
+            run = {"held": int(held.sum()), "all_nodes": not free.any(), "folded_valid": int(folded.sum()), "inverted": int((qy <= 0).sum()), "min": float(qy.min()),
+                   "moved": info_y["moved"], "node_updates": info_y["work"]["node_updates"]}
+            report["reruns"].append(run)
+            if not folded.any():
+                if run["inverted"] <= report["inverted"] and run["min"] >= report["min"]:
+                    report["kept"] = True
+                    return Y, {**info_y, "keep_valid": report, "keep_valid_reruns": len(report["reruns"]), "keep_valid_kept": True}
+                break
+    return X, {**info, "keep_valid": report, "keep_valid_reruns": len(report["reruns"]), "keep_valid_kept": False}
 
 
 def _mesh_boundary(sub: np.ndarray, n: int) -> np.ndarray:
@@ -389,7 +459,7 @@ def _mesh_boundary(sub: np.ndarray, n: int) -> np.ndarray:
     return boundary
 
 
-def _local_pass(points, sub, q, *, wall, cap_normals, cap_nodes, threshold, rings, rounds, boundary, **kw):
+def _local_pass(points, sub, q, *, wall, cap_normals, cap_nodes, threshold, rings, rounds, boundary, held=None, **kw):
     """:func:`_untangle_pass` on the piece of the mesh it can change. Round ``r`` grows a
     region ``rings + r`` node rings around the elements then below ``threshold``, which lie
     in the earlier rounds' regions: all regions lie within ``D = rounds rings + rounds
@@ -413,7 +483,7 @@ def _local_pass(points, sub, q, *, wall, cap_normals, cap_nodes, threshold, ring
     pick = (lambda a: None if a is None else np.asarray(a)[ids])
     Y, info, moved = _untangle_pass(
         X[ids], local[sub[piece]], q[piece], wall=pick(wall), cap_normals=pick(cap_normals), cap_nodes=pick(cap_nodes),
-        threshold=threshold, rings=rings, rounds=rounds, boundary=pick(boundary), **kw,
+        threshold=threshold, rings=rings, rounds=rounds, boundary=pick(boundary), held=pick(held), **kw,
     )
     X[ids] = Y
     if len(rest):
@@ -423,10 +493,10 @@ def _local_pass(points, sub, q, *, wall, cap_normals, cap_nodes, threshold, ring
     return X, info, out
 
 
-def _untangle_pass(points, sub, q, *, wall, wall_normals, project, cap_normals, cap_nodes, threshold, rings, iterations, rounds, boundary, work, extent=None):
+def _untangle_pass(points, sub, q, *, wall, wall_normals, project, cap_normals, cap_nodes, threshold, rings, iterations, rounds, boundary, work, extent=None, held=None):
     """One run of :func:`untangle` (its rounds) from ``points`` over the sub-hexahedra
     ``sub`` (their scaled Jacobians ``q`` at ``points``, None: computed here): new points,
-    info and the mask of the nodes it moved."""
+    info and the mask of the nodes it moved (``held``: nodes that stay where they are)."""
     X = np.array(points, float, copy=True)
     n = len(X)
     wall = np.zeros(n, bool) if wall is None else np.asarray(wall, bool)
@@ -441,6 +511,8 @@ def _untangle_pass(points, sub, q, *, wall, wall_normals, project, cap_normals, 
     if boundary is None:
         boundary = _mesh_boundary(sub, n)
     rim = (wall & cap_nodes) | (np.asarray(boundary, bool) & ~wall & ~cap_nodes)
+    if held is not None:
+        rim |= np.asarray(held, bool)
     # targets: initial edge lengths at every corner (keeps graded layers graded)
     target = _TargetLengths(X.copy(), sub, extent)
     moved = np.zeros(n, bool)
