@@ -47,6 +47,7 @@ from ..registry import Parameter, register_filter
         Parameter("stub_within_reach", "bool", False, "Cut a side branch back into its parent as a stub (left unmeshed, named in the report) only where it ends within 3 of its own radii past its junction's radius; off: wherever it ends within its junction's half cross-sections, which a junction whose half-sections run along a fused neighbour stretches over real branches (a 5.8-long branch of radius 0.36 in seed 1 g0000 given; docs/junctions.md h23/fans)."),
         Parameter("short_end_rays", "float", 0.0, "An open end's cross-section whose rays reach less than this share of the previous section's at the same azimuth (its plane cuts the wall short: a flat closed end taken for an opening, a voxel staircase's terraces) moves half way back towards that section, kept when its shortest share rises (0: never; docs/optimiser.md, h23/minima).", min=0.0, max=1.0),
         Parameter("bend_drops", "int", 0, "Only where every other try failed: rounds of building again without the skeleton node at a bend whose cross-section, straightened as far as it goes, still crosses its neighbour within the reach of its rays (a skeleton wandering over a flattened lumen's wide side; 0: never, the default: it won no run of the corpora, docs/junctions.md h24/realbuild).", min=0, max=3),
+        Parameter("reroot_backwards", "bool", False, "After every other try failed: where a junction's thin branch leaves backwards and runs inside the lumen of the branch to a close neighbour junction until past its middle, re-root it at that neighbour (through its first node outside that lumen) and build again on a budget of its own; taken only where the blocks still cover the pair's wall (opt-in: builds the generated configuration, not s1 g0012 / g0016 given; failing runs take up to twice as long; docs/junctions.md h24/builder)."),
         Parameter("work_budget", "int", 160, "Most assemblies of the whole block structure over all fix rounds and changed skeletons (each costs time in proportion to the tree); a structure still invalid then fails with the usual error (0: no budget).", min=0, max=10000),
     ],
     reads=("skeleton", "sdf"),
@@ -59,7 +60,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
                           dome_depth, dome_max_retreat, max_fix_rounds, check_wall_projection, junction_centre=1.0, dome_keep=0.0,
                           relieve_wall_folds=True, work_budget=160, own_territory=True, junction_lean=1.0, cut_contacts=True,
                           choose_lean=False, dent_sections=2, saddle_split=0.5, stub_within_reach=False, short_end_rays=0.0,
-                          bend_drops=0):
+                          bend_drops=0, reroot_backwards=False):
     """One O-grid cross-section per skeleton node (a core of a x b blocks, a ring and a
     boundary-layer ring whose outer corners are found on the wall by ray casting in the
     section plane), half cross-sections on half-planes through each junction's axis shared
@@ -85,7 +86,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
                         short_end_rays=short_end_rays),
         repair=RepairOptions(split_nonplanar=split_nonplanar, max_fix_rounds=max_fix_rounds, relieve_wall_folds=relieve_wall_folds,
                              work_budget=work_budget, dent_sections=dent_sections, stub_within_reach=stub_within_reach,
-                             bend_drops=bend_drops),
+                             bend_drops=bend_drops, reroot_backwards=reroot_backwards),
     )
     sdf = ctx.sdf  # a vmesh.geometry.surface_query.SurfaceQuery
     bad_path = ctx.output_path("invalid_blocks.vtu")

@@ -52,6 +52,7 @@ from .junctions import _Junctions
 from .options import BlockOptions, _LocalFixes
 from .prep import MERGE_COVER_DEPTH, merge_junction_pair, pair_wall, split_nonplanar_junctions
 from .repair import _Repair
+from .reroot import reroot_backwards_siblings
 from .sections import _Sections
 from .stubs import _Stubs, cut_stubs, label_ostia, stub_note
 from .state import _Assembled, _Ends, _Frames, _Placement, _Topology
@@ -106,7 +107,7 @@ def build_blocks(
     """
     options = options or BlockOptions()
     work = work or WorkBudget(options.repair.work_budget)
-    blocks = _build_blocks(skeleton, distance, caps, options, bad_blocks_path, warn, progress, project, intersect_lines, work)
+    blocks = _build_blocks(skeleton, distance, caps, options, bad_blocks_path, warn, progress, project, intersect_lines, work, reroot=True)
     if project is None or options.repair.dent_sections <= 0:
         return blocks
 
@@ -216,8 +217,10 @@ def _relabelled(got, sk: Skeleton):
 
 
 def _build_blocks(skeleton, distance, caps, options: BlockOptions, bad_blocks_path=None, warn=None, progress=None, project=None,
-                  intersect_lines=None, work: WorkBudget | None = None) -> BlockStructure:
-    """:func:`build_blocks` without :func:`~.dents.add_dent_sections`."""
+                  intersect_lines=None, work: WorkBudget | None = None, reroot: bool = False) -> BlockStructure:
+    """:func:`build_blocks` without :func:`~.dents.add_dent_sections`; ``reroot``: after
+    every other try failed, :func:`_rerooted` (the first build only: a rebuild by
+    :func:`~.dents.add_dent_sections` keeps the structure it has where it fails)."""
     work = work or WorkBudget(options.repair.work_budget)
     # Each try either succeeds or fails with what might help: splitting n-furcations
     # (alternative pairings in turn) or merging two junctions too close for their own
@@ -277,7 +280,10 @@ def _build_blocks(skeleton, distance, caps, options: BlockOptions, bad_blocks_pa
     # succeed without it stay as they are)
     if (blocks := _last_resort(skeleton, distance, caps, options, (warn, progress, project, intersect_lines), work)) is not None:
         return blocks
-    if (blocks := _without_bends(first, distance, caps, options, (warn, progress, project, intersect_lines), work)) is not None:
+    hooks = (warn, progress, project, intersect_lines)
+    if (blocks := _without_bends(first, distance, caps, options, hooks, work)) is not None:
+        return blocks
+    if reroot and first is not None and (blocks := _rerooted(first, distance, caps, options, hooks)) is not None:
         return blocks
     first.hint += work.stop_note()
     raise first.error(bad_blocks_path, sum(tries))
@@ -325,6 +331,39 @@ def _without_bends(first, distance, caps, options: BlockOptions, hooks: tuple, w
     if hooks[0]:
         hooks[0](note)
     return blocks
+
+
+def _rerooted(first: _Failure, distance, caps, options: BlockOptions, hooks: tuple) -> BlockStructure | None:
+    """The last try of all: on the skeleton of the first failure, each crowded junction
+    pair's sibling that runs backwards in the link's lumen past its middle re-rooted at the
+    link's other end (:func:`.reroot.reroot_backwards_siblings`), built with all the
+    builder's tries on a work budget of its own (the tries before spent theirs: s1 g0012
+    given spends the whole budget before it gets here). Taken only where its blocks still
+    cover the pair's wall, as the own-lumen merge (a re-rooted first segment can cut the
+    branch's fused stretch out of the blocks: s1 g0016 given, docs/junctions.md h21/pair).
+    Only runs whose every other try failed reach it, so no structure built today changes.
+    Needs the wall projector (``project``) for that judgement; the first structure
+    taken, or None."""
+    if not options.repair.reroot_backwards or hooks[2] is None:
+        return None
+    sk, project = first.skeleton, hooks[2]
+    for a, b in first.crowded:
+        changed = reroot_backwards_siblings(sk, a, b, distance)
+        if changed is None:
+            continue
+        try:
+            blocks = _build_blocks(changed, distance, caps, options, None, *hooks, WorkBudget(options.repair.work_budget))
+        except MeshingError:
+            continue
+        if float(wall_left_out(blocks, project, *pair_wall(sk, a, b, project)).max()) > MERGE_COVER_DEPTH:
+            continue
+        note = f"last try: re-rooted a branch of junction nodes {a} / {b} that runs back in the lumen of the branch between them at the other junction"
+        if hooks[0]:
+            hooks[0](note)
+        blocks.info["fixes"].insert(0, note)
+        blocks.info["skeleton_fixes"] = [note, *blocks.info.get("skeleton_fixes", [])]
+        return blocks
+    return None
 
 
 def _last_tries(options: BlockOptions) -> list:

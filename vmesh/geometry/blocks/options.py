@@ -64,6 +64,7 @@ class RepairOptions:
     clear_own_stretch: bool = False  # a junction's clearance along a branch ends at its own crowded stretch (build_blocks' last try)
     spread_tight: bool = False  # sections of a branch between two junctions without room between their reaches (build_blocks' last try)
     stub_within_reach: bool = False  # a side branch is a stub only when it ends within REACH_RADII of its own radii past its junction's radius (:mod:`.stubs`; off: wherever it ends within its junction's half-sections)
+    reroot_backwards: bool = False  # last try of all: a crowded junction's thin sibling running back in the link's lumen past its middle re-rooted at the other junction (:mod:`.reroot`)
     dent_sections: int = 2  # rounds of cross-sections added halfway along segments whose layer blocks fold on the wall (:mod:`.dents`; 0: none)
     bend_drops: int = 0  # rounds of dropping bend nodes whose sections cross (:mod:`.crossings`), only where every other try failed (0: none; opt-in)
     work_budget: int = 160  # assemblies of the whole structure one build may do over its fixes and tries (0: unbounded)

@@ -1,0 +1,72 @@
+"""A junction's thin sibling running back in the link's lumen past the link's middle,
+re-rooted at the other junction as the builder's last try (:mod:`vmesh.geometry.blocks.reroot`,
+docs/junctions.md h24/builder): the generator's ``kissing`` branch grown from a vessel next
+to a junction (s1 g0012 given's configuration)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from junction_cases import retrograde_branch
+from vmesh.geometry import skeleton_ops as ops
+from vmesh.geometry.block_builder import BlockOptions, build_blocks
+from vmesh.geometry.blocks.reroot import reroot_backwards_siblings
+
+#: a link of 1.4 parent radii whose far junction's thin branch (0.4 of the link's radius)
+#: leaves 50 degrees from the link back towards the near junction: it leaves the link's
+#: lumen past the link's middle; every merge and split fails (main before h24/builder)
+SHORT_LINK = dict(gap=1.4, back=50.0, phi=160.0, ratio=0.4)
+
+
+def _separated(case):
+    sk, _ = ops.separate_parallel_branches(case.skeleton, 30.0, 60.0, distance=case.distance)
+    a, b = (int(c) for c in sk.junctions)
+    return sk, a, b
+
+
+def test_a_backwards_sibling_past_the_links_middle_goes_to_the_other_junction():
+    """The near junction gets the branch (4 branches), the far one keeps the link's
+    continuation only (a plain node); the branch's nodes inside the link's lumen are gone and
+    it leaves through its first node outside the lumen, past a new node inside the vessel."""
+    case = retrograde_branch(**SHORT_LINK)
+    sk, a, b = _separated(case)
+    out = reroot_backwards_siblings(sk, a, b, case.distance)
+    assert out is not None
+    assert out.degrees[a] == 4 and out.degrees[b] == 2
+    new = out.n_nodes - 1
+    assert a in out.neighbors(new).tolist() and case.distance(out.points[new][None])[0] > 0
+    link_axis = sk.points[b] - sk.points[a]
+    beyond = [n for n in out.neighbors(new).tolist() if n != a][0]
+    x = out.points[beyond] - out.points[a]
+    off = np.linalg.norm(x - (x @ link_axis) / (link_axis @ link_axis) * link_axis)
+    assert off >= 0.8  # its first node past the new one lies outside the link's lumen (radius 0.8)
+    # nodes: the branch's nodes inside the lumen dropped, one added
+    assert out.n_nodes < sk.n_nodes + 1
+
+
+@pytest.mark.parametrize("gap", [4.0, 2.2])
+def test_a_sibling_that_parts_before_the_middle_stays(gap):
+    """At 4 and 2.2 radii the backwards branch leaves the link's lumen before the link's
+    middle (or runs fused past it only with its tube): the merges serve it, no re-root."""
+    case = retrograde_branch(gap, ratio=0.4)
+    sk, a, b = _separated(case)
+    assert reroot_backwards_siblings(sk, a, b, case.distance) is None
+
+
+@pytest.mark.slow
+def test_a_thin_backwards_branch_leaving_the_link_past_its_middle_builds():
+    """The builder's last try (``reroot_backwards``, opt-in): valid blocks, the pair's wall
+    still covered, the note in the fixes; off (the default), the build fails."""
+    from vmesh.errors import MeshingError
+    from vmesh.geometry.blocks.checks import wall_left_out
+    from vmesh.geometry.blocks.prep import MERGE_COVER_DEPTH, pair_wall
+
+    case = retrograde_branch(**SHORT_LINK)
+    sk, a, b = _separated(case)
+    blocks = build_blocks(sk, case.distance, None, BlockOptions().replace(reroot_backwards=True), project=case.project)
+    assert blocks.corner_jacobians().min() > 0
+    assert any("re-rooted" in note for note in blocks.info["fixes"])
+    assert wall_left_out(blocks, case.project, *pair_wall(sk, a, b, case.project)).max() <= MERGE_COVER_DEPTH
+    with pytest.raises(MeshingError):
+        build_blocks(sk, case.distance, None, BlockOptions(), project=case.project)  # off by default

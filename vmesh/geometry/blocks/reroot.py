@@ -1,0 +1,133 @@
+"""A junction's thin sibling that runs backwards in the link's lumen, re-rooted at the other junction.
+
+Two 3-junctions A and B closer than their half-sections reach, where B's thin branch T
+leaves backwards (towards A) and runs inside the link's lumen until it parts from the link
+past the link's middle, by A (the generator's ``kissing`` branch grown from a vessel next
+to a junction: s1 g0012 given, docs/junctions.md h21/pair, h24/builder). No merge, split or
+placement the builder has blocks it: B's half-plane between T and the link reaches past A,
+and merged (at the link's middle) T still leaves along the link. Its lumen parts from the
+link where A's branches do, so T is A's branch: it leaves A through its first node whose
+axis lies outside the link's lumen, past a new node at the middle of its new first segment
+moved to the deepest point of its section. The builder's last try, opt-in
+(``reroot_backwards``): it builds the generated configuration
+(``tests/test_reroot.py``); on s1 g0012 given a valid structure needs the new node where
+the extraction's medial axis puts it (0.14 away), which no rule here finds.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...skeleton import Skeleton
+from ..skeleton.graph import branch_paths
+from ..skeleton.probe import plane_basis
+from ..variation import closest_on_segments
+
+#: how far past the link's middle (towards the other junction, share of the link's length)
+#: a sibling must run inside the link's lumen before it counts as the other junction's
+#: branch: at the middle, either junction would do and the merge (at the middle) serves
+REROOT_PAST_MIDDLE = 0.5
+
+
+def _link_path(sk: Skeleton, paths: list, a: int, b: int) -> np.ndarray | None:
+    return next((p for p in paths if {int(p[0]), int(p[-1])} == {a, b}), None)
+
+
+def _backwards_sibling(sk: Skeleton, paths: list, link: np.ndarray, end: int):
+    """At the link's end ``end``: a sibling whose first node lies inside the link's lumen
+    and which leaves the lumen (its axis at least the link's radius from the link's axis)
+    past the link's middle from ``end``. Returns (the sibling's nodes from ``end``, the
+    index of its first node outside the lumen) or None."""
+    P = sk.points[link]
+    seg_len = np.linalg.norm(P[1:] - P[:-1], axis=1)
+    arc = np.r_[0.0, np.cumsum(seg_len)]
+    from_end = 0.0 if int(link[0]) == end else arc[-1]
+    for p in paths:
+        if p is link or len(p) < 3 or end not in (int(p[0]), int(p[-1])):
+            continue
+        nodes = p if int(p[0]) == end else p[::-1]
+        X = sk.points[nodes[1:-1]]
+        shape = (len(X), len(seg_len))
+        _, t, d = closest_on_segments(X, np.broadcast_to(P[:-1], shape + (3,)), np.broadcast_to(P[1:], shape + (3,)),
+                                      np.zeros(shape), np.ones(shape))
+        k = np.argmin(d, axis=1)
+        rows = np.arange(len(X))
+        r_link = sk.radii[link[k]] + t[rows, k] * (sk.radii[link[k + 1]] - sk.radii[link[k]])
+        along = np.abs(arc[k] + t[rows, k] * seg_len[k] - from_end)
+        inside = d[rows, k] < r_link
+        if not inside[0] or inside.all():
+            continue
+        out = int(np.argmin(inside))  # its first node outside the link's lumen
+        if along[out] > REROOT_PAST_MIDDLE * arc[-1]:
+            return nodes, out + 1
+    return None
+
+
+#: the new first node's search in its section: rings (× the branch's radius) and directions
+SECTION_RINGS = np.linspace(0.125, 1.0, 8)
+SECTION_DIRECTIONS = 16
+
+
+def deepest_in_section(distance, point: np.ndarray, tangent: np.ndarray, radius: float) -> tuple[np.ndarray, float]:
+    """The point of the section through ``point`` (normal ``tangent``) within ``radius``
+    of it that lies deepest inside the wall, and its wall distance: the centre of the
+    branch's lumen where it runs fused with others (chords there escape into them)."""
+    e1, e2 = plane_basis(tangent[None])
+    angle = 2 * np.pi * np.arange(SECTION_DIRECTIONS) / SECTION_DIRECTIONS
+    ring = np.cos(angle)[:, None] * e1 + np.sin(angle)[:, None] * e2  # (k, 3)
+    trial = np.r_[point[None], (point + radius * SECTION_RINGS[:, None, None] * ring[None]).reshape(-1, 3)]
+    d = np.asarray(distance(trial), float)
+    best = int(np.argmax(d))
+    return trial[best], float(d[best])
+
+
+def reroot_backwards_siblings(skeleton: Skeleton, a: int, b: int, distance) -> Skeleton | None:
+    """The skeleton with each junction's sibling that runs backwards in the link's lumen
+    past the link's middle re-rooted at the link's other end (see the module docstring).
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+    a, b : int
+        Two junctions joined by one branch (the link).
+    distance : callable
+        Signed distance, positive inside (the new first node is centred in its section).
+
+    Returns
+    -------
+    Skeleton or None
+        None where neither junction has such a sibling.
+    """
+    sk = skeleton
+    paths = branch_paths(sk.n_nodes, sk.edges)
+    link = _link_path(sk, paths, a, b)
+    if link is None:
+        return None
+    moves = [(end, other, got) for end, other in ((a, b), (b, a)) if (got := _backwards_sibling(sk, paths, link, end)) is not None]
+    if not moves:
+        return None
+    points, radii = list(sk.points), list(sk.radii)
+    node_tags = list(sk.node_tags)
+    edges = {tuple(sorted(e)): tag for e, tag in zip(sk.edges.tolist(), sk.edge_tags)}
+    drop = set()
+    for end, other, (nodes, keep) in moves:
+        tag = edges.pop(tuple(sorted((int(nodes[0]), int(nodes[1])))))
+        for n, m in zip(nodes[1:keep], nodes[2:keep + 1]):
+            edges.pop(tuple(sorted((int(n), int(m)))))
+        drop.update(int(n) for n in nodes[1:keep])
+        target = int(nodes[keep])
+        tangent = sk.points[target] - sk.points[other]
+        tangent = tangent / max(np.linalg.norm(tangent), 1e-300)
+        mid = 0.5 * (sk.points[other] + sk.points[target])
+        centre, depth = deepest_in_section(distance, mid, tangent, float(sk.radii[target]))
+        m = len(points)
+        points.append(centre)
+        radii.append(depth)
+        node_tags.append(())
+        edges[(other, m)] = tag
+        edges[(m, target)] = tag
+    keep_node = np.array([i not in drop for i in range(len(points))])
+    number = np.cumsum(keep_node) - 1
+    pairs = np.asarray(list(edges), np.int64)
+    return Skeleton(np.asarray(points)[keep_node], np.asarray(radii)[keep_node], number[pairs],
+                    node_tags=[t for t, k in zip(node_tags, keep_node) if k], edge_tags=list(edges.values()))
