@@ -42,8 +42,11 @@ def _half_edge_pairs(faces: np.ndarray):
     return edge_id.ravel(), counts, a, b
 
 
-def manifold_face_pairs(faces: np.ndarray):
+def manifold_face_pairs(faces: np.ndarray, half_edges_table=None):
     """Pairs of faces sharing a manifold edge (used by exactly two faces).
+
+    ``half_edges_table``: :func:`_half_edge_pairs` of ``faces`` where the caller has it
+    (None: computed here).
 
     Returns
     -------
@@ -55,7 +58,7 @@ def manifold_face_pairs(faces: np.ndarray):
     half_edges : (k, 2) int64
         The two half-edge indices (``3 f + corner``).
     """
-    edge_id, counts, a, _ = _half_edge_pairs(faces)
+    edge_id, counts, a, _ = _half_edge_pairs(faces) if half_edges_table is None else half_edges_table
     keep = counts[edge_id] == 2
     halves = np.flatnonzero(keep)
     halves = halves[np.argsort(edge_id[halves], kind="stable")].reshape(-1, 2)
@@ -110,7 +113,8 @@ def _row_labels(rows: np.ndarray) -> np.ndarray:
 
 def remove_unreferenced_vertices(vertices: np.ndarray, faces: np.ndarray):
     """Drop vertices no face uses; returns ``(vertices, faces, kept_vertex_indices)``."""
-    used = np.unique(faces)
+    # the used vertices in increasing order, as np.unique(faces) gives them, without its sort
+    used = np.flatnonzero(np.bincount(np.asarray(faces, np.int64).ravel(), minlength=len(vertices)))
     remap = np.full(len(vertices), -1, np.int64)
     remap[used] = np.arange(len(used))
     return vertices[used], remap[faces], used
@@ -198,14 +202,15 @@ def merge_close_vertices(vertices: np.ndarray, faces: np.ndarray, tolerance: flo
     return v, f, n - len(v)
 
 
-def orient_consistently(faces: np.ndarray) -> tuple[np.ndarray, int, bool]:
+def orient_consistently(faces: np.ndarray, half_edges_table=None) -> tuple[np.ndarray, int, bool]:
     """Flip faces so that neighbours agree on orientation (per connected piece).
 
     Uses the orientation double cover: node ``(f, 0)`` is face ``f`` as given, ``(f, 1)``
     is it flipped; agreeing neighbours link equal states, disagreeing ones opposite
     states. Within each piece every face takes the state connected to the first face
     of the piece as given. A piece in which some face is linked to both its states is
-    non-orientable and is left unchanged.
+    non-orientable and is left unchanged. ``half_edges_table``: :func:`_half_edge_pairs`
+    of ``faces`` where the caller has it (None: computed here).
 
     Returns
     -------
@@ -214,7 +219,7 @@ def orient_consistently(faces: np.ndarray) -> tuple[np.ndarray, int, bool]:
     orientable : bool
     """
     m = len(faces)
-    pairs, same, _ = manifold_face_pairs(faces)
+    pairs, same, _ = manifold_face_pairs(faces, half_edges_table)
     f, g = pairs[:, 0], pairs[:, 1]
     # agreeing neighbours (opposite half-edge directions): (f,s)-(g,s); disagreeing: (f,s)-(g,1-s)
     rows = np.concatenate([f, f + m])
@@ -307,9 +312,12 @@ def repair(
     report.unreferenced_vertices = n_before - len(v)
     diag = float(np.linalg.norm(np.ptp(v, axis=0))) if len(v) else 0.0
     report.zero_area_faces = int(np.sum(face_areas(v, f) <= 1e-14 * diag**2))
-    report.nonmanifold_edges = int(len(topology.non_manifold_edges(f)))
+    # one undirected edge table for the count and the orientation (the edges' sort was
+    # done once for each of them)
+    table = _half_edge_pairs(f)
+    report.nonmanifold_edges = int(np.count_nonzero(table[1] > 2))
     if orient:
-        f, report.flipped_faces, orientable = orient_consistently(f)
+        f, report.flipped_faces, orientable = orient_consistently(f, table)
         report.non_orientable = not orientable
     if fill_wall_holes and orient and not report.non_orientable:
         holes = wall_hole_loops(v, f, wall_beyond=hole_wall_beyond)

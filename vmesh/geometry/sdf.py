@@ -284,6 +284,9 @@ class SignedDistance(SurfaceQueries):
     tree : TriangleBVH, optional
         A tree already built over these very ``vertices`` and ``faces`` arrays (used when
         the faces need no flipping; otherwise a tree is built).
+    volume : float, optional
+        The surface's :func:`~vmesh.geometry.topology.signed_volume` where the caller has
+        it (:meth:`from_surface`; None: computed here).
 
     Attributes
     ----------
@@ -303,7 +306,7 @@ class SignedDistance(SurfaceQueries):
     >>> closest, d, face = sdf.project(points)                       # doctest: +SKIP
     """
 
-    def __init__(self, vertices, faces, name: str = "", sign: str = "auto", tree=None):
+    def __init__(self, vertices, faces, name: str = "", sign: str = "auto", tree=None, volume: float | None = None):
         if sign not in SIGN_METHODS:
             raise ValueError(f"sign must be one of {SIGN_METHODS}, got {sign!r}")
         v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
@@ -315,7 +318,8 @@ class SignedDistance(SurfaceQueries):
             raise InputError("surface has NaN or infinite coordinates", name or None)
         if f.min() < 0 or f.max() >= len(v):
             raise InputError("face vertex indices are out of range", name or None)
-        self.flipped = bool(topology.signed_volume(v, f) < 0)
+        # volume: the surface's signed volume where the caller has it (from_surface)
+        self.flipped = bool((topology.signed_volume(v, f) if volume is None else volume) < 0)
         if self.flipped:
             f = np.ascontiguousarray(f[:, ::-1])
         edge_of_half, faces_per_edge, oriented = edge_table(f)
@@ -350,8 +354,9 @@ class SignedDistance(SurfaceQueries):
         (:func:`vmesh.geometry.projection.surface_tree`)."""
         from .projection import surface_tree
 
-        outward = len(surface.faces) and topology.signed_volume(surface.vertices, surface.faces) >= 0
-        return cls(surface.vertices, surface.faces, name=surface.name, sign=sign, tree=surface_tree(surface) if outward else None)
+        volume = topology.signed_volume(surface.vertices, surface.faces) if len(surface.faces) else None
+        outward = volume is not None and volume >= 0
+        return cls(surface.vertices, surface.faces, name=surface.name, sign=sign, tree=surface_tree(surface) if outward else None, volume=volume)
 
     @property
     def n_faces(self) -> int:
