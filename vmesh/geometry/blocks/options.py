@@ -64,6 +64,7 @@ class RepairOptions:
     clear_own_stretch: bool = False  # a junction's clearance along a branch ends at its own crowded stretch (build_blocks' last try)
     spread_tight: bool = False  # sections of a branch between two junctions without room between their reaches (build_blocks' last try)
     stub_within_reach: bool = False  # a side branch is a stub only when it ends within REACH_RADII of its own radii past its junction's radius (:mod:`.stubs`; off: wherever it ends within its junction's half-sections)
+    poor_block_sj: float = 0.0  # valid blocks whose least corner scaled Jacobian is below this get the invalid-block repairs, kept where they help (:mod:`.poor`; 0: never)
     dent_sections: int = 2  # rounds of cross-sections added halfway along segments whose layer blocks fold on the wall (:mod:`.dents`; 0: none)
     work_budget: int = 160  # assemblies of the whole structure one build may do over its fixes and tries (0: unbounded)
 
