@@ -33,8 +33,8 @@ def staircase_tube(folder, radius: float = 0.65, length: float = 8.0, grid: floa
 def test_end_sections_cut_short_by_a_staircase_end_move_back(tmp_path):
     """The cleaning takes the staircase's flat regions, the ends' too, for wall facets, so both
     ends are open ends without a cap and their sections stand in the ends' planes, where the
-    terraces cut their rays short (the default chain: 21 inverted elements, least -0.288, in
-    the boundary layer of the two end segments). With ``short_end_rays = 0.5`` both end
+    terraces cut their rays short (with ``short_end_rays = 0``: 21 inverted elements, least -0.288, in
+    the boundary layer of the two end segments). With ``short_end_rays = 0.5`` (the default) both end
     sections move half a segment back: every element valid and above 0.5, no part of the
     wall missing (what lies past the moved sections is within the ends' depth)."""
     from vmesh.chain import FilterChain
@@ -43,7 +43,7 @@ def test_end_sections_cut_short_by_a_staircase_end_move_back(tmp_path):
     from vmesh.io.surface import read_surface
 
     staircase_tube(tmp_path)
-    chain = FilterChain.load("default").with_overrides({"build_block_structure.short_end_rays": 0.5, "compute_quality.fail_on_invalid": False})
+    chain = FilterChain.load("default").with_overrides({"compute_quality.fail_on_invalid": False})  # short_end_rays 0.5 by default
     ctx = chain.run(surface=read_surface(glob.glob(str(tmp_path / "surface.*"))[0]), skeleton=read_skeleton(tmp_path / "centerline.vtp"))
     assert not ctx.caps  # the condition under test: no end is a cap
     q = scaled_jacobian(ctx.mesh.points, ctx.mesh.cells, ctx.mesh.order)

@@ -45,9 +45,10 @@ from ..registry import Parameter, register_filter
         Parameter("dent_sections", "int", 2, "Rounds of cross-sections added halfway along the skeleton segments whose boundary-layer blocks would fold once their wall faces are projected onto the wall (the wall dipping between two sections): each round halves those segments, builds the structure again, and keeps the halvings whose own blocks fold in the transfinite fill and fill better with them, where the stretch around them then fills better (up to two more builds and four fills a round; 0: none; needs check_wall_projection).", min=0, max=5),
         Parameter("saddle_split", "float", 0.5, "Where the straight wall faces of a junction end's first block column (from the half cross-sections to the branch's first cross-section) dip this many boundary-layer thicknesses or more outside the wall (the saddle beside a crotch), split the column there with a cross-section of its own that follows the wall, up to three times (0: never; docs/junctions.md h20/crotch).", unit="× layer thickness", min=0.0, max=5.0),
         Parameter("stub_within_reach", "bool", False, "Cut a side branch back into its parent as a stub (left unmeshed, named in the report) only where it ends within 3 of its own radii past its junction's radius; off: wherever it ends within its junction's half cross-sections, which a junction whose half-sections run along a fused neighbour stretches over real branches (a 5.8-long branch of radius 0.36 in seed 1 g0000 given; docs/junctions.md h23/fans)."),
-        Parameter("short_end_rays", "float", 0.0, "An open end's cross-section whose rays reach less than this share of the previous section's at the same azimuth (its plane cuts the wall short: a flat closed end taken for an opening, a voxel staircase's terraces) moves half way back towards that section, kept when its shortest share rises (0: never; docs/optimiser.md, h23/minima).", min=0.0, max=1.0),
+        Parameter("short_end_rays", "float", 0.5, "An open end's cross-section whose rays reach less than this share of the previous section's at the same azimuth (its plane cuts the wall short: a flat closed end taken for an opening, a voxel staircase's terraces) moves half way back towards that section, kept when its shortest share rises (0: never; default since session 24: no run of seed 1 or the real corpus lost, docs/optimiser.md h23/minima, h24/minima).", min=0.0, max=1.0),
         Parameter("bend_drops", "int", 0, "Only where every other try failed: rounds of building again without the skeleton node at a bend whose cross-section, straightened as far as it goes, still crosses its neighbour within the reach of its rays (a skeleton wandering over a flattened lumen's wide side; 0: never, the default: it won no run of the corpora, docs/junctions.md h24/realbuild).", min=0, max=3),
         Parameter("reroot_backwards", "bool", False, "After every other try failed: where a junction's thin branch leaves backwards and runs inside the lumen of the branch to a close neighbour junction until past its middle, re-root it at that neighbour (through its first node outside that lumen) and build again on a budget of its own; taken only where the blocks still cover the pair's wall (opt-in: builds the generated configuration, not s1 g0012 / g0016 given; failing runs take up to twice as long; docs/junctions.md h24/builder)."),
+        Parameter("poor_block_sj", "float", 0.0, "Valid blocks whose least corner scaled Jacobian is below this get the repairs of invalid blocks (sections moved from junctions, half-planes re-rotated, planes straightened, cores shrunk), round by round, each round kept only where the poor blocks get better and no block falls below the least before (0: never; a block's fill cannot be better than the block: docs/optimiser.md h24/minima).", min=0.0, max=1.0),
         Parameter("work_budget", "int", 160, "Most assemblies of the whole block structure over all fix rounds and changed skeletons (each costs time in proportion to the tree); a structure still invalid then fails with the usual error (0: no budget).", min=0, max=10000),
     ],
     reads=("skeleton", "sdf"),
@@ -59,8 +60,8 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
                           max_out_of_plane, min_branch_gap, split_nonplanar, clear_ray_factor, junction_margin, cap_distance,
                           dome_depth, dome_max_retreat, max_fix_rounds, check_wall_projection, junction_centre=1.0, dome_keep=0.0,
                           relieve_wall_folds=True, work_budget=160, own_territory=True, junction_lean=1.0, cut_contacts=True,
-                          choose_lean=False, dent_sections=2, saddle_split=0.5, stub_within_reach=False, short_end_rays=0.0,
-                          bend_drops=0, reroot_backwards=False):
+                          choose_lean=False, dent_sections=2, saddle_split=0.5, stub_within_reach=False, short_end_rays=0.5,
+                          bend_drops=0, reroot_backwards=False, poor_block_sj=0.0):
     """One O-grid cross-section per skeleton node (a core of a x b blocks, a ring and a
     boundary-layer ring whose outer corners are found on the wall by ray casting in the
     section plane), half cross-sections on half-planes through each junction's axis shared
@@ -86,7 +87,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
                         short_end_rays=short_end_rays),
         repair=RepairOptions(split_nonplanar=split_nonplanar, max_fix_rounds=max_fix_rounds, relieve_wall_folds=relieve_wall_folds,
                              work_budget=work_budget, dent_sections=dent_sections, stub_within_reach=stub_within_reach,
-                             bend_drops=bend_drops, reroot_backwards=reroot_backwards),
+                             bend_drops=bend_drops, reroot_backwards=reroot_backwards, poor_block_sj=poor_block_sj),
     )
     sdf = ctx.sdf  # a vmesh.geometry.surface_query.SurfaceQuery
     bad_path = ctx.output_path("invalid_blocks.vtu")

@@ -50,6 +50,7 @@ from .crotch import column_ends, split_saddle_columns
 from .dents import add_dent_sections
 from .junctions import _Junctions
 from .options import BlockOptions, _LocalFixes
+from .poor import _PoorBlocks
 from .prep import MERGE_COVER_DEPTH, merge_junction_pair, pair_wall, split_nonplanar_junctions
 from .repair import _Repair
 from .reroot import reroot_backwards_siblings
@@ -563,7 +564,7 @@ def _retopology_options(failure: "_Failure", notes: list, distance, options: Blo
 # ---------------------------------------------------------------------------
 # the builder
 # ---------------------------------------------------------------------------
-class _Builder(_Junctions, _Sections, _Assembly, _Repair, _Stubs):
+class _Builder(_Junctions, _Sections, _Assembly, _Repair, _PoorBlocks, _Stubs):
     def __init__(self, skeleton: Skeleton, distance, caps, options: BlockOptions, warn, progress, project=None, intersect_lines=None,
                  work=None, planar=frozenset()):
         self.opt = options
@@ -636,6 +637,8 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _Stubs):
     def finish(self, blocks: BlockStructure) -> BlockStructure:
         """The steps that only improve the valid ``blocks`` (wall folds, centres, planes),
         and the build's record."""
+        if self.opt.repair.poor_block_sj > 0:  # first: the wall-fold steps below judge the blocks it leaves
+            blocks = self._kept_valid(self.lift_poor_blocks, blocks)
         if self.project is not None:
             blocks = self._kept_valid(self.thicken_layers, blocks)
             blocks = self._kept_valid(self.choose_centres, blocks)

@@ -46,7 +46,7 @@ class EndOptions:
     dome_depth: float = 1.0  # wall distance ahead of a closed end's section, × its mean wall distance
     dome_max_retreat: float = 1.5  # × endpoint radius
     dome_keep: float = 0.0  # × branch radius a yielding dome's section stays off the endpoint (0: none)
-    short_end_rays: float = 0.0  # an open end's section whose rays reach less than this share of the previous section's moves half way back (0: never; docs/optimiser.md, h23/minima)
+    short_end_rays: float = 0.0  # an open end's section whose rays reach less than this share of the previous section's moves half way back (0: never; the filter's default is 0.5; docs/optimiser.md, h23/minima, h24/minima)
 
 
 @dataclass
@@ -65,6 +65,7 @@ class RepairOptions:
     spread_tight: bool = False  # sections of a branch between two junctions without room between their reaches (build_blocks' last try)
     stub_within_reach: bool = False  # a side branch is a stub only when it ends within REACH_RADII of its own radii past its junction's radius (:mod:`.stubs`; off: wherever it ends within its junction's half-sections)
     reroot_backwards: bool = False  # last try of all: a crowded junction's thin sibling running back in the link's lumen past its middle re-rooted at the other junction (:mod:`.reroot`)
+    poor_block_sj: float = 0.0  # valid blocks whose least corner scaled Jacobian is below this get the invalid-block repairs, kept where they help (:mod:`.poor`; 0: never)
     dent_sections: int = 2  # rounds of cross-sections added halfway along segments whose layer blocks fold on the wall (:mod:`.dents`; 0: none)
     bend_drops: int = 0  # rounds of dropping bend nodes whose sections cross (:mod:`.crossings`), only where every other try failed (0: none; opt-in)
     work_budget: int = 160  # assemblies of the whole structure one build may do over its fixes and tries (0: unbounded)

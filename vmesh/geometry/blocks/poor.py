@@ -1,0 +1,124 @@
+"""Valid blocks that are poor: lift blocks whose own corner scaled Jacobian is low.
+
+The builder's fix loop (:meth:`~.repair._Repair.fix`) makes every block's corner Jacobians
+positive and stops there. A straight block whose least corner scaled Jacobian is 0.1 is
+valid, but its transfinite fill cannot be better than the block itself: the elements in
+it end near that value whatever the optimisers do (docs/optimiser.md, h23/minima: blocks of
+0.09-0.25 before the fill, final minima 0.18-0.26 in s1 g0008 extracted, s1 g0010 given,
+s0 g0006 given). :meth:`_PoorBlocks.lift_poor_blocks` gives such blocks the same repairs as
+invalid ones, round by round, and keeps a round only where the poor blocks get better and
+no block gets worse than the worst before; where nothing helps, the valid structure stays
+as it was (the run does not fail on it).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+
+from ...blocks import BlockStructure, scaled_corner_jacobians
+
+#: Rounds of :meth:`_PoorBlocks.lift_poor_blocks`, one segment each: each is one assembly
+#: of the whole structure (a tenth of the default work budget of 160 at most, so a tree
+#: that needed most of it to become valid is not held up by the lift much longer).
+POOR_ROUNDS = 8
+
+#: How much the summed shortfall below the floor must fall for a round to count as
+#: progress (relative): a round whose gain is rounding noise only spends an assembly.
+POOR_PROGRESS = 1e-3
+
+
+def block_scaled_jacobians(blocks: BlockStructure) -> np.ndarray:
+    """(nb,) least scaled Jacobian of each straight block over its eight corners."""
+    return scaled_corner_jacobians(blocks.vertices[blocks.hexes]).min(axis=1)
+
+
+def shortfall(sj: np.ndarray, floor: float) -> float:
+    """Summed shortfall of the blocks' least corner scaled Jacobians ``sj`` below ``floor``."""
+    return float(np.maximum(floor - np.asarray(sj), 0.0).sum())
+
+
+class _PoorBlocks:
+    """Mixed into :class:`~vmesh.geometry.blocks.builder._Builder`: the step that treats
+    valid but poor blocks as the fix loop treats invalid ones."""
+
+    def lift_poor_blocks(self, blocks: BlockStructure) -> BlockStructure:
+        """Repair blocks whose least corner scaled Jacobian is below
+        ``repair.poor_block_sj`` with :meth:`~.repair._Repair.fix`, one skeleton segment at
+        a time, worst first.
+
+        Each round takes the poor blocks of the segment that holds the worst poor block not
+        yet tried and repairs them as the fix loop repairs invalid blocks (all poor blocks
+        at once move every junction at once and fold others: s0 g0006 given). The round is
+        kept only where every block stays valid, the least block scaled Jacobian over the
+        whole structure does not fall, and the summed shortfall below the floor falls;
+        else the state goes back and that segment is not tried again. At most
+        ``POOR_ROUNDS`` rounds (one assembly each). Returns the kept blocks (``blocks``
+        where no round was kept)."""
+        floor = self.opt.repair.poor_block_sj
+        sj = block_scaled_jacobians(blocks)
+        start, kept, refused = float(sj.min()), 0, set()
+        for _ in range(POOR_ROUNDS):
+            where = [tuple(w) for w in self.built.block_where.tolist()]
+            poor = [b for b in np.flatnonzero(sj < floor).tolist() if where[b] not in refused]
+            if not poor or self.work.spent:
+                break
+            key = where[min(poor, key=lambda b: sj[b])]
+            group = np.array([b for b in poor if where[b] == key], np.int64)
+            got = None
+            for repair in (self._closer_to_junction, lambda g: self.fix(g, self.built.corners)):
+                if self.work.spent:
+                    break
+                saved = self._poor_state()
+                said = len(self.fixes)
+                trial = self.assemble() if repair(group) else None
+                new = block_scaled_jacobians(trial) if trial is not None else None
+                if (trial is None or self.built.corners.min() <= 0 or new.min() < sj.min() - 1e-9
+                        or shortfall(new, floor) > shortfall(sj, floor) * (1.0 - POOR_PROGRESS)):
+                    saved[0].territory = self.topo.territory  # the ray-cut cache serves the restored state too
+                    self.topo, self.local, self.placed, self.frames, self.built, self.fixes = saved
+                    continue
+                del self.fixes[said:]  # one note for the step, below
+                got = trial, new
+                break
+            if got is None:
+                refused.add(key)
+                continue
+            blocks, sj = got
+            kept += 1
+        if kept:
+            self.fixes.append(f"lifted poor blocks (least corner scaled Jacobian below {floor:g}) with {kept} round(s) of the "
+                              f"invalid-block repairs: least block {start:.3f} -> {float(sj.min()):.3f}, "
+                              f"{int((sj < floor).sum())} block(s) left below")
+            blocks.info.update(self.built.info)
+        return blocks
+
+    def _closer_to_junction(self, group: np.ndarray) -> bool:
+        """Give back half a radius of the extra margin the fix loop gave the junction ends
+        whose first segment holds blocks of ``group``; False where none has any.
+
+        The fix loop only moves a junction end's sections away (up to 2 radii), for blocks
+        that were invalid then; once other fixes made them valid, the first block column
+        can stay far longer than the branch is wide and meet the half-section at a few
+        degrees (s1 g0008 extracted: a column 11.2 long at radius 1.9, its junction-side
+        corners 0.09-0.21)."""
+        changed = False
+        for bi, side in self._junction_ends(group):
+            br = self.topo.branches[bi]
+            if br.margin[side] >= 0.5 - 1e-9:
+                br.margin[side] -= 0.5
+                changed = True
+        if changed:
+            self.fixes.append("moved the first cross-sections of poor junction blocks back towards their junction")
+            self._apply_clearance()
+        return changed
+
+    def _poor_state(self) -> tuple:
+        """A copy of the state a fix round changes (as :meth:`~.builder._Builder._kept_valid`
+        keeps it), the territory cache left shared."""
+        territory, self.topo.territory = self.topo.territory, None
+        try:
+            return copy.deepcopy((self.topo, self.local, self.placed, self.frames, self.built, self.fixes))
+        finally:
+            self.topo.territory = territory
