@@ -135,3 +135,33 @@ def test_crossing_bends_leaves_a_branch_one_regular_section():
     assert crossing_bends(b, np.arange(2)) == [2]
     five = _stuck_builder(_zigzag((25.0, 5.0, 35.0)), [0, 3])  # 5 nodes: two may go
     assert crossing_bends(five, np.arange(2)) == [1, 3]
+
+
+def test_bend_drop_rounds_share_one_extra_work_budget(monkeypatch):
+    """Every bend-drop round draws on one extra ``work_budget`` (not one each): with
+    ``bend_drops = 3`` and rounds that spend 100 assemblies each against a budget of 160, the
+    second round runs (60 left) and the third does not."""
+    from types import SimpleNamespace
+
+    import vmesh.geometry.blocks.builder as builder
+    from vmesh.geometry.blocks.work import WorkBudget
+
+    _, sk = winding_skeleton()
+    first = SimpleNamespace(bends=[5], skeleton=sk, hint="")
+    rounds = []
+
+    def failing_build(skeleton, distance, caps, options, path, *hooks_and_work):
+        work = hooks_and_work[-1]
+        rounds.append(work)
+        work.used += 100
+        if builder._without_bends(first, distance, caps, options, hooks_and_work[:-1], work) is None:
+            raise MeshingError("still invalid")
+
+    monkeypatch.setattr(builder, "_build_blocks", failing_build)
+    spent = WorkBudget(160)
+    spent.used = 160
+    options = BlockOptions(bend_drops=3, work_budget=160)
+    assert builder._without_bends(first, None, None, options, (None, None, None, None), spent) is None
+    assert len(rounds) == 2 and rounds[0] is rounds[1] is not spent
+    assert rounds[0].limit == 160 and rounds[0].rays is spent.rays
+    assert "did not help" in first.hint
