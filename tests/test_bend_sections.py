@@ -71,9 +71,7 @@ def test_the_bend_node_dropped_gives_valid_blocks_and_elements():
 def test_crossing_bends_picks_the_sharper_turn_of_a_stuck_segment():
     """Only segments between two regular sections that the fix loop has straightened fully
     count; of their two nodes the one where the skeleton turns more is dropped."""
-    case, sk = winding_skeleton()
-    with pytest.raises(MeshingError):
-        build_blocks(sk, case.distance, None, BlockOptions(bend_drops=0, dent_sections=0))
+    case, sk = winding_skeleton()  # fails without the drop: test_sections_crossing_in_a_bend_fail_without_the_drop
     from vmesh.geometry.blocks.builder import _Builder
     from vmesh.geometry.blocks.checks import _Failure
     from vmesh.geometry.blocks.work import WorkBudget
@@ -87,5 +85,83 @@ def test_crossing_bends_picks_the_sharper_turn_of_a_stuck_segment():
                                                  (sk.points[n] - sk.points[n - 1]) / np.linalg.norm(sk.points[n] - sk.points[n - 1])][::-1]), -1, 1))
                        for n in bends])
     assert (turn > 20).all()  # bends, not the straight nodes beside them
+    # of its failing segment's two nodes, each picked one turns more than the other
+    turns = {n: _turn_deg(sk.points, n) for n in range(1, sk.n_nodes - 1)}
+    assert all(any(turns[n] >= turns.get(m, 0.0) for m in (n - 1, n + 1)) for n in bends)
     assert without_bends(sk, bends).n_nodes == sk.n_nodes - len(bends)
     assert crossing_bends(b, np.zeros(0, np.int64)) == []
+
+
+def _turn_deg(points, n):
+    """The skeleton's turn (degrees) at node ``n`` of a chain."""
+    a, b = points[n] - points[n - 1], points[n + 1] - points[n]
+    return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
+
+
+def _stuck_builder(points, failing_segments):
+    """A stand-in for a :class:`~vmesh.geometry.blocks.builder._Builder` after its fix loop:
+    one open branch along ``points`` with every section straightened as far as it goes,
+    one invalid block on each of ``failing_segments``."""
+    from types import SimpleNamespace
+
+    from vmesh.geometry.blocks.options import OPEN
+
+    K = len(points)
+    branch = SimpleNamespace(nodes=np.arange(K), kinds=(OPEN, OPEN), straighten=np.ones(K))
+    where = np.array([[0, k] for k in failing_segments], np.int64)
+    return SimpleNamespace(topo=SimpleNamespace(branches=[branch], pos=np.asarray(points, float)), built=SimpleNamespace(block_where=where))
+
+
+def _zigzag(turns_deg):
+    """A planar chain of unit segments turning ``turns_deg`` at its interior nodes."""
+    heading, P = 0.0, [np.zeros(3)]
+    for t in (0.0,) + tuple(turns_deg):
+        heading += np.radians(t)
+        P.append(P[-1] + np.array([np.cos(heading), np.sin(heading), 0.0]))
+    return np.asarray(P)
+
+
+def test_crossing_bends_drops_the_sharper_node_of_each_failing_segment():
+    P = _zigzag((10.0, 40.0, 5.0, 30.0, 12.0))  # 7 nodes, interior turns at nodes 1..5
+    b = _stuck_builder(P, [1, 3])  # segment 1-2: node 2 (40) sharper; segment 3-4: node 4 (30)
+    assert crossing_bends(b, np.arange(2)) == [2, 4]
+
+
+def test_crossing_bends_leaves_a_branch_one_regular_section():
+    """A 4-node branch failing on both its end segments would lose both interior nodes (no
+    regular section left): it gives only the sharper one."""
+    P = _zigzag((25.0, 35.0))  # nodes 1 (25) and 2 (35) interior
+    b = _stuck_builder(P, [0, 2])  # segment 0-1 picks node 1, segment 2-3 picks node 2
+    assert crossing_bends(b, np.arange(2)) == [2]
+    five = _stuck_builder(_zigzag((25.0, 5.0, 35.0)), [0, 3])  # 5 nodes: two may go
+    assert crossing_bends(five, np.arange(2)) == [1, 3]
+
+
+def test_bend_drop_rounds_share_one_extra_work_budget(monkeypatch):
+    """Every bend-drop round draws on one extra ``work_budget`` (not one each): with
+    ``bend_drops = 3`` and rounds that spend 100 assemblies each against a budget of 160, the
+    second round runs (60 left) and the third does not."""
+    from types import SimpleNamespace
+
+    import vmesh.geometry.blocks.builder as builder
+    from vmesh.geometry.blocks.work import WorkBudget
+
+    _, sk = winding_skeleton()
+    first = SimpleNamespace(bends=[5], skeleton=sk, hint="")
+    rounds = []
+
+    def failing_build(skeleton, distance, caps, options, path, *hooks_and_work):
+        work = hooks_and_work[-1]
+        rounds.append(work)
+        work.used += 100
+        if builder._without_bends(first, distance, caps, options, hooks_and_work[:-1], work) is None:
+            raise MeshingError("still invalid")
+
+    monkeypatch.setattr(builder, "_build_blocks", failing_build)
+    spent = WorkBudget(160)
+    spent.used = 160
+    options = BlockOptions(bend_drops=3, work_budget=160)
+    assert builder._without_bends(first, None, None, options, (None, None, None, None), spent) is None
+    assert len(rounds) == 2 and rounds[0] is rounds[1] is not spent
+    assert rounds[0].limit == 160 and rounds[0].rays is spent.rays
+    assert "did not help" in first.hint

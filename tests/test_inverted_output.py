@@ -60,6 +60,20 @@ def test_the_light_pass_never_lowers_the_minimum_of_an_inverted_mesh(monkeypatch
     assert not section["kept"] and "inverted" in section["refused"]
     assert np.array_equal(Y, points)
     assert hex8_scaled_jacobian(Y, cells).min() >= q0.min()
+    # the report says what the mesh is (the input), the refused pass's result apart
+    assert section["after"] == section["before"] and section["after"]["min"] == pytest.approx(q0.min())
+    assert section["refused_after"]["min"] < q0.min() - 0.1
+    assert section["smoothed_nodes"] == section["moved"] == section["untangled_nodes"] == 0
+    assert section["refused_moved"] > 0
+
+
+def test_a_refused_order_p_light_pass_is_reported_as_refused():
+    """p > 1: a pass whose order-p minimum drops is refused and reported like the p = 1 one."""
+    info = {"before": {"min": 0.5, "mean": 0.9}, "after": {"min": 0.6, "mean": 0.92}, "untangled_nodes": 0, "smoothed_nodes": 7, "moved": 7}
+    out = mf._refused(info, "order-p minimum dropped or mean did not rise")
+    assert out["kept"] is False and "order-p" in out["refused"]
+    assert out["after"] == out["before"] == {"min": 0.5, "mean": 0.9}
+    assert out["refused_after"] == {"min": 0.6, "mean": 0.92} and out["refused_smoothed_nodes"] == 7 and out["moved"] == 0
 
 
 def test_the_light_pass_keeps_what_lifts_an_inverted_mesh(monkeypatch):
@@ -96,3 +110,11 @@ def test_an_invalid_mesh_written_on_request_is_named_in_the_warnings():
     assert any("INVALID" in w and f"{n_bad} elements" in w for w in ctx.report.warnings)
     with pytest.raises(MeshingError, match="scaled Jacobian <= 0"):
         get_filter("compute_quality")(ctx, histogram="", fail_on_invalid=True)
+
+
+def test_the_invalid_message_needs_no_block_ids():
+    """A mesh without ``block_id`` / ``node_id`` cell data (read from a file) is still named."""
+    mesh = types.SimpleNamespace(cell_data={})
+    sj = np.array([0.5, -0.2, 0.9])
+    message = mf._invalid_message(mesh, sj, {"n_invalid": 1, "min": -0.2}, None)
+    assert "1 elements" in message and "blocks []" in message

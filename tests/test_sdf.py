@@ -257,3 +257,69 @@ def test_every_signed_distance_is_a_surface_query():
     assert objects[1].fine is fine and objects[1].coarse is coarse and objects[2].fine is objects[2]
     assert fine._tree is surface_tree(fine_surface) is wall_projector(fine_surface).tree
     assert wall_projector(fine_surface) is wall_projector(fine_surface, [])
+
+
+def _recording(monkeypatch, cls, name, calls):
+    """Wrap ``cls.name`` so that each call appends ``name`` to ``calls``."""
+    original = getattr(cls, name)
+
+    def wrapped(self, *args, **kwargs):
+        calls.append(name)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(cls, name, wrapped)
+
+
+@pytest.mark.parametrize("sign, asked", [("pseudonormal", "ray_winding_number"), ("winding_number", "winding_number")])
+def test_build_sdf_checks_the_sign_with_rays_or_libigl_as_documented(monkeypatch, sign, asked):
+    """build_sdf's sign check counts ray crossings on the pseudonormal sign's (closed,
+    oriented) surface and asks libigl's winding number otherwise; both agree on a sphere."""
+    from vmesh.surface import SurfaceMesh
+
+    calls = []
+    for name in ("ray_winding_number", "winding_number"):
+        _recording(monkeypatch, SignedDistance, name, calls)
+    ctx = FilterChain([("build_sdf", {"sign": sign, "check_points": 500})]).run(surface=SurfaceMesh(*icosphere(1.0, 3)))
+    other = ({"ray_winding_number", "winding_number"} - {asked}).pop()
+    assert asked in calls and other not in calls  # (the winding-number sign's distances ask it too)
+    assert ctx.report.sections["sdf"]["sign"] == sign and ctx.report.sections["sdf"]["sign_disagreements"] == 0
+
+
+def test_octree_and_two_step_distances_delegate_the_ray_winding_number(monkeypatch):
+    """OctreeSignedDistance asks its exact distance, TwoStepSignedDistance its fine one."""
+    from vmesh.geometry.octree_sdf import OctreeSignedDistance
+
+    fine, coarse = SignedDistance(*icosphere(1.0, 4)), SignedDistance(*icosphere(1.0, 2))
+    octree, two_step = OctreeSignedDistance(coarse), TwoStepSignedDistance(coarse, fine)
+    p = np.random.default_rng(1).uniform(-1.3, 1.3, (300, 3))
+    seen = []
+    original = SignedDistance.ray_winding_number
+    monkeypatch.setattr(SignedDistance, "ray_winding_number", lambda self, q: seen.append(self) or original(self, q))
+    assert np.array_equal(octree.ray_winding_number(p), original(coarse, p))
+    assert np.array_equal(two_step.ray_winding_number(p), original(fine, p))
+    assert seen[0] is coarse and seen[1] is fine
+
+
+def test_ray_winding_number_through_vertices_and_edge_midpoints():
+    """Points whose first ray runs exactly through a vertex or an edge's midpoint of an
+    icosphere (a crossing counted twice or not at all by that ray alone): the median over
+    the three rays still says inside (1) or outside (0)."""
+    from vmesh.geometry.sdf import _WINDING_RAYS
+
+    V, F = icosphere(1.0, 3)
+    sdf = SignedDistance(V, F)
+    edges = np.unique(np.sort(np.vstack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0)
+    targets = np.vstack([V, 0.5 * (V[edges[:, 0]] + V[edges[:, 1]])])
+    p = np.vstack([targets - t * d for d in _WINDING_RAYS for t in (0.05, 0.4, 1.2, 2.5)])
+    r = np.linalg.norm(p, axis=1)
+    inside, outside = r < 0.97, r > 1.0  # the faces lie within [0.99, 1] of the centre at level 3
+    assert inside.sum() > 1000 and outside.sum() > 1000
+    wn = sdf.ray_winding_number(p)
+    assert np.all(wn[inside] == 1) and np.all(wn[outside] == 0)
+    # each point's own ray alone miscounts (a vertex's 5-6 triangles or an edge's 2 all count)
+    from vmesh.geometry.ray_crossings import crossings
+
+    n = 4 * len(targets)
+    own = np.concatenate([crossings(sdf._tree, p[i * n:(i + 1) * n], np.broadcast_to(d, (n, 3))) for i, d in enumerate(_WINDING_RAYS)])
+    clear = inside | outside
+    assert np.mean(own[clear] != inside[clear]) > 0.5

@@ -34,7 +34,7 @@ from ..registry import Parameter, register_filter
         Parameter("untangle_below", "float", 0.3, "Elements whose scaled Jacobian is below this are optimised with their neighbourhood (p > 1: of the element corners with optimiser = local, of the sub-hexahedra with lbfgs).", min=0.0, max=0.9),
         Parameter("untangle_restart_below", "float", 0.3, "When untangling leaves an element below this, untangle once more from its result (fresh targets) and keep the better; with optimiser = local: the L-BFGS untangler also runs when the local result's minimum is not above this; 0 = never.", min=0.0, max=0.9),
         Parameter("optimiser", "str", "local", "local: compiled per-node Newton steps around bad elements, Gauss-Seidel over a node colouring (vmesh.geometry.optimize); lbfgs: the former global L-BFGS untangler.", choices=("local", "lbfgs")),
-        Parameter("light_pass_below", "float", 0.95, "Light pass after untangling (optimiser = local; untangle = true): every node of an element below this takes monotone Newton steps (its elements' minimum and mean scaled Jacobian never drop; wall nodes slide on the wall, first boundary-layer heights kept); for p > 1 kept only when the order-p minimum does not drop and the mean rises; 0 = off (docs/optimiser.md).", min=0.0, max=1.0),
+        Parameter("light_pass_below", "float", 0.95, "Light pass after untangling (optimiser = local; untangle = true): every node of an element below this takes monotone Newton steps (its elements' minimum and mean scaled Jacobian never drop; wall nodes slide on the wall, first boundary-layer heights kept); for p > 1 kept only when the order-p minimum does not drop and the mean rises; for p = 1 on a mesh still inverted after untangling, kept only when its minimum does not drop (report.json: light_pass.refused); 0 = off (docs/optimiser.md).", min=0.0, max=1.0),
         Parameter("light_pass_sweeps", "int", 8, "Most Gauss–Seidel sweeps of the light pass (4 give most of the gain at less cost; with light_pass_over_relax=1.5, 6 reach what 8 plain ones do on the ICA).", min=1, max=100),
         Parameter("light_pass_over_relax", "float", 1.0, "Light pass and the untanglers' smoothing phase: a smoothing Newton step (not a wall node's) is first tried this many times longer, then 1, 1/2, ... (over-relaxed Gauss-Seidel: fewer sweeps for the same gain; 1 = plain; docs/optimiser.md).", min=1.0, max=2.0),
         Parameter("light_pass_tol", "float", 0.01, "Light pass: a node that moves less than this fraction of half its longest edge does not send its neighbours back to work (converged regions stop early; 0 = every move does; docs/speed.md).", min=0.0, max=0.5),
@@ -244,9 +244,13 @@ LIGHT_PASS_PATIENCE = 3
 
 def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol=0.0, name="light_pass", ratio_floor=-np.inf, over_relax=1.0):
     """The default light pass of :mod:`vmesh.geometry.optimize` over every element below
-    ``below`` (no untangling): raises the mean without lowering any element's neighbourhood
-    minimum. For p > 1 the corners move and the other nodes follow, which can lower the
-    order-p quality: the result is kept only when it does not. ``name``: its report section
+    ``below``: raises the mean without lowering any element's neighbourhood minimum (its
+    untangling threshold is 0, so on a valid mesh nothing is untangled; on an inverted one
+    the optimiser's own untangling runs on the inverted elements, bounded by
+    :data:`LIGHT_PASS_PATIENCE`). For p > 1 the corners move and the other nodes follow, which
+    can lower the order-p quality: the result is kept only when it does not; for p = 1 on an
+    inverted mesh it is kept only when the minimum does not drop (the report's ``refused``,
+    ``refused_after``). ``name``: its report section
     (and ``<name>_nodes`` count); ``ratio_floor``: the Jacobian-ratio guard of its steps
     (``optimise_linear``; ``-inf`` = none); ``over_relax``: its steps' first trial length."""
     from ..geometry.optimize import optimise
@@ -267,21 +271,34 @@ def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol
         after = scaled_jacobian(X, sm.cells, p, ref_nodes)
         info["order_p"] = {"before": {"min": float(before.min()), "mean": float(before.mean())}, "after": {"min": float(after.min()), "mean": float(after.mean())}}
         if after.min() < before.min() or after.mean() <= before.mean():
-            info["kept"] = False
-            ctx.report.sections[name] = info
+            ctx.report.sections[name] = _refused(info, "order-p minimum dropped or mean did not rise")
             return
     elif info.get("before") and info["before"]["min"] <= 0 and info["after"]["min"] < info["before"]["min"]:
         # an inverted input: the pass's own untangling (Newton steps on the functional, not
         # judged by the minimum) can fold the mesh further (seed-1 g0016 extracted: 5
         # inverted at -0.419 in, 7 at -0.467 out); on a valid input every step is monotone
-        info["kept"] = False
-        info["refused"] = "minimum dropped on an inverted mesh"
-        ctx.report.sections[name] = info
+        ctx.report.sections[name] = _refused(info, "minimum dropped on an inverted mesh")
         return
     sm.points[:] = X
     info["kept"] = True
     ctx.report.sections[name] = info
     ctx.count(**{f"{name}_nodes": info["smoothed_nodes"]})
+
+
+def _refused(info: dict, why: str) -> dict:
+    """The report section of a light pass whose result was not kept: the mesh is the one
+    before it, so ``after`` is ``before``; the rejected pass's statistics move to
+    ``refused_after`` and its node counts to ``refused_smoothed_nodes`` / ``refused_moved``."""
+    info = dict(info)
+    info["kept"], info["refused"] = False, why
+    if "after" in info:
+        info["refused_after"] = info["after"]
+        info["after"] = info.get("before")
+    for key in ("untangled_nodes", "smoothed_nodes", "moved"):
+        if key in info:
+            info[f"refused_{key}"] = info.pop(key)
+            info[key] = 0
+    return info
 
 
 def _worst_pass(ctx, sm, projector, sdf, below, sweeps, ratio_floor=-np.inf):
@@ -429,7 +446,7 @@ def _invalid_message(mesh, sj: np.ndarray, summary: dict, folds: dict | None) ->
     how many, their skeleton nodes and blocks (the first ten), the share in the blocks the
     builder flagged as folding on the wall."""
     bad = np.flatnonzero(sj <= 0)
-    blocks = np.unique(mesh.cell_data["block_id"][bad])[:10]
+    blocks = np.unique(mesh.cell_data["block_id"][bad])[:10] if "block_id" in mesh.cell_data else np.zeros(0, np.int64)
     nodes = np.unique(mesh.cell_data["node_id"][bad])[:10] if "node_id" in mesh.cell_data else []
     where = ""
     if folds is not None and folds["invalid_inside"]:

@@ -308,22 +308,28 @@ def _last_resort(skeleton, distance, caps, options: BlockOptions, hooks: tuple, 
 
 
 def _without_bends(first, distance, caps, options: BlockOptions, hooks: tuple, work) -> BlockStructure | None:
-    """:func:`build_blocks` on the skeleton of the first failure without the bend nodes whose
+    """:func:`_build_blocks` (no dent step) on the skeleton of the first failure without the bend nodes whose
     sections crossed their neighbours (:mod:`.crossings`), after every other try and the last
     tries failed; the structure built, or None.
 
-    It gets a work budget of its own (the failed tries have spent theirs; the rays are
-    shared), one round less of drops, and is not offered inside a last try (its own last
-    tries run inside it)."""
+    All its rounds share one extra work budget (the failed tries have spent theirs; the
+    rays are shared too): the first round makes it, the later ones (inside it, one round
+    less of drops each) draw on it, so a build spends at most twice ``work_budget``. It is
+    not offered inside a last try (its own last tries run inside it)."""
     repair = options.repair
     if repair.bend_drops <= 0 or not first.bends or repair.straighten_stuck_ends or repair.spread_tight:
         return None
-    fresh = WorkBudget(repair.work_budget)
-    fresh.rays = work.rays
+    if work.bend_rounds:
+        extra = work  # a later round: the first round's extra budget
+    else:
+        extra = WorkBudget(repair.work_budget)
+        extra.rays, extra.bend_rounds = work.rays, True
+    if extra.spent:
+        return None
     note = bend_note(first.bends)
     try:
         blocks = _build_blocks(without_bends(first.skeleton, first.bends), distance, caps, options.replace(bend_drops=repair.bend_drops - 1),
-                               None, *hooks, fresh)
+                               None, *hooks, extra)
     except MeshingError:
         first.hint += f"; {note.split(':')[0]} did not help either"
         return None

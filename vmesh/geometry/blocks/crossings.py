@@ -28,8 +28,13 @@ import numpy as np
 from ..skeleton.graph import remove_nodes
 from .options import JUNCTION
 
-STRAIGHT = 0.99  # a section's straighten weight at which the fix loop has none left to give
-MIN_BRANCH_NODES = 4  # a branch keeps at least one regular section after the drop (3 nodes, 2 segments)
+#: A section's straighten weight (towards its chord, steps of 0.34 capped at 1) at and above
+#: which the fix loop has none left to give (below 1 so the last step's rounding counts).
+#: The fix loop (:mod:`.repair`) and :func:`crossing_bends` share it.
+STRAIGHT = 0.99
+#: Nodes a branch keeps after its drops: one regular section between its ends (3 nodes, 2
+#: segments); a branch with fewer has no bend node to give.
+KEPT_BRANCH_NODES = 3
 
 
 def crossing_bends(builder, bad: np.ndarray) -> list:
@@ -49,19 +54,26 @@ def crossing_bends(builder, bad: np.ndarray) -> list:
     -------
     list of int
         Skeleton nodes, sorted, each of degree 2; empty where no failing segment is such a
-        stuck regular one.
+        stuck regular one. A branch gives at most ``K - KEPT_BRANCH_NODES`` of its ``K``
+        nodes (the sharpest turns), so it keeps at least one regular section.
     """
-    out = set()
+    picked = {}  # branch -> {position along it: turn there}
     for bi, k in np.unique(builder.built.block_where[np.asarray(bad)], axis=0).tolist():
         br = builder.topo.branches[bi]
         K = len(br.nodes)
         at_junction = (k == 0 and br.kinds[0] == JUNCTION) or (k + 1 == K - 1 and br.kinds[1] == JUNCTION)
-        if at_junction or K < MIN_BRANCH_NODES or br.straighten is None or min(br.straighten[k], br.straighten[k + 1]) < STRAIGHT:
+        if at_junction or K <= KEPT_BRANCH_NODES or br.straighten is None or min(br.straighten[k], br.straighten[k + 1]) < STRAIGHT:
             continue
         inner = [kk for kk in (k, k + 1) if 0 < kk < K - 1]
         if inner:
             turn = [_turn(builder.topo.pos[br.nodes[kk - 1: kk + 2]]) for kk in inner]
-            out.add(int(br.nodes[inner[int(np.argmax(turn))]]))
+            best = int(np.argmax(turn))
+            picked.setdefault(bi, {})[inner[best]] = turn[best]
+    out = []
+    for bi, turns in picked.items():
+        br = builder.topo.branches[bi]
+        sharpest = sorted(turns, key=turns.get, reverse=True)[: len(br.nodes) - KEPT_BRANCH_NODES]
+        out += [int(br.nodes[kk]) for kk in sharpest]
     return sorted(out)
 
 

@@ -12,7 +12,7 @@ from .checks import (
     fill_score,
     projected_wall_quality,
 )
-from .crossings import crossing_bends
+from .crossings import STRAIGHT, crossing_bends
 from .options import CYCLE, JUNCTION
 
 
@@ -405,7 +405,7 @@ class _Repair:
                 continue
             straightened = False
             for kk in (k, k + 1):
-                if br.straighten[kk] < 0.99:
+                if br.straighten[kk] < STRAIGHT:
                     br.straighten[kk] = min(1.0, br.straighten[kk] + 0.34)
                     straightened = True
             if straightened:
@@ -457,7 +457,7 @@ class _Repair:
         br = self.topo.branches[bi]
         K = len(br.nodes)
         kk = 1 if side == 0 else K - 2
-        if K <= 2 or br.straighten[kk] >= 0.99:
+        if K <= 2 or br.straighten[kk] >= STRAIGHT:
             return False
         br.straighten[kk] = min(1.0, br.straighten[kk] + 0.34)
         return True

@@ -35,6 +35,7 @@ class WorkBudget:
         self.used = 0
         self.valid_after = None  # assemblies spent when the blocks were first all valid
         self.rays = RayCache()
+        self.bend_rounds = False  # the extra budget the bend-drop rounds share (builder._without_bends)
 
     @property
     def spent(self) -> bool:
