@@ -309,11 +309,9 @@ def measure_coverage(
     tolerance = 0.5 * step if tolerance is None else float(tolerance)
     rel, limit, beyond, face_r, face_node = _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, skeleton, distance, tolerance)
     far = rel > limit
-    # wall past an open end face, no deeper than a rounded end: the end cap of a surface without
-    # flat caps, left out as flat caps are (past the face's plane too, up to a hemisphere's depth)
-    past = _past_end_faces(X, boundary_faces, boundary_ids, V[WF].mean(axis=1))
-    # (the verdict's end wall and depth: session 23 counted past-plane wall here only to 1.0 radius)
-    at_end_face = beyond | past[:, None]
+    # the end wall (closest to an end face, or past its plane near its axis) to the verdict's
+    # end_depth: the end cap of a surface without flat caps, left out as flat caps are
+    at_end_face = beyond | _past_end_faces(X, boundary_faces, boundary_ids, V[WF].mean(axis=1))[:, None]
     end_cap = far & at_end_face & (rel <= end_depth)
     wall_tree = TriangleBVH(V, WF) if wall_tree is None else wall_tree
     off = _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree if wall_projector is None else wall_projector, *skeleton, on_wall)
