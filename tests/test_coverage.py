@@ -442,3 +442,35 @@ def test_staircase_wall_within_half_a_step_is_covered_and_a_missing_branch_still
     assert summary["voxel_step"] > 0 and summary["missing_parts"] == 1
     assert missing[0].depth > 1.5 and missing[0].position[0] > RADIUS  # the branch, along +x
     assert summary["uncovered_share"] > 0.1
+
+
+def test_the_summary_counts_the_wall_past_an_end_to_the_verdicts_end_depth(cylinder_mesh):
+    """One depth for the wall past an end face (h24/leftovers): the verdict judges the end
+    wall to ``end_depth`` (1.5) radii, and the summary's ``beyond_ends_share`` counts it to the
+    same depth (session 23 counted wall past the end face's plane, but not closest to the face,
+    only to 1.0 radius). A vessel running on 10 units (5 radii) past the mesh's end: its wall
+    from 0.1 radius (``distance``) to 1.5 radii past the end face is the end's, the rest
+    uncovered."""
+    sm, skeleton = cylinder_mesh
+    V, F, caps = tube([0, 0, 0], [0, 0, 1], RADIUS, 2 * LENGTH)
+    for end_depth in (1.5, 1.0):
+        summary, missing = _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1"], end_depth=end_depth)
+        assert summary["beyond_ends_share"] == pytest.approx((end_depth - 0.1) * RADIUS / (2 * LENGTH), abs=0.005)
+        assert summary["uncovered_share"] + summary["beyond_ends_share"] == pytest.approx(0.5 - 0.1 * RADIUS / (2 * LENGTH), abs=0.005)
+        assert len(missing) == 1
+
+
+def test_a_missing_parts_area_is_the_wall_it_is_judged_by(cylinder_mesh):
+    """A missing part's ``area``, ``share`` and ``cross_sections`` are of one wall: the part
+    (side wall or end wall) that makes it missing; ``patch_area`` is the whole patch's. The
+    0.8-radius stub with its mouth 0.3 radii from the mesh's end face: part of its patch is
+    end wall, the side wall (7.2 of its cross-sections) makes it missing."""
+    sm, skeleton = cylinder_mesh
+    V1, F1, caps1 = tube([0, 0, 0], [0, 0, 1], RADIUS, LENGTH)
+    V2, F2, caps2 = tube([1.5, 0, 8.5], [1, 0, 0], 0.8 * RADIUS, RADIUS - 1.5 + 0.4 * RADIUS, n_around=32, n_along=12, start_cap=False)
+    V, F = np.vstack([V1, V2]), np.vstack([F1, F2 + len(V1)])
+    summary, missing = _measure(sm, skeleton, V, F, [caps1[0], caps1[1], caps2[1] + len(F1)], ["inlet", "outlet", "stub"])
+    part = missing[0]
+    assert part.area < 0.95 * part.patch_area  # the end wall left out of the judged area
+    assert part.share == pytest.approx(part.area / summary["surface_area"])
+    assert summary["missing"][0]["patch_area"] == pytest.approx(part.patch_area)

@@ -63,6 +63,9 @@ class MissingPart:
     over_opening: int = 0
     #: the farthest of those off the input wall (x local radius)
     over_opening_max: float = 0.0
+    #: the whole patch's uncovered area (``area`` is the part that makes it missing: its side
+    #: wall or its end wall, whose ``cross_sections`` are judged)
+    patch_area: float = 0.0
 
     def describe(self) -> str:
         """Where the patch is: the caps it reaches, the nearest skeleton node and branch, a position."""
@@ -78,6 +81,7 @@ class MissingPart:
     def as_dict(self) -> dict:
         return {
             "area": float(self.area),
+            "patch_area": float(self.patch_area),
             "cross_sections": float(self.cross_sections),
             "share": float(self.share),
             "depth_rel": float(self.depth),
@@ -305,15 +309,15 @@ def measure_coverage(
     tolerance = 0.5 * step if tolerance is None else float(tolerance)
     rel, limit, beyond, face_r, face_node = _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, skeleton, distance, tolerance)
     far = rel > limit
-    # wall past an open end face, no deeper than a rounded end: the end cap of a surface without
-    # flat caps, left out as flat caps are (past the face's plane too, up to a hemisphere's depth)
-    past = _past_end_faces(X, boundary_faces, boundary_ids, V[WF].mean(axis=1))
-    end_cap = far & ((beyond & (rel <= end_depth)) | (past[:, None] & (rel <= min(end_depth, 1.0))))
+    # the end wall (closest to an end face, or past its plane near its axis) to the verdict's
+    # end_depth: the end cap of a surface without flat caps, left out as flat caps are
+    at_end_face = beyond | _past_end_faces(X, boundary_faces, boundary_ids, V[WF].mean(axis=1))[:, None]
+    end_cap = far & at_end_face & (rel <= end_depth)
     wall_tree = TriangleBVH(V, WF) if wall_tree is None else wall_tree
     off = _wall_node_distances(X, boundary_faces, boundary_ids, wall_tree if wall_projector is None else wall_projector, *skeleton, on_wall)
     node_of_branch = _branch_of_node(branches, len(np.asarray(skeleton_points).reshape(-1, 3)))
     missing, n_patches, n_missing = _missing_parts(  # end wall: closest to an end face, or past one near its axis
-        V, WF, area, rel, far, beyond | past[:, None], face_r, face_node, cap_of_vertex, cap_names,
+        V, WF, area, rel, far, at_end_face, face_r, face_node, cap_of_vertex, cap_names,
         patch_area, depth, end_depth, node_of_branch, off, F if own_radius else None, surface_tree,
     )
     volumes = (enclosed_volume(V, F), enclosed_volume(X, tri))
@@ -431,12 +435,14 @@ def _missing_parts(V, WF, area, rel, far, at_end_face, face_r, face_node, cap_of
 
     Each patch is split by ``at_end_face`` (per sample: wall an end face of the mesh
     explains, :func:`measure_coverage`) into its **end wall** and its **side wall**, and
-    each is judged on its own by :func:`judge_patches`: the side wall as a part beside the
-    meshed vessel (by the smaller of the skeleton's radius at its deepest face and the
-    patch's own, :func:`_own_radius`, across the closed surface ``F``, ``tree`` its BVH
-    where built; None: the skeleton's alone; ``depth``), the end wall as the vessel running
-    on past an end face (by the skeleton's radius; ``end_depth``). A patch is missing when
-    either is. A branch the skeleton never entered is side wall, several of its own
+    each is judged on its own by :func:`judge_end_and_side` (the rule the extraction's spur
+    pruning shares): the side wall as a part beside the meshed vessel (by the smaller of the
+    skeleton's radius at its deepest face and the side wall's own, :func:`_own_radius` over
+    the faces with two or more side samples, across the closed surface ``F``, ``tree`` its
+    BVH where built; None: the skeleton's alone; ``depth``), the end wall as the vessel
+    running on past an end face (by the skeleton's radius; ``end_depth``). A patch is
+    missing when either is; a part's ``area``, ``share`` and ``cross_sections`` are of the
+    wall that makes it missing, ``patch_area`` the whole patch's. A branch the skeleton never entered is side wall, several of its own
     cross-sections and deeper than its radius; the wall between an end face and the cap
     or rounded end beyond it is end wall, whatever mesh face lies closest to it. (Up to
     session 22 a patch was *at an end* when more than half of its far area had an end face
@@ -454,23 +460,20 @@ def _missing_parts(V, WF, area, rel, far, at_end_face, face_r, face_node, cap_of
     lab = label[sel]
     face_area = area * far.mean(axis=1)
     patch_area_sum = np.bincount(lab, weights=face_area[sel], minlength=n_patches)
-    own = _own_radius(V, F, WF, label, n_patches, tree) if F is not None else np.full(n_patches, np.inf)
-    # the side wall and the end wall of each patch, judged apart
-    judged = {}
-    for kind, part, at_end in (("side", far & ~at_end_face, False), ("end", far & at_end_face, True)):
+    # the side wall and the end wall of each patch, measured apart
+    measured = {}
+    for kind, part in (("side", far & ~at_end_face), ("end", far & at_end_face)):
         part_rel = np.where(part, rel, 0.0).max(axis=1)
         part_area = np.bincount(lab, weights=(area * part.mean(axis=1))[sel], minlength=n_patches)
         deep_face = np.flatnonzero(sel)[_deepest(part_rel[sel], lab, n_patches)]
-        real_depth = part_rel[deep_face] * face_r[deep_face]
-        judged[kind] = judge_patches(part_area, real_depth, face_r[deep_face], own, np.full(n_patches, at_end), patch_area, depth, end_depth)
-    side_missing = judged["side"][0]
-    is_missing = side_missing | judged["end"][0]
-    # a part is described by the wall that makes it missing (its side wall where both do)
-    pick = lambda j: np.where(side_missing, judged["side"][j], judged["end"][j])  # noqa: E731
-    sections, patch_depth, patch_r = pick(1), pick(2), pick(3)
+        measured[kind] = (part_area, part_rel[deep_face] * face_r[deep_face], face_r[deep_face])
+    # the side wall's own radius, over its faces (two of four samples, as a patch's faces)
+    side_label = np.where((far & ~at_end_face).sum(axis=1) >= 2, label, -1)
+    own = _own_radius(V, F, WF, side_label, n_patches, tree) if F is not None else np.full(n_patches, np.inf)
+    is_missing, _, judged_area, sections, patch_depth, patch_r = judge_end_and_side(measured["side"], measured["end"], own, patch_area, depth, end_depth)
     face_rel = rel.max(axis=1)
     big = np.flatnonzero(is_missing)
-    big = big[np.argsort(-patch_area_sum[big])]
+    big = big[np.argsort(-judged_area[big])]
     for k in big[:MAX_PATCHES]:
         faces_k = np.flatnonzero(label == k)
         verts = np.unique(WF[faces_k])
@@ -480,9 +483,10 @@ def _missing_parts(V, WF, area, rel, far, at_end_face, face_r, face_node, cap_of
         centre = (V[WF[faces_k]].mean(axis=1) * w[:, None]).sum(axis=0) / max(w.sum(), 1e-300)
         missing.append(
             MissingPart(
-                area=float(patch_area_sum[k]),
+                area=float(judged_area[k]),
                 cross_sections=float(sections[k]),
-                share=float(patch_area_sum[k] / total) if total > 0 else 0.0,
+                share=float(judged_area[k] / total) if total > 0 else 0.0,
+                patch_area=float(patch_area_sum[k]),
                 depth=float(patch_depth[k]),
                 position=centre,
                 caps=caps,
@@ -498,6 +502,35 @@ def _deepest(values, lab, n_patches):
     """Index (into ``values``) of the largest value of each label ``0 .. n_patches - 1``."""
     order_ = np.lexsort((-values, lab))
     return order_[np.searchsorted(lab[order_], np.arange(n_patches))]
+
+
+def judge_end_and_side(side, end, own_r, patch_area=PATCH_AREA, depth=DEPTH, end_depth=END_DEPTH):
+    """Judge each patch's **side wall** and **end wall** apart (:func:`judge_patches`): the one
+    rule of the verdict (:func:`_missing_parts`) and of the extraction's spur pruning
+    (:func:`~vmesh.geometry.skeleton.spur_wall.spurs_explaining_wall`).
+
+    Parameters
+    ----------
+    side, end : tuple of (n,) arrays
+        Per patch, of its side wall (beside the meshed vessel) and of its end wall (past an
+        end face): the area, the deepest point's distance and the skeleton's radius there.
+    own_r : (n,) array
+        The side wall's own radius (``inf`` where unknown); the end wall is judged by the
+        skeleton's (it continues the vessel the skeleton ends in).
+
+    Returns
+    -------
+    missing, side_missing, area, sections, depth_rel, radius : numpy.ndarray
+        Per patch: missing (either wall is), its side wall missing, and the area,
+        cross-sections, depth in radii and radius of the wall that makes it missing (its side
+        wall where both do, or where neither does).
+    """
+    n = len(np.asarray(own_r))
+    s = judge_patches(*side, own_r, np.zeros(n, bool), patch_area, depth, end_depth)
+    e = judge_patches(*end, own_r, np.ones(n, bool), patch_area, depth, end_depth)
+    use_end = e[0] & ~s[0]
+    pick = lambda a, b: np.where(use_end, b, a)  # noqa: E731
+    return (s[0] | e[0], s[0], pick(np.asarray(side[0], float), np.asarray(end[0], float))) + tuple(pick(a, b) for a, b in zip(s[1:], e[1:]))
 
 
 def judge_patches(area, real_depth, skeleton_r, own_r, at_end, patch_area=PATCH_AREA, depth=DEPTH, end_depth=END_DEPTH):
@@ -537,7 +570,8 @@ def _own_radius(V, F, WF, label, n_patches, tree=None) -> np.ndarray:
     parent's. Normals of a Taubin-smoothed copy: a staircase's terrace normals point
     along the grid axes, not across the vessel. A chord shorter than its face's longest
     edge gives no radius (the surface does not resolve a lumen that narrow). ``tree``: the
-    BVH of ``(V, F)`` where the chain built one (None: built here)."""
+    BVH of ``(V, F)`` where the chain built one (None: built here). Faces labelled -1 are
+    left out; a patch without faces keeps ``inf``."""
     from ..preprocess import taubin_smooth
     from .bvh import TriangleBVH
     from .topology import signed_volume
@@ -565,7 +599,8 @@ def _own_radius(V, F, WF, label, n_patches, tree=None) -> np.ndarray:
     order_ = np.lexsort((half, lab))
     start = np.searchsorted(lab[order_], np.arange(n_patches))
     count = np.bincount(lab, minlength=n_patches)
-    own[count > 0] = half[order_[start + count // 2]][count > 0]  # the median (upper) face
+    some = count > 0  # a patch without faces here (no side wall) keeps inf
+    own[some] = half[order_[(start + count // 2)[some]]]  # the median (upper) face
     return own
 
 

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..coverage import DEPTH, DISTANCE, END_DEPTH, PATCH_AREA, judge_patches
+from ..coverage import DEPTH, DISTANCE, END_DEPTH, PATCH_AREA, judge_end_and_side
 from ..rays import RAY_REACH
 
 
@@ -107,10 +107,13 @@ def spurs_explaining_wall(
     distance, patch_area, depth, end_depth : float
         ``check_coverage``'s: a wall point farther than ``distance`` local radii (plus
         ``spacing``) outside the rest's balls is unexplained; a candidate's unexplained
-        wall is a missing part when it spans more than ``patch_area`` cross-sections and
-        reaches deeper than ``depth`` radii (``end_depth`` past a free end of the rest,
-        within ``1 + end_depth`` of its radii), the radius its own where it stands out by
-        at least that (the candidate's balls outside the rest's, median).
+        wall is split into its end wall (past a free end of the rest, within ``1 + end_depth``
+        of its radii) and its side wall (the rest), judged apart as the verdict judges a
+        patch's (:func:`~vmesh.geometry.coverage.judge_end_and_side`): either is a missing
+        part when it spans more than ``patch_area`` cross-sections and reaches deeper than
+        ``depth`` radii (``end_depth`` for the end wall), the side wall's radius its own where
+        it stands out by at least that (the candidate's balls outside the rest's, median).
+        Only a missing side wall holds a candidate.
     k : int
         Balls looked at per wall point (the nearest centres).
     details : list, optional
@@ -136,19 +139,22 @@ def spurs_explaining_wall(
         while not held.all():
             open_ = np.flatnonzero(~held)
             judged = [judge.parts[i] for i in open_]
-            area, deep, rest_r, own_r, at_end = (np.array([p[key] for p in judged]) for key in ("area", "depth", "rest_r", "own_r", "at_end"))
-            missing, sections, depth_rel, _ = judge_patches(area, deep, rest_r, own_r, at_end, patch_area, depth, end_depth)
-            # a side vessel: judged by its own radius, narrower than the rest where it leaves
-            # it and standing out of it by at least that radius (as the verdict names one left
-            # out), ending free of the rest; wall a vessel-wide candidate explains is the
-            # vessel's own, which the rest's path runs beside where noise or a contact
+            own_r = np.array([p["own_r"] for p in judged])
+            side_wall, end_wall = (np.array([p[kind] for p in judged], float).reshape(-1, 3).T for kind in ("side_wall", "end_wall"))
+            # the verdict's rule: the part's side wall and end wall judged apart
+            missing, side_missing, _, sections, depth_rel, _ = judge_end_and_side(side_wall, end_wall, own_r, patch_area, depth, end_depth)
+            # a side vessel: its side wall missing by its own radius, narrower than the rest
+            # where it leaves it and standing out of it by at least that radius (as the verdict
+            # names one left out), ending free of the rest; wall a vessel-wide candidate explains
+            # is the vessel's own, which the rest's path runs beside where noise or a contact
             # displaced it, and resampling centres
-            side = missing & ~at_end & (own_r < rest_r) & (deep >= own_r) & free[open_]
+            side_area, side_deep, side_rest_r = side_wall
+            side = side_missing & (own_r < side_rest_r) & (side_deep >= own_r) & free[open_]
             for i, p, sec, rel, is_side in zip(open_, judged, sections, depth_rel, side):
                 found[i].update(p, sections=float(sec), depth_rel=float(rel), side=bool(is_side), ends_free=bool(free[i]))
             if not side.any():
                 break
-            i = open_[np.argmax(np.where(side, area, -1.0))]
+            i = open_[np.argmax(np.where(side, side_area, -1.0))]
             held[i] = found[i]["held"] = True
             judge.hold(i, np.flatnonzero(~held))
         held[at_cap] = False
@@ -280,11 +286,14 @@ class _Judge:
 
     def judge(self, i) -> None:
         """Candidate ``i``'s part: the area of the wall it alone explains, its deepest point's
-        distance outside the rest's balls and the rest's radius there, whether it lies past a
-        free end of the rest, and its own radius (its balls outside the rest's, median)."""
+        distance outside the rest's balls and the rest's radius there, its own radius (its
+        balls outside the rest's, median), and the same three (area, depth, radius) of its
+        **side wall** and of its **end wall** (past a free end of the rest), which are judged
+        apart as the verdict judges a patch's (:func:`~vmesh.geometry.coverage.judge_end_and_side`)."""
         points, area = self.wall.points, self.wall.area
         near, own_c, own_r = self.balls[i]
-        part = self.parts[i] = {"area": 0.0, "depth": 0.0, "rest_r": 1.0, "own_r": np.inf, "at_end": False}
+        none = (0.0, 0.0, 1.0)
+        part = self.parts[i] = {"area": 0.0, "depth": 0.0, "rest_r": 1.0, "own_r": np.inf, "side_wall": none, "end_wall": none}
         x = np.concatenate([points[near], own_c])
         if len(near) == 0:
             self.probe.pop(i, None)  # nothing the rest can change
@@ -312,7 +321,11 @@ class _Judge:
             past = ((along > 0) & (np.linalg.norm(rel, axis=2) < (1.0 + self.end_depth) * e_r[None])).any(axis=1)
         own = own_r[all_excess[len(near):] > 0]
         part.update(area=float(area[sel].sum()), depth=float(excess[out][deep]), rest_r=float(r_local[out][deep]),
-                    own_r=float(np.median(own)) if len(own) else np.inf, at_end=bool(area[sel][past].sum() > 0.5 * area[sel].sum()))
+                    own_r=float(np.median(own)) if len(own) else np.inf)
+        for kind, mask in (("side_wall", ~past), ("end_wall", past)):
+            if mask.any():
+                k = int(np.argmax(np.where(mask, excess[out], -np.inf)))
+                part[kind] = (float(area[sel][mask].sum()), float(excess[out][k]), float(r_local[out][k]))
 
     def hold(self, h, open_) -> None:
         """Candidate ``h`` joins the rest; judge again the ``open_`` candidates it can change."""
