@@ -277,6 +277,11 @@ def _build_blocks(skeleton, distance, caps, options: BlockOptions, bad_blocks_pa
         blocks.info["fixes"][:0], blocks.info["cut_stubs"] = notes, label_ostia(blocks, cut)
         blocks.info["skeleton_fixes"] = list(notes)  # the retopology's notes (a rebuild by :func:`~.dents.add_dent_sections` keeps them)
         return blocks
+    if first is None:
+        # nothing was tried (a budget spent before the first assembly, or no tries allowed):
+        # say so instead of failing on the missing failure
+        raise MeshingError(f"build_block_structure: no block structure was tried (max_retopology_tries = "
+                           f"{options.repair.max_retopology_tries}){work.stop_note()}")
     # every try failed: the skeleton as given once more with a last resort (builds that
     # succeed without it stay as they are)
     if (blocks := _last_resort(skeleton, distance, caps, options, (warn, progress, project, intersect_lines), work)) is not None:
