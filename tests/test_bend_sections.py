@@ -169,15 +169,15 @@ def test_bend_drop_rounds_share_one_extra_work_budget(monkeypatch):
 
 def test_a_build_with_nothing_tried_fails_with_a_meshing_error():
     """A work budget spent before the first assembly (a rebuild handed a spent budget) or no
-    tries allowed ends in a MeshingError that says so, not an AttributeError on the missing
-    first failure (review of h24/mends)."""
+    tries allowed (the last tries still run) ends in a MeshingError that says so, not an
+    AttributeError on the missing first failure (review of h24/mends)."""
     from vmesh.geometry.blocks.builder import _build_blocks
     from vmesh.geometry.blocks.work import WorkBudget
 
     case, sk = winding_skeleton()
     spent = WorkBudget(5)
     spent.used = 5
-    with pytest.raises(MeshingError, match="no block structure was tried.*work_budget = 5"):
+    with pytest.raises(MeshingError, match="no try of the skeleton was made.*work_budget = 5"):
         _build_blocks(sk, case.distance, None, BlockOptions(dent_sections=0), work=spent)
     with pytest.raises(MeshingError, match="max_retopology_tries = 0"):
         _build_blocks(sk, case.distance, None, BlockOptions(dent_sections=0, max_retopology_tries=0))

@@ -69,8 +69,11 @@ def test_the_light_pass_never_lowers_the_minimum_of_an_inverted_mesh(monkeypatch
 
 def test_a_refused_order_p_light_pass_is_reported_as_refused():
     """p > 1: a pass whose order-p minimum drops is refused and reported like the p = 1 one."""
-    info = {"before": {"min": 0.5, "mean": 0.9}, "after": {"min": 0.6, "mean": 0.92}, "untangled_nodes": 0, "smoothed_nodes": 7, "moved": 7}
+    info = {"before": {"min": 0.5, "mean": 0.9}, "after": {"min": 0.6, "mean": 0.92}, "untangled_nodes": 0, "smoothed_nodes": 7, "moved": 7,
+            "order_p": {"before": {"min": 0.4, "mean": 0.88}, "after": {"min": 0.3, "mean": 0.89}}}
     out = mf._refused(info, "order-p minimum dropped or mean did not rise")
+    assert out["order_p"]["after"] == out["order_p"]["before"] == {"min": 0.4, "mean": 0.88}
+    assert out["refused_order_p"]["after"] == {"min": 0.3, "mean": 0.89}
     assert out["kept"] is False and "order-p" in out["refused"]
     assert out["after"] == out["before"] == {"min": 0.5, "mean": 0.9}
     assert out["refused_after"] == {"min": 0.6, "mean": 0.92} and out["refused_smoothed_nodes"] == 7 and out["moved"] == 0

@@ -47,8 +47,8 @@ from ..registry import Parameter, register_filter
         Parameter("stub_within_reach", "bool", False, "Cut a side branch back into its parent as a stub (left unmeshed, named in the report) only where it ends within 3 of its own radii past its junction's radius; off: wherever it ends within its junction's half cross-sections, which a junction whose half-sections run along a fused neighbour stretches over real branches (a 5.8-long branch of radius 0.36 in seed 1 g0000 given; docs/junctions.md h23/fans)."),
         Parameter("short_end_rays", "float", 0.5, "An open end's cross-section whose rays reach less than this share of the previous section's at the same azimuth (its plane cuts the wall short: a flat closed end taken for an opening, a voxel staircase's terraces) moves half way back towards that section, kept when its shortest share rises (0: never; default since session 24: no run of seed 1 or the real corpus lost, docs/optimiser.md h23/minima, h24/minima).", min=0.0, max=1.0),
         Parameter("bend_drops", "int", 0, "Only where every other try failed: rounds of building again without the skeleton node at a bend whose cross-section, straightened as far as it goes, still crosses its neighbour within the reach of its rays (a skeleton wandering over a flattened lumen's wide side; 0: never, the default: it won no run of the corpora, docs/junctions.md h24/realbuild); all rounds together get one extra work_budget.", min=0, max=3),
-        Parameter("reroot_backwards", "bool", False, "After every other try failed: where a junction's thin branch leaves backwards and runs inside the lumen of the branch to a close neighbour junction until past its middle, re-root it at that neighbour (through its first node outside that lumen) and build again on a budget of its own; taken only where the blocks still cover the pair's wall (opt-in: builds the generated configuration, not s1 g0012 / g0016 given; failing runs take up to twice as long; docs/junctions.md h24/builder)."),
-        Parameter("poor_block_sj", "float", 0.0, "Valid blocks whose least corner scaled Jacobian is below this get the repairs of invalid blocks (sections moved from junctions, half-planes re-rotated, planes straightened, cores shrunk), round by round, each round kept only where the poor blocks get better and no block falls below the least before (0: never; a block's fill cannot be better than the block: docs/optimiser.md h24/minima).", min=0.0, max=1.0),
+        Parameter("reroot_backwards", "bool", False, "After every other try failed: where a junction's thin branch leaves backwards and runs inside the lumen of the branch to a close neighbour junction until past its middle, re-root it at that neighbour (through its first node outside that lumen) and build again on a budget of its own; taken only where the blocks still cover the pair's wall (opt-in: builds the generated configuration, not s1 g0012 / g0016 given; failing runs take up to four times as long (each crowded pair tried gets a work budget of its own); docs/junctions.md h24/builder)."),
+        Parameter("poor_block_sj", "float", 0.0, "Valid blocks whose least corner scaled Jacobian is below this get, segment by segment, first the extra margin the fix loop gave their junction ends back (sections moved half a radius towards the junction), then the repairs of invalid blocks (sections moved from junctions, half-planes re-rotated, planes straightened, cores shrunk), round by round, each round kept only where the poor blocks get better and no block falls below the least before (0: never; a block's fill cannot be better than the block: docs/optimiser.md h24/minima).", min=0.0, max=1.0),
         Parameter("work_budget", "int", 160, "Most assemblies of the whole block structure over all fix rounds and changed skeletons (each costs time in proportion to the tree); a structure still invalid then fails with the usual error (0: no budget). With bend_drops > 0 its rounds share one more such budget.", min=0, max=10000),
     ],
     reads=("skeleton", "sdf"),
@@ -73,7 +73,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
     wall and thickened where they would fold. Endpoints near a cap end on the cap plane with the cap's name; endpoints
     without a cap are closed on the wall by a cap of blocks round the dome; without caps every endpoint is open."""
     from ..geometry.block_builder import BlockOptions, block_structure_checks, build_blocks
-    from ..geometry.blocks.options import EndOptions, JunctionOptions, RepairOptions, SectionOptions
+    from ..geometry.blocks.options import EndOptions, JunctionOptions, LastTryOptions, RepairOptions, SectionOptions
 
     options = BlockOptions(
         section=SectionOptions(blocks_around=blocks_around, core_size=core_size, layer_thickness=layer_thickness, plane_bias=plane_bias,
@@ -87,7 +87,8 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
                         short_end_rays=short_end_rays),
         repair=RepairOptions(split_nonplanar=split_nonplanar, max_fix_rounds=max_fix_rounds, relieve_wall_folds=relieve_wall_folds,
                              work_budget=work_budget, dent_sections=dent_sections, stub_within_reach=stub_within_reach,
-                             bend_drops=bend_drops, reroot_backwards=reroot_backwards, poor_block_sj=poor_block_sj),
+                             poor_block_sj=poor_block_sj),
+        last=LastTryOptions(bend_drops=bend_drops, reroot_backwards=reroot_backwards),
     )
     sdf = ctx.sdf  # a vmesh.geometry.surface_query.SurfaceQuery
     bad_path = ctx.output_path("invalid_blocks.vtu")

@@ -288,7 +288,8 @@ def _light_pass(ctx, sm, projector, sdf, below, node_distribution, sweeps=8, tol
 def _refused(info: dict, why: str) -> dict:
     """The report section of a light pass whose result was not kept: the mesh is the one
     before it, so ``after`` is ``before``; the rejected pass's statistics move to
-    ``refused_after`` and its node counts to ``refused_smoothed_nodes`` / ``refused_moved``."""
+    ``refused_after`` (order p: ``refused_order_p``) and its node counts to
+    ``refused_smoothed_nodes`` / ``refused_moved``."""
     info = dict(info)
     info["kept"], info["refused"] = False, why
     if "after" in info:
@@ -298,6 +299,10 @@ def _refused(info: dict, why: str) -> dict:
         if key in info:
             info[f"refused_{key}"] = info.pop(key)
             info[key] = 0
+    if "order_p" in info:  # the order-p measures likewise: kept mesh = before
+        order_p = info["order_p"]
+        info["refused_order_p"] = order_p
+        info["order_p"] = {"before": order_p["before"], "after": order_p["before"]}
     return info
 
 

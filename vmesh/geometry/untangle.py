@@ -350,7 +350,7 @@ def untangle(
         Work bound in node updates (one free node in one evaluation of the objective) per
         node of the fold (the nodes of the elements below ``threshold`` at the start): the
         minimisations stop, keeping their best point so far, once ``budget`` times the fold's
-        node count is spent, so the work grows with the fold and never with the mesh or the
+        node count is spent (``keep_valid``'s reruns included), so the work grows with the fold and never with the mesh or the
         number of rounds (the default is about twice what the generated g0002 and g0018
         folds take to their end, docs/optimiser.md). ``None``: unbounded.
     keep_valid : bool
@@ -378,19 +378,20 @@ def untangle(
     if boundary is None:  # the mesh's own boundary: a pass sees only a piece of the mesh
         boundary = _mesh_boundary(sub, len(points))
     kw = dict(wall=wall, wall_normals=wall_normals, project=project, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=threshold, rings=rings, iterations=iterations, rounds=rounds, boundary=boundary)
-    limit = None if budget is None else float(budget) * len(fold)
-    X, info = _untangle_run(points, sub, q, restart_below, limit, None, kw)
+    work = _Work(None if budget is None else float(budget) * len(fold))  # one bound for the plain run and its reruns
+    X, info = _untangle_run(points, sub, q, restart_below, work, None, kw)
     if keep_valid:
-        X, info = _keep_valid(points, sub, q, X, info, lambda held: _untangle_run(points, sub, q, restart_below, limit, held, kw))
-    info["work"]["fold_nodes"] = int(len(fold))
+        X, info = _keep_valid(points, sub, q, X, info, lambda held: _untangle_run(points, sub, q, restart_below, work, held, kw), work)
+    info["work"] = {"node_updates": work.updates, "evaluations": work.evaluations, "limit": work.limit, "exhausted": work.spent(),
+                    "fold_nodes": int(len(fold))}
     return X, info
 
 
-def _untangle_run(points, sub, q, restart_below, limit, held, kw):
+def _untangle_run(points, sub, q, restart_below, work, held, kw):
     """One untangling from ``points`` (sub-hexahedra ``sub``, their scaled Jacobians ``q``):
     the local pass, and its restart when it ends below ``restart_below``; ``held``: nodes
-    that do not move (None: none); ``limit``: the work bound in node updates."""
-    work = _Work(limit)
+    that do not move (None: none); ``work``: the :class:`_Work` it spends (shared by
+    :func:`untangle`'s reruns, so their sum keeps to the bound)."""
     kw = dict(kw, work=work, held=held)
     X, info, moved = _local_pass(points, sub, q, **kw)
     if restart_below is not None and info["rounds"] and info["after"] < restart_below and not work.spent():
@@ -410,7 +411,7 @@ def _untangle_run(points, sub, q, restart_below, limit, held, kw):
 KEEP_VALID_RERUNS = 3
 
 
-def _keep_valid(points, sub, q0, X, info, rerun):
+def _keep_valid(points, sub, q0, X, info, rerun, work=None):
     """Rerun the untangling (``rerun(held) -> (X, info)``) with nodes of the elements it
     folded that were valid at the start (``q0 > 0``) held at their start positions, while a
     result folds such elements; keep the first rerun that folds none and is no worse than
@@ -418,8 +419,11 @@ def _keep_valid(points, sub, q0, X, info, rerun):
     :data:`KEEP_VALID_RERUNS` reruns each: first those nodes that no element inverted at the
     start has (held, such nodes would keep that element folded: s0 g0015 extracted, 47
     inverted elements at the start's minimum instead of 35), then all their nodes (which
-    keeps the element as it was). ``info["keep_valid"]`` reports the reruns; ``(X, info)`` is
-    returned unchanged when ``X`` folds no valid element."""
+    keeps the element as it was). Nodes that a run left where they started (fixed, or not
+    moved) are not held: holding them changes nothing but spends a rerun. No rerun starts
+    once ``work`` (the untangling's shared :class:`_Work`) is spent. ``info["keep_valid"]``
+    reports the reruns; ``(X, info)`` is returned unchanged when ``X`` folds no valid
+    element."""
     q = linear_scaled_jacobian(X, sub)
     first = (q0 > 0) & (q <= 0)
     if not first.any():
@@ -428,19 +432,21 @@ def _keep_valid(points, sub, q0, X, info, rerun):
     unfolding = np.zeros(len(X), bool)
     unfolding[sub[q0 <= 0].ravel()] = True
     for free in (unfolding, np.zeros(len(X), bool)):
-        held, folded = np.zeros(len(X), bool), first
+        held, folded, last = np.zeros(len(X), bool), first, X
         for _ in range(KEEP_VALID_RERUNS):
             grown = held.copy()
             grown[sub[folded].ravel()] = True
-            grown &= ~free
-            if (grown == held).all():
-                break  # nothing more to hold on this ladder
+            grown &= ~free & (held | np.any(last != points, axis=1))  # a node the run left in place: holding it changes nothing
+            if (grown == held).all() or (work is not None and work.spent()):
+                break  # nothing more to hold on this ladder, or no work left for a rerun
             held = grown
+            spent = work.updates if work is not None else 0
             Y, info_y = rerun(held)
+            last = Y
             qy = linear_scaled_jacobian(Y, sub)
             folded = (q0 > 0) & (qy <= 0)
             run = {"held": int(held.sum()), "all_nodes": not free.any(), "folded_valid": int(folded.sum()), "inverted": int((qy <= 0).sum()), "min": float(qy.min()),
-                   "moved": info_y["moved"], "node_updates": info_y["work"]["node_updates"]}
+                   "moved": info_y["moved"], "node_updates": info_y["work"]["node_updates"] - spent}
             report["reruns"].append(run)
             if not folded.any():
                 if run["inverted"] <= report["inverted"] and run["min"] >= report["min"]:

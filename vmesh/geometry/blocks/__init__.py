@@ -17,7 +17,7 @@ from .checks import (
     projected_wall_quality,
     write_bad_blocks,
 )
-from .options import CLOSED, CYCLE, JUNCTION, OPEN, BlockOptions, EndOptions, JunctionOptions, RepairOptions, SectionOptions
+from .options import CLOSED, CYCLE, JUNCTION, OPEN, BlockOptions, EndOptions, JunctionOptions, LastTryOptions, RepairOptions, SectionOptions
 from ..skeleton.graph import polyline_at
 from .prep import (
     endpoint_caps,
@@ -27,7 +27,7 @@ from .prep import (
 )
 
 __all__ = [
-    "BlockOptions", "SectionOptions", "JunctionOptions", "EndOptions", "RepairOptions", "build_blocks", "FILL_CHECKS", "block_structure_checks", "fill_quality", "fill_score",
+    "BlockOptions", "SectionOptions", "JunctionOptions", "EndOptions", "RepairOptions", "LastTryOptions", "build_blocks", "FILL_CHECKS", "block_structure_checks", "fill_quality", "fill_score",
     "projected_wall_quality", "write_bad_blocks", "endpoint_caps", "merge_junction_pair", "polyline_at",
     "redistribute_sections", "split_nonplanar_junctions", "JUNCTION", "OPEN", "CLOSED", "CYCLE",
 ]

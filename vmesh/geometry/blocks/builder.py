@@ -115,7 +115,7 @@ def build_blocks(
     def fill(b, subset):
         return fill_quality(b, subset, project, distance, intersect_lines)
 
-    plain = options if options.repair.bend_drops == 0 else options.replace(bend_drops=0)  # the dent step's builds: without :mod:`.crossings`
+    plain = options if options.last.bend_drops == 0 else options.replace(bend_drops=0)  # the dent step's builds: without :mod:`.crossings`
 
     rebuild = _Rebuilds(lambda sk, heard, w: _build_blocks(sk, distance, caps, plain, None, heard.append, None, project, intersect_lines, w),
                         options.repair.work_budget, work.rays)
@@ -277,15 +277,15 @@ def _build_blocks(skeleton, distance, caps, options: BlockOptions, bad_blocks_pa
         blocks.info["fixes"][:0], blocks.info["cut_stubs"] = notes, label_ostia(blocks, cut)
         blocks.info["skeleton_fixes"] = list(notes)  # the retopology's notes (a rebuild by :func:`~.dents.add_dent_sections` keeps them)
         return blocks
-    if first is None:
-        # nothing was tried (a budget spent before the first assembly, or no tries allowed):
-        # say so instead of failing on the missing failure
-        raise MeshingError(f"build_block_structure: no block structure was tried (max_retopology_tries = "
-                           f"{options.repair.max_retopology_tries}){work.stop_note()}")
     # every try failed: the skeleton as given once more with a last resort (builds that
     # succeed without it stay as they are)
     if (blocks := _last_resort(skeleton, distance, caps, options, (warn, progress, project, intersect_lines), work)) is not None:
         return blocks
+    if first is None:
+        # nothing but the last resort was tried (a budget spent before the first assembly, or no tries allowed):
+        # say so instead of failing on the missing failure
+        raise MeshingError(f"build_block_structure: no try of the skeleton was made (max_retopology_tries = "
+                           f"{options.repair.max_retopology_tries}) and its last tries failed{work.stop_note()}")
     hooks = (warn, progress, project, intersect_lines)
     if (blocks := _without_bends(first, distance, caps, options, hooks, work)) is not None:
         return blocks
@@ -305,7 +305,7 @@ def _last_resort(skeleton, distance, caps, options: BlockOptions, hooks: tuple, 
             blocks = _build_blocks(skeleton, distance, caps, last, None, *hooks, work)
         except MeshingError:
             continue
-        if last.repair.spread_tight:
+        if last.last.spread_tight:
             blocks.info["fixes"].insert(0, "last try: junction clearances end at their own crowded stretch, and the cross-sections of "
                                            "branches between two junctions without room spread between the junctions' reaches")
         return blocks
@@ -321,8 +321,8 @@ def _without_bends(first, distance, caps, options: BlockOptions, hooks: tuple, w
     rays are shared too): the first round makes it, the later ones (inside it, one round
     less of drops each) draw on it, so a build spends at most twice ``work_budget``. It is
     not offered inside a last try (its own last tries run inside it)."""
-    repair = options.repair
-    if repair.bend_drops <= 0 or not first.bends or repair.straighten_stuck_ends or repair.spread_tight:
+    repair, last = options.repair, options.last
+    if last.bend_drops <= 0 or not first.bends or last.straighten_stuck_ends or last.spread_tight:
         return None
     if work.bend_rounds:
         extra = work  # a later round: the first round's extra budget
@@ -333,7 +333,7 @@ def _without_bends(first, distance, caps, options: BlockOptions, hooks: tuple, w
         return None
     note = bend_note(first.bends)
     try:
-        blocks = _build_blocks(without_bends(first.skeleton, first.bends), distance, caps, options.replace(bend_drops=repair.bend_drops - 1),
+        blocks = _build_blocks(without_bends(first.skeleton, first.bends), distance, caps, options.replace(bend_drops=last.bend_drops - 1),
                                None, *hooks, extra)
     except MeshingError:
         first.hint += f"; {note.split(':')[0]} did not help either"
@@ -356,7 +356,7 @@ def _rerooted(first: _Failure, distance, caps, options: BlockOptions, hooks: tup
     Only runs whose every other try failed reach it, so no structure built today changes.
     Needs the wall projector (``project``) for that judgement; the first structure
     taken, or None."""
-    if not options.repair.reroot_backwards or hooks[2] is None:
+    if not options.last.reroot_backwards or hooks[2] is None:
         return None
     sk, project = first.skeleton, hooks[2]
     for a, b in first.crowded:
@@ -386,10 +386,10 @@ def _last_tries(options: BlockOptions) -> list:
     stretch (a bulge further on is not the junction's), and the sections of branches
     between two junctions without room stand between the two junctions' reaches. Not by
     default: both move sections of builds that work (g0008 extracted, g0002 extracted)."""
-    if options.repair.straighten_stuck_ends:
+    if options.last.straighten_stuck_ends:
         return []
     out = [options.replace(straighten_stuck_ends=True, max_retopology_tries=1)]
-    if not options.repair.spread_tight:
+    if not options.last.spread_tight:
         out.append(options.replace(spread_tight=True, clear_own_stretch=True))
     return out
 

@@ -60,24 +60,36 @@ class RepairOptions:
     good_wall_quality: float = 0.3  # projected quality at which a junction end's margin stops growing
     wall_margins: tuple = (0.0, 0.5, 1.0, 2.0)  # extra margins tried at folding junction ends (× radius)
     relieve_wall_folds: bool = True  # re-place junction sections where boundary-layer blocks would fold (fill-judged)
-    straighten_stuck_ends: bool = False  # straighten first sections at junction ends out of fixes (build_blocks' last try)
-    clear_own_stretch: bool = False  # a junction's clearance along a branch ends at its own crowded stretch (build_blocks' last try)
-    spread_tight: bool = False  # sections of a branch between two junctions without room between their reaches (build_blocks' last try)
     stub_within_reach: bool = False  # a side branch is a stub only when it ends within REACH_RADII of its own radii past its junction's radius (:mod:`.stubs`; off: wherever it ends within its junction's half-sections)
-    reroot_backwards: bool = False  # last try of all: a crowded junction's thin sibling running back in the link's lumen past its middle re-rooted at the other junction (:mod:`.reroot`)
     poor_block_sj: float = 0.0  # valid blocks whose least corner scaled Jacobian is below this get the invalid-block repairs, kept where they help (:mod:`.poor`; 0: never)
     dent_sections: int = 2  # rounds of cross-sections added halfway along segments whose layer blocks fold on the wall (:mod:`.dents`; 0: none)
-    bend_drops: int = 0  # rounds of dropping bend nodes whose sections cross (:mod:`.crossings`), only where every other try failed (0: none; opt-in)
     work_budget: int = 160  # assemblies of the whole structure one build may do over its fixes and tries (0: unbounded)
 
 
-_GROUPS = {"section": SectionOptions, "junction": JunctionOptions, "ends": EndOptions, "repair": RepairOptions}
+@dataclass
+class LastTryOptions:
+    """The builder's last tries, made only where every other try failed (so a structure
+    built without them is the same): on by ``build_blocks`` itself in turn, or opt-in."""
+
+    straighten_stuck_ends: bool = False  # straighten first sections at junction ends out of fixes (build_blocks' last try)
+    clear_own_stretch: bool = False  # a junction's clearance along a branch ends at its own crowded stretch (build_blocks' last try)
+    spread_tight: bool = False  # sections of a branch between two junctions without room between their reaches (build_blocks' last try)
+    reroot_backwards: bool = False  # last try of all: a crowded junction's thin sibling running back in the link's lumen past its middle re-rooted at the other junction (:mod:`.reroot`)
+    bend_drops: int = 0  # rounds of dropping bend nodes whose sections cross (:mod:`.crossings`), only where every other try failed (0: none; opt-in)
+
+
+_GROUPS = {"section": SectionOptions, "junction": JunctionOptions, "ends": EndOptions, "repair": RepairOptions, "last": LastTryOptions}
 
 
 @dataclass(init=False)
 class BlockOptions:
     """Parameters of :func:`build_blocks` (see the filter ``build_block_structure``), in
-    groups by concern: :attr:`section`, :attr:`junction`, :attr:`ends` and :attr:`repair`.
+    groups by concern: :attr:`section`, :attr:`junction`, :attr:`ends`, :attr:`repair` and
+    :attr:`last` (the last tries).
+
+    The defaults here are the kernel's: where the filter's default differs (``saddle_split``
+    0.5, ``short_end_rays`` 0.5 there, 0 here), a direct caller passes the filter's value to
+    get the default chain's structure.
 
     Built from groups (``BlockOptions(junction=JunctionOptions(junction_centre=0))``) or
     from the filter's flat parameter names (``BlockOptions(junction_centre=0)``), which
@@ -88,20 +100,21 @@ class BlockOptions:
     junction: JunctionOptions
     ends: EndOptions
     repair: RepairOptions
+    last: LastTryOptions
 
-    def __init__(self, section=None, junction=None, ends=None, repair=None, **flat):
-        given = {"section": section, "junction": junction, "ends": ends, "repair": repair}
+    def __init__(self, section=None, junction=None, ends=None, repair=None, last=None, **flat):
+        given = {"section": section, "junction": junction, "ends": ends, "repair": repair, "last": last}
         groups = {name: replace(given[name]) if given[name] is not None else cls() for name, cls in _GROUPS.items()}
         for key, value in flat.items():
             owner = next((name for name, cls in _GROUPS.items() if key in _FIELDS[cls]), None)
             if owner is None:
                 raise TypeError(f"BlockOptions got an unexpected keyword argument {key!r}")
             setattr(groups[owner], key, value)
-        self.section, self.junction, self.ends, self.repair = (groups[name] for name in _GROUPS)
+        self.section, self.junction, self.ends, self.repair, self.last = (groups[name] for name in _GROUPS)
 
     def replace(self, **flat) -> "BlockOptions":
         """A copy with the given fields (flat names) changed."""
-        return BlockOptions(self.section, self.junction, self.ends, self.repair, **flat)
+        return BlockOptions(self.section, self.junction, self.ends, self.repair, self.last, **flat)
 
 
 _FIELDS = {cls: {f.name for f in fields(cls)} for cls in _GROUPS.values()}

@@ -18,10 +18,12 @@ import copy
 import numpy as np
 
 from ...blocks import BlockStructure, scaled_corner_jacobians
+from ...errors import MeshingError
 
-#: Rounds of :meth:`_PoorBlocks.lift_poor_blocks`, one segment each: each is one assembly
-#: of the whole structure (a tenth of the default work budget of 160 at most, so a tree
-#: that needed most of it to become valid is not held up by the lift much longer).
+#: Rounds of :meth:`_PoorBlocks.lift_poor_blocks`, one segment each: each is one or two
+#: assemblies of the whole structure (one per repair tried: 16 at most, a tenth of the
+#: default work budget of 160, so a tree that needed most of it to become valid is not held
+#: up by the lift much longer).
 POOR_ROUNDS = 8
 
 #: How much the summed shortfall below the floor must fall for a round to count as
@@ -54,7 +56,9 @@ class _PoorBlocks:
         kept only where every block stays valid, the least block scaled Jacobian over the
         whole structure does not fall, and the summed shortfall below the floor falls;
         else the state goes back and that segment is not tried again. At most
-        ``POOR_ROUNDS`` rounds (one assembly each). Returns the kept blocks (``blocks``
+        ``POOR_ROUNDS`` rounds (one assembly per repair tried, two repairs at most). A repair
+        whose placement cannot be built (a section finds no wall) is refused like one that
+        does not help: the rounds kept before it stay. Returns the kept blocks (``blocks``
         where no round was kept)."""
         floor = self.opt.repair.poor_block_sj
         sj = block_scaled_jacobians(blocks)
@@ -72,7 +76,10 @@ class _PoorBlocks:
                     break
                 saved = self._poor_state()
                 said = len(self.fixes)
-                trial = self.assemble() if repair(group) else None
+                try:
+                    trial = self.assemble() if repair(group) else None
+                except MeshingError:  # a placement that cannot be built: refused, the kept rounds stay
+                    trial = None
                 new = block_scaled_jacobians(trial) if trial is not None else None
                 if (trial is None or self.built.corners.min() <= 0 or new.min() < sj.min() - 1e-9
                         or shortfall(new, floor) > shortfall(sj, floor) * (1.0 - POOR_PROGRESS)):

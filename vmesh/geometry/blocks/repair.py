@@ -418,7 +418,7 @@ class _Repair:
             del self.fixes[len(self.fixes) - len(rotated):]
             return False
         changed = changed or bool(rotated)
-        if not changed and self.opt.repair.straighten_stuck_ends:
+        if not changed and self.opt.last.straighten_stuck_ends:
             # out of every other idea: turn the first sections at stuck junction ends
             # towards their chords (:func:`build_blocks`' last resort)
             for bi, side, node in stuck:
@@ -519,7 +519,7 @@ class _Repair:
         )
         failure = _Failure(message, blocks, bad, self.topo.sk, nfurc, crowded, hint)
         failure.stubs = self.short_stubs(bad)
-        failure.bends = crossing_bends(self, bad) if self.opt.repair.bend_drops > 0 else []  # opt-in (:mod:`.crossings`)
+        failure.bends = crossing_bends(self, bad) if self.opt.last.bend_drops > 0 else []  # opt-in (:mod:`.crossings`)
         # leaning moves only its junction's half-sections: a try failing away from every
         # leaning junction fails the same with half-planes (:func:`~.builder._fallback`)
         failure.leaned = any(self.leans(self.topo.junctions[c]) for c in ends.tolist() if c in self.topo.junctions)

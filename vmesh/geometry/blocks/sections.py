@@ -181,7 +181,7 @@ class _Sections:
         for n_job, (c, h, bi, side, s) in enumerate(jobs):
             ok = clean[owner == n_job]
             first = _clear_from(ok, s, float(np.median(sk.radii[self.topo.branches[bi].nodes])))
-            if opt.repair.clear_own_stretch and first > 0:
+            if opt.last.clear_own_stretch and first > 0:
                 # build_blocks' last try: CLEAR_RUN clean candidates in a row end the
                 # junction's crowded stretch even when shorter than a branch radius
                 # (g0016 extracted: a bulge 2.5-4.7 along a branch of radius 0.67)
@@ -303,7 +303,7 @@ class _Sections:
                 if ends[-1] > reach:
                     K = len(br.nodes) - 1
                     br.s[1:-1] = reach + (ends[-1] - reach) * np.arange(1, K) / K
-            elif not room and self.opt.repair.spread_tight and br.kinds == [JUNCTION, JUNCTION] and br.nodes[0] != br.nodes[-1]:
+            elif not room and self.opt.last.spread_tight and br.kinds == [JUNCTION, JUNCTION] and br.nodes[0] != br.nodes[-1]:
                 # build_blocks' last try: a branch between two junctions without room has
                 # its sections between the two junctions' bounded reaches (thin blocks)
                 # instead of at their nodes inside the half-sections. Not by default: some
