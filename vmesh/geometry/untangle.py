@@ -419,8 +419,8 @@ def _keep_valid(points, sub, q0, X, info, rerun, work=None):
     :data:`KEEP_VALID_RERUNS` reruns each: first those nodes that no element inverted at the
     start has (held, such nodes would keep that element folded: s0 g0015 extracted, 47
     inverted elements at the start's minimum instead of 35), then all their nodes (which
-    keeps the element as it was). Nodes that a run left where they started (fixed, or not
-    moved) are not held: holding them changes nothing but spends a rerun. No rerun starts
+    keeps the element as it was). Nodes that no run of the ladder moved (fixed, or left where
+    they started) are not held: holding them changes nothing but spends a rerun. No rerun starts
     once ``work`` (the untangling's shared :class:`_Work`) is spent. ``info["keep_valid"]``
     reports the reruns; ``(X, info)`` is returned unchanged when ``X`` folds no valid
     element."""
@@ -432,17 +432,17 @@ def _keep_valid(points, sub, q0, X, info, rerun, work=None):
     unfolding = np.zeros(len(X), bool)
     unfolding[sub[q0 <= 0].ravel()] = True
     for free in (unfolding, np.zeros(len(X), bool)):
-        held, folded, last = np.zeros(len(X), bool), first, X
+        held, folded, moved = np.zeros(len(X), bool), first, np.any(X != points, axis=1)
         for _ in range(KEEP_VALID_RERUNS):
             grown = held.copy()
             grown[sub[folded].ravel()] = True
-            grown &= ~free & (held | np.any(last != points, axis=1))  # a node the run left in place: holding it changes nothing
+            grown &= ~free & (held | moved)  # a node no run of this ladder moved (fixed, or left in place): holding it changes nothing
             if (grown == held).all() or (work is not None and work.spent()):
                 break  # nothing more to hold on this ladder, or no work left for a rerun
             held = grown
             spent = work.updates if work is not None else 0
             Y, info_y = rerun(held)
-            last = Y
+            moved |= np.any(Y != points, axis=1)
             qy = linear_scaled_jacobian(Y, sub)
             folded = (q0 > 0) & (qy <= 0)
             run = {"held": int(held.sum()), "all_nodes": not free.any(), "folded_valid": int(folded.sum()), "inverted": int((qy <= 0).sum()), "min": float(qy.min()),

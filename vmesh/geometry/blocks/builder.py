@@ -284,8 +284,9 @@ def _build_blocks(skeleton, distance, caps, options: BlockOptions, bad_blocks_pa
     if first is None:
         # nothing but the last resort was tried (a budget spent before the first assembly, or no tries allowed):
         # say so instead of failing on the missing failure
+        last = "were not made either" if work.spent else "failed"
         raise MeshingError(f"build_block_structure: no try of the skeleton was made (max_retopology_tries = "
-                           f"{options.repair.max_retopology_tries}) and its last tries failed{work.stop_note()}")
+                           f"{options.repair.max_retopology_tries}) and its last tries {last}{work.stop_note()}")
     hooks = (warn, progress, project, intersect_lines)
     if (blocks := _without_bends(first, distance, caps, options, hooks, work)) is not None:
         return blocks
