@@ -244,6 +244,25 @@ def test_fast_decimation_keeps_the_surface_manifold(real_path):
     assert SignedDistance(v, f).sign_method == "pseudonormal"
 
 
+def test_a_backend_warning_goes_to_the_report_without_max_error(monkeypatch):
+    """A RuntimeWarning while decimating (fast-simplification's fallback to pymeshlab, seed-1
+    g0009 and BraVa in the corpora) is reported; the filter used to fail on an internal error
+    (it read max_error's tries, which only exist with max_error)."""
+    v, f = icosphere(1.0, 4)
+    real = pre.decimate
+
+    def warning_decimate(*args, **kw):
+        import warnings
+
+        warnings.warn("fast-simplification leaves non-manifold edges: decimated with pymeshlab instead", RuntimeWarning)
+        return real(*args, **kw)
+
+    monkeypatch.setattr(pre, "decimate", warning_decimate)
+    ctx = FilterChain([("decimate_surface", {"backend": "fast_simplification", "target_faces": 1000})]).run(surface=SurfaceMesh(v, f))
+    assert abs(ctx.coarse_surface.n_faces - 1000) <= 20
+    assert any("decimated with pymeshlab instead" in w for w in ctx.report.warnings)
+
+
 def test_decimation_default_and_parameter_errors():
     v, f = icosphere(1.0, 4)
     ctx = FilterChain(["decimate_surface"]).run(surface=SurfaceMesh(v, f))

@@ -519,6 +519,7 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
             v, f, tries = pre.decimate_to_tolerance(s.vertices, s.faces, target_faces, max_error, wall_faces=wall, **options)
     for message in dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)):
         ctx.warn(message)
+    if tries:  # max_error's decimations (a warning, e.g. the backend fallback, used to reach this without them)
         for k, (n_faces, err) in enumerate(tries, 1):
             ctx.tick(k / len(tries), f"{n_faces} faces: max error {100 * err:.2f} % of the local radius")
         if tries[-1][1] > max_error:
