@@ -447,7 +447,7 @@ def _missing_parts(V, WF, area, rel, far, at_end_face, face_r, face_node, cap_of
     or rounded end beyond it is end wall, whatever mesh face lies closest to it. (Up to
     session 22 a patch was *at an end* when more than half of its far area had an end face
     as its closest mesh face: a vote that any smoothing of the end face's rim could flip,
-    e.g. real kd_lima extracted, 0.511 of an end patch on main.)
+    e.g. an end patch at 0.511 on a real graft, docs/coverage.md.)
 
     Returns the parts (at most :data:`MAX_PATCHES`), the patch count and the count of
     missing parts."""

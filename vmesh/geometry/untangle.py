@@ -400,7 +400,6 @@ def _untangle_run(points, sub, q, restart_below, work, held, kw):
         if info2["after"] > info["after"]:
             X = X2
             info = {**info2, "before": info["before"], "moved": int((moved | moved2).sum()), "rounds": info["rounds"] + info2["rounds"], "restart": info["restart"]}
-    info["work"] = {"node_updates": work.updates, "evaluations": work.evaluations, "limit": work.limit, "exhausted": work.spent()}
     return X, info
 
 
@@ -411,7 +410,7 @@ def _untangle_run(points, sub, q, restart_below, work, held, kw):
 KEEP_VALID_RERUNS = 3
 
 
-def _keep_valid(points, sub, q0, X, info, rerun, work=None):
+def _keep_valid(points, sub, q0, X, info, rerun, work):
     """Rerun the untangling (``rerun(held) -> (X, info)``) with nodes of the elements it
     folded that were valid at the start (``q0 > 0``) held at their start positions, while a
     result folds such elements; keep the first rerun that folds none and is no worse than
@@ -437,16 +436,16 @@ def _keep_valid(points, sub, q0, X, info, rerun, work=None):
             grown = held.copy()
             grown[sub[folded].ravel()] = True
             grown &= ~free & (held | moved)  # a node no run of this ladder moved (fixed, or left in place): holding it changes nothing
-            if (grown == held).all() or (work is not None and work.spent()):
+            if (grown == held).all() or work.spent():
                 break  # nothing more to hold on this ladder, or no work left for a rerun
             held = grown
-            spent = work.updates if work is not None else 0
+            spent = work.updates
             Y, info_y = rerun(held)
             moved |= np.any(Y != points, axis=1)
             qy = linear_scaled_jacobian(Y, sub)
             folded = (q0 > 0) & (qy <= 0)
             run = {"held": int(held.sum()), "all_nodes": not free.any(), "folded_valid": int(folded.sum()), "inverted": int((qy <= 0).sum()), "min": float(qy.min()),
-                   "moved": info_y["moved"], "node_updates": info_y["work"]["node_updates"] - spent}
+                   "moved": info_y["moved"], "node_updates": work.updates - spent}
             report["reruns"].append(run)
             if not folded.any():
                 if run["inverted"] <= report["inverted"] and run["min"] >= report["min"]:

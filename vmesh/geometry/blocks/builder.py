@@ -290,7 +290,7 @@ def _build_blocks(skeleton, distance, caps, options: BlockOptions, bad_blocks_pa
     hooks = (warn, progress, project, intersect_lines)
     if (blocks := _without_bends(first, distance, caps, options, hooks, work)) is not None:
         return blocks
-    if reroot and first is not None and (blocks := _rerooted(first, distance, caps, options, hooks)) is not None:
+    if reroot and (blocks := _rerooted(first, distance, caps, options, hooks)) is not None:
         return blocks
     first.hint += work.stop_note()
     raise first.error(bad_blocks_path, sum(tries))
@@ -339,11 +339,7 @@ def _without_bends(first, distance, caps, options: BlockOptions, hooks: tuple, w
     except MeshingError:
         first.hint += f"; {note.split(':')[0]} did not help either"
         return None
-    blocks.info["fixes"].insert(0, note)
-    blocks.info["skeleton_fixes"] = [note] + blocks.info.get("skeleton_fixes", [])
-    if hooks[0]:
-        hooks[0](note)
-    return blocks
+    return _noted(blocks, note, hooks[0])
 
 
 def _rerooted(first: _Failure, distance, caps, options: BlockOptions, hooks: tuple) -> BlockStructure | None:
@@ -370,13 +366,18 @@ def _rerooted(first: _Failure, distance, caps, options: BlockOptions, hooks: tup
             continue
         if float(wall_left_out(blocks, project, *pair_wall(sk, a, b, project)).max()) > MERGE_COVER_DEPTH:
             continue
-        note = f"last try: re-rooted a branch of junction nodes {a} / {b} that runs back in the lumen of the branch between them at the other junction"
-        if hooks[0]:
-            hooks[0](note)
-        blocks.info["fixes"].insert(0, note)
-        blocks.info["skeleton_fixes"] = [note, *blocks.info.get("skeleton_fixes", [])]
-        return blocks
+        return _noted(blocks, f"last try: re-rooted a branch of junction nodes {a} / {b} that runs back in the lumen of the branch "
+                              "between them at the other junction", hooks[0])
     return None
+
+
+def _noted(blocks: BlockStructure, note: str, warn) -> BlockStructure:
+    """``blocks`` with a last try's skeleton change first in its fixes (said through ``warn``)."""
+    if warn:
+        warn(note)
+    blocks.info["fixes"].insert(0, note)
+    blocks.info["skeleton_fixes"] = [note, *blocks.info.get("skeleton_fixes", [])]
+    return blocks
 
 
 def _last_tries(options: BlockOptions) -> list:
@@ -676,6 +677,22 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _PoorBlocks, _Stubs):
         return blocks
 
 
+    def _saved_state(self) -> tuple:
+        """A copy of the state a fix or an improving step changes (:meth:`_restore_state`
+        puts it back)."""
+        # the territory cache is keyed by the skeleton it was made for, so the live one serves
+        # the restored state too: not copied (on a large tree it holds a tree of tube samples)
+        territory, self.topo.territory = self.topo.territory, None
+        try:
+            return copy.deepcopy((self.topo, self.local, self.placed, self.frames, self.built, self.fixes))
+        finally:
+            self.topo.territory = territory
+
+    def _restore_state(self, saved: tuple) -> None:
+        """Back to a :meth:`_saved_state`, keeping the live territory cache."""
+        saved[0].territory = self.topo.territory
+        self.topo, self.local, self.placed, self.frames, self.built, self.fixes = saved
+
     def _kept_valid(self, step, blocks: BlockStructure) -> BlockStructure:
         """``step(blocks)``, one of the steps that only improve a valid structure (wall folds,
         centres, planes); where one of its trial placements cannot be built (a section
@@ -684,18 +701,11 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _PoorBlocks, _Stubs):
         Such a trial (a first section moved further along a branch that runs beside
         another vessel, say) is a placement not to take, not a reason to fail a structure
         that is already valid."""
-        # the territory cache is keyed by the skeleton it was made for, so the live one serves
-        # the restored state too: not copied (on a large tree it holds a tree of tube samples)
-        territory, self.topo.territory = self.topo.territory, None
-        try:
-            saved = copy.deepcopy((self.topo, self.local, self.placed, self.frames, self.built, self.fixes))
-        finally:
-            self.topo.territory = territory
+        saved = self._saved_state()
         try:
             return step(blocks)
         except MeshingError as exc:
-            saved[0].territory = self.topo.territory
-            self.topo, self.local, self.placed, self.frames, self.built, self.fixes = saved
+            self._restore_state(saved)
             self.fixes.append(f"kept the valid blocks as they were: a trial placement of {step.__name__} could not be built ({exc})")
             return blocks
 

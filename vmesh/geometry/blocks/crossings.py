@@ -1,11 +1,11 @@
 """Cross-sections that cross their neighbour in a bend: the bend's node dropped.
 
-A regular cross-section's rays reach the wall in its plane. Where the vessel narrows into a
-bend (a funnel: real hepatic_artery extracted, a trunk of radius 8.3 dropping to 3.25 and
-turning 30-37 degrees at each node), the planes of the first narrow sections cut the
-funnel's wall obliquely and their rays reach three to four times the node's radius (8-13
-against 2.7-2.9). Two neighbouring sections tilted by the bend then cross each other
-within that reach, though their centres are a radius apart: a plane turned by ``theta``
+A regular cross-section's rays reach the wall in its plane. Where a skeleton with the
+radii of a lumen's thin side turns at every node (one wandering over a flattened lumen's
+medial sheet, turning 30-37 degrees at nodes 1-2 radii apart), the section planes cut the
+wall obliquely and their rays reach three to four times the node's radius. Two
+neighbouring sections tilted by the bend then cross each other within that reach, though
+their centres are a radius apart: a plane turned by ``theta``
 against its neighbour ``gap`` away crosses it ``gap / tan(theta)`` from the axis, inside
 rays of length ``R`` once ``tan(theta) > gap / R``. The fix loop straightens both
 planes towards their chords (:meth:`~.repair._Repair.fix`), which turns them by at most
@@ -15,10 +15,9 @@ Jacobians of -30 against +40).
 Dropping the sharper bend's node from the skeleton leaves its neighbours, now two
 segments apart, turned by the bend against each other over twice the gap: they part. This
 runs only where every other try of the build failed (:func:`~.builder._build_blocks`),
-so no structure the builder makes without it changes. Opt-in (``bend_drops``, default 0): on
-hepatic the build then succeeds but the run fails later (the joined segment leaves the
-bend's outer wall uncovered), and it won no run of the corpora (docs/junctions.md
-h24/realbuild).
+so no structure the builder makes without it changes. Opt-in (``bend_drops``, default 0): it
+won no run of the corpora; where it builds, the joined segment can leave the bend's outer
+wall uncovered and the run fails later (docs/junctions.md h24/realbuild).
 """
 
 from __future__ import annotations

@@ -13,8 +13,6 @@ as it was (the run does not fail on it).
 
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 
 from ...blocks import BlockStructure, scaled_corner_jacobians
@@ -74,7 +72,7 @@ class _PoorBlocks:
             for repair in (self._closer_to_junction, lambda g: self.fix(g, self.built.corners)):
                 if self.work.spent:
                     break
-                saved = self._poor_state()
+                saved = self._saved_state()
                 said = len(self.fixes)
                 try:
                     trial = self.assemble() if repair(group) else None
@@ -83,8 +81,7 @@ class _PoorBlocks:
                 new = block_scaled_jacobians(trial) if trial is not None else None
                 if (trial is None or self.built.corners.min() <= 0 or new.min() < sj.min() - 1e-9
                         or shortfall(new, floor) > shortfall(sj, floor) * (1.0 - POOR_PROGRESS)):
-                    saved[0].territory = self.topo.territory  # the ray-cut cache serves the restored state too
-                    self.topo, self.local, self.placed, self.frames, self.built, self.fixes = saved
+                    self._restore_state(saved)
                     continue
                 del self.fixes[said:]  # one note for the step, below
                 got = trial, new
@@ -120,12 +117,3 @@ class _PoorBlocks:
             self.fixes.append("moved the first cross-sections of poor junction blocks back towards their junction")
             self._apply_clearance()
         return changed
-
-    def _poor_state(self) -> tuple:
-        """A copy of the state a fix round changes (as :meth:`~.builder._Builder._kept_valid`
-        keeps it), the territory cache left shared."""
-        territory, self.topo.territory = self.topo.territory, None
-        try:
-            return copy.deepcopy((self.topo, self.local, self.placed, self.frames, self.built, self.fixes))
-        finally:
-            self.topo.territory = territory
