@@ -52,3 +52,54 @@ def test_poor_trifurcation_blocks_are_lifted_above_the_bar():
     q = scaled_jacobian(ctx.mesh.points, ctx.mesh.cells, ctx.mesh.order)
     assert q.min() > 0.3 and q.mean() > 0.9
     assert ctx.report.sections["coverage"]["missing_parts"] == 0
+
+
+def test_moved_blocks_names_only_the_blocks_whose_corners_moved():
+    """A lift trial is judged by the blocks it moved: one section of a hand-built cylinder
+    moved along the axis moves the blocks on both sides of it, and none else; structures of
+    other blocks are not compared."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from cylinder_blocks import cylinder_blocks
+
+    from vmesh.geometry.blocks.poor import moved_blocks
+
+    before = cylinder_blocks(sections=5)
+    after = cylinder_blocks(sections=5)
+    assert len(moved_blocks(before, after)) == 0
+    after.vertices[2 * 25:3 * 25, 2] += 0.5  # the third section (25 corners) moves along z
+    moved = moved_blocks(before, after)
+    assert sorted(set(before.block_segment[moved].tolist())) == [1, 2]
+    assert len(moved) == 2 * 20  # both segments' 4 core, 8 ring and 8 layer blocks
+    assert moved_blocks(before, cylinder_blocks(sections=4)) is None
+
+
+def test_fill_summary_of_a_straight_cylinder_is_valid_at_every_resolution():
+    """The raw fill the lift's trial log records (least and mean element per resolution):
+    a straight O-grid cylinder fills validly (least > 0.3, mean > 0.8) at the default chain's
+    and the finer resolution, and a block squashed towards its neighbour's section fills
+    worse than it did."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from cylinder_blocks import cylinder_blocks, project_cylinder
+
+    from vmesh.geometry.blocks.checks import FILL_CHECKS
+    from vmesh.geometry.blocks.poor import fill_summary
+
+    blocks = cylinder_blocks(radius=2.0, length=10.0, sections=5)
+    project = project_cylinder(2.0)
+
+    def distance(p):
+        return 2.0 - np.linalg.norm(np.asarray(p)[:, :2], axis=1)
+
+    every = np.arange(blocks.n_blocks)
+    good = fill_summary(blocks, every, project, distance)
+    assert good.shape == (len(FILL_CHECKS), 2)
+    assert np.all(good[:, 0] > 0.3) and np.all(good[:, 1] > 0.8)
+    tilted = cylinder_blocks(radius=2.0, length=10.0, sections=5)
+    sec = slice(2 * 25, 3 * 25)
+    tilted.vertices[sec, 2] += 0.9 * tilted.vertices[sec, 0]  # the third section leans: its blocks shear
+    worse = fill_summary(tilted, every, project, distance)
+    assert np.all(worse[:, 0] < good[:, 0]) and np.all(worse[:, 1] < good[:, 1])

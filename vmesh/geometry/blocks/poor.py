@@ -17,6 +17,7 @@ import numpy as np
 
 from ...blocks import BlockStructure, scaled_corner_jacobians
 from ...errors import MeshingError
+from .checks import filled
 
 #: Rounds of :meth:`_PoorBlocks.lift_poor_blocks`, one segment each: each is one or two
 #: assemblies of the whole structure (one per repair tried: 16 at most, a tenth of the
@@ -28,10 +29,32 @@ POOR_ROUNDS = 8
 #: progress (relative): a round whose gain is rounding noise only spends an assembly.
 POOR_PROGRESS = 1e-3
 
+#: A list to record every lift trial in (``benchmarks/poor_rounds.py``), or None (the
+#: default: nothing recorded, nothing filled). Each record: the segment, the repair, whether
+#: it was kept, the structure's least block and shortfall before and after, and the raw fill
+#: (:func:`fill_summary`) of the blocks the trial moved (:func:`moved_blocks`) before and after.
+TRIAL_LOG: list | None = None
+
 
 def block_scaled_jacobians(blocks: BlockStructure) -> np.ndarray:
     """(nb,) least scaled Jacobian of each straight block over its eight corners."""
     return scaled_corner_jacobians(blocks.vertices[blocks.hexes]).min(axis=1)
+
+
+def moved_blocks(before: BlockStructure, after: BlockStructure) -> np.ndarray | None:
+    """Blocks whose corners moved from ``before`` to ``after`` (the same blocks, one
+    placement changed); None where the two structures do not have the same blocks.
+    Unchanged sections give bit-identical corners, so any difference counts."""
+    if before.hexes.shape != after.hexes.shape:
+        return None
+    return np.flatnonzero(np.any(before.vertices[before.hexes] != after.vertices[after.hexes], axis=(1, 2)))
+
+
+def fill_summary(blocks: BlockStructure, subset: np.ndarray, project, distance, intersect_lines=None, refinement=None) -> np.ndarray:
+    """``(r, 2)``: per resolution of ``refinement`` (default :data:`~.checks.FILL_CHECKS`) the
+    least and the mean scaled Jacobian of the elements of the blocks ``subset``, filled as
+    :func:`~.checks.fill_quality` fills them (transfinite, without untangling)."""
+    return np.array([(float(sj.min()), float(sj.mean())) for _, sj in filled(blocks, subset, project, distance, intersect_lines, refinement)])
 
 
 def shortfall(sj: np.ndarray, floor: float) -> float:
@@ -69,7 +92,7 @@ class _PoorBlocks:
             key = where[min(poor, key=lambda b: sj[b])]
             group = np.array([b for b in poor if where[b] == key], np.int64)
             got = None
-            for repair in (self._closer_to_junction, lambda g: self.fix(g, self.built.corners)):
+            for repair in (self._closer_to_junction, self._fix_group):
                 if self.work.spent:
                     break
                 saved = self._saved_state()
@@ -79,8 +102,11 @@ class _PoorBlocks:
                 except MeshingError:  # a placement that cannot be built: refused, the kept rounds stay
                     trial = None
                 new = block_scaled_jacobians(trial) if trial is not None else None
-                if (trial is None or self.built.corners.min() <= 0 or new.min() < sj.min() - 1e-9
-                        or shortfall(new, floor) > shortfall(sj, floor) * (1.0 - POOR_PROGRESS)):
+                refuse = (trial is None or self.built.corners.min() <= 0 or new.min() < sj.min() - 1e-9
+                          or shortfall(new, floor) > shortfall(sj, floor) * (1.0 - POOR_PROGRESS))
+                if TRIAL_LOG is not None:
+                    self._log_trial(key, repair, blocks, trial, sj, new, floor, not refuse)
+                if refuse:
                     self._restore_state(saved)
                     continue
                 del self.fixes[said:]  # one note for the step, below
@@ -97,6 +123,23 @@ class _PoorBlocks:
                               f"{int((sj < floor).sum())} block(s) left below")
             blocks.info.update(self.built.info)
         return blocks
+
+    def _fix_group(self, group: np.ndarray) -> bool:
+        """:meth:`~.repair._Repair.fix` of the poor blocks ``group``, as if they were invalid."""
+        return self.fix(group, self.built.corners)
+
+    def _log_trial(self, key, repair, blocks, trial, sj, new, floor, kept) -> None:
+        """Append one trial's record to :data:`TRIAL_LOG` (see there)."""
+        row = {"segment": [int(k) for k in key], "nodes": [int(n) for n in self.topo.branches[key[0]].nodes[key[1]:key[1] + 2]],
+               "repair": repair.__name__, "kept": bool(kept), "built": trial is not None,
+               "least_block": [float(sj.min()), None if new is None else float(new.min())],
+               "shortfall": [shortfall(sj, floor), None if new is None else shortfall(new, floor)]}
+        moved = moved_blocks(blocks, trial) if trial is not None and self.built.corners.min() > 0 else None
+        if moved is not None and len(moved):
+            row["moved"] = int(len(moved))
+            row["fill_before"] = fill_summary(blocks, moved, self.project, self.sdf, self.intersect_lines).round(4).tolist()
+            row["fill_after"] = fill_summary(trial, moved, self.project, self.sdf, self.intersect_lines).round(4).tolist()
+        TRIAL_LOG.append(row)
 
     def _closer_to_junction(self, group: np.ndarray) -> bool:
         """Give back half a radius of the extra margin the fix loop gave the junction ends
