@@ -116,3 +116,46 @@ def test_coarse_surface_keeps_its_caps():
         assert sorted(cap.faces.tolist()) == sorted(own.faces.tolist()) and cap.name in [c.name for c in caps]
     assert caps_on(fine, fine, caps) is caps and caps_on(coarse, fine, None) is None
     assert isinstance(wall_projector(coarse, on, kept=[c.id for c in on]), CapKeepingProjector)
+
+
+def test_a_cap_touched_by_a_thinner_vessel_keeps_that_vessels_points():
+    """A cap cut through a passing vessel much thinner than itself (s0 g0015 extracted: cap
+    radius 1.27, the passing vessel 0.34) has all of that vessel's lumen within a quarter of
+    the cap's radius of the wall: judged by the cap's radius, none of its points on the cap
+    stayed there, and the boundary layer folded between cap and wall. Judged by the thinner
+    vessel's radius (``kept`` maps the cap to it) a point 0.15 in from the rim stays; a
+    point a chord's sagitta in still goes to the wall, and a plain id list is the cap's
+    own radius as before."""
+    from vmesh.geometry.projection import keep_radii
+
+    surface, caps = _capped_tube()
+    top = max(caps, key=lambda c: c.center[2])
+    p = np.array([[0.85, 0.0, 6.0]])  # on the top cap, 0.15 in from the rim
+    rim = np.array([[0.99, 0.0, 6.0]])
+    assert wall_projector(surface, caps, kept=[top.id]).project(p)[2][0] >= 0  # 0.15 < 0.25 x 1: to the wall
+    thin = wall_projector(surface, caps, kept={top.id: 0.3})
+    closest, _, face = thin.project(p)
+    assert face[0] == ON_CAP and np.allclose(closest, p)
+    assert thin.project(rim)[2][0] >= 0
+    assert keep_radii(caps, {top.id: 0.3, 99: 0.1}) == {top.id: 0.3}
+    assert keep_radii(caps, {top.id: 5.0}) == {top.id: pytest.approx(top.radius)}  # a thicker vessel: the cap's own radius
+    assert keep_radii(caps, [top.id]) == {top.id: pytest.approx(top.radius)}
+
+
+def test_touched_caps_carry_the_thinnest_vessel_in_contact():
+    """``build_block_structure``'s contact cuts name each touched cap with the radius of the
+    thinnest vessel in contact at its end (what the wall projector judges its points by)."""
+    from types import SimpleNamespace
+
+    from vmesh.filters.block_filters import _contact_cuts
+
+    y = np.arange(-8.0, 4.01, 1.0)
+    thick = np.stack([np.zeros(9), y[:9], np.zeros(9)], 1)
+    thin = np.stack([np.full(len(y), 0.9), y, np.zeros(len(y))], 1)
+    points = np.r_[thick, thin]
+    radii = np.r_[np.full(9, 1.0), np.full(len(y), 0.3)]
+    edges = np.r_[np.stack([np.arange(8), np.arange(1, 9)], 1), 9 + np.stack([np.arange(len(y) - 1), np.arange(1, len(y))], 1)]
+    sk = SimpleNamespace(points=points, radii=radii, edges=edges, endpoints=np.array([0, 8, 9, 9 + len(y) - 1]))
+    cap = SimpleNamespace(id=2, center=np.array([0.0, 0.0, 0.0]), normal=np.array([0.0, 1.0, 0.0]), radius=1.0, name="outlet_1")
+    cuts, touched = _contact_cuts(sk, np.array([[8, 17, -0.55]]), [cap], 1.0)
+    assert cuts is not None and touched == {2: pytest.approx(0.3)}
