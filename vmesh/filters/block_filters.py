@@ -97,6 +97,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
     built_on = ctx.skeleton
     found = _vessels_in_contact(built_on)
     cuts, touched = _contact_cuts(built_on, found, ctx.caps, cap_distance) if cut_contacts else (None, {})
+    options.ends.touched_caps = tuple(touched)  # the rays' territory ends at these caps' planes, as the cuts do
     project = None
     if check_wall_projection:
         if ctx.surface is not None:
