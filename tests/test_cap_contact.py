@@ -159,3 +159,34 @@ def test_touched_caps_carry_the_thinnest_vessel_in_contact():
     cap = SimpleNamespace(id=2, center=np.array([0.0, 0.0, 0.0]), normal=np.array([0.0, 1.0, 0.0]), radius=1.0, name="outlet_1")
     cuts, touched = _contact_cuts(sk, np.array([[8, 17, -0.55]]), [cap], 1.0)
     assert cuts is not None and touched == {2: pytest.approx(0.3)}
+
+
+def test_the_rays_territory_ends_at_a_touched_open_end():
+    """A thick tube (radius 1) along y ending open at y = 0 (its cap touched by a passing
+    vessel), a ray from the passing vessel's axis (x = 1.8) straight at the thick axis: at
+    y = -2 it is cut where it enters the thick tube, as before; at y = +0.5, past the cap's
+    plane where the thick vessel no longer is, the thick tube's end spheres reach it still
+    but its territory ends there (``ended_at_touched_caps``); an untouched cap ends nothing."""
+    from types import SimpleNamespace
+
+    from vmesh.geometry.blocks.ended import ended_at_touched_caps
+    from vmesh.geometry.blocks.prep import branch_tubes
+    from vmesh.geometry.rays import clip_to_territory
+
+    pos = np.c_[np.zeros(9), np.arange(-8.0, 0.01, 1.0), np.zeros(9)]  # thick axis, end node 8 at y = 0
+    radii = np.ones(9)
+    branch = SimpleNamespace(nodes=np.arange(9))
+    Q, rq, q_node, _ = branch_tubes([branch], pos, radii)
+    ter = SimpleNamespace(Q=Q, q_node=q_node)
+    topo = SimpleNamespace(branches=[branch], pos=pos, sk=SimpleNamespace(radii=radii))
+    cap = SimpleNamespace(id=2, center=np.zeros(3), normal=np.array([0.0, 1.0, 0.0]), radius=1.0)
+    ended = ended_at_touched_caps(ter, topo, {8: cap}, (2,))
+    assert ended_at_touched_caps(ter, topo, {8: cap}, ()) is None and ended_at_touched_caps(ter, topo, {8: cap}, (5,)) is None
+    origins = np.array([[1.8, -2.0, 0.0], [1.8, 0.5, 0.0]])
+    dirs = np.array([[-1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+    lengths = np.array([2.8, 2.8])
+    every = lambda r, q: np.ones(len(r), bool)  # noqa: E731
+    plain = clip_to_territory(origins, dirs, lengths, np.full(2, 0.45), every, (Q, rq))
+    out = clip_to_territory(origins, dirs, lengths, np.full(2, 0.45), every, (Q, rq), ended=ended)
+    assert plain[0] < 1.5 and plain[1] < 1.5  # both cut: the end spheres reach past the plane
+    assert out[0] == pytest.approx(plain[0]) and out[1] == pytest.approx(2.8)
