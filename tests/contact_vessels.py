@@ -64,9 +64,9 @@ def acute_fork(folder, angle: float, parallel: float = 0.0, apart: float = 1.8, 
     return write_vessel(Vessel(V, Tri, xyz, rad, tags, edges, manifest), Path(folder))
 
 
-def end_cut_through_neighbour(folder, offset: float = 1.5, units: str = "mm", thin: float = 0.45) -> dict:
+def end_cut_through_neighbour(folder, offset: float = 1.5, units: str = "mm") -> dict:
     """A tube along x (radius 1.2) from x = -10 that ends open at x = 0, and a thin branch
-    (radius ``thin``) leaving it at x = -8 that runs nearly alongside, its axis ``offset`` from
+    (radius 0.45) leaving it at x = -8 that runs nearly alongside, its axis ``offset`` from
     the tube's axis at x = 0 (the walls touching there), and ends open at x = 3. The tube's
     end is cut raggedly as the generator cuts open ends, through the thin branch's wall too
     (docs/robustness.md h22/fold: s0 g0015): one boundary loop, the tube's rim with a window
@@ -76,12 +76,12 @@ def end_cut_through_neighbour(folder, offset: float = 1.5, units: str = "mm", th
     tree.branches.append(T.Branch(p, r))
     at = int(np.argmin(np.abs(p[:, 0] + 8.0)))
     tip = np.array([3.0, offset * 11.0 / 8.0, 0.0])
-    p_k, r_k = T.straight(p[at], tip, thin, thin)
+    p_k, r_k = T.straight(p[at], tip, 0.45, 0.45)
     tree.branches.append(T.Branch(p_k, r_k, 0, at, kind="kissing"))
-    xyz, radius, tags, edges, caps, V, Tri = _open_vessel(tree, thin / 2.6)
+    xyz, radius, tags, edges, caps, V, Tri = _open_vessel(tree, 0.45 / 2.6)
     tube_end = [c for c in caps if abs(c[0][0]) < 1e-9 and np.linalg.norm(c[0][1:]) < 1e-9]
     V, Tri = S.ragged_cut(V, Tri, tube_end, np.random.default_rng(0))
-    manifest = {"name": f"end_cut_through_neighbour_{offset:g}" + (f"_{thin:g}" if thin != 0.45 else ""), "units": units, "surface_format": "ply"}
+    manifest = {"name": f"end_cut_through_neighbour_{offset:g}", "units": units, "surface_format": "ply"}
     return write_vessel(Vessel(V, Tri, xyz, radius, tags, edges, manifest), Path(folder))
 
 
