@@ -590,8 +590,9 @@ class _Sections:
             way = ways(node[sec[rays]], q_node[samples], need) - q_off[samples] - start[rays]
             return way > np.linalg.norm(o[miss[rays]] - Q[samples], axis=1) + 2.0 * (r[miss[rays]] + rq[samples])
 
-        out[miss] = clip_to_territory(o[miss], d[miss], lengths[miss], r[miss], foreign, (Q, rq), tree=ter.tree,
-                                      ended=ended_at_touched_caps(ter, self.topo, self.ends.cap_of, self.opt.ends.touched_caps))
+        touched = self.opt.ends.touched_caps  # open ends in a contact: their tubes end at their caps' planes
+        ended = ended_at_touched_caps(ter, self.topo, self.ends.cap_of, touched) if touched else None
+        out[miss] = clip_to_territory(o[miss], d[miss], lengths[miss], r[miss], foreign, (Q, rq), tree=ter.tree, ended=ended)
         keep = miss[np.isfinite(lengths[miss])]  # nan never matches a row: not kept
         ter.cuts.add(rows[keep], out[keep])
         return out.reshape(R.shape)
