@@ -116,3 +116,77 @@ def test_coarse_surface_keeps_its_caps():
         assert sorted(cap.faces.tolist()) == sorted(own.faces.tolist()) and cap.name in [c.name for c in caps]
     assert caps_on(fine, fine, caps) is caps and caps_on(coarse, fine, None) is None
     assert isinstance(wall_projector(coarse, on, kept=[c.id for c in on]), CapKeepingProjector)
+
+
+def test_a_cap_touched_by_a_thinner_vessel_keeps_that_vessels_points():
+    """A cap cut through a passing vessel much thinner than itself (s0 g0015 extracted: cap
+    radius 1.27, the passing vessel 0.34) has all of that vessel's lumen within a quarter of
+    the cap's radius of the wall: judged by the cap's radius, none of its points on the cap
+    stayed there, and the boundary layer folded between cap and wall. Judged by the thinner
+    vessel's radius (``kept`` maps the cap to it) a point 0.15 in from the rim stays; a
+    point a chord's sagitta in still goes to the wall, and a plain id list is the cap's
+    own radius as before."""
+    from vmesh.geometry.projection import keep_radii
+
+    surface, caps = _capped_tube()
+    top = max(caps, key=lambda c: c.center[2])
+    p = np.array([[0.85, 0.0, 6.0]])  # on the top cap, 0.15 in from the rim
+    rim = np.array([[0.99, 0.0, 6.0]])
+    assert wall_projector(surface, caps, kept=[top.id]).project(p)[2][0] >= 0  # 0.15 < 0.25 x 1: to the wall
+    thin = wall_projector(surface, caps, kept={top.id: 0.3})
+    closest, _, face = thin.project(p)
+    assert face[0] == ON_CAP and np.allclose(closest, p)
+    assert thin.project(rim)[2][0] >= 0
+    assert keep_radii(caps, {top.id: 0.3, 99: 0.1}) == {top.id: 0.3}
+    assert keep_radii(caps, {top.id: 5.0}) == {top.id: pytest.approx(top.radius)}  # a thicker vessel: the cap's own radius
+    assert keep_radii(caps, [top.id]) == {top.id: pytest.approx(top.radius)}
+
+
+def test_touched_caps_carry_the_thinnest_vessel_in_contact():
+    """``build_block_structure``'s contact cuts name each touched cap with the radius of the
+    thinnest vessel in contact at its end (what the wall projector judges its points by)."""
+    from types import SimpleNamespace
+
+    from vmesh.filters.block_filters import _contact_cuts
+
+    y = np.arange(-8.0, 4.01, 1.0)
+    thick = np.stack([np.zeros(9), y[:9], np.zeros(9)], 1)
+    thin = np.stack([np.full(len(y), 0.9), y, np.zeros(len(y))], 1)
+    points = np.r_[thick, thin]
+    radii = np.r_[np.full(9, 1.0), np.full(len(y), 0.3)]
+    edges = np.r_[np.stack([np.arange(8), np.arange(1, 9)], 1), 9 + np.stack([np.arange(len(y) - 1), np.arange(1, len(y))], 1)]
+    sk = SimpleNamespace(points=points, radii=radii, edges=edges, endpoints=np.array([0, 8, 9, 9 + len(y) - 1]))
+    cap = SimpleNamespace(id=2, center=np.array([0.0, 0.0, 0.0]), normal=np.array([0.0, 1.0, 0.0]), radius=1.0, name="outlet_1")
+    cuts, touched = _contact_cuts(sk, np.array([[8, 17, -0.55]]), [cap], 1.0)
+    assert cuts is not None and touched == {2: pytest.approx(0.3)}
+
+
+def test_the_rays_territory_ends_at_a_touched_open_end():
+    """A thick tube (radius 1) along y ending open at y = 0 (its cap touched by a passing
+    vessel), a ray from the passing vessel's axis (x = 1.8) straight at the thick axis: at
+    y = -2 it is cut where it enters the thick tube, as before; at y = +0.5, past the cap's
+    plane where the thick vessel no longer is, the thick tube's end spheres reach it still
+    but its territory ends there (``ended_at_touched_caps``); an untouched cap ends nothing."""
+    from types import SimpleNamespace
+
+    from vmesh.geometry.blocks.ended import ended_at_touched_caps
+    from vmesh.geometry.blocks.prep import branch_tubes
+    from vmesh.geometry.rays import clip_to_territory
+
+    pos = np.c_[np.zeros(9), np.arange(-8.0, 0.01, 1.0), np.zeros(9)]  # thick axis, end node 8 at y = 0
+    radii = np.ones(9)
+    branch = SimpleNamespace(nodes=np.arange(9))
+    Q, rq, q_node, _ = branch_tubes([branch], pos, radii)
+    ter = SimpleNamespace(Q=Q, q_node=q_node)
+    topo = SimpleNamespace(branches=[branch], pos=pos, sk=SimpleNamespace(radii=radii))
+    cap = SimpleNamespace(id=2, center=np.zeros(3), normal=np.array([0.0, 1.0, 0.0]), radius=1.0)
+    ended = ended_at_touched_caps(ter, topo, {8: cap}, (2,))
+    assert ended_at_touched_caps(ter, topo, {8: cap}, ()) is None and ended_at_touched_caps(ter, topo, {8: cap}, (5,)) is None
+    origins = np.array([[1.8, -2.0, 0.0], [1.8, 0.5, 0.0]])
+    dirs = np.array([[-1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+    lengths = np.array([2.8, 2.8])
+    every = lambda r, q: np.ones(len(r), bool)  # noqa: E731
+    plain = clip_to_territory(origins, dirs, lengths, np.full(2, 0.45), every, (Q, rq))
+    out = clip_to_territory(origins, dirs, lengths, np.full(2, 0.45), every, (Q, rq), ended=ended)
+    assert plain[0] < 1.5 and plain[1] < 1.5  # both cut: the end spheres reach past the plane
+    assert out[0] == pytest.approx(plain[0]) and out[1] == pytest.approx(2.8)

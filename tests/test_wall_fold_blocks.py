@@ -23,23 +23,44 @@ def test_wall_fold_share_splits_the_minimum_at_the_flagged_blocks():
 
 
 @pytest.mark.slow
-def test_a_fold_next_to_a_touching_branch_end_is_named_as_the_block_structures(tmp_path):
-    """Generated g0015 (seed 0, preset mixed), its skeleton extracted: a thin branch (radius
-    0.47) runs through the open end of a thicker one (radius 1.18), so the thin branch's wall
-    is dented to half its radius there. Elements stay inverted there (23 on 2026-12-06; with
-    its centerline given, none since the wall projector keeps a touched open end's cap:
-    docs/optimiser.md h18/cap). Most of them lie in the blocks the builder flagged, and the
-    error says so."""
+def test_a_cap_through_a_thin_passing_vessel_keeps_its_layer_valid(tmp_path):
+    """Generated g0015 (seed 0, preset mixed), its skeleton extracted: a thin vessel (radius
+    0.30-0.45) passes the open end of a thick one (cap radius 1.27) whose cap, capped whole
+    (no centerline to split the rim's window by), crosses the thin lumen. The wall projector
+    kept a point on that cap only 0.32 (a quarter of the cap's radius) from the wall, i.e.
+    nowhere in the thin lumen: the layer folded between cap and wall (raw fill 73 inverted,
+    final 32 at -0.505). Judged by the thin vessel's radius (``touched_caps`` maps the cap
+    to it) and the section rays' territory ended at that cap's plane (as the contact cut
+    is), every element of the raw fill, before any untangling, is valid (docs/optimiser.md,
+    h25/inverted)."""
+    from data_synthetic.vessel_generator import generate_one
+
+    from test_mesh_cases import run_default
+
+    m = generate_one(tmp_path, 15, 0, "mixed")
+    ctx = run_default(str(Path(m["folder"]) / m["files"]["surface"]), **{"compute_quality.fail_on_invalid": False, "mesh_transfinite.untangle": False})
+    touched = ctx.blocks.info["touched_caps"]
+    radius = {c.id: c.radius for c in ctx.caps}
+    assert touched and all(r < radius[k] for k, r in touched.items())  # judged by the thinner vessel
+    assert (ctx.mesh.cell_data["scaled_jacobian"] > 0).all()
+
+
+@pytest.mark.slow
+def test_a_fold_at_two_overlapping_junctions_is_named_as_the_block_structures(tmp_path):
+    """Generated g0016 (seed 1, preset mixed), its skeleton extracted: junctions 3 and 4 with
+    overlapping balls; the builder moves junction 3 away from 4 (``separate_junctions``) to
+    make the link's blocks valid, and the blocks of its other branch there fold once their
+    wall faces are projected (docs/junctions.md, h25/inverted). Elements stay inverted
+    there; most of them lie in the blocks the builder flagged, and the error says so."""
     from data_synthetic.vessel_generator import generate_one
 
     from test_mesh_cases import run_default
     from vmesh.registry import get_filter
 
-    m = generate_one(tmp_path, 15, 0, "mixed")
+    m = generate_one(tmp_path, 16, 1, "mixed")
     ctx = run_default(str(Path(m["folder"]) / m["files"]["surface"]), **{"compute_quality.fail_on_invalid": False})
     folds = ctx.report.sections["quality"]["wall_fold_blocks"]
     sj = ctx.mesh.cell_data["scaled_jacobian"]
-    # most of them (22 of 23 on 2026-12-06; the rest in the flagged blocks' neighbours)
     assert 2 * folds["invalid_inside"] > int((sj <= 0).sum()) > 0
     assert folds["min_inside"] < 0 < folds["elements"]
     with pytest.raises(MeshingError, match="found folding when their wall faces are projected"):

@@ -96,7 +96,8 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         bad_path = Path(tempfile.gettempdir()) / f"vmesh_invalid_blocks_{os.getpid()}.vtu"
     built_on = ctx.skeleton
     found = _vessels_in_contact(built_on)
-    cuts, touched = _contact_cuts(built_on, found, ctx.caps, cap_distance) if cut_contacts else (None, [])
+    cuts, touched = _contact_cuts(built_on, found, ctx.caps, cap_distance) if cut_contacts else (None, {})
+    options.ends.touched_caps = tuple(touched)  # the rays' territory ends at these caps' planes, as the cuts do
     project = None
     if check_wall_projection:
         if ctx.surface is not None:
@@ -169,17 +170,23 @@ def _contact_cuts(sk, found: np.ndarray, caps=None, cap_distance: float = 1.0):
     are built on (:mod:`vmesh.geometry.contact_cut`), each stopping at an open end (an
     endpoint the builder puts on a cap; None when there are no cuts), and the ids of the
     caps of the open ends in contact with another vessel (whose cap the wall projector
-    keeps: :func:`vmesh.geometry.projection.wall_projector`)."""
+    keeps: :func:`vmesh.geometry.projection.wall_projector`), each with the radius of the
+    thinnest vessel in contact at that end (the scale of the lumen its cap may cross)."""
     from ..geometry.blocks.prep import endpoint_caps
     from ..geometry.contact_cut import contact_cuts
 
     if not len(found):
-        return None, []
+        return None, {}
     ends = sk.endpoints
     cap_of = endpoint_caps(sk.points, sk.radii, ends, caps, cap_distance) if caps else {}
     cuts = contact_cuts(sk.points, sk.radii, sk.edges, found, open_ends=list(cap_of) if caps else ends)  # no caps: every end open, as the builder
-    touched = sorted({int(cap_of[int(n)].id) for n in np.asarray(cuts.nodes).ravel() if int(n) in cap_of})
-    return (cuts if len(cuts) else None), touched
+    touched = {}
+    for pair in np.asarray(cuts.nodes).tolist():
+        for end, other in (pair, pair[::-1]):
+            if int(end) in cap_of:
+                cap = int(cap_of[int(end)].id)
+                touched[cap] = min(touched.get(cap, np.inf), float(sk.radii[int(other)]))
+    return (cuts if len(cuts) else None), dict(sorted(touched.items()))
 
 
 def _warn_vessels_in_contact(ctx, found: np.ndarray, cut: bool = False) -> None:

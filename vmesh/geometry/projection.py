@@ -57,7 +57,9 @@ class SurfaceProjector:
 
 
 #: A point stays on a cap (rather than going to the wall) when the closest point of the
-#: closed surface is on that cap and the wall is farther than this x the cap's radius ...
+#: closed surface is on that cap and the wall is farther than this x the cap's keep radius
+#: (the cap's radius, or the radius of a thinner vessel in contact at its end: see
+#: :func:`wall_projector`) ...
 CAP_KEEP_RADIUS = 0.25
 #: ... and this many times farther than the cap (docs/optimiser.md, h18/cap)
 CAP_KEEP_RATIO = 4.0
@@ -89,6 +91,7 @@ class CapKeepingProjector:
     cap_of_face : (m,) int array
         The index into ``cap_radius`` of each closed-surface face's cap, -1 for the wall.
     cap_radius : (k,) array
+        The radius each cap's rule is judged against (:func:`keep_radii`).
     """
 
     def __init__(self, wall: SurfaceProjector, closed, cap_of_face: np.ndarray, cap_radius: np.ndarray):
@@ -176,19 +179,26 @@ def wall_projector(surface, caps=None, kept=()) -> SurfaceProjector | CapKeeping
     with ``kept`` (cap ids: open ends another vessel touches) points far from the wall
     whose closest point is on one of those caps stay there (:class:`CapKeepingProjector`).
 
+    ``kept`` may map each cap id to the radius of the thinnest vessel in contact at that
+    end (``blocks.info["touched_caps"]``): "far from the wall" is then judged against the
+    lesser of that radius and the cap's (:func:`keep_radii`). A cap that cuts through a
+    passing vessel much thinner than itself has all of that vessel's lumen within a
+    quarter of the cap's radius of the wall, so by the cap's radius alone none of its cap
+    points would stay on the cap where the section rays put them (s0 g0015 extracted).
+
     One projector per surface object, set of cap triangles and kept caps, shared by every
     caller (the whole surface's projector shares its tree with :func:`surface_tree` and
     with the surface's :class:`~vmesh.geometry.sdf.SignedDistance`)."""
     keep = wall_faces(surface, caps)
-    kept = sorted({int(k) for k in kept or ()} & {int(c.id) for c in caps or []}) if keep is not None else []
-    key = ("wall", None if keep is None else keep.tobytes(), *kept)
+    radii = keep_radii(caps, kept) if keep is not None else {}
+    key = ("wall", None if keep is None else keep.tobytes(), *sorted(radii.items()))
     entries = _entries(surface)
     projector = entries.get(key)
     if projector is None:
         if keep is None:
             projector = SurfaceProjector(surface.vertices, surface.faces, tree=surface_tree(surface))
-        elif kept:  # the plain wall projector (cached, its tree shared), wrapped
-            projector = _cap_keeping(surface, [c for c in caps if int(c.id) in kept], wall_projector(surface, caps))
+        elif radii:  # the plain wall projector (cached, its tree shared), wrapped
+            projector = _cap_keeping(surface, [c for c in caps if int(c.id) in radii], wall_projector(surface, caps), radii)
         else:
             projector = SurfaceProjector(surface.vertices, surface.faces[keep])
         entries[key] = projector
@@ -214,9 +224,20 @@ def caps_on(surface, fine, caps) -> list | None:
     return [dataclasses.replace(cap, faces=np.flatnonzero(on == k)) for k, cap in enumerate(caps)]
 
 
-def _cap_keeping(surface, caps, wall: SurfaceProjector) -> SurfaceProjector | CapKeepingProjector:
+def keep_radii(caps, kept) -> dict:
+    """The radius each kept cap's keep rule is judged against, by cap id: the cap's own
+    radius, or the lesser radius ``kept`` maps it to (the thinnest vessel in contact at its
+    end); a plain sequence of ids keeps the caps' own radii. Ids of no cap in ``caps`` are
+    left out."""
+    own = {int(c.id): float(c.radius) for c in caps or []}
+    lumen = kept if isinstance(kept, dict) else dict.fromkeys(kept or (), np.inf)
+    return {int(k): min(own[int(k)], float(r)) for k, r in lumen.items() if int(k) in own}
+
+
+def _cap_keeping(surface, caps, wall: SurfaceProjector, radii: dict) -> SurfaceProjector | CapKeepingProjector:
     """``wall`` keeping the triangles of ``caps`` where :class:`CapKeepingProjector` keeps
-    them (``wall`` itself when those caps have no triangles)."""
+    them, each judged against its radius in ``radii`` (by cap id; ``wall`` itself when
+    those caps have no triangles)."""
     n = len(surface.faces)
     cap_of_face = np.full(n, -1, np.int64)
     radius = []
@@ -225,5 +246,5 @@ def _cap_keeping(surface, caps, wall: SurfaceProjector) -> SurfaceProjector | Ca
         f = f[(f >= 0) & (f < n)]
         if len(f):
             cap_of_face[f] = len(radius)
-            radius.append(float(cap.radius))
+            radius.append(radii[int(cap.id)])
     return CapKeepingProjector(wall, surface_tree(surface), cap_of_face, np.asarray(radius)) if radius else wall

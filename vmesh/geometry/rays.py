@@ -271,6 +271,26 @@ class _Level:
         self.values = np.concatenate([self.values, values])[order]
 
 
+def _deeper_in_foreign(p, own_depth, rays, tree, k, rq, foreign, ended) -> np.ndarray:
+    """(len(rays),) bool: each ray's point ``p`` is deeper in a foreign tube than its
+    ``own_depth`` in its own (:func:`clip_to_territory`)."""
+    dist, idx = tree.query(p, k=k)
+    dist, idx = dist.reshape(len(rays), k), idx.reshape(len(rays), k)
+    # inside a foreign tube (a bulge of this vessel wider than its radius is no contact)
+    # and deeper there than in its own
+    depth = dist - rq[idx]
+    deeper = (depth < own_depth[:, None]) & (depth < 0.0)
+    near = np.flatnonzero(deeper.any(axis=1))  # the foreign test only where it matters
+    sub = deeper[near]
+    r_idx, c_idx = np.nonzero(sub)
+    sub[r_idx, c_idx] = foreign(rays[near][r_idx], idx[near][r_idx, c_idx])
+    if ended is not None:  # past an open end the tube is no territory
+        sub[r_idx, c_idx] &= ~ended(p[near][r_idx], idx[near][r_idx, c_idx])
+    out = np.zeros(len(rays), bool)
+    out[near] = sub.any(axis=1)
+    return out
+
+
 def clip_to_territory(
     origins: np.ndarray,
     directions: np.ndarray,
@@ -281,7 +301,7 @@ def clip_to_territory(
     samples: int = 8,
     iterations: int = 10,
     neighbours: int = 12,
-    tree=None,
+    tree=None, ended=None,
 ) -> np.ndarray:
     """Shorten wall rays where they cross from their own vessel into another one.
 
@@ -316,6 +336,8 @@ def clip_to_territory(
     tree : scipy.spatial.cKDTree, optional
         The tube points' tree, when the caller keeps one (each ray's cut depends on that
         ray and the tubes alone: the block builder keeps them, :class:`RowCache`).
+    ended : callable, optional
+        ``ended(points (k, 3), samples (k,)) -> (k,) bool``: the sample's tube ended before the point (an open end).
 
     Returns
     -------
@@ -333,22 +355,7 @@ def clip_to_territory(
     k = min(neighbours, len(Q))
 
     def beyond(rays, t):
-        # (len(rays),) bool: the point at t along each ray is deeper in a foreign tube
-        p = origins[rays] + t[:, None] * directions[rays]
-        dist, idx = tree.query(p, k=k)
-        dist, idx = dist.reshape(len(rays), k), idx.reshape(len(rays), k)
-        own_depth = (t - radius[rays])[:, None]
-        # inside a foreign tube (a bulge of this vessel wider than its radius is no contact)
-        # and deeper there than in its own
-        depth = dist - rq[idx]
-        deeper = (depth < own_depth) & (depth < 0.0)
-        near = np.flatnonzero(deeper.any(axis=1))  # the foreign test only where it matters
-        sub = deeper[near]
-        r_idx, c_idx = np.nonzero(sub)
-        sub[r_idx, c_idx] = foreign(rays[near][r_idx], idx[near][r_idx, c_idx])
-        out = np.zeros(len(rays), bool)
-        out[near] = sub.any(axis=1)
-        return out
+        return _deeper_in_foreign(origins[rays] + t[:, None] * directions[rays], t - radius[rays], rays, tree, k, rq, foreign, ended)
 
     # samples from half a radius (the least cut) to the wall
     start = 0.5 * radius[live]

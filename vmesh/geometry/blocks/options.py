@@ -46,6 +46,7 @@ class EndOptions:
     dome_depth: float = 1.0  # wall distance ahead of a closed end's section, × its mean wall distance
     dome_max_retreat: float = 1.5  # × endpoint radius
     dome_keep: float = 0.0  # × branch radius a yielding dome's section stays off the endpoint (0: none)
+    touched_caps: tuple = ()  # ids of the caps of open ends in a contact: the section rays' territory ends at their planes, as the contact cut does (:mod:`.ended`)
     short_end_rays: float = 0.0  # an open end's section whose rays reach less than this share of the previous section's moves half way back (0: never; the filter's default is 0.5; docs/optimiser.md, h23/minima, h24/minima)
 
 

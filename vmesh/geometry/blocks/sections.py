@@ -11,6 +11,7 @@ from .checks import _Failure
 from .options import CLOSED, CYCLE, JUNCTION, OPEN, _Branch
 from ..skeleton.graph import polyline_at
 from ..skeleton.pairs import PAIR_REACH
+from .ended import ended_at_touched_caps
 from .prep import Territory, endpoint_caps, redistribute_sections
 from ..rays import RAY_REACH, clip_to_territory, cut_at_necks
 
@@ -589,7 +590,9 @@ class _Sections:
             way = ways(node[sec[rays]], q_node[samples], need) - q_off[samples] - start[rays]
             return way > np.linalg.norm(o[miss[rays]] - Q[samples], axis=1) + 2.0 * (r[miss[rays]] + rq[samples])
 
-        out[miss] = clip_to_territory(o[miss], d[miss], lengths[miss], r[miss], foreign, (Q, rq), tree=ter.tree)
+        touched = self.opt.ends.touched_caps  # open ends in a contact: their tubes end at their caps' planes
+        ended = ended_at_touched_caps(ter, self.topo, self.ends.cap_of, touched) if touched else None
+        out[miss] = clip_to_territory(o[miss], d[miss], lengths[miss], r[miss], foreign, (Q, rq), tree=ter.tree, ended=ended)
         keep = miss[np.isfinite(lengths[miss])]  # nan never matches a row: not kept
         ter.cuts.add(rows[keep], out[keep])
         return out.reshape(R.shape)
