@@ -573,8 +573,8 @@ def _decimate_and_index(ctx, target_faces, options):
         return (*pre.decimate(s.vertices, s.faces, target_faces, **options), None)
     import threading
 
-    from .. import disk_cache
-    from ..geometry.projection import wall_projector
+    from .. import disk_cache, preload
+    from ..geometry.projection import surface_distance, wall_projector
 
     # pymeshlab is deterministic: the same surface and options give the same bytes, which a
     # rerun on this surface (other meshing parameters) reads back instead of ~2 s of collapses
@@ -597,6 +597,13 @@ def _decimate_and_index(ctx, target_faces, options):
         wall_projector(s)
         if ctx.caps:
             wall_projector(s, ctx.caps)
+        preload.import_later_steps()  # the later steps' modules, off the critical path (docs/speed.md, 20th round)
+        for step in preload.LATER_STEPS.get():  # a two-step signed distance refines on this surface's own
+            if step.filter == "build_sdf" and step.params.get("refine_on_fine") and step.params.get("source") == "coarse":
+                try:
+                    surface_distance(s, sign=step.params.get("sign", "auto"))
+                except Exception:  # build_sdf reports it, as its own error
+                    pass
     finally:
         thread.join()
     if "error" in result:
@@ -662,6 +669,7 @@ def build_sdf(ctx, source, sign, refine_on_fine, check_points, index, octree_err
     The surface must be closed (``cap_open_ends``) unless the winding-number sign is
     chosen; inward-oriented surfaces are handled (faces are flipped by signed volume).
     """
+    from ..geometry.projection import surface_distance
     from ..geometry.sdf import SignedDistance, TwoStepSignedDistance
 
     if source == "coarse" and ctx.coarse_surface is None:
@@ -683,8 +691,8 @@ def build_sdf(ctx, source, sign, refine_on_fine, check_points, index, octree_err
         caps = surface.face_data.get("cap_id")
         wall = np.asarray(caps) == 0 if caps is not None and len(caps) == surface.n_faces else None
         sdf = OctreeSignedDistance(sdf, max_error=octree_error, wall_faces=wall)
-    if refine_on_fine:
-        sdf = TwoStepSignedDistance(sdf, SignedDistance.from_surface(ctx.surface, sign=sign))
+    if refine_on_fine:  # the fine surface's distance: built while pymeshlab decimated, where it did
+        sdf = TwoStepSignedDistance(sdf, surface_distance(ctx.surface, sign=sign))
     base = sdf.fine if refine_on_fine else sdf
     build_s = time.perf_counter() - t0
     info = {

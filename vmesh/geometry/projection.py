@@ -158,6 +158,20 @@ def surface_tree(surface):
     return entries["tree"]
 
 
+def surface_distance(surface, sign: str = "auto"):
+    """The :class:`~vmesh.geometry.sdf.SignedDistance` of ``surface``
+    (``SignedDistance.from_surface``), built once per surface object and sign: the fine
+    surface's, which ``build_sdf`` refines on, is built while pymeshlab decimates
+    (``decimate_surface``, :mod:`vmesh.preload`)."""
+    from .sdf import SignedDistance
+
+    entries = _entries(surface)
+    key = ("signed distance", sign)
+    if key not in entries:
+        entries[key] = SignedDistance.from_surface(surface, sign=sign)
+    return entries[key]
+
+
 def wall_faces(surface, caps=None) -> np.ndarray | None:
     """Indices of ``surface``'s faces without the triangles of ``caps``; ``None`` when
     that is every face (no caps, or nothing but caps)."""
