@@ -562,7 +562,9 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
 def _decimate_and_index(ctx, target_faces, options):
     """``pre.decimate`` of the fine surface; while pymeshlab decimates (it releases the GIL),
     the fine surface's tree and its wall projector, which build_sdf and the mesher query
-    next, are built on the other core (cached per surface: docs/sdf.md).
+    next, are built on the other core (cached per surface: docs/sdf.md), the later steps'
+    modules are imported and, for a later two-step ``build_sdf``, the fine surface's signed
+    distance is built (:mod:`vmesh.preload`).
 
     pymeshlab's result is kept on disk (:mod:`vmesh.disk_cache`, keyed by the surface's bytes
     and the options): a rerun on the same surface reads it back. Returns the vertices, the
