@@ -68,8 +68,8 @@ def test_the_fine_distance_built_during_decimation_is_the_one_build_sdf_uses(mon
     original = SignedDistance.from_surface.__func__
 
     def counting(cls, surface, sign="auto"):
-        caller = sys._getframe(1).f_code.co_name
-        built.append((caller, sys._getframe(2).f_code.co_name if caller == "surface_distance" else None, surface.n_faces))
+        callers = [sys._getframe(k).f_code.co_name for k in range(1, 6)]
+        built.append(("prepare_surface" in callers, "build_sdf" in callers, surface.n_faces))
         return original(cls, surface, sign)
 
     monkeypatch.setattr(SignedDistance, "from_surface", classmethod(counting))
@@ -77,7 +77,7 @@ def test_the_fine_distance_built_during_decimation_is_the_one_build_sdf_uses(mon
     surface = _sphere()
     ctx = FilterChain(steps).run(surface=surface)
     # the fine one once, in the decimation's wait; build_sdf builds only the coarse one
-    assert built == [("surface_distance", "_decimate_and_index", 20480), ("build_sdf", None, ctx.coarse_surface.n_faces)]
+    assert built == [(True, False, 20480), (False, True, ctx.coarse_surface.n_faces)]
     assert ctx.sdf.fine is projection.surface_distance(ctx.surface)
 
     # the same chain, its decimation preparing nothing: same coarse surface, same distances
@@ -110,3 +110,22 @@ def test_chain_sets_the_later_steps_around_each_step():
         _REGISTRY.pop("h25_record_later", None)
     assert seen == [("h25_record_later",), ()]
     assert preload.LATER_STEPS.get() == ()
+
+
+def test_prepare_surface_builds_what_the_later_steps_ask_of_the_surface():
+    """A later check_coverage gets its surface facts (voxel step, volume; the smoothed copy
+    stays lazy), a later two-step build_sdf its fine distance; other steps nothing."""
+    from vmesh.chain import Step
+    from vmesh.geometry import coverage
+
+    surface = _sphere(3)
+    token = preload.LATER_STEPS.set((Step("check_coverage"), Step("build_sdf", {"source": "fine"}), Step("write_mesh")))
+    try:
+        assert preload.prepare_surface(surface) == ["coverage facts"]
+        facts = coverage.surface_facts(surface)
+        assert {"voxel_step", "volume"} <= set(vars(facts)) and "smoothed" not in vars(facts)
+        preload.LATER_STEPS.set((Step("build_sdf", {"source": "coarse", "refine_on_fine": True, "sign": "auto"}),))
+        assert preload.prepare_surface(surface) == ["signed distance"]
+        assert projection.cached_trees(surface)[("signed distance", "auto")] is projection.surface_distance(surface)
+    finally:
+        preload.LATER_STEPS.reset(token)

@@ -12,9 +12,11 @@ The chain runner says which steps come after the running one (:data:`LATER_STEPS
 variable set around each step by :meth:`vmesh.chain.FilterChain.run`); a step's modules are
 the vmesh modules imported inside its filter function and inside the functions of the same
 module it calls by name (:func:`lazy_imports`). Importing a module earlier changes no result.
-A waiting step may also build what a later step will ask of a surface it shares (the fine
-surface's signed distance, :func:`vmesh.geometry.projection.surface_distance`), computed by
-the same function either way.
+A waiting step may also build what later steps will ask of the surface it holds
+(:func:`prepare_surface`: the fine surface's signed distance for a two-step ``build_sdf``,
+:func:`vmesh.geometry.projection.surface_distance`; ``check_coverage``'s
+:class:`~vmesh.geometry.coverage.SurfaceFacts`), computed by the same functions either way
+and cached per surface object, where the later step finds them.
 """
 
 from __future__ import annotations
@@ -97,4 +99,27 @@ def import_later_steps() -> list[str]:
             except Exception:  # the step itself raises it, with its step number
                 continue
             done.append(module)
+    return done
+
+
+def prepare_surface(surface) -> list[str]:
+    """Build what the later steps (:data:`LATER_STEPS`) will ask of ``surface``, if it is still
+    the chain's surface then: a two-step ``build_sdf``'s fine signed distance and
+    ``check_coverage``'s surface facts (:meth:`~vmesh.geometry.coverage.SurfaceFacts.compute`).
+    Returns what was built. An error is left to the step that needs the result: it raises it there."""
+    from .geometry.coverage import surface_facts
+    from .geometry.projection import surface_distance
+
+    done = []
+    for step in LATER_STEPS.get():
+        p = step.params
+        try:
+            if step.filter == "build_sdf" and p.get("refine_on_fine") and p.get("source") == "coarse":
+                surface_distance(surface, sign=p.get("sign", "auto"))
+                done.append("signed distance")
+            elif step.filter == "check_coverage":
+                surface_facts(surface).compute()
+                done.append("coverage facts")
+        except Exception:  # the step itself raises it, with its step number
+            continue
     return done

@@ -563,8 +563,9 @@ def _decimate_and_index(ctx, target_faces, options):
     """``pre.decimate`` of the fine surface; while pymeshlab decimates (it releases the GIL),
     the fine surface's tree and its wall projector, which build_sdf and the mesher query
     next, are built on the other core (cached per surface: docs/sdf.md), the later steps'
-    modules are imported and, for a later two-step ``build_sdf``, the fine surface's signed
-    distance is built (:mod:`vmesh.preload`).
+    modules are imported and what they will ask of the surface is built (the fine signed
+    distance of a two-step ``build_sdf``, ``check_coverage``'s surface facts:
+    :mod:`vmesh.preload`).
 
     pymeshlab's result is kept on disk (:mod:`vmesh.disk_cache`, keyed by the surface's bytes
     and the options): a rerun on the same surface reads it back. Returns the vertices, the
@@ -576,7 +577,7 @@ def _decimate_and_index(ctx, target_faces, options):
     import threading
 
     from .. import disk_cache, preload
-    from ..geometry.projection import surface_distance, wall_projector
+    from ..geometry.projection import wall_projector
 
     # pymeshlab is deterministic: the same surface and options give the same bytes, which a
     # rerun on this surface (other meshing parameters) reads back instead of ~2 s of collapses
@@ -599,13 +600,10 @@ def _decimate_and_index(ctx, target_faces, options):
         wall_projector(s)
         if ctx.caps:
             wall_projector(s, ctx.caps)
-        preload.import_later_steps()  # the later steps' modules, off the critical path (docs/speed.md, 20th round)
-        for step in preload.LATER_STEPS.get():  # a two-step signed distance refines on this surface's own
-            if step.filter == "build_sdf" and step.params.get("refine_on_fine") and step.params.get("source") == "coarse":
-                try:
-                    surface_distance(s, sign=step.params.get("sign", "auto"))
-                except Exception:  # build_sdf reports it, as its own error
-                    pass
+        # off the critical path (docs/speed.md, 20th round): the later steps' modules, and what
+        # they will ask of this surface (build_sdf's fine distance, check_coverage's facts)
+        preload.import_later_steps()
+        preload.prepare_surface(s)
     finally:
         thread.join()
     if "error" in result:

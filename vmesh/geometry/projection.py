@@ -158,6 +158,15 @@ def surface_tree(surface):
     return entries["tree"]
 
 
+def surface_cached(surface, key, build):
+    """``build()``, computed once per surface object and ``key`` and cached with its trees
+    (kept with them in the prefix disk cache, :func:`cached_trees`)."""
+    entries = _entries(surface)
+    if key not in entries:
+        entries[key] = build()
+    return entries[key]
+
+
 def surface_distance(surface, sign: str = "auto"):
     """The :class:`~vmesh.geometry.sdf.SignedDistance` of ``surface``
     (``SignedDistance.from_surface``), built once per surface object and sign: the fine
@@ -165,11 +174,7 @@ def surface_distance(surface, sign: str = "auto"):
     (``decimate_surface``, :mod:`vmesh.preload`)."""
     from .sdf import SignedDistance
 
-    entries = _entries(surface)
-    key = ("signed distance", sign)
-    if key not in entries:
-        entries[key] = SignedDistance.from_surface(surface, sign=sign)
-    return entries[key]
+    return surface_cached(surface, ("signed distance", sign), lambda: SignedDistance.from_surface(surface, sign=sign))
 
 
 def wall_faces(surface, caps=None) -> np.ndarray | None:
