@@ -301,8 +301,7 @@ def measure_coverage(
     tolerance: float | None = None,
     wall_projector=None,
     own_radius: bool = True,
-    surface_tree=None,  # TriangleBVH
-    facts: SurfaceFacts | None = None,
+    surface_tree=None, facts=None,  # TriangleBVH, SurfaceFacts
 ) -> tuple[dict, list]:
     """Measure how much of the input wall the mesh boundary misses.
 
@@ -330,9 +329,9 @@ def measure_coverage(
         end past the last section, where no flat cap was found: a hemisphere is 1 r deep).
     branches : list of node arrays, optional
         Skeleton branches (node paths), to name the branch of a missing part.
-    wall_tree, surface_tree : TriangleBVH, optional
-        Trees of the wall triangles (no caps) and of all triangles (for :func:`_own_radius`),
-        shared with the chain (None: built here where needed).
+    wall_tree, surface_tree, facts : TriangleBVH, TriangleBVH, SurfaceFacts, optional
+        Trees of the wall triangles (no caps) and of all triangles (for :func:`_own_radius`), and
+        the surface's :func:`surface_facts` (used when of these arrays), shared with the chain (None: built here).
     on_wall : (n,) bool, optional
         Nodes the mesher put on the wall (``HexMesh.on_wall``; None: all), see :func:`_wall_node_stats`.
     tolerance : float, optional
@@ -342,9 +341,6 @@ def measure_coverage(
         The mesher's projector, which measures the wall nodes (default ``wall_tree``).
     own_radius : bool
         Judge a patch by the smaller of the skeleton's radius and its own (:func:`_own_radius`).
-    facts : SurfaceFacts, optional
-        The surface's own quantities where already computed (:func:`surface_facts`); facts of
-        other arrays are not used.
 
     Returns
     -------
@@ -357,8 +353,7 @@ def measure_coverage(
     from .bvh import TriangleBVH
 
     V, F = np.ascontiguousarray(surface_vertices, np.float64), np.ascontiguousarray(surface_faces, np.int64)
-    if facts is None or not facts.matches(V, F):
-        facts = SurfaceFacts(V, F)
+    facts = facts if facts is not None and facts.matches(V, F) else SurfaceFacts(V, F)
     X = np.ascontiguousarray(mesh_points, np.float64)
     wall, cap_of_vertex = _wall_and_caps(F, len(V), cap_faces)
     WF = F[wall]
@@ -367,8 +362,7 @@ def measure_coverage(
     # input wall -> mesh boundary, at four area-weighted samples per triangle
     area = 0.5 * np.linalg.norm(np.cross(V[WF[:, 1]] - V[WF[:, 0]], V[WF[:, 2]] - V[WF[:, 0]]), axis=1)
     skeleton = (skeleton_points, skeleton_edges, skeleton_radii)
-    step = facts.voxel_step
-    tolerance = 0.5 * step if tolerance is None else float(tolerance)
+    tolerance = 0.5 * facts.voxel_step if tolerance is None else float(tolerance)
     rel, limit, beyond, face_r, face_node = _wall_to_mesh(V, WF, mesh_tree, tri, boundary_ids, skeleton, distance, tolerance)
     far = rel > limit
     # the end wall (closest to an end face, or past its plane near its axis) to the verdict's
@@ -382,9 +376,8 @@ def measure_coverage(
         V, WF, area, rel, far, at_end_face, face_r, face_node, cap_of_vertex, cap_names,
         patch_area, depth, end_depth, node_of_branch, off, F if own_radius else None, surface_tree, facts,
     )
-    volumes = (facts.volume, enclosed_volume(X, tri))
-    summary = _coverage_summary(distance, area, rel, far & ~end_cap, end_cap, volumes, off, n_patches, missing, n_missing)
-    return {**summary, "voxel_step": float(step), "tolerance": float(tolerance)}, missing
+    summary = _coverage_summary(distance, area, rel, far & ~end_cap, end_cap, (facts.volume, enclosed_volume(X, tri)), off, n_patches, missing, n_missing)
+    return {**summary, "voxel_step": float(facts.voxel_step), "tolerance": float(tolerance)}, missing
 
 
 def _coverage_summary(distance, area, rel, uncovered, end_cap, volumes, off, n_patches, missing, n_missing) -> dict:
