@@ -371,6 +371,31 @@ def test_missing_stub_is_judged_by_its_own_radius(cylinder_mesh):
     assert shared[0] == summary and [m.depth for m in shared[1]] == [m.depth for m in missing]
 
 
+def test_surface_facts_computed_ahead_give_the_same_measure(cylinder_mesh):
+    """check_coverage's surface facts (voxel step, volume, orientation, smoothed copy), computed
+    ahead as decimate_surface's wait computes them (``SurfaceFacts.compute``, the smoothed copy
+    lazily), cached per surface, give the same summary and parts bit for bit (a patch judged
+    by its own radius: the smoothed copy is used); facts of other arrays are not used."""
+    from vmesh.geometry import coverage
+    from vmesh.surface import SurfaceMesh
+
+    sm, skeleton = cylinder_mesh
+    V, F, caps = _with_stub(0.35 * RADIUS, 2 * 0.35 * RADIUS)
+    names = ["inlet", "outlet_1", "stub"]
+    plain = _measure(sm, skeleton, V, F, caps, names)
+    surface = SurfaceMesh(V, F)
+    facts = coverage.surface_facts(surface).compute()
+    assert coverage.surface_facts(surface) is facts and {"voxel_step", "volume"} <= set(vars(facts)) and "smoothed" not in vars(facts)
+    ahead = _measure(sm, skeleton, surface.vertices, surface.faces, caps, names, facts=facts)
+    assert "smoothed" in vars(facts)  # asked for by the stub's own radius
+    assert ahead[0] == plain[0] and len(ahead[1]) == len(plain[1]) == 1
+    for m, n in zip(ahead[1], plain[1]):
+        assert m.depth == n.depth and m.area == n.area and np.array_equal(m.position, n.position)
+    other = coverage.SurfaceFacts(V * 2.0, F).compute()
+    assert not other.matches(V, F)
+    assert _measure(sm, skeleton, V, F, caps, names, facts=other)[0] == plain[0]
+
+
 def test_a_patch_shallower_than_its_own_radius_keeps_the_skeletons(cylinder_mesh, monkeypatch):
     """A short chord alone is no side vessel: across a narrow neck (a contact cut, a thin
     crotch) the chord is the neck's width. The own radius judges a patch only where the
@@ -385,7 +410,7 @@ def test_a_patch_shallower_than_its_own_radius_keeps_the_skeletons(cylinder_mesh
     sm, skeleton = cylinder_mesh
     V, F, caps = _with_stub(0.35 * RADIUS, 0.3 * 0.35 * RADIUS)
     chord = {"half": 2.5 * 0.3 * 0.35 * RADIUS}
-    monkeypatch.setattr(coverage, "_own_radius", lambda V, F, WF, label, n, tree=None: np.full(n, chord["half"]))
+    monkeypatch.setattr(coverage, "_own_radius", lambda V, F, WF, label, n, tree=None, facts=None: np.full(n, chord["half"]))
     assert _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1", "stub"])[0]["missing_parts"] == 0
     chord["half"] = 0.2 * 0.3 * 0.35 * RADIUS  # a patch deeper than its own radius: judged by it
     assert _measure(sm, skeleton, V, F, caps, ["inlet", "outlet_1", "stub"])[0]["missing_parts"] >= 1

@@ -57,6 +57,55 @@ def test_a_kernel_module_digest_covers_the_kernel_modules_it_imports():
     assert names == {"octree_sdf.py": {"octree_sdf.py", "bvh.py"}, "transfinite_kernels.py": {"transfinite_kernels.py", "bvh.py"}, "quality.py": {"quality.py"}, "bvh.py": {"bvh.py"}}
 
 
+_NESTED_IMPORTS = """
+import a
+if x:
+    from . import b
+else:
+    from .c import d
+try:
+    import e
+except ImportError:
+    from vmesh import f
+else:
+    import g
+finally:
+    import h
+class K:
+    def m(self):
+        with open(p) as fh:
+            for i in r:
+                while i:
+                    from ..i import j
+async def n():
+    async with q:
+        import o
+match v:
+    case 1:
+        import p2
+y = lambda: __import__("not_a_statement")
+"""
+
+
+def test_the_statement_walk_finds_the_imports_ast_walk_finds():
+    """The digest's import scan visits statements only (``_statements``): the same import
+    statements as a full ``ast.walk``, on nested blocks and on every module of the package,
+    so every kernel module keeps its cache folder."""
+    import ast
+
+    from vmesh import numba_cache
+
+    def imports(nodes):
+        return sorted(ast.dump(n) for n in nodes if isinstance(n, (ast.Import, ast.ImportFrom)))
+
+    nested = ast.parse(_NESTED_IMPORTS)
+    assert len(imports(numba_cache._statements(nested))) == 10
+    assert imports(numba_cache._statements(nested)) == imports(ast.walk(nested))
+    for path in sorted(numba_cache.PACKAGE.rglob("*.py")):
+        tree = ast.parse(path.read_bytes())
+        assert imports(numba_cache._statements(tree)) == imports(ast.walk(tree)), path
+
+
 @pytest.mark.slow  # three fresh interpreters and a compile: ~10 s
 def test_kernels_are_cached_by_source_content_not_path(tmp_path):
     cache = tmp_path / "cache"

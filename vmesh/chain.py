@@ -19,6 +19,7 @@ from .errors import ChainError, InputError, ParameterError, Stopped, VmeshError,
 from .io.atomic import replace_dir
 from .io.failed_run import OWNER_FILE, failed_dir, keep_failed, mark_owner, remove_failed, remove_stale_stages, write_diagnostics
 from .monitor import ResourceMonitor
+from .preload import LATER_STEPS
 from .registry import filter_list, get_filter, suggest
 
 #: Folders searched for chain presets named without a path (``vmesh run default``).
@@ -297,7 +298,11 @@ class FilterChain:
                     continue
                 current = (i + 1, step.filter)
                 say("start", index=i + 1, total=n, name=step.filter)
-                _run_step(ctx, i + 1, step, say if progress is True else None, failed_dir(out_dir) / "failure.log" if stage is not None else None)
+                later = LATER_STEPS.set(tuple(resolved.steps[i + 1 :]))  # what a waiting step may prepare (vmesh.preload)
+                try:
+                    _run_step(ctx, i + 1, step, say if progress is True else None, failed_dir(out_dir) / "failure.log" if stage is not None else None)
+                finally:
+                    LATER_STEPS.reset(later)
                 current = None
                 say("end", index=i + 1, total=n, name=step.filter, step=ctx._step)
                 ctx._step = None

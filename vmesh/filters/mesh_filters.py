@@ -537,7 +537,7 @@ def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing,
     """Measured against the repaired, capped surface the chain started from, its caps left
     out (the mesh ends there); the local radius is the skeleton's. The result is the
     report's ``coverage`` section (see :mod:`vmesh.geometry.coverage`)."""
-    from ..geometry.coverage import measure_coverage
+    from ..geometry.coverage import measure_coverage, surface_facts
     from ..geometry.projection import cached_trees, wall_projector
 
     mesh, skeleton, caps = ctx.mesh, ctx.skeleton, ctx.caps or []
@@ -550,6 +550,7 @@ def check_coverage(ctx, distance, patch_area, depth, end_depth, fail_on_missing,
         distance=distance, patch_area=patch_area, depth=depth, end_depth=end_depth, branches=skeleton.branches(),
         wall_tree=projector.tree, on_wall=mesh.on_wall, tolerance=None if voxel_tolerance else 0.0, wall_projector=projector,
         own_radius=own_radius, surface_tree=cached_trees(ctx.surface).get("tree"),  # the signed distance's, where built
+        facts=surface_facts(ctx.surface),  # computed while pymeshlab decimated, where it did (vmesh.preload)
     )
     ctx.report.sections["coverage"] = summary
     ctx.count(uncovered=summary["uncovered_share"], volume_ratio=summary["volume_ratio"], missing=summary["missing_parts"])

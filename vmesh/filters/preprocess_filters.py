@@ -562,7 +562,10 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
 def _decimate_and_index(ctx, target_faces, options):
     """``pre.decimate`` of the fine surface; while pymeshlab decimates (it releases the GIL),
     the fine surface's tree and its wall projector, which build_sdf and the mesher query
-    next, are built on the other core (cached per surface: docs/sdf.md).
+    next, are built on the other core (cached per surface: docs/sdf.md), the later steps'
+    modules are imported and what they will ask of the surface is built (the fine signed
+    distance of a two-step ``build_sdf``, ``check_coverage``'s surface facts:
+    :mod:`vmesh.preload`).
 
     pymeshlab's result is kept on disk (:mod:`vmesh.disk_cache`, keyed by the surface's bytes
     and the options): a rerun on the same surface reads it back. Returns the vertices, the
@@ -573,7 +576,7 @@ def _decimate_and_index(ctx, target_faces, options):
         return (*pre.decimate(s.vertices, s.faces, target_faces, **options), None)
     import threading
 
-    from .. import disk_cache
+    from .. import disk_cache, preload
     from ..geometry.projection import wall_projector
 
     # pymeshlab is deterministic: the same surface and options give the same bytes, which a
@@ -597,6 +600,10 @@ def _decimate_and_index(ctx, target_faces, options):
         wall_projector(s)
         if ctx.caps:
             wall_projector(s, ctx.caps)
+        # off the critical path (docs/speed.md, 20th round): the later steps' modules, and what
+        # they will ask of this surface (build_sdf's fine distance, check_coverage's facts)
+        preload.import_later_steps()
+        preload.prepare_surface(s)
     finally:
         thread.join()
     if "error" in result:
@@ -662,6 +669,7 @@ def build_sdf(ctx, source, sign, refine_on_fine, check_points, index, octree_err
     The surface must be closed (``cap_open_ends``) unless the winding-number sign is
     chosen; inward-oriented surfaces are handled (faces are flipped by signed volume).
     """
+    from ..geometry.projection import surface_distance
     from ..geometry.sdf import SignedDistance, TwoStepSignedDistance
 
     if source == "coarse" and ctx.coarse_surface is None:
@@ -683,8 +691,8 @@ def build_sdf(ctx, source, sign, refine_on_fine, check_points, index, octree_err
         caps = surface.face_data.get("cap_id")
         wall = np.asarray(caps) == 0 if caps is not None and len(caps) == surface.n_faces else None
         sdf = OctreeSignedDistance(sdf, max_error=octree_error, wall_faces=wall)
-    if refine_on_fine:
-        sdf = TwoStepSignedDistance(sdf, SignedDistance.from_surface(ctx.surface, sign=sign))
+    if refine_on_fine:  # the fine surface's distance: built while pymeshlab decimated, where it did
+        sdf = TwoStepSignedDistance(sdf, surface_distance(ctx.surface, sign=sign))
     base = sdf.fine if refine_on_fine else sdf
     build_s = time.perf_counter() - t0
     info = {

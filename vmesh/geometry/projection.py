@@ -161,6 +161,25 @@ def surface_tree(surface):
     return entries["tree"]
 
 
+def surface_cached(surface, key, build):
+    """``build()``, computed once per surface object and ``key`` and cached with its trees
+    (kept with them in the prefix disk cache, :func:`cached_trees`)."""
+    entries = _entries(surface)
+    if key not in entries:
+        entries[key] = build()
+    return entries[key]
+
+
+def surface_distance(surface, sign: str = "auto"):
+    """The :class:`~vmesh.geometry.sdf.SignedDistance` of ``surface``
+    (``SignedDistance.from_surface``), built once per surface object and sign: the fine
+    surface's, which ``build_sdf`` refines on, is built while pymeshlab decimates
+    (``decimate_surface``, :mod:`vmesh.preload`)."""
+    from .sdf import SignedDistance
+
+    return surface_cached(surface, ("signed distance", sign), lambda: SignedDistance.from_surface(surface, sign=sign))
+
+
 def wall_faces(surface, caps=None) -> np.ndarray | None:
     """Indices of ``surface``'s faces without the triangles of ``caps``; ``None`` when
     that is every face (no caps, or nothing but caps)."""
