@@ -70,3 +70,41 @@ def test_a_thin_backwards_branch_leaving_the_link_past_its_middle_builds():
     assert wall_left_out(blocks, case.project, *pair_wall(sk, a, b, case.project)).max() <= MERGE_COVER_DEPTH
     with pytest.raises(MeshingError):
         build_blocks(sk, case.distance, None, BlockOptions(), project=case.project)  # off by default
+
+
+def test_ring_placements_lie_in_the_new_segments_section():
+    """The new first node's ring placements: ``PLACEMENT_RINGS`` × the branch's radius from
+    the section's centre, in the plane normal to the new first segment, inner ring first."""
+    from vmesh.geometry.blocks.reroot import PLACEMENT_DIRECTIONS, PLACEMENT_RINGS, PLACEMENTS, section_placements
+
+    centre, tangent, radius = np.array([1.0, 2.0, 3.0]), np.array([0.0, 0.6, 0.8]), 0.5
+    ring = section_placements(centre, tangent, radius)
+    assert ring.shape == (PLACEMENTS - 1, 3) == (len(PLACEMENT_RINGS) * PLACEMENT_DIRECTIONS, 3)
+    off = ring - centre
+    np.testing.assert_allclose(off @ tangent, 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(off, axis=1), np.repeat(PLACEMENT_RINGS, PLACEMENT_DIRECTIONS) * radius)
+
+
+def test_a_ring_placement_moves_the_new_node_and_puts_the_far_junction_on_the_chord():
+    """Placement k > 0: the same re-rooted topology as the deepest point (placement 0), the
+    new node at its ring point (inside the vessel) and the far junction, now a plain node
+    of the link, on the chord between its two neighbours."""
+    from vmesh.geometry.blocks.reroot import PLACEMENTS
+
+    case = retrograde_branch(**SHORT_LINK)
+    sk, a, b = _separated(case)
+    deepest = reroot_backwards_siblings(sk, a, b, case.distance, 0)
+    built = 0
+    for k in range(1, PLACEMENTS):
+        out = reroot_backwards_siblings(sk, a, b, case.distance, k)
+        if out is None:
+            continue  # that ring point lies outside the wall
+        built += 1
+        assert out.n_nodes == deepest.n_nodes and out.degrees[a] == 4 and out.degrees[b] == 2
+        new = out.n_nodes - 1
+        assert case.distance(out.points[new][None])[0] > 0 and out.radii[new] > 0
+        assert np.linalg.norm(out.points[new] - deepest.points[new]) > 0
+        p, q = (out.points[n] for n in out.neighbors(b))
+        x = out.points[b] - p
+        assert np.linalg.norm(np.cross(q - p, x)) <= 1e-9 * np.linalg.norm(q - p) ** 2  # on the chord
+    assert built >= PLACEMENTS // 2

@@ -53,7 +53,7 @@ from .options import BlockOptions, _LocalFixes
 from .poor import _PoorBlocks
 from .prep import MERGE_COVER_DEPTH, merge_junction_pair, pair_wall, split_nonplanar_junctions
 from .repair import _Repair
-from .reroot import reroot_backwards_siblings
+from .reroot import PLACEMENTS, reroot_backwards_siblings
 from .sections import _Sections
 from .stubs import _Stubs, cut_stubs, label_ostia, stub_note
 from .state import _Assembled, _Ends, _Frames, _Placement, _Topology
@@ -342,6 +342,13 @@ def _without_bends(first, distance, caps, options: BlockOptions, hooks: tuple, w
     return _noted(blocks, note, hooks[0])
 
 
+#: the work budget's share each ring placement of a re-rooted branch's first node gets
+#: (:func:`_rerooted`): a placement that builds has valid blocks within a few assemblies (s1
+#: g0012 given: after 5, the rest relieve wall folds; one that fails spends 130-220 of them
+#: on fixes), so the 16 placements together cost about two budgets
+PLACEMENT_WORK_SHARE = 1 / 8
+
+
 def _rerooted(first: _Failure, distance, caps, options: BlockOptions, hooks: tuple) -> BlockStructure | None:
     """The last try of all: on the skeleton of the first failure, each crowded junction
     pair's sibling that runs backwards in the link's lumen past its middle re-rooted at the
@@ -350,6 +357,10 @@ def _rerooted(first: _Failure, distance, caps, options: BlockOptions, hooks: tup
     given spends the whole budget before it gets here). Taken only where its blocks still
     cover the pair's wall, as the own-lumen merge (a re-rooted first segment can cut the
     branch's fused stretch out of the blocks: s1 g0016 given, docs/junctions.md h21/pair).
+    Where the re-rooted branch's new first node at the deepest point of its section
+    fails, its ring placements (:func:`.reroot.section_placements`) are tried in turn, each
+    on the skeleton as re-rooted only and ``PLACEMENT_WORK_SHARE`` of a budget (s1 g0012
+    given builds at one of them, docs/junctions.md h25/builder).
     Only runs whose every other try failed reach it, so no structure built today changes.
     Needs the wall projector (``project``) for that judgement; the first structure
     taken, or None."""
@@ -357,17 +368,30 @@ def _rerooted(first: _Failure, distance, caps, options: BlockOptions, hooks: tup
         return None
     sk, project = first.skeleton, hooks[2]
     for a, b in first.crowded:
-        changed = reroot_backwards_siblings(sk, a, b, distance)
-        if changed is None:
-            continue
-        try:
-            blocks = _build_blocks(changed, distance, caps, options, None, *hooks, WorkBudget(options.repair.work_budget))
-        except MeshingError:
-            continue
-        if float(wall_left_out(blocks, project, *pair_wall(sk, a, b, project)).max()) > MERGE_COVER_DEPTH:
-            continue
-        return _noted(blocks, f"last try: re-rooted a branch of junction nodes {a} / {b} that runs back in the lumen of the branch "
-                              "between them at the other junction", hooks[0])
+        rays = None  # the placements' rays, cast once
+        for placement in range(PLACEMENTS):
+            changed = reroot_backwards_siblings(sk, a, b, distance, placement)
+            if changed is None:
+                if placement == 0:
+                    break  # no backwards sibling at this pair
+                continue  # a placement outside the wall
+            if placement == 0:
+                work, opts = WorkBudget(options.repair.work_budget), options
+                rays = work.rays
+            else:
+                # the ring's placements: the skeleton as re-rooted only (its own placements of
+                # the half-sections, no merges or splits), each on a share of a budget
+                work = WorkBudget(max(1, int(PLACEMENT_WORK_SHARE * options.repair.work_budget)))
+                work.rays, opts = rays, options.replace(max_retopology_tries=1)
+            try:
+                blocks = _build_blocks(changed, distance, caps, opts, None, *hooks, work)
+            except MeshingError:
+                continue
+            if float(wall_left_out(blocks, project, *pair_wall(sk, a, b, project)).max()) > MERGE_COVER_DEPTH:
+                continue
+            where = "" if placement == 0 else f" (its new first node at ring placement {placement})"
+            return _noted(blocks, f"last try: re-rooted a branch of junction nodes {a} / {b} that runs back in the lumen of the branch "
+                                  f"between them at the other junction{where}", hooks[0])
     return None
 
 

@@ -11,7 +11,11 @@ axis lies outside the link's lumen, past a new node at the middle of its new fir
 moved to the deepest point of its section. The builder's last try, opt-in
 (``reroot_backwards``): it builds the generated configuration
 (``tests/test_reroot.py``); on s1 g0012 given a valid structure needs the new node where
-the extraction's medial axis puts it (0.14 away), which no rule here finds.
+the extraction's medial axis puts it (0.14 away), which no rule here finds. Where the
+deepest point fails, the builder tries the new node at ring placements around the
+section's centre (:func:`section_placements`, the far junction then on the link's chord),
+each on a share of a budget: s1 g0012 given builds at one of them, and its mesh then folds
+at the 4-junction (docs/junctions.md h25/builder).
 """
 
 from __future__ import annotations
@@ -81,7 +85,42 @@ def deepest_in_section(distance, point: np.ndarray, tangent: np.ndarray, radius:
     return trial[best], float(d[best])
 
 
-def reroot_backwards_siblings(skeleton: Skeleton, a: int, b: int, distance) -> Skeleton | None:
+#: the other placements of the new first node, around its section's centre (the middle of
+#: the new first segment): rings at these shares of the branch's radius, ``PLACEMENT_DIRECTIONS``
+#: directions each. Whether the re-rooted 4-junction builds turns on where in its section
+#: that node lies, by no rule found (s1 g0012 given: the deepest point fails, 4 of 16 ring
+#: points build; docs/junctions.md h25/builder), so the builder tries them in turn
+PLACEMENT_RINGS = (0.3, 0.6)
+PLACEMENT_DIRECTIONS = 8
+#: placements in all: the deepest point, then the rings
+PLACEMENTS = 1 + len(PLACEMENT_RINGS) * PLACEMENT_DIRECTIONS
+
+
+def section_placements(point: np.ndarray, tangent: np.ndarray, radius: float) -> np.ndarray:
+    """The ring placements (k, 3) of a re-rooted branch's new first node around ``point`` in
+    the plane normal to ``tangent``: ``PLACEMENT_RINGS`` × ``radius``, ``PLACEMENT_DIRECTIONS``
+    directions each, the inner ring first."""
+    e1, e2 = plane_basis(tangent[None])
+    angle = 2 * np.pi * np.arange(PLACEMENT_DIRECTIONS) / PLACEMENT_DIRECTIONS
+    ring = np.cos(angle)[:, None] * e1 + np.sin(angle)[:, None] * e2
+    return (point + radius * np.asarray(PLACEMENT_RINGS)[:, None, None] * ring[None]).reshape(-1, 3)
+
+
+def _on_chord(sk: Skeleton, end: int, gone: int, distance) -> tuple[np.ndarray, float]:
+    """The far junction ``end`` once its sibling (first node ``gone``) has gone: a plain node
+    of the link, moved onto the chord between its two other neighbours (its position was
+    the junction's, off the link's own course), with its wall distance as radius."""
+    nb = [int(n) for n in sk.neighbors(end) if int(n) != gone]
+    if len(nb) != 2:
+        return sk.points[end], float(sk.radii[end])
+    u = sk.points[nb[1]] - sk.points[nb[0]]
+    s = float(np.clip((sk.points[end] - sk.points[nb[0]]) @ u / max(u @ u, 1e-300), 0.0, 1.0))
+    at = sk.points[nb[0]] + s * u
+    depth = float(np.asarray(distance(at[None]), float)[0])
+    return (at, depth) if depth > 0 else (sk.points[end], float(sk.radii[end]))
+
+
+def reroot_backwards_siblings(skeleton: Skeleton, a: int, b: int, distance, placement: int = 0) -> Skeleton | None:
     """The skeleton with each junction's sibling that runs backwards in the link's lumen
     past the link's middle re-rooted at the link's other end (see the module docstring).
 
@@ -92,11 +131,16 @@ def reroot_backwards_siblings(skeleton: Skeleton, a: int, b: int, distance) -> S
         Two junctions joined by one branch (the link).
     distance : callable
         Signed distance, positive inside (the new first node is centred in its section).
+    placement : int
+        Which of :func:`section_placements` the new first node takes (0: the deepest point
+        of its section, the others: a ring around the section's centre); past the last one,
+        None where that placement lies outside the wall. From 1 on, the far junction (a plain node of the link once its sibling has
+        gone) also moves onto the chord between its neighbours.
 
     Returns
     -------
     Skeleton or None
-        None where neither junction has such a sibling.
+        None where neither junction has such a sibling (or the placement lies outside the wall).
     """
     sk = skeleton
     paths = branch_paths(sk.n_nodes, sk.edges)
@@ -119,7 +163,14 @@ def reroot_backwards_siblings(skeleton: Skeleton, a: int, b: int, distance) -> S
         tangent = sk.points[target] - sk.points[other]
         tangent = tangent / max(np.linalg.norm(tangent), 1e-300)
         mid = 0.5 * (sk.points[other] + sk.points[target])
-        centre, depth = deepest_in_section(distance, mid, tangent, float(sk.radii[target]))
+        if placement == 0:
+            centre, depth = deepest_in_section(distance, mid, tangent, float(sk.radii[target]))
+        else:
+            centre = section_placements(mid, tangent, float(sk.radii[target]))[placement - 1]
+            depth = float(np.asarray(distance(centre[None]), float)[0])
+            if depth <= 0:
+                return None  # outside the wall: no node there (the next placement is tried)
+            points[end], radii[end] = _on_chord(sk, end, int(nodes[1]), distance)
         m = len(points)
         points.append(centre)
         radii.append(depth)
