@@ -58,9 +58,6 @@ def test_moved_blocks_names_only_the_blocks_whose_corners_moved():
     """A lift trial is judged by the blocks it moved: one section of a hand-built cylinder
     moved along the axis moves the blocks on both sides of it, and none else; structures of
     other blocks are not compared."""
-    import sys
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
     from cylinder_blocks import cylinder_blocks
 
     from vmesh.geometry.blocks.poor import moved_blocks
@@ -78,11 +75,8 @@ def test_moved_blocks_names_only_the_blocks_whose_corners_moved():
 def test_fill_summary_of_a_straight_cylinder_is_valid_at_every_resolution():
     """The raw fill the lift's trial log records (least and mean element per resolution):
     a straight O-grid cylinder fills validly (least > 0.3, mean > 0.8) at the default chain's
-    and the finer resolution, and a block squashed towards its neighbour's section fills
+    and the finer resolution, and a section leaned (its blocks sheared) fills
     worse than it did."""
-    import sys
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
     from cylinder_blocks import cylinder_blocks, project_cylinder
 
     from vmesh.geometry.blocks.checks import FILL_CHECKS

@@ -96,14 +96,14 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         bad_path = Path(tempfile.gettempdir()) / f"vmesh_invalid_blocks_{os.getpid()}.vtu"
     built_on = ctx.skeleton
     found = _vessels_in_contact(built_on)
-    cuts, touched = _contact_cuts(built_on, found, ctx.caps, cap_distance) if cut_contacts else (None, {})
-    options.ends.touched_caps = tuple(touched)  # the rays' territory ends at these caps' planes, as the cuts do
+    cuts, touched_radii = _contact_cuts(built_on, found, ctx.caps, cap_distance) if cut_contacts else (None, {})
+    options.ends.touched_caps = tuple(touched_radii)  # {cap id: least radius in contact}'s caps: the rays' territory ends at their planes, as the cuts do
     project = None
     if check_wall_projection:
         if ctx.surface is not None:
             from ..geometry.projection import wall_projector
 
-            project = wall_projector(ctx.surface, ctx.caps, kept=touched)  # shared with mesh_transfinite and the checks
+            project = wall_projector(ctx.surface, ctx.caps, kept=touched_radii)  # shared with mesh_transfinite and the checks
         else:
             project = sdf.closest_points
     if cuts is not None:
@@ -150,8 +150,8 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
         ctx.report.sections["blocks"]["junction_lean"] = info["junction_lean"]
     if cuts is not None and len(cuts):
         info["contact_cuts"] = cuts  # mesh_transfinite and compute_quality see the same domain
-    if touched:
-        info["touched_caps"] = touched  # mesh_transfinite's wall projector keeps these caps as the checks did
+    if touched_radii:
+        info["touched_caps"] = touched_radii  # {cap id: keep radius}: mesh_transfinite's wall projector keeps these caps as the checks did
     if checks["boundary_components"] != 1:
         ctx.warn(f"the outer block faces form {checks['boundary_components']} pieces (is the skeleton connected?)")
     # named on the skeleton the run goes on with (the builder may have changed it)
@@ -180,13 +180,13 @@ def _contact_cuts(sk, found: np.ndarray, caps=None, cap_distance: float = 1.0):
     ends = sk.endpoints
     cap_of = endpoint_caps(sk.points, sk.radii, ends, caps, cap_distance) if caps else {}
     cuts = contact_cuts(sk.points, sk.radii, sk.edges, found, open_ends=list(cap_of) if caps else ends)  # no caps: every end open, as the builder
-    touched = {}
+    touched_radii = {}
     for pair in np.asarray(cuts.nodes).tolist():
         for end, other in (pair, pair[::-1]):
             if int(end) in cap_of:
                 cap = int(cap_of[int(end)].id)
-                touched[cap] = min(touched.get(cap, np.inf), float(sk.radii[int(other)]))
-    return (cuts if len(cuts) else None), dict(sorted(touched.items()))
+                touched_radii[cap] = min(touched_radii.get(cap, np.inf), float(sk.radii[int(other)]))
+    return (cuts if len(cuts) else None), dict(sorted(touched_radii.items()))
 
 
 def _warn_vessels_in_contact(ctx, found: np.ndarray, cut: bool = False) -> None:

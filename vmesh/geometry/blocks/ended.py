@@ -14,6 +14,8 @@ that cap's plane.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 #: Tube samples within this many end radii of an open end node are ended at its cap's plane
@@ -22,7 +24,7 @@ import numpy as np
 END_REACH = 2.0
 
 
-def ended_at_touched_caps(territory, topo, cap_of: dict, touched) -> callable | None:
+def ended_at_touched_caps(territory, topo, cap_of: dict, touched) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
     """``ended(points, samples)`` for :func:`~vmesh.geometry.rays.clip_to_territory`: True
     where a tube sample belongs to a branch that ends at an open end whose cap is in
     ``touched`` (cap ids) and the point lies past that cap's plane (on the side its outward
@@ -49,6 +51,10 @@ def ended_at_touched_caps(territory, topo, cap_of: dict, touched) -> callable | 
         nodes = next((br.nodes for br in topo.branches if int(end) in (int(br.nodes[0]), int(br.nodes[-1]))), None)
         if nodes is None:
             continue
+        # the branch's other terminal (a junction) is left out: samples nearest it may lie on a
+        # sibling's tube, which does not end at this cap (a branch shorter than END_REACH radii)
+        other = int(nodes[0]) if int(end) == int(nodes[-1]) else int(nodes[-1])
+        nodes = [int(n) for n in nodes if int(n) != other]
         near = np.isin(territory.q_node, nodes) & (np.linalg.norm(territory.Q - topo.pos[int(end)], axis=1) <= END_REACH * topo.sk.radii[int(end)])
         if near.any():
             n = np.asarray(cap.normal, float)

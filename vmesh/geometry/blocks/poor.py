@@ -134,7 +134,8 @@ class _PoorBlocks:
                "repair": repair.__name__, "kept": bool(kept), "built": trial is not None,
                "least_block": [float(sj.min()), None if new is None else float(new.min())],
                "shortfall": [shortfall(sj, floor), None if new is None else shortfall(new, floor)]}
-        moved = moved_blocks(blocks, trial) if trial is not None and self.built.corners.min() > 0 else None
+        fillable = trial is not None and self.project is not None and self.built.corners.min() > 0  # a fill needs the projector
+        moved = moved_blocks(blocks, trial) if fillable else None
         if moved is not None and len(moved):
             row["moved"] = int(len(moved))
             row["fill_before"] = fill_summary(blocks, moved, self.project, self.sdf, self.intersect_lines).round(4).tolist()

@@ -442,6 +442,7 @@ class Territory:
         self.ways = SkeletonWays(self.edges, self.pos, 0.0)  # searched as far as each source's rays need
         # ray origin (3), direction (3), length, radius, section node -> cut length
         self.cuts = RowCache(9)
+        self.ended = {}  # touched cap ids -> the rays' end test at their planes (:func:`.ended.ended_at_touched_caps`)
 
     @staticmethod
     def key_of(branches, pos: np.ndarray, radii: np.ndarray, edges: np.ndarray) -> bytes:

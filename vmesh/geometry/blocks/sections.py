@@ -591,7 +591,9 @@ class _Sections:
             return way > np.linalg.norm(o[miss[rays]] - Q[samples], axis=1) + 2.0 * (r[miss[rays]] + rq[samples])
 
         touched = self.opt.ends.touched_caps  # open ends in a contact: their tubes end at their caps' planes
-        ended = ended_at_touched_caps(ter, self.topo, self.ends.cap_of, touched) if touched else None
+        if touched and touched not in ter.ended:  # once per territory, not per section
+            ter.ended[touched] = ended_at_touched_caps(ter, self.topo, self.ends.cap_of, touched)
+        ended = ter.ended[touched] if touched else None
         out[miss] = clip_to_territory(o[miss], d[miss], lengths[miss], r[miss], foreign, (Q, rq), tree=ter.tree, ended=ended)
         keep = miss[np.isfinite(lengths[miss])]  # nan never matches a row: not kept
         ter.cuts.add(rows[keep], out[keep])
