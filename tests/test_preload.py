@@ -64,25 +64,34 @@ def test_the_fine_distance_built_during_decimation_is_the_one_build_sdf_uses(mon
     bit for bit, as do the coarse surface and the two-step distances of a chain whose
     decimation prepared nothing."""
     monkeypatch.setenv("VMESH_DISK_CACHE", "0")
-    built = []
+    built, preparing = [], []
     original = SignedDistance.from_surface.__func__
+    real_prepare = preload.prepare_surface
+
+    def prepare(surface):  # marks the distances built in the decimation's wait
+        preparing.append(True)
+        try:
+            return real_prepare(surface)
+        finally:
+            preparing.pop()
 
     def counting(cls, surface, sign="auto"):
-        callers = [sys._getframe(k).f_code.co_name for k in range(1, 6)]
-        built.append(("prepare_surface" in callers, "build_sdf" in callers, surface.n_faces))
+        built.append((bool(preparing), surface.n_faces))
         return original(cls, surface, sign)
+
+    monkeypatch.setattr(preload, "prepare_surface", prepare)
 
     monkeypatch.setattr(SignedDistance, "from_surface", classmethod(counting))
     steps = [("decimate_surface", {"target_faces": 2000}), ("build_sdf", {"source": "coarse", "refine_on_fine": True})]
     surface = _sphere()
     ctx = FilterChain(steps).run(surface=surface)
     # the fine one once, in the decimation's wait; build_sdf builds only the coarse one
-    assert built == [(True, False, 20480), (False, True, ctx.coarse_surface.n_faces)]
+    assert built == [(True, 20480), (False, ctx.coarse_surface.n_faces)]
     assert ctx.sdf.fine is projection.surface_distance(ctx.surface)
 
     # the same chain, its decimation preparing nothing: same coarse surface, same distances
     monkeypatch.setattr(preload, "import_later_steps", lambda: [])
-    monkeypatch.setattr(preload, "LATER_STEPS", type(preload.LATER_STEPS)("empty", default=()))
+    monkeypatch.setattr(preload, "prepare_surface", lambda surface: [])
     plain = FilterChain(steps).run(surface=_sphere())
     assert np.array_equal(plain.coarse_surface.vertices, ctx.coarse_surface.vertices)
     assert np.array_equal(plain.coarse_surface.faces, ctx.coarse_surface.faces)

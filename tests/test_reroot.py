@@ -75,11 +75,11 @@ def test_a_thin_backwards_branch_leaving_the_link_past_its_middle_builds():
 def test_ring_placements_lie_in_the_new_segments_section():
     """The new first node's ring placements: ``PLACEMENT_RINGS`` × the branch's radius from
     the section's centre, in the plane normal to the new first segment, inner ring first."""
-    from vmesh.geometry.blocks.reroot import PLACEMENT_DIRECTIONS, PLACEMENT_RINGS, PLACEMENTS, section_placements
+    from vmesh.geometry.blocks.reroot import PLACEMENT_DIRECTIONS, PLACEMENT_RINGS, N_PLACEMENTS, section_placements
 
     centre, tangent, radius = np.array([1.0, 2.0, 3.0]), np.array([0.0, 0.6, 0.8]), 0.5
     ring = section_placements(centre, tangent, radius)
-    assert ring.shape == (PLACEMENTS - 1, 3) == (len(PLACEMENT_RINGS) * PLACEMENT_DIRECTIONS, 3)
+    assert ring.shape == (N_PLACEMENTS - 1, 3) == (len(PLACEMENT_RINGS) * PLACEMENT_DIRECTIONS, 3)
     off = ring - centre
     np.testing.assert_allclose(off @ tangent, 0.0, atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(off, axis=1), np.repeat(PLACEMENT_RINGS, PLACEMENT_DIRECTIONS) * radius)
@@ -89,13 +89,13 @@ def test_a_ring_placement_moves_the_new_node_and_puts_the_far_junction_on_the_ch
     """Placement k > 0: the same re-rooted topology as the deepest point (placement 0), the
     new node at its ring point (inside the vessel) and the far junction, now a plain node
     of the link, on the chord between its two neighbours."""
-    from vmesh.geometry.blocks.reroot import PLACEMENTS
+    from vmesh.geometry.blocks.reroot import N_PLACEMENTS
 
     case = retrograde_branch(**SHORT_LINK)
     sk, a, b = _separated(case)
     deepest = reroot_backwards_siblings(sk, a, b, case.distance, 0)
     built = 0
-    for k in range(1, PLACEMENTS):
+    for k in range(1, N_PLACEMENTS):
         out = reroot_backwards_siblings(sk, a, b, case.distance, k)
         if out is None:
             continue  # that ring point lies outside the wall
@@ -107,4 +107,4 @@ def test_a_ring_placement_moves_the_new_node_and_puts_the_far_junction_on_the_ch
         p, q = (out.points[n] for n in out.neighbors(b))
         x = out.points[b] - p
         assert np.linalg.norm(np.cross(q - p, x)) <= 1e-9 * np.linalg.norm(q - p) ** 2  # on the chord
-    assert built >= PLACEMENTS // 2
+    assert built >= N_PLACEMENTS // 2

@@ -45,7 +45,7 @@ def _resolve(node: ast.ImportFrom | ast.Import, package: str) -> list[str]:
         base = node.module
     else:
         return []
-    return [base] if node.module else [f"{base}.{a.name}" for a in node.names]
+    return ([base] if node.module else []) + [f"{base}.{a.name}" for a in node.names]  # names may be submodules
 
 
 @functools.lru_cache(maxsize=None)

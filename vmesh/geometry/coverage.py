@@ -273,10 +273,10 @@ class SurfaceFacts:
 
 def surface_facts(surface) -> SurfaceFacts:
     """The :class:`SurfaceFacts` of a :class:`~vmesh.surface.SurfaceMesh`, one per surface
-    object (cached with its trees, :func:`vmesh.geometry.projection.surface_cached`)."""
-    from .projection import surface_cached
+    object (cached with its trees, :func:`vmesh.geometry.projection.cached_for_surface`)."""
+    from .projection import cached_for_surface
 
-    return surface_cached(surface, "coverage facts", lambda: SurfaceFacts(surface.vertices, surface.faces))
+    return cached_for_surface(surface, "coverage facts", lambda: SurfaceFacts(surface.vertices, surface.faces))
 
 
 def measure_coverage(

@@ -155,13 +155,10 @@ def surface_tree(surface):
     once per surface object (cached; see the module docstring)."""
     from .bvh import TriangleBVH
 
-    entries = _entries(surface)
-    if "tree" not in entries:
-        entries["tree"] = TriangleBVH(surface.vertices, surface.faces)
-    return entries["tree"]
+    return cached_for_surface(surface, "tree", lambda: TriangleBVH(surface.vertices, surface.faces))
 
 
-def surface_cached(surface, key, build):
+def cached_for_surface(surface, key, build):
     """``build()``, computed once per surface object and ``key`` and cached with its trees
     (kept with them in the prefix disk cache, :func:`cached_trees`)."""
     entries = _entries(surface)
@@ -177,7 +174,7 @@ def surface_distance(surface, sign: str = "auto"):
     (``decimate_surface``, :mod:`vmesh.preload`)."""
     from .sdf import SignedDistance
 
-    return surface_cached(surface, ("signed distance", sign), lambda: SignedDistance.from_surface(surface, sign=sign))
+    return cached_for_surface(surface, ("signed distance", sign), lambda: SignedDistance.from_surface(surface, sign=sign))
 
 
 def wall_faces(surface, caps=None) -> np.ndarray | None:

@@ -53,7 +53,7 @@ from .options import BlockOptions, _LocalFixes
 from .poor import _PoorBlocks
 from .prep import MERGE_COVER_DEPTH, merge_junction_pair, pair_wall, split_nonplanar_junctions
 from .repair import _Repair
-from .reroot import PLACEMENTS, reroot_backwards_siblings
+from .reroot import N_PLACEMENTS, reroot_backwards_siblings
 from .sections import _Sections
 from .stubs import _Stubs, cut_stubs, label_ostia, stub_note
 from .state import _Assembled, _Ends, _Frames, _Placement, _Topology
@@ -369,7 +369,7 @@ def _rerooted(first: _Failure, distance, caps, options: BlockOptions, hooks: tup
     sk, project = first.skeleton, hooks[2]
     for a, b in first.crowded:
         rays = None  # the placements' rays, cast once
-        for placement in range(PLACEMENTS):
+        for placement in range(N_PLACEMENTS):
             changed = reroot_backwards_siblings(sk, a, b, distance, placement)
             if changed is None:
                 if placement == 0:
@@ -381,12 +381,15 @@ def _rerooted(first: _Failure, distance, caps, options: BlockOptions, hooks: tup
             else:
                 # the ring's placements: the skeleton as re-rooted only (its own placements of
                 # the half-sections, no merges or splits), each on a share of a budget
-                work = WorkBudget(max(1, int(PLACEMENT_WORK_SHARE * options.repair.work_budget)))
+                budget = options.repair.work_budget  # 0: no bound, for the ring too
+                work = WorkBudget(max(1, int(PLACEMENT_WORK_SHARE * budget)) if budget else 0)
                 work.rays, opts = rays, options.replace(max_retopology_tries=1)
+            hits, misses = work.rays.hits, work.rays.misses  # the ring shares placement 0's rays
             try:
                 blocks = _build_blocks(changed, distance, caps, opts, None, *hooks, work)
             except MeshingError:
                 continue
+            blocks.info["work"].update(rays_cast=work.rays.misses - misses, rays_reused=work.rays.hits - hits)
             if float(wall_left_out(blocks, project, *pair_wall(sk, a, b, project)).max()) > MERGE_COVER_DEPTH:
                 continue
             where = "" if placement == 0 else f" (its new first node at ring placement {placement})"

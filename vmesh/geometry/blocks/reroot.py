@@ -76,10 +76,7 @@ def deepest_in_section(distance, point: np.ndarray, tangent: np.ndarray, radius:
     """The point of the section through ``point`` (normal ``tangent``) within ``radius``
     of it that lies deepest inside the wall, and its wall distance: the centre of the
     branch's lumen where it runs fused with others (chords there escape into them)."""
-    e1, e2 = plane_basis(tangent[None])
-    angle = 2 * np.pi * np.arange(SECTION_DIRECTIONS) / SECTION_DIRECTIONS
-    ring = np.cos(angle)[:, None] * e1 + np.sin(angle)[:, None] * e2  # (k, 3)
-    trial = np.r_[point[None], (point + radius * SECTION_RINGS[:, None, None] * ring[None]).reshape(-1, 3)]
+    trial = np.r_[point[None], section_rings(point, tangent, radius, SECTION_RINGS, SECTION_DIRECTIONS)]
     d = np.asarray(distance(trial), float)
     best = int(np.argmax(d))
     return trial[best], float(d[best])
@@ -93,17 +90,24 @@ def deepest_in_section(distance, point: np.ndarray, tangent: np.ndarray, radius:
 PLACEMENT_RINGS = (0.3, 0.6)
 PLACEMENT_DIRECTIONS = 8
 #: placements in all: the deepest point, then the rings
-PLACEMENTS = 1 + len(PLACEMENT_RINGS) * PLACEMENT_DIRECTIONS
+N_PLACEMENTS = 1 + len(PLACEMENT_RINGS) * PLACEMENT_DIRECTIONS
+
+
+def section_rings(point: np.ndarray, tangent: np.ndarray, radius: float, rings, directions: int) -> np.ndarray:
+    """(len(rings) * directions, 3) points around ``point`` in the plane normal to
+    ``tangent``: circles of ``rings`` × ``radius``, ``directions`` evenly spaced points each,
+    the first ring first."""
+    e1, e2 = plane_basis(tangent[None])
+    angle = 2 * np.pi * np.arange(directions) / directions
+    ring = np.cos(angle)[:, None] * e1 + np.sin(angle)[:, None] * e2  # (directions, 3)
+    return (point + radius * np.asarray(rings, float)[:, None, None] * ring[None]).reshape(-1, 3)
 
 
 def section_placements(point: np.ndarray, tangent: np.ndarray, radius: float) -> np.ndarray:
     """The ring placements (k, 3) of a re-rooted branch's new first node around ``point`` in
     the plane normal to ``tangent``: ``PLACEMENT_RINGS`` × ``radius``, ``PLACEMENT_DIRECTIONS``
     directions each, the inner ring first."""
-    e1, e2 = plane_basis(tangent[None])
-    angle = 2 * np.pi * np.arange(PLACEMENT_DIRECTIONS) / PLACEMENT_DIRECTIONS
-    ring = np.cos(angle)[:, None] * e1 + np.sin(angle)[:, None] * e2
-    return (point + radius * np.asarray(PLACEMENT_RINGS)[:, None, None] * ring[None]).reshape(-1, 3)
+    return section_rings(point, tangent, radius, PLACEMENT_RINGS, PLACEMENT_DIRECTIONS)
 
 
 def _on_chord(sk: Skeleton, end: int, gone: int, distance) -> tuple[np.ndarray, float]:
@@ -133,8 +137,8 @@ def reroot_backwards_siblings(skeleton: Skeleton, a: int, b: int, distance, plac
         Signed distance, positive inside (the new first node is centred in its section).
     placement : int
         Which of :func:`section_placements` the new first node takes (0: the deepest point
-        of its section, the others: a ring around the section's centre); past the last one,
-        None where that placement lies outside the wall. From 1 on, the far junction (a plain node of the link once its sibling has
+        of its section, the others: a ring around the section's centre, ``0 <= placement <
+        N_PLACEMENTS``); None where that placement lies outside the wall. From 1 on, the far junction (a plain node of the link once its sibling has
         gone) also moves onto the chord between its neighbours.
 
     Returns
