@@ -512,7 +512,7 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
     with warnings.catch_warnings(record=True) as caught:  # the backend fallback goes into the report
         warnings.simplefilter("always", RuntimeWarning)
         if max_error is None:
-            v, f, stored = _decimate_and_index(ctx, target_faces, options)
+            v, f, stored = _decimate_and_index(ctx, target_faces, options, prepare=output != "surface")
         else:
             labels = s.face_data.get(pre.CAP_LABEL)
             wall = None if labels is None or len(labels) != s.n_faces else np.asarray(labels) == 0
@@ -559,7 +559,7 @@ def decimate_surface(ctx, backend, target_faces, target_ratio, preserve_boundary
         ctx.warn(f"decimation stopped at {len(f)} faces, target was {target_faces} (topology or boundary constraints)")
 
 
-def _decimate_and_index(ctx, target_faces, options):
+def _decimate_and_index(ctx, target_faces, options, prepare: bool = True):
     """``pre.decimate`` of the fine surface; while pymeshlab decimates (it releases the GIL),
     the fine surface's tree and its wall projector, which build_sdf and the mesher query
     next, are built on the other core (cached per surface: docs/sdf.md), the later steps'
@@ -570,7 +570,8 @@ def _decimate_and_index(ctx, target_faces, options):
     pymeshlab's result is kept on disk (:mod:`vmesh.disk_cache`, keyed by the surface's bytes
     and the options): a rerun on the same surface reads it back. Returns the vertices, the
     faces and the :class:`_Stored` entry (None for other backends), which holds the cached
-    arrays and saves new ones."""
+    arrays and saves new ones. ``prepare=False`` (the result replaces the surface) builds
+    nothing for the later steps on the surface that is about to go."""
     s = ctx.surface
     if options["backend"] != "pymeshlab" or target_faces >= s.n_faces:
         return (*pre.decimate(s.vertices, s.faces, target_faces, **options), None)
@@ -603,7 +604,8 @@ def _decimate_and_index(ctx, target_faces, options):
         # off the critical path (docs/speed.md, 20th round): the later steps' modules, and what
         # they will ask of this surface (build_sdf's fine distance, check_coverage's facts)
         preload.import_later_steps()
-        preload.prepare_surface(s)
+        if prepare:
+            preload.prepare_surface(s)
     finally:
         thread.join()
     if "error" in result:
