@@ -1,14 +1,17 @@
-"""Regular sections centred on the middle of the lumen they cut (issue 17, session 25).
+"""Regular sections centred on the middle of the lumen they cut (issue 17, session 25,
+branch h25/realbuild; opt-in ``build_block_structure.centre_sections``).
 
-A skeleton extracted from a flattened lumen follows the lumen's medial *sheet* as a curve
-that wanders across it (real hepatic_artery: a trunk 21 x 11 wide, nodes 1.5-3 from the
-wall on the thin side, the curve turning 29-37 degrees at nodes 3.3-5.6 apart). A section
-through such a node reaches 8-13 to the wide side's walls, so neighbouring sections tilted
-by the wandering cross each other inside the lumen, and the blocks between them stay
-invalid whatever the fix loop does. The middle of the lumen a section cuts does not
-wander: moving each regular node to the middle of its section's chords (as a junction's
+A skeleton that runs off the middle of a wide lumen (a thinned voxel skeleton wandering over
+a flattened lumen's medial sheet, a centerline drawn off-centre) tilts its regular sections
+with its wandering: turned 30-40 degrees at nodes spaced by the thin side's radius while
+their rays reach the wide side's walls 2-3 times as far, neighbouring sections cross inside
+the lumen, and the blocks between them stay invalid whatever the fix loop does (or the
+sections miss the wide side's wall). The middle of the lumen a section cuts does not wander:
+moving each lopsided regular node to the middle of its section's chords (as a junction's
 half-sections meet at its walls' centre, :meth:`~.junctions._Junctions._junction_centre`)
-straightens the curve and the tilts with it.
+straightens the skeleton and the tilts with it (the generated flattened tube of
+``tests/flat_vessels.py``). Real hepatic_artery extracted, for which it was proposed, fails
+for another cause: a thin pillar through its round trunk (docs/junctions.md h25/realbuild).
 """
 
 from __future__ import annotations
@@ -59,7 +62,7 @@ def centre_regular_nodes(builder, share: float) -> list[int]:
         return []  # no opposite rays: no chords
     moved: set[int] = set()
     for _ in range(CENTRE_PASSES):
-        idx, nodes, _, (E1, E2), R = _regular_rays(builder)
+        idx, nodes, (E1, E2), R = _regular_rays(builder)
         if not idx:
             break
         C = builder.topo.pos[nodes]
@@ -84,8 +87,9 @@ def centre_regular_nodes(builder, share: float) -> list[int]:
 
 def _regular_rays(builder):
     """The regular interior sections standing at their nodes (``br.s == br.arc``: not
-    pushed by a junction's half-sections or a closed end's dome), their nodes, centres,
-    normals (the bisectors) and rays (cut at touching vessels), one row a section."""
+    pushed by a junction's half-sections or a closed end's dome), their nodes, the in-plane
+    axes of their planes (normal to the bisectors) and their rays (cut at touching vessels),
+    one row a section."""
     ang = np.asarray(builder.template.ray_angles, float)
     idx, normals = [], []
     for bi, br in enumerate(builder.topo.branches):
@@ -99,7 +103,7 @@ def _regular_rays(builder):
                 idx.append((bi, k))
                 normals.append(N[k])
     if not idx:
-        return idx, None, None, (None, None), None
+        return idx, None, (None, None), None
     nodes = np.array([int(builder.topo.branches[b].nodes[k]) for b, k in idx])
     C = builder.topo.pos[nodes]
     Nn = cs.unit(np.asarray(normals))
@@ -109,5 +113,5 @@ def _regular_rays(builder):
     dirs = cs.ray_directions(E1, E2, ang)
     R = builder.cast(np.repeat(C, len(ang), axis=0), dirs.reshape(-1, 3), np.repeat(rad, len(ang))).reshape(len(idx), -1)
     R = builder._own_territory(idx, C, dirs, R, rad)
-    return idx, nodes, Nn, (E1, E2), R
+    return idx, nodes, (E1, E2), R
 
