@@ -8,7 +8,10 @@ side), turning 29-37 degrees at nodes 3.3-5.6 apart. The sections' rays reach th
 fix loop's straightening leaves them crossing and the build failed ("3 block(s) stay
 invalid ... skeleton node 887"). The generated vessel here has the same configuration: a
 tube of radius 10 whose skeleton (radius 3 at every node) turns 29-36 degrees at nodes
-3.3-5.6 apart, the turns of hepatic's nodes 886-890."""
+3.3-5.6 apart, the turns of hepatic's nodes 886-890. (Session 25 re-read hepatic: its trunk
+is round and the short rays end on a thin pillar through the lumen, docs/junctions.md
+h25/realbuild; the vessel here stays the configuration of a skeleton winding in a wide lumen,
+which ``centre_sections`` also builds: tests/test_centred_sections.py.)"""
 
 import numpy as np
 import pytest

@@ -39,6 +39,7 @@ from ..registry import Parameter, register_filter
         Parameter("relieve_wall_folds", "bool", True, "Where a junction's boundary-layer blocks would still fold once projected on the wall, try further first cross-sections and other half-plane rotations, judged by filling the junction's blocks (costs seconds per junction)."),
         Parameter("check_wall_projection", "bool", True, "Also check boundary-layer blocks with their wall faces projected onto the wall, and thicken the layer (up to 0.5) where they would fold."),
         Parameter("own_territory", "bool", True, "Cut cross-section rays where they cross into a touching vessel (one whose way along the skeleton is much longer than the straight way), so that each vessel's blocks stay in its own lumen."),
+        Parameter("centre_sections", "float", 0.0, "Move a regular cross-section's skeleton node (in its plane) to the middle of the section's chords where it lies more than this share of its rays' mean reach off that middle and the middle is deeper in the lumen (a skeleton wandering over a flattened lumen's wide side, whose tilted sections cross; 0: never; docs/junctions.md h25/realbuild).", unit="× mean ray", min=0.0, max=1.0),
         Parameter("junction_lean", "float", 1.0, "How far the half cross-sections of a junction of 4 or more branches that leave its plane unalike may lean about its axis towards the true bisector of their branches (0: half-planes).", min=0.0, max=1.5),
         Parameter("choose_lean", "bool", False, "Where a junction of 4 or more branches leans, also build it with half-planes from the start, finish both, and keep per junction the choice whose blocks there and at the junctions one branch away have the higher least corner scaled Jacobian (up to twice the block-building time on such trees; off by default, docs/junctions.md h14/trif)."),
         Parameter("cut_contacts", "bool", True, "Where two vessels pass in contact with no junction between them, mesh them apart: a planar cut on the radical plane between their axes is part of the wall for every later stage (rays, projection, optimisers); the fused neck's surface is left out (report.json: blocks.contact_cuts)."),
@@ -61,7 +62,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
                           dome_depth, dome_max_retreat, max_fix_rounds, check_wall_projection, junction_centre=1.0, dome_keep=0.0,
                           relieve_wall_folds=True, work_budget=160, own_territory=True, junction_lean=1.0, cut_contacts=True,
                           choose_lean=False, dent_sections=2, saddle_split=0.5, stub_within_reach=False, short_end_rays=0.5,
-                          bend_drops=0, reroot_backwards=False, poor_block_sj=0.0):
+                          bend_drops=0, reroot_backwards=False, poor_block_sj=0.0, centre_sections=0.0):
     """One O-grid cross-section per skeleton node (a core of a x b blocks, a ring and a
     boundary-layer ring whose outer corners are found on the wall by ray casting in the
     section plane), half cross-sections on half-planes through each junction's axis shared
@@ -77,7 +78,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
 
     options = BlockOptions(
         section=SectionOptions(blocks_around=blocks_around, core_size=core_size, layer_thickness=layer_thickness, plane_bias=plane_bias,
-                                own_territory=own_territory),
+                                own_territory=own_territory, centre_sections=centre_sections),
         junction=JunctionOptions(
             junction_rotation=junction_rotation, rotation_range=rotation_range, max_out_of_plane=max_out_of_plane,
             min_branch_gap=min_branch_gap, clear_ray_factor=clear_ray_factor, junction_margin=junction_margin,

@@ -44,6 +44,7 @@ from ...errors import MeshingError
 from ...skeleton import Skeleton
 from .. import cross_sections as cs
 from .assemble import _Assembly
+from .centring import centre_regular_nodes
 from .crossings import bend_note, without_bends
 from .checks import _Failure, fill_quality, filled, wall_left_out
 from .crotch import column_ends, split_saddle_columns
@@ -660,6 +661,7 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _PoorBlocks, _Stubs):
         self.choose_rotations()
         self.tick(0.3, "sections")
         self.place_sections()
+        self.centre_sections()
         blocks = None
         for round_ in range(self.opt.repair.max_fix_rounds + 1):
             self.tick(0.4 + 0.5 * round_ / (self.opt.repair.max_fix_rounds + 1), "blocks")
@@ -672,6 +674,20 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _PoorBlocks, _Stubs):
                 self.fail(blocks, bad)
         self.work.valid_after = self.work.used  # the rest (wall folds) is bounded by the options
         return blocks
+
+
+    def centre_sections(self) -> None:
+        """Regular nodes off their sections' middle moved there (:mod:`.centring`), and
+        the branches, junctions and section places made again from the moved nodes."""
+        moved = centre_regular_nodes(self, self.opt.section.centre_sections)
+        if not moved:
+            return
+        self.fixes.append(f"{len(moved)} regular cross-section(s) centred on their chords' middle (nodes {moved[:8]}{' ...' if len(moved) > 8 else ''})")
+        self.make_branches()
+        self.build_junctions()
+        self.classify_ends()
+        self.choose_rotations()
+        self.place_sections()
 
 
     def finish(self, blocks: BlockStructure) -> BlockStructure:

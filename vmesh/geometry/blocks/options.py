@@ -19,6 +19,7 @@ class SectionOptions:
     layer_thickness: float = 0.3
     plane_bias: float = 1.0
     own_territory: bool = True  # cut section rays where they cross into a touching vessel
+    centre_sections: float = 0.0  # regular nodes more than this share of their rays' mean reach off their chords' middle move there (:mod:`.centring`; 0: never)
 
 
 @dataclass
