@@ -78,6 +78,20 @@ def test_centerline_of_another_vessel_is_detected_before_cleaning():
             get_filter(step)(context(beside))
 
 
+def test_a_centerline_partly_outside_the_surface_is_doubted_aloud():
+    """Another vessel's centerline with fewer than half its nodes outside (the trifurcation's
+    on the Y-bifurcation: 44 %) is cleaned into place, with a warning that asks whether it is
+    this vessel's; the vessel's own centerline raises no such warning."""
+    _, _, other = vessel("trifurcation")
+    ctx = context(other)
+    get_filter("estimate_radii")(ctx)
+    doubt = [w for w in ctx.report.warnings if "is this the centerline of this vessel?" in w]
+    assert len(doubt) == 1 and 20 < int(doubt[0].split("%")[0].split()[-1]) <= 50
+    own = context(vessel()[2])
+    get_filter("estimate_radii")(own)
+    assert not any("centerline of this vessel" in w for w in own.report.warnings)
+
+
 def test_a_given_centerline_that_does_not_fit_is_named_by_its_file():
     """The two fit errors start with the centerline's file (a new user gives two files
     and has to know which one is wrong)."""
