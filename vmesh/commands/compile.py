@@ -116,28 +116,52 @@ def capped_tube(radius: float = 2.0, length: float = 24.0, around: int = 64, alo
     return SurfaceMesh(vertices, faces, name="compile_tube"), skeleton
 
 
-def compile_kernels() -> tuple[float, int]:
-    """Run the default chain on :func:`capped_tube` (no output files); returns the seconds and
-    the number of compiled kernel specialisations now held by the geometry modules."""
+def compile_kernels(progress: bool = False) -> tuple[float, int]:
+    """Run the default chain on :func:`capped_tube` (into a scratch folder, removed); returns the seconds and
+    the number of compiled kernel specialisations now held by the geometry modules.
+    ``progress``: say on stderr what is being compiled (each step of the chain as it runs)."""
+    import sys
+    import tempfile
     import warnings
+    from pathlib import Path
 
     from ..chain import FilterChain
 
+    def say(message):
+        if progress:
+            print(f"vmesh compile: {message}", file=sys.stderr, flush=True)
+
+    say("compiling the numba kernels once, through the default chain on a small tube (about 30-60 s on 2 cores; later runs load them)")
     surface, skeleton = capped_tube()
     t0 = time.perf_counter()
     # the optimiser's kernels (~40 % of the compiling) on the other core meanwhile, as in a
     # first ``vmesh run``: the whole compile then takes about as long as the chain's own share
     child = compile_in_background()
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), tempfile.TemporaryDirectory(prefix="vmesh_compile_") as scratch:
         warnings.simplefilter("ignore")
-        FilterChain.load("default").run(surface=surface, skeleton=skeleton, out_dir=None)
+        # into a scratch folder: the writers run (and compile) as in a user's run, and say nothing
+        FilterChain.load("default").run(surface=surface, skeleton=skeleton, out_dir=Path(scratch) / "tube",
+                                        progress=_step_names if progress else False)
     if child is not None:
+        say("waiting for the optimiser's kernels (compiled in a second process)")
         child.wait()  # its kernels are in the cache now: warm_up below loads them
     from ..geometry.optimize.kernels import warm_up
 
+    say("loading the optimiser's and the surface queries' parallel variants")
     warm_up()  # the optimiser's parallel variants (the tube's colours are all small)
     _warm_parallel_queries(surface)  # loaded: the child ran them after the optimiser's
     return time.perf_counter() - t0, _compiled_count()
+
+
+def _step_names(event, **info) -> None:
+    """The chain's progress as ``vmesh compile`` shows it: each step's name as it starts, and
+    the chain's "still running" notes (no counts or warnings: the tube is not the user's)."""
+    import sys
+
+    if event == "start":
+        print(f"  [{info['index']}/{info['total']}] {info['name']}", file=sys.stderr, flush=True)
+    elif event == "alive":
+        print(f"      ... {info['name']} still compiling ({info['seconds']:.0f} s)", file=sys.stderr, flush=True)
 
 
 def _warm_parallel_queries(surface) -> None:
@@ -180,7 +204,7 @@ def run(args) -> int:
         _warm_parallel_queries(capped_tube()[0])
         seconds, n = time.perf_counter() - t0, _compiled_count()
     else:
-        seconds, n = compile_kernels()
+        seconds, n = compile_kernels(progress=not args.quiet)
     if not args.quiet:
         from ..numba_cache import cache_root
 
