@@ -195,3 +195,67 @@ def test_guarded_trial_quality_equals_node_eval_bit_for_bit():
                         n = 4 * (ptr[v + 1] - ptr[v])
                         assert np.array_equal(buf[0, :n], other[0, :n])
     assert by_ratio and by_corner and accepted
+
+
+def test_ordered_trial_quality_decides_and_keeps_as_the_row_order():
+    """A light-pass trial with its rows in ``trials.order_rows``'s order, refused once its sum of
+    minima cannot reach the start's (``trials.trial_quality_ordered``), takes the same decision
+    as the row-order evaluation for a Newton trial (minimum kept, sum raised) and a climb
+    (minimum raised, sum kept), with and without the taper guard, and an accepted trial has the
+    same minimum, sum and stored corners bit for bit; refusals by the sum bound occur."""
+    X, hexes, scale, ptr, inc, cq, valence, L, buf = frame_setup()
+    other, start = np.empty_like(buf), np.empty_like(buf)
+    rng = np.random.default_rng(7)
+    early = kept = refused = 0
+    for v in np.concatenate([rng.choice(np.flatnonzero(valence == k), 4) for k in np.unique(valence)]):
+        K.frame(X, hexes, scale, ptr, inc, cq, v, L, True)
+        s = K.node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, 1e-3, False, False, True, start, np.int64(0), False, -np.inf, -np.inf)
+        qmin0, qsum0 = s[10], s[11]
+        gap_floor = trials.order_rows(L, np.int64(valence[v]), start[0], qsum0)
+        assert sorted(L[: valence[v], trials.ORDER].astype(int)) == list(range(valence[v]))
+        for guarded, ratio_floor in ((False, -np.inf), (True, 0.3)):
+            least = trials.least_ratio(L, np.int64(valence[v]), ratio_floor) if guarded else -np.inf
+            for size in (0.002, 0.01, 0.05):
+                z = rng.normal(size=3) * size
+                for climb, floor in ((False, qmin0), (True, np.nextafter(qmin0, np.inf))):
+                    if guarded:
+                        want = trials.trial_quality_guarded(L, ptr, v, z[0], z[1], z[2], buf, np.int64(0), floor, least)
+                    else:
+                        want = trials.trial_quality(L, ptr, v, z[0], z[1], z[2], buf, np.int64(0), floor)
+                    got = trials.trial_quality_ordered(L, ptr, v, z[0], z[1], z[2], other, np.int64(0), floor, least, guarded, gap_floor)
+                    f0 = np.inf if climb else 0.0
+                    ok = K._acceptable(K.SMOOTH, 0.0, want[0], want[1], f0, qmin0, qsum0)
+                    assert K._acceptable(K.SMOOTH, 0.0, got[0], got[1], f0, qmin0, qsum0) == ok
+                    if ok:
+                        kept += 1
+                        n = 4 * valence[v]
+                        assert got[0] == want[0] and got[1] == want[1] and np.array_equal(buf[0, :n], other[0, :n])
+                    else:
+                        refused += 1
+                        early += want[0] > -np.inf and got[0] == -np.inf
+    assert kept and refused and early
+
+
+def test_untangling_trial_floor_takes_the_same_decision():
+    """An untangling trial judged by its minimum (``kernels.UNTANGLE``, non-wall nodes) is
+    evaluated with the start's minimum as ``node_eval``'s floor: a trial it cuts short is one
+    the whole evaluation refuses too, and one it evaluates whole has the same functional,
+    minimum and sum."""
+    X, hexes, scale, ptr, inc, cq, valence, L, buf = frame_setup()
+    rng = np.random.default_rng(11)
+    cut = whole = 0
+    for v in np.concatenate([rng.choice(np.flatnonzero(valence == k), 3) for k in np.unique(valence)]):
+        K.frame(X, hexes, scale, ptr, inc, cq, v, L, False)
+        s = K.node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, 1e-3, True, True, True, buf, np.int64(-1), False, -np.inf, -np.inf)
+        for size in (0.005, 0.02, 0.1):
+            z = rng.normal(size=3) * size
+            full = K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], 1e-3, False, True, True, buf, np.int64(0), False, -np.inf, -np.inf)
+            got = K.node_eval(L, ptr, inc, cq, v, z[0], z[1], z[2], 1e-3, False, True, True, buf, np.int64(0), False, s[10], -np.inf)
+            want_ok = full[0] < s[0] and K._acceptable(K.UNTANGLE, full[0], full[10], full[11], s[0], s[10], s[11])
+            assert (got[0] < s[0] and K._acceptable(K.UNTANGLE, got[0], got[10], got[11], s[0], s[10], s[11])) == want_ok
+            if got[10] == -np.inf:
+                cut += 1
+            else:
+                whole += 1
+                assert got[0] == full[0] and got[10] == full[10] and got[11] == full[11]
+    assert cut and whole

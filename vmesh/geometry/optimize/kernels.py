@@ -32,7 +32,7 @@ from numba.core import types as nbtypes
 from numba.extending import intrinsic
 
 from .prefetch import ahead
-from .trials import least_ratio, row_below, trial_quality, trial_quality_guarded
+from .trials import least_ratio, order_rows, row_below, trial_quality, trial_quality_guarded, trial_quality_ordered
 from .structure import colour_nodes, grow_nodes, incidence, step_caps, target_scales  # re-exported: the stage's structure
 
 #: node kinds: free in 3-D, sliding on the wall (tangent plane, then projection), sliding in a
@@ -166,8 +166,9 @@ def _mark(hexes, ptr, inc, v, dirty):
 #: then scratch for :func:`node_eval`: per moved corner q its functional's inputs (36 + 9 q:
 #: F, D, dF (3), dD (3), diag); then the Jacobian ratio's inputs: the least determinant of
 #: the four corners the node does not move (72), their largest magnitude (73) and the
-#: element's ratio (min det / max |det| over its 8 corners) where the frame was taken (74)
-NL = 75
+#: element's ratio (min det / max |det| over its 8 corners) where the frame was taken (74);
+#: the light pass's row order and per-row minima (75, 76: :func:`.trials.order_rows`)
+NL = 77
 
 
 @nb.njit(cache=True)
@@ -560,7 +561,7 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
     # the start's quality from the frame, as every trial's: the cache's values of the moved
     # corners (computed in other frames) differ in the last bits, enough to refuse the short
     # steps that climb the worst element
-    f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin0, qsum0, _ = node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, delta, _YES, _YES, _YES, buf, np.int64(-1), mode == SMOOTH, -np.inf, -np.inf)
+    f0, g0, g1, g2, h00, h01, h02, h11, h12, h22, qmin0, qsum0, _ = node_eval(L, ptr, inc, cq, v, 0.0, 0.0, 0.0, delta, _YES, _YES, _YES, buf, np.int64(j), mode == SMOOTH, -np.inf, -np.inf)
     if mode == ESCOBAR and not on_wall:
         qmin0, qsum0 = np.inf, 0.0
     state[j, 0], state[j, 1], state[j, 2] = f0, qmin0, qsum0
@@ -579,6 +580,9 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
     guarded = smooth and ratio_floor > -np.inf  # the taper guard (the default): trial_quality_guarded
     least = least_ratio(L, ptr[v + 1] - ptr[v], ratio_floor) if guarded else -np.inf
     hint = -1  # the frame row whose corner refused the last trial: checked first (trials.row_below)
+    # a light-pass trial is refused as soon as its sum of minima cannot reach the start's
+    # (buf[j] holds the start's moved corners, read by an accepted trial's move only)
+    gap_floor = order_rows(L, ptr[v + 1] - ptr[v], buf[j], qsum0) if smooth and not on_wall else 0.0
     for _ in range((SMOOTH_TRIALS + (1 if t > 1.0 else 0) if smooth else 8) if newton else 0):
         z0, z1, z2 = t * d0, t * d1, t * d2
         if on_wall and smooth:  # judged after the projection
@@ -588,14 +592,13 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
         if smooth and hint >= 0 and row_below(L, hint, z0, z1, z2, qmin0):
             t = 1.0 if t > 1.0 else 0.5 * t
             continue
-        if smooth and not guarded:
-            qmin, qsum, below = trial_quality(L, ptr, v, z0, z1, z2, buf, np.int64(j), qmin0)
-            r = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, qmin, qsum, below)
-        elif smooth:
-            qmin, qsum, below = trial_quality_guarded(L, ptr, v, z0, z1, z2, buf, np.int64(j), qmin0, least)
+        if smooth:
+            qmin, qsum, below = trial_quality_ordered(L, ptr, v, z0, z1, z2, buf, np.int64(j), qmin0, least, guarded, gap_floor)
             r = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, qmin, qsum, below)
         else:
-            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, not smooth, judge or smooth, buf, np.int64(j), _NO, qmin0 if smooth else -np.inf, ratio_floor if smooth else -np.inf)
+            # an untangling trial judged by its minimum too is refused at its first corner
+            # below the start's minimum, before the functional (the same decision)
+            r = node_eval(L, ptr, inc, cq, v, z0, z1, z2, delta, _NO, not smooth, judge or smooth, buf, np.int64(j), _NO, qmin0 if smooth or (mode == UNTANGLE and judge) else -np.inf, ratio_floor if smooth else -np.inf)
         if r[12] >= 0:
             hint = r[12]
         if (r[0] < f0) if not smooth else _acceptable(mode, r[0], r[10], r[11], f0, qmin0, qsum0):
@@ -631,7 +634,9 @@ def _step_node(X, hexes, scale, ptr, inc, cq, j, v, kind, normal, step_cap, delt
             if hint >= 0 and row_below(L, hint, z0, z1, z2, climb_floor):
                 t *= 0.5
                 continue
-            if not guarded:
+            if smooth:  # a climb may not lower the sum either: refused once it cannot reach it
+                qmin, qsum, below = trial_quality_ordered(L, ptr, v, z0, z1, z2, buf, np.int64(j), climb_floor, least, guarded, gap_floor)
+            elif not guarded:
                 qmin, qsum, below = trial_quality(L, ptr, v, z0, z1, z2, buf, np.int64(j), climb_floor)
             else:
                 qmin, qsum, below = trial_quality_guarded(L, ptr, v, z0, z1, z2, buf, np.int64(j), climb_floor, least)

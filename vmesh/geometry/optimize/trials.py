@@ -140,3 +140,85 @@ def trial_quality_guarded(L, ptr, v, z0, z1, z2, buf, row, floor, least):
         qsum += hmin
         qmin = min(qmin, hmin)
     return qmin, qsum, np.int64(-1)
+
+
+#: a trial is refused early (:func:`trial_quality_ordered`) only where its sum of minima's
+#: upper bound is below the start's by more than this: the bound and the trial's sum are
+#: rounded in another order (each within ~1e-13 of its exact value for |SJ| <= 1 and a few
+#: dozen hexahedra), so an early refusal is one the whole evaluation would also make
+SUM_MARGIN = 1e-9
+#: frame columns (:func:`.kernels.frame`'s scratch past its own): the rows in the order a
+#: light-pass trial evaluates them (as floats), and each row's minimum in the last trial
+ORDER, HMIN = 75, 76
+
+
+@nb.njit(cache=True)
+def order_rows(L, valence, start, qsum0):
+    """Order the frame's rows for :func:`trial_quality_ordered` and return its ``gap_floor``.
+
+    A hexahedron's minimum is at most that of the four corners the node does not move
+    (column 35), whatever the trial; a row whose start minimum ``min(L[r, 35], start's 4
+    moved corners)`` already is that value cannot gain, only lose. The rows that can gain go
+    first (``L[:, ORDER]``), so that once they are evaluated the trial's sum of minima is
+    bounded by what it has so far plus the others' column 35: a trial that must raise the
+    sum (a Newton step) or keep it (a climb) is refused there, without the rows that cannot
+    gain (most refused light-pass trials keep the minimum but not the sum, docs/speed.md,
+    *Seventeenth round*).
+
+    ``start`` holds the start's moved corners (4 per row, as :func:`trial_quality`'s ``buf``
+    row). Returns the least sum over the rows evaluated so far of ``hmin - L[r, 35]`` a trial
+    can still be kept with: ``qsum0`` less every row's column 35 and :data:`SUM_MARGIN`."""
+    k = 0
+    for gains in (True, False):
+        for r in range(valence):
+            low = min(min(start[4 * r], start[4 * r + 1]), min(start[4 * r + 2], start[4 * r + 3]))
+            if (low < L[r, 35]) == gains:
+                L[k, ORDER] = r
+                k += 1
+    total = 0.0
+    for r in range(valence):
+        total += L[r, 35]
+    return qsum0 - total - SUM_MARGIN
+
+
+@nb.njit(cache=True)
+def trial_quality_ordered(L, ptr, v, z0, z1, z2, buf, row, floor, least, guarded, gap_floor):
+    """:func:`trial_quality` (``guarded``: :func:`trial_quality_guarded` with ``least``) of a
+    light-pass trial, its rows in the order of :func:`order_rows`, refused (``qmin = -inf``,
+    ``below = -1``) as soon as its sum of minima cannot reach the start's (``gap_floor``).
+
+    Each row's values are those of the row-order functions (the same arithmetic), the sum of
+    minima is taken in row order at the end, so an accepted trial gives the same ``qmin``,
+    ``qsum`` and ``buf[row]`` bit for bit, and a refused one is refused by them too; only the
+    refusing row (``below``: a hint) may differ."""
+    n = ptr[v + 1] - ptr[v]
+    gap = 0.0
+    for i in range(n):
+        r = np.int64(L[i, ORDER])
+        hmin = L[r, 35]
+        dlo, dhi = L[r, 72], L[r, 73]
+        sj, D = _sj_det_own(L, r, z0, z1, z2)
+        buf[row, 4 * r] = sj
+        if sj < floor:
+            return -np.inf, 0.0, r
+        hmin = min(hmin, sj)
+        dlo, dhi = min(dlo, D), max(dhi, abs(D))
+        for a in range(3):
+            sj, D = _sj_det_adjacent(L, r, a, z0, z1, z2)
+            buf[row, 4 * r + 1 + a] = sj
+            if sj < floor:
+                return -np.inf, 0.0, r
+            hmin = min(hmin, sj)
+            dlo, dhi = min(dlo, D), max(dhi, abs(D))
+        if guarded and dlo / max(dhi, 1e-300) < least:
+            return -np.inf, 0.0, np.int64(-1)
+        L[r, HMIN] = hmin
+        gap += hmin - L[r, 35]
+        if gap < gap_floor:
+            return -np.inf, 0.0, np.int64(-1)
+    qmin = np.inf
+    qsum = 0.0
+    for r in range(n):
+        qsum += L[r, HMIN]
+        qmin = min(qmin, L[r, HMIN])
+    return qmin, qsum, np.int64(-1)
