@@ -34,6 +34,7 @@ def test_chord_offsets_find_a_round_sections_centre():
 
 
 def test_a_wandering_skeleton_in_a_flattened_lumen_fails_without_centring():
+    # duplicates: the shape of test_bend_sections' fails-without / valid-with pair, on another vessel and option
     case, sk = flat_tube_case()
     assert case.distance(sk.points).min() > 2.0  # every node well inside
     with pytest.raises(MeshingError, match="stay invalid"):

@@ -242,6 +242,7 @@ def test_untangling_trial_floor_takes_the_same_decision():
     the whole evaluation refuses too, and one it evaluates whole has the same functional,
     minimum and sum."""
     X, hexes, scale, ptr, inc, cq, valence, L, buf = frame_setup()
+    # duplicates: the sampling loop of the light-pass trial test above, for the untangling mode
     rng = np.random.default_rng(11)
     cut = whole = 0
     for v in np.concatenate([rng.choice(np.flatnonzero(valence == k), 3) for k in np.unique(valence)]):

@@ -195,6 +195,8 @@ def trial_quality_ordered(L, ptr, v, z0, z1, z2, buf, row, floor, least, guarded
     gap = 0.0
     for i in range(n):
         r = np.int64(L[i, ORDER])
+        # duplicates: the row evaluation of trial_quality_guarded, written out in each kernel:
+        # the early returns leave the loop from inside the row (a helper would return a status)
         hmin = L[r, 35]
         dlo, dhi = L[r, 72], L[r, 73]
         sj, D = _sj_det_own(L, r, z0, z1, z2)
