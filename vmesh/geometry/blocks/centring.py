@@ -1,5 +1,5 @@
-"""Regular sections centred on the middle of the lumen they cut (issue 17, session 25,
-branch h25/realbuild; opt-in ``build_block_structure.centre_sections``).
+"""Regular sections centred on the middle of the lumen they cut (opt-in
+``build_block_structure.centre_sections``; docs/junctions.md h25/realbuild).
 
 A skeleton that runs off the middle of a wide lumen (a thinned voxel skeleton wandering over
 a flattened lumen's medial sheet, a centerline drawn off-centre) tilts its regular sections
@@ -10,8 +10,8 @@ sections miss the wide side's wall). The middle of the lumen a section cuts does
 moving each lopsided regular node to the middle of its section's chords (as a junction's
 half-sections meet at its walls' centre, :meth:`~.junctions._Junctions._junction_centre`)
 straightens the skeleton and the tilts with it (the generated flattened tube of
-``tests/flat_vessels.py``). Real hepatic_artery extracted, for which it was proposed, fails
-for another cause: a thin pillar through its round trunk (docs/junctions.md h25/realbuild).
+``tests/flat_vessels.py``). A thin handle (pillar) through a round lumen is another cause
+of crossing sections, which centring does not remove (docs/junctions.md h25/realbuild).
 """
 
 from __future__ import annotations
