@@ -224,7 +224,7 @@ def render_pictures(out_dir, mesh, surface=None, skeleton=None, blocks=None, rep
     if "label" in boundary.cell_data:
         lnames = {int(k): v for k, v in mesh.label_names.items()} or {int(k): f"label {k}" for k in np.unique(boundary.cell_data["label"])}
         present = set(np.unique(mesh.cell_data["label"]).tolist())
-        with _Shot(out_dir / "labels.png", size, oblique, f"{len(present)} labels") as p:
+        with _Shot(out_dir / "labels.png", size, oblique, f"{len(present)} label" + ("s" if len(present) != 1 else "")) as p:
             _categorical(p, boundary, "label", {k: v for k, v in lnames.items() if k in present}, show_edges=False, smooth_shading=False)
         done["labels"] = out_dir / "labels.png"
     if "scaled_jacobian" in mesh.cell_data:
