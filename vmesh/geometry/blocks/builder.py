@@ -654,13 +654,7 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _PoorBlocks, _Stubs):
         self.topo.pos = self.topo.sk.points.copy()
         paths = branch_paths(self.topo.sk.n_nodes, self.topo.sk.edges)
         self.topo.paths = (paths, path_edge_ids(self.topo.sk.n_nodes, self.topo.sk.edges, paths))
-        self.make_branches()
-        self.build_junctions()
-        self.classify_ends()
-        self.tick(0.15, "junction planes")
-        self.choose_rotations()
-        self.tick(0.3, "sections")
-        self.place_sections()
+        self.lay_out(ticks=True)
         self.centre_sections()
         blocks = None
         for round_ in range(self.opt.repair.max_fix_rounds + 1):
@@ -676,18 +670,27 @@ class _Builder(_Junctions, _Sections, _Assembly, _Repair, _PoorBlocks, _Stubs):
         return blocks
 
 
+    def lay_out(self, ticks: bool = False) -> None:
+        """The branches, junctions, ends, junction planes and section places, from the
+        node positions (``ticks``: report the progress of the first build)."""
+        self.make_branches()
+        self.build_junctions()
+        self.classify_ends()
+        if ticks:
+            self.tick(0.15, "junction planes")
+        self.choose_rotations()
+        if ticks:
+            self.tick(0.3, "sections")
+        self.place_sections()
+
     def centre_sections(self) -> None:
         """Regular nodes off their sections' middle moved there (:mod:`.centring`), and
-        the branches, junctions and section places made again from the moved nodes."""
+        the layout made again from the moved nodes."""
         moved = centre_regular_nodes(self, self.opt.section.centre_sections)
         if not moved:
             return
         self.fixes.append(f"{len(moved)} regular cross-section(s) centred on their chords' middle (nodes {moved[:8]}{' ...' if len(moved) > 8 else ''})")
-        self.make_branches()
-        self.build_junctions()
-        self.classify_ends()
-        self.choose_rotations()
-        self.place_sections()
+        self.lay_out()
 
 
     def finish(self, blocks: BlockStructure) -> BlockStructure:

@@ -69,10 +69,11 @@ def centre_regular_nodes(builder, share: float) -> list[int]:
         ok = np.all(np.isfinite(R), axis=1)
         if not ok.any():
             break
-        off = chord_offsets(np.where(ok[:, None], R, 0.0), ang)
+        R = np.where(ok[:, None], R, 0.0)  # rows with a miss are not moved (``ok``)
+        off = chord_offsets(R, ang)
         shift = off[:, :1] * E1 + off[:, 1:] * E2
         # a node chosen once moves on to the middle in the later passes, however little
-        far = ok & ((np.linalg.norm(off, axis=1) > share * np.where(ok[:, None], R, 0.0).mean(axis=1)) | np.isin(nodes, list(moved)))
+        far = ok & ((np.linalg.norm(off, axis=1) > share * R.mean(axis=1)) | np.isin(nodes, list(moved)))
         if not far.any():
             break
         new = C[far] + shift[far]

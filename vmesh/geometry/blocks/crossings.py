@@ -27,10 +27,12 @@ import numpy as np
 from ..skeleton.graph import remove_nodes
 from .options import JUNCTION
 
-#: A section's straighten weight (towards its chord, steps of 0.34 capped at 1) at and above
+#: A section's straighten weight (towards its chord, steps of ``STRAIGHTEN_STEP`` capped at 1) at and above
 #: which the fix loop has none left to give (below 1 so the last step's rounding counts).
 #: The fix loop (:mod:`.repair`) and :func:`crossing_bends` share it.
 STRAIGHT = 0.99
+#: The fix loop's step of a section's straighten weight.
+STRAIGHTEN_STEP = 0.34
 #: Nodes a branch keeps after its drops: one regular section between its ends (3 nodes, 2
 #: segments); a branch with fewer has no bend node to give.
 KEPT_BRANCH_NODES = 3

@@ -12,7 +12,7 @@ from .checks import (
     fill_score,
     projected_wall_quality,
 )
-from .crossings import STRAIGHT, crossing_bends
+from .crossings import STRAIGHT, STRAIGHTEN_STEP, crossing_bends
 from .options import CYCLE, JUNCTION
 
 
@@ -406,7 +406,7 @@ class _Repair:
             straightened = False
             for kk in (k, k + 1):
                 if br.straighten[kk] < STRAIGHT:
-                    br.straighten[kk] = min(1.0, br.straighten[kk] + 0.34)
+                    br.straighten[kk] = min(1.0, br.straighten[kk] + STRAIGHTEN_STEP)
                     straightened = True
             if straightened:
                 self.fixes.append(f"straightened the cross-sections at skeleton nodes {int(br.nodes[k])}-{int(br.nodes[k + 1])}")
@@ -459,7 +459,7 @@ class _Repair:
         kk = 1 if side == 0 else K - 2
         if K <= 2 or br.straighten[kk] >= STRAIGHT:
             return False
-        br.straighten[kk] = min(1.0, br.straighten[kk] + 0.34)
+        br.straighten[kk] = min(1.0, br.straighten[kk] + STRAIGHTEN_STEP)
         return True
 
 
