@@ -33,6 +33,7 @@ import shutil
 from numba.core import caching, config
 
 from .disk_cache import user_cache_home
+from .source_imports import imported_names
 
 PACKAGE = pathlib.Path(__file__).resolve().parent
 KEEP = 8  # source versions kept side by side per module (worktrees, branches); older ones are removed
@@ -67,25 +68,14 @@ def _statements(tree: ast.Module):
 @functools.lru_cache(maxsize=None)
 def _imported_modules(path: pathlib.Path) -> frozenset[pathlib.Path]:
     """The vmesh modules ``path`` imports (relative or ``vmesh.`` imports), as files."""
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    package = ".".join(parts if path.name == "__init__.py" else parts[:-1])
     found = set()
     for node in _statements(ast.parse(path.read_bytes())):
-        if isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = path.parent
-                for _ in range(node.level - 1):
-                    base = base.parent
-            elif (node.module or "").split(".")[0] == "vmesh":
-                base = PACKAGE.parent
-            else:
-                continue
-            stem = base.joinpath(*(node.module or "").split(".")) if node.module else base
-            names = [stem] + [stem / a.name for a in node.names]
-        elif isinstance(node, ast.Import):
-            names = [PACKAGE.parent.joinpath(*a.name.split(".")) for a in node.names if a.name.split(".")[0] == "vmesh"]
-        else:
-            continue
-        for n in names:
-            found.update(p for p in (n.with_suffix(".py"), n / "__init__.py") if p.is_file())
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            for name in imported_names(node, package):
+                stem = PACKAGE.parent.joinpath(*name.split("."))
+                found.update(p for p in (stem.with_suffix(".py"), stem / "__init__.py") if p.is_file())
     return frozenset(found)
 
 

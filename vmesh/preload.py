@@ -29,23 +29,11 @@ import importlib.util
 import inspect
 import sys
 
+from .source_imports import imported_names
+
 #: The steps (:class:`vmesh.chain.Step`, parameters resolved) the running chain will run after
 #: the current one (empty outside a chain).
 LATER_STEPS: contextvars.ContextVar[tuple] = contextvars.ContextVar("vmesh_later_steps", default=())
-
-
-def _resolve(node: ast.ImportFrom | ast.Import, package: str) -> list[str]:
-    """The vmesh module names an import statement may load (its module, and its names when
-    they may be submodules: ``from .. import disk_cache``)."""
-    if isinstance(node, ast.Import):
-        return [a.name for a in node.names if a.name.split(".")[0] == "vmesh"]
-    if node.level:
-        base = importlib.util.resolve_name("." * node.level + (node.module or ""), package)
-    elif (node.module or "").split(".")[0] == "vmesh":
-        base = node.module
-    else:
-        return []
-    return ([base] if node.module else []) + [f"{base}.{a.name}" for a in node.names]  # names may be submodules
 
 
 @functools.lru_cache(maxsize=None)
@@ -70,7 +58,7 @@ def lazy_imports(module_name: str, function_name: str) -> tuple[str, ...]:
             continue
         for child in ast.walk(node):
             if isinstance(child, (ast.Import, ast.ImportFrom)):
-                found.update(dict.fromkeys(_resolve(child, package)))
+                found.update(dict.fromkeys(imported_names(child, package)))
             elif isinstance(child, ast.Name) and child.id in functions and child.id not in seen:
                 seen.add(child.id)
                 todo.append(child.id)
