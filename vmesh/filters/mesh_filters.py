@@ -33,7 +33,6 @@ from ..registry import Parameter, register_filter
         Parameter("untangle", "bool", True, "Move the nodes around elements of low scaled Jacobian (folds at junction crotches) to make them valid: wall nodes slide on the wall, cap nodes in the cap plane."),
         Parameter("untangle_below", "float", 0.3, "Elements whose scaled Jacobian is below this are optimised with their neighbourhood (p > 1: of the element corners with optimiser = local, of the sub-hexahedra with lbfgs).", min=0.0, max=0.9),
         Parameter("untangle_restart_below", "float", 0.3, "When untangling leaves an element below this, untangle once more from its result (fresh targets) and keep the better; with optimiser = local: the L-BFGS untangler also runs when the local result's minimum is not above this; 0 = never.", min=0.0, max=0.9),
-        Parameter("untangle_patience", "int", 0, "The local untangler (optimiser = local) and the climbs after the untanglers (polish): rings in a row with neither fewer elements below the goal nor a higher minimum that end the growth of an untangling region (a fold the rings do not open: the L-BFGS untangler, which runs from the unoptimised mesh whenever the local result stays at or below untangle_restart_below, then starts sooner); 0 = grow up to the region's node budget, as before (opt-in: docs/speed.md, h26/slow).", min=0, max=64),
         Parameter("optimiser", "str", "local", "local: compiled per-node Newton steps around bad elements, Gauss-Seidel over a node colouring (vmesh.geometry.optimize); lbfgs: the former global L-BFGS untangler.", choices=("local", "lbfgs")),
         Parameter("light_pass_below", "float", 0.95, "Light pass after untangling (optimiser = local; untangle = true): every node of an element below this takes monotone Newton steps (its elements' minimum and mean scaled Jacobian never drop; wall nodes slide on the wall, first boundary-layer heights kept); for p > 1 kept only when the order-p minimum does not drop and the mean rises; for p = 1 on a mesh still inverted after untangling, kept only when its minimum does not drop (report.json: light_pass.refused); 0 = off (docs/optimiser.md).", min=0.0, max=1.0),
         Parameter("light_pass_sweeps", "int", 8, "Most Gauss–Seidel sweeps of the light pass (4 give most of the gain at less cost; with light_pass_over_relax=1.5, 6 reach what 8 plain ones do on the ICA).", min=1, max=100),
@@ -54,8 +53,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
                      first_layer_height, boundary_layer_thickness, y_plus, flow_velocity, flow_density, flow_viscosity, reference_length,
                      order, node_distribution, project_to, untangle, untangle_below, untangle_restart_below,
                      optimiser="local", smooth_below=0.5, curved_sections=True, light_pass_below=0.95, light_pass_sweeps=8,
-                     exact_first_layer=True, light_pass_tol=0.01, worst_pass_sweeps=60, light_pass_ratio_floor=0.3, light_pass_over_relax=1.0,
-                     untangle_patience=0):
+                     exact_first_layer=True, light_pass_tol=0.01, worst_pass_sweeps=60, light_pass_ratio_floor=0.3, light_pass_over_relax=1.0):
     """Edge nodes are projected onto the wall and re-spaced by arc length; Coons patches fill
     block faces (wall faces projected again) and transfinite interpolation fills the blocks.
     The boundary layer is resolved by grading, never by extra element layers: the element
@@ -103,8 +101,7 @@ def mesh_transfinite(ctx, refinement, elements_around, elements_ring, elements_l
         offset_to_thickness(ctx, sm, blocks, node_distribution)
     ratio_floor = light_pass_ratio_floor if light_pass_ratio_floor > 0 else -np.inf  # 0: no guard
     if untangle:
-        _untangle(ctx, sm, projector, sdf, untangle_below, untangle_restart_below, optimiser, smooth_below, node_distribution, light_pass_over_relax,
-                  patience=untangle_patience or None)
+        _untangle(ctx, sm, projector, sdf, untangle_below, untangle_restart_below, optimiser, smooth_below, node_distribution, light_pass_over_relax)
         if optimiser == "local" and light_pass_below > 0:
             _light_pass(ctx, sm, projector, sdf, light_pass_below, node_distribution, light_pass_sweeps, light_pass_tol, ratio_floor=ratio_floor, over_relax=light_pass_over_relax)
         # the max-min steps let better elements give way: only with the light pass on, which
@@ -164,11 +161,9 @@ def _constraints(sm):
     return cap_nodes, cap_normals, sm.on_wall.copy(), boundary
 
 
-def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", smooth_below=0.5, node_distribution="gauss_lobatto", over_relax=1.0, patience=None):
+def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", smooth_below=0.5, node_distribution="gauss_lobatto", over_relax=1.0):
     """Optimise the nodes around low-quality elements in place (see :mod:`vmesh.geometry.optimize`
-    and, for ``optimiser = lbfgs``, :mod:`vmesh.geometry.untangle`); ``patience``: the ring
-    patience (``optimise_linear``'s ``untangle_patience``; None = none) of the local untangler
-    and of :func:`_polish`'s climbs."""
+    and, for ``optimiser = lbfgs``, :mod:`vmesh.geometry.untangle`)."""
 
     p = sm.order
     cap_nodes, cap_normals, wall, boundary = _constraints(sm)
@@ -183,7 +178,7 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", 
 
         X, info = optimise(
             sm.points, sm.cells, p, ref_nodes=ref_nodes, wall=wall, wall_normals=sdf.gradient, project=projector, cap_nodes=cap_nodes, cap_normals=cap_normals,
-            boundary=boundary, untangle_below=below, smooth_below=smooth_below, over_relax=over_relax, untangle_patience=patience,
+            boundary=boundary, untangle_below=below, smooth_below=smooth_below, over_relax=over_relax,
         )
         # the local optimiser is fast but moves few nodes; where it leaves a fold or an element
         # below restart_below (a junction fold that needs a wider region, or an order-p element
@@ -203,8 +198,7 @@ def _untangle(ctx, sm, projector, sdf, below, restart_below, optimiser="local", 
         sm.points, sm.cells, p, wall=wall, wall_normals=sdf.gradient, project=projector, cap_normals=cap_normals, cap_nodes=cap_nodes, threshold=below,
         boundary=boundary, restart_below=restart_below or None,
     )
-    constraints = dict(wall=wall, wall_normals=sdf.gradient, project=projector, cap_nodes=cap_nodes, cap_normals=cap_normals, boundary=boundary,
-                       untangle_patience=patience)
+    constraints = dict(wall=wall, wall_normals=sdf.gradient, project=projector, cap_nodes=cap_nodes, cap_normals=cap_normals, boundary=boundary)
     if local is not None and scaled_jacobian(X, sm.cells, p, ref_nodes).min() < local[2]:
         held = {"lbfgs_" + k: info[k] for k in ("keep_valid", "keep_valid_reruns") if k in info}  # what the L-BFGS untangler held
         X, info = local[0], {**local[1], "lbfgs_tried": True, **held}
