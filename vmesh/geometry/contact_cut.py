@@ -195,10 +195,10 @@ def _near_any(cuts: ContactCuts, p: np.ndarray) -> np.ndarray:
     cand = np.flatnonzero(np.isfinite(d))
     if not len(cand):
         return cand
-    near = np.zeros(len(cand), bool)
-    q = p[cand]
-    for k in range(len(cuts)):
-        near |= np.sum((q - cuts.centre[k]) ** 2, axis=1) < cuts.reach[k] ** 2
+    # every candidate against every cut at once (a Python loop over the cuts cost ~3 us a
+    # cut and call; the same sums of three squares, so the same points)
+    gap = p[cand][:, None, :] - cuts.centre[None, :, :]
+    near = (np.sum(gap**2, axis=2) < cuts.reach**2).any(axis=1)
     return cand[near]
 
 
