@@ -7,15 +7,20 @@ to a junction: s1 g0012 given, docs/junctions.md h21/pair, h24/builder). No merg
 placement the builder has blocks it: B's half-plane between T and the link reaches past A,
 and merged (at the link's middle) T still leaves along the link. Its lumen parts from the
 link where A's branches do, so T is A's branch: it leaves A through its first node whose
-axis lies outside the link's lumen, past a new node at the middle of its new first segment
+tube clears the link's lumen, past a new node at the middle of its new first segment
 moved to the deepest point of its section. The builder's last try, opt-in
 (``reroot_backwards``): it builds the generated configuration
-(``tests/test_reroot.py``); on s1 g0012 given a valid structure needs the new node where
-the extraction's medial axis puts it (0.14 away), which no rule here finds. Where the
+(``tests/test_reroot.py``). The sibling is judged by its tube, not its axis: s1 g0016
+given's kissing tube leaves the lumen with its axis just before the link's middle and
+with its tube past it, and re-rooted through its first tube-clear node its blocks build
+and cover the pair's wall (docs/junctions.md h26/backwards). On s1 g0012 given a valid
+structure needs the new node where the extraction's medial axis puts it (0.14 away),
+which no rule here finds. Where the
 deepest point fails, the builder tries the new node at ring placements around the
 section's centre (:func:`section_placements`, the far junction then on the link's chord),
 each on a share of a budget: s1 g0012 given builds at one of them, and its mesh then folds
-at the 4-junction (docs/junctions.md h25/builder).
+at the 4-junction and at the given tree's 5-junction (docs/junctions.md h25/builder,
+h26/backwards).
 """
 
 from __future__ import annotations
