@@ -84,11 +84,17 @@ def test_a_sibling_whose_tube_runs_fused_past_the_middle_is_re_rooted_where_its_
 def test_a_thin_backwards_branch_leaving_the_link_past_its_middle_builds():
     """The builder's last try (``reroot_backwards``, opt-in): valid blocks, the pair's wall
     still covered, the note in the fixes; off (the default), the build fails."""
+    _rerooted_blocks(SHORT_LINK)
+
+
+def _rerooted_blocks(shape: dict):
+    """``retrograde_branch(**shape)`` built with ``reroot_backwards``: every block valid, the
+    re-root in the fixes, the pair's wall covered; the default build fails. Returns (case, blocks)."""
     from vmesh.errors import MeshingError
     from vmesh.geometry.blocks.checks import wall_left_out
     from vmesh.geometry.blocks.prep import MERGE_COVER_DEPTH, pair_wall
 
-    case = retrograde_branch(**SHORT_LINK)
+    case = retrograde_branch(**shape)
     sk, a, b = _separated(case)
     blocks = build_blocks(sk, case.distance, None, BlockOptions().replace(reroot_backwards=True), project=case.project)
     assert blocks.corner_jacobians().min() > 0
@@ -96,6 +102,7 @@ def test_a_thin_backwards_branch_leaving_the_link_past_its_middle_builds():
     assert wall_left_out(blocks, case.project, *pair_wall(sk, a, b, case.project)).max() <= MERGE_COVER_DEPTH
     with pytest.raises(MeshingError):
         build_blocks(sk, case.distance, None, BlockOptions(), project=case.project)  # off by default
+    return case, blocks
 
 
 def test_ring_placements_lie_in_the_new_segments_section():
@@ -142,25 +149,15 @@ def test_a_backwards_sibling_whose_tube_runs_past_the_middle_meshes():
     (s1 g0016 given's): with ``reroot_backwards`` every block valid, the pair's wall
     covered, and the mesh, untangled as ``mesh_transfinite`` does, has no inverted element;
     the default build fails."""
-    from vmesh.errors import MeshingError
     from vmesh.filters.mesh_filters import _constraints
-    from vmesh.geometry.blocks.checks import wall_left_out
-    from vmesh.geometry.blocks.prep import MERGE_COVER_DEPTH, pair_wall
     from vmesh.geometry.quality import scaled_jacobian
     from vmesh.geometry.transfinite import Refinement, mesh_blocks
     from vmesh.geometry.untangle import untangle
 
-    case = retrograde_branch(**TUBE_PAST_AXIS)
-    sk, a, b = _separated(case)
-    blocks = build_blocks(sk, case.distance, None, BlockOptions().replace(reroot_backwards=True), project=case.project)
-    assert blocks.corner_jacobians().min() > 0
-    assert any("re-rooted" in note for note in blocks.info["fixes"])
-    assert wall_left_out(blocks, case.project, *pair_wall(sk, a, b, case.project)).max() <= MERGE_COVER_DEPTH
+    case, blocks = _rerooted_blocks(TUBE_PAST_AXIS)
     sm = mesh_blocks(blocks, case.project, Refinement(around=2, core=2, ring=2, layer=3, element_length=0.5, first_layer=0.02),
                      signed_distance=case.distance)
     cap_nodes, cap_normals, wall, boundary = _constraints(sm)
     X, _ = untangle(sm.points, sm.cells, 1, wall=wall, wall_normals=case.gradient, project=case.project, cap_nodes=cap_nodes,
                     cap_normals=cap_normals, boundary=boundary)
     assert scaled_jacobian(X, sm.cells, 1).min() > 0
-    with pytest.raises(MeshingError):
-        build_blocks(sk, case.distance, None, BlockOptions(), project=case.project)  # off by default
