@@ -7,15 +7,20 @@ to a junction: s1 g0012 given, docs/junctions.md h21/pair, h24/builder). No merg
 placement the builder has blocks it: B's half-plane between T and the link reaches past A,
 and merged (at the link's middle) T still leaves along the link. Its lumen parts from the
 link where A's branches do, so T is A's branch: it leaves A through its first node whose
-axis lies outside the link's lumen, past a new node at the middle of its new first segment
+tube clears the link's lumen, past a new node at the middle of its new first segment
 moved to the deepest point of its section. The builder's last try, opt-in
 (``reroot_backwards``): it builds the generated configuration
-(``tests/test_reroot.py``); on s1 g0012 given a valid structure needs the new node where
-the extraction's medial axis puts it (0.14 away), which no rule here finds. Where the
+(``tests/test_reroot.py``). The sibling is judged by its tube, not its axis: s1 g0016
+given's kissing tube leaves the lumen with its axis just before the link's middle and
+with its tube past it, and re-rooted through its first tube-clear node its blocks build
+and cover the pair's wall (docs/junctions.md h26/backwards). On s1 g0012 given a valid
+structure needs the new node where the extraction's medial axis puts it (0.14 away),
+which no rule here finds. Where the
 deepest point fails, the builder tries the new node at ring placements around the
 section's centre (:func:`section_placements`, the far junction then on the link's chord),
 each on a share of a budget: s1 g0012 given builds at one of them, and its mesh then folds
-at the 4-junction (docs/junctions.md h25/builder).
+at the 4-junction and at the given tree's 5-junction (docs/junctions.md h25/builder,
+h26/backwards).
 """
 
 from __future__ import annotations
@@ -31,6 +36,12 @@ from ..variation import closest_on_segments
 #: a sibling must run inside the link's lumen before it counts as the other junction's
 #: branch: at the middle, either junction would do and the merge (at the middle) serves
 REROOT_PAST_MIDDLE = 0.5
+#: a sibling's node counts as inside the link's lumen while its axis lies within the link's
+#: radius plus this share of its own radius: 1, its tube still overlaps the lumen. By the
+#: axis alone (0) a kissing tube whose axis leaves the lumen just before the link's middle
+#: but whose tube runs fused past it is not offered (s1 g0016 given: axis out at node 47,
+#: 1.37 along a link of 2.84; tube clear at node 48, 1.76; docs/junctions.md h26/backwards)
+TUBE_CLEARANCE = 1.0
 
 
 def _link_path(sk: Skeleton, paths: list, a: int, b: int) -> np.ndarray | None:
@@ -39,9 +50,10 @@ def _link_path(sk: Skeleton, paths: list, a: int, b: int) -> np.ndarray | None:
 
 def _backwards_sibling(sk: Skeleton, paths: list, link: np.ndarray, end: int):
     """At the link's end ``end``: a sibling whose first node lies inside the link's lumen
-    and which leaves the lumen (its axis at least the link's radius from the link's axis)
-    past the link's middle from ``end``. Returns (the sibling's nodes from ``end``, the
-    index of its first node outside the lumen) or None."""
+    and which leaves the lumen past the link's middle from ``end``, judged by its *tube*:
+    a node is inside while its axis lies closer to the link's axis than the link's radius
+    plus its own (``TUBE_CLEARANCE``). Returns (the sibling's nodes from ``end``, the
+    index of its first node whose tube clears the lumen) or None."""
     P = sk.points[link]
     seg_len = np.linalg.norm(P[1:] - P[:-1], axis=1)
     arc = np.r_[0.0, np.cumsum(seg_len)]
@@ -58,7 +70,7 @@ def _backwards_sibling(sk: Skeleton, paths: list, link: np.ndarray, end: int):
         rows = np.arange(len(X))
         r_link = sk.radii[link[k]] + t[rows, k] * (sk.radii[link[k + 1]] - sk.radii[link[k]])
         along = np.abs(arc[k] + t[rows, k] * seg_len[k] - from_end)
-        inside = d[rows, k] < r_link
+        inside = d[rows, k] < r_link + TUBE_CLEARANCE * sk.radii[nodes[1:-1]]
         if not inside[0] or inside.all():
             continue
         out = int(np.argmin(inside))  # its first node outside the link's lumen
