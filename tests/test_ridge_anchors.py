@@ -25,19 +25,28 @@ def test_flat_ridge_voxels_are_a_tubes_axis_not_its_sides():
     assert len(ijk) and np.all((ijk[:, 0] == 4) & (ijk[:, 1] == 4))
 
 
-def test_anchors_only_where_the_skeletons_balls_leave_the_ridge_out():
-    """A ridge voxel inside an inscribed ball of the skeleton is explained: no anchor."""
-    mask = np.zeros((7, 7, 12), bool)
-    mask[1:6, 1:6, 1:11] = True
-    idx = np.argwhere(mask)
-    distance = np.minimum.reduce([idx[:, 0] - 0.5, 5.5 - idx[:, 0], idx[:, 1] - 0.5, 5.5 - idx[:, 1], idx[:, 2] - 0.5, 10.5 - idx[:, 2]])
-    thin = np.zeros_like(mask)
-    thin[3, 3, 2:10] = True
+def test_anchors_only_beside_the_skeleton_where_its_balls_leave_the_ridge_out():
+    """A bar (5 x 5 voxels) with a side bar (3 x 3) leaving its middle: with the skeleton
+    along the bar only, the side bar's ridge gets one anchor; with the side bar's axis in
+    the skeleton, none; past a curve end (the vessel's own end), none either."""
+    mask = np.zeros((14, 7, 22), bool)
+    mask[1:6, 1:6, 1:21] = True
+    mask[6:13, 2:5, 10:13] = True
+    idx = np.argwhere(mask).astype(float)
+    bar = np.minimum.reduce([idx[:, 0] - 0.5, 5.5 - idx[:, 0], idx[:, 1] - 0.5, 5.5 - idx[:, 1], idx[:, 2] - 0.5, 20.5 - idx[:, 2]])
+    side = np.minimum.reduce([idx[:, 0] - 0.5, 12.5 - idx[:, 0], idx[:, 1] - 1.5, 4.5 - idx[:, 1], idx[:, 2] - 9.5, 12.5 - idx[:, 2]])
+    distance = np.maximum(bar, side)
     ridge = th.flat_ridge_voxels(mask, distance, 0.5, 1.0)
-    assert not th.unexplained_ridge_anchors(mask, distance, thin, ridge).any()
-    thin[3, 3, 6:10] = False  # the skeleton stops half way: the rest of the axis is left out
+    thin = np.zeros_like(mask)
+    thin[3, 3, 2:20] = True
     anchors = th.unexplained_ridge_anchors(mask, distance, thin, ridge)
-    assert anchors.sum() == 1 and np.argwhere(mask)[anchors][0, 2] >= 8
+    assert anchors.sum() == 1 and np.argwhere(mask)[anchors][0, 0] >= 8
+    thin[3:12, 3, 11] = True
+    assert not th.unexplained_ridge_anchors(mask, distance, thin, ridge).any()
+    thin[:, :, :] = False
+    thin[3, 3, 2:6] = True  # the skeleton stops short of the bar's end: that end is the end placement's
+    anchors = th.unexplained_ridge_anchors(mask, distance, thin, ridge)
+    assert not np.any(np.argwhere(mask)[anchors][:, 2] >= 14)
 
 
 @pytest.mark.slow

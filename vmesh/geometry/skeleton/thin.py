@@ -178,8 +178,10 @@ def flat_ridge_voxels(mask: np.ndarray, distance: np.ndarray, slope: float, keep
 
 def unexplained_ridge_anchors(mask: np.ndarray, distance: np.ndarray, thin: np.ndarray, ridge: np.ndarray) -> np.ndarray:
     """One anchor voxel per 26-connected patch of flat-ridge voxels (``ridge``) that lies
-    outside every inscribed ball of the skeleton ``thin``: the patch's voxel farthest from
-    the skeleton. In ``np.flatnonzero(mask)`` order; ``distance`` in voxels.
+    outside every inscribed ball of the skeleton ``thin`` and beside it (its nearest skeleton
+    voxel not a curve end: past an end lies the vessel's own end, which the end placement
+    reaches): the patch's voxel farthest from the skeleton. In ``np.flatnonzero(mask)``
+    order; ``distance`` in voxels.
 
     A short stub on a wider parent has no local maximum of the distance (it rises all the
     way from the stub's end into the parent), so the distance-ordered thinning peels its
@@ -198,17 +200,20 @@ def unexplained_ridge_anchors(mask: np.ndarray, distance: np.ndarray, thin: np.n
         return anchors
     skel_d = distance[np.searchsorted(np.flatnonzero(mask), np.ravel_multi_index(skel.T, mask.shape))]
     tree = cKDTree(skel)
-    near, _ = tree.query(inside[cand])
+    near, near_index = tree.query(inside[cand])
     reach = float(skel_d.max())
     covered = np.array([any(np.linalg.norm(skel[q] - p) <= skel_d[q] for q in tree.query_ball_point(p, reach)) for p in inside[cand]], bool)
-    out = cand[~covered]
+    # beyond a curve end (its nearest skeleton voxel an end) lies a vessel's own end, which
+    # the end placement reaches; only a ridge beside the skeleton is a side protrusion
+    neighbours = np.array([len(tree.query_ball_point(q, 1.8)) - 1 for q in skel[near_index]]) if len(cand) else np.zeros(0)
+    out = cand[~covered & (neighbours >= 2)]
     if len(out) == 0:
         return anchors
     patch = np.zeros(mask.shape, bool)
     patch[tuple(inside[out].T)] = True
     labels, n = ndimage.label(patch, structure=np.ones((3, 3, 3)))
     lab = labels[tuple(inside[out].T)]
-    far = near[~covered]
+    far = near[~covered & (neighbours >= 2)]
     for k in range(1, n + 1):
         sel = np.flatnonzero(lab == k)
         anchors[out[sel[np.argmax(far[sel])]]] = True
