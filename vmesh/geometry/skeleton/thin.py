@@ -205,15 +205,16 @@ def unexplained_ridge_anchors(mask: np.ndarray, distance: np.ndarray, thin: np.n
     covered = np.array([any(np.linalg.norm(skel[q] - p) <= skel_d[q] for q in tree.query_ball_point(p, reach)) for p in inside[cand]], bool)
     # beyond a curve end (its nearest skeleton voxel an end) lies a vessel's own end, which
     # the end placement reaches; only a ridge beside the skeleton is a side protrusion
-    neighbours = np.array([len(tree.query_ball_point(q, 1.8)) - 1 for q in skel[near_index]]) if len(cand) else np.zeros(0)
-    out = cand[~covered & (neighbours >= 2)]
+    beside = np.array([len(tree.query_ball_point(q, 1.8)) - 1 for q in skel[near_index]]) >= 2  # 26-neighbours within 1.8 voxels
+    left_out = ~covered & beside
+    out = cand[left_out]
     if len(out) == 0:
         return anchors
     patch = np.zeros(mask.shape, bool)
     patch[tuple(inside[out].T)] = True
     labels, n = ndimage.label(patch, structure=np.ones((3, 3, 3)))
     lab = labels[tuple(inside[out].T)]
-    far = near[~covered & (neighbours >= 2)]
+    far = near[left_out]
     for k in range(1, n + 1):
         sel = np.flatnonzero(lab == k)
         anchors[out[sel[np.argmax(far[sel])]]] = True
