@@ -65,3 +65,30 @@ def test_a_fold_at_two_overlapping_junctions_is_named_as_the_block_structures(tm
     assert folds["min_inside"] < 0 < folds["elements"]
     with pytest.raises(MeshingError, match="found folding when their wall faces are projected"):
         get_filter("compute_quality")(ctx, histogram="", fail_on_invalid=True)
+
+
+@pytest.mark.slow
+def test_a_junction_moved_apart_takes_along_the_next_node_it_would_reach(tmp_path):
+    """Generated g0016 (seed 1, preset mixed), its skeleton extracted: junction 3, moved
+    1.82 away from the overlapping junction 4 (``separate_junctions``), came within 0.40
+    of node 54, the next node of its other branch, whose first segment became a stub
+    inside the half-sections: 180 of the raw fill's 245 inverted elements lay in that
+    segment, next to node 54. With ``carry_next_nodes`` the node moves along: no element
+    next to a carried node is inverted in the raw fill (before untangling). The fold of
+    the long first column over the saddle beside it stays (docs/junctions.md h26/pair)."""
+    import re
+
+    from data_synthetic.vessel_generator import generate_one
+
+    from test_mesh_cases import run_default
+
+    m = generate_one(tmp_path, 16, 1, "mixed")
+    ctx = run_default(str(Path(m["folder"]) / m["files"]["surface"]),
+                      **{"compute_quality.fail_on_invalid": False, "mesh_transfinite.untangle": False,
+                         "build_block_structure.carry_next_nodes": True})
+    carried = [int(n) for fix in ctx.blocks.info["fixes"] for found in re.findall(r"taking along its next node\(s\) \[([\d, ]+)\]", fix)
+               for n in found.split(",")]
+    assert carried
+    sj = ctx.mesh.cell_data["scaled_jacobian"]
+    node = ctx.mesh.cell_data["node_id"]
+    assert not np.any((sj <= 0) & np.isin(node, carried))

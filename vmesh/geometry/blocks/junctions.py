@@ -10,6 +10,12 @@ from .options import JUNCTION, _Candidates, _Junction
 from ..skeleton.graph import polyline_at
 from .prep import split_nonplanar_junctions
 
+# bounds of a next node carried along by a moved junction (_carry_next_nodes): those of
+# the junction's own move in separate_junctions (1.5 node radii from its skeleton point,
+# 0.4 of its radius inside the wall)
+CARRY_BOUND = 1.5
+CARRY_DEPTH = 0.4
+
 
 class _Junctions:
     """Junction steps of the block builder: axes, separators, centres and half-plane
@@ -154,7 +160,9 @@ class _Junctions:
 
         Each end is tried (half a branch radius along the branch, into the wedge of the
         junction's other branches, staying well inside and within 1.5 radii of its node);
-        the move that leaves the branch most room is kept."""
+        the move that leaves the branch most room is kept. With ``carry_next_nodes``, a
+        move that brings another branch's next node within the junction's half-sections
+        takes that node along (:meth:`_carry_next_nodes`)."""
         sk = self.topo.sk
         br = self.topo.branches[bi]
         if br.kinds != [JUNCTION, JUNCTION] or br.nodes[0] == br.nodes[-1]:
@@ -171,26 +179,89 @@ class _Junctions:
                 continue
             if float(np.asarray(self.sdf(new[None]))[0]) < 0.4 * sk.radii[c]:
                 continue
-            old_pos, old_j = self.topo.pos[c].copy(), self.topo.junctions[c]
-            self.topo.pos[c] = new
+            old_pos, old_j = self.topo.pos.copy(), self.topo.junctions[c]
+            carried = []
             try:
-                self._rebuild_junction(c)
+                carried = self._moved_junction(c, bi, new)
                 gain = self._slack(bi) - base
             except MeshingError:
                 gain = -np.inf
-            self.topo.pos[c] = old_pos
+            self.topo.pos[:] = old_pos
             self.topo.junctions[c] = old_j
             self._rebuild_branches()
             if best is None or gain > best[0]:
-                best = (gain, c, new)
+                best = (gain, c, new, carried)
         if best is None or best[0] <= 1e-9 * rb:
             return False
-        _, c, new = best
+        _, c, new, carried = best
+        self._moved_junction(c, bi, new)
+        moved = float(np.linalg.norm(new - sk.points[c]))
+        self.fixes.append(f"moved junction node {c} by {moved:.3g} along its branch to node {int(br.nodes[0] if c == br.nodes[-1] else br.nodes[-1])}"
+                          + (f", taking along its next node(s) {carried}" if carried else ""))
+        return True
+
+
+    def _moved_junction(self, c: int, bi: int, new: np.ndarray) -> list:
+        """Put junction ``c`` at ``new`` (away along branch ``bi``) and rebuild it; with
+        ``carry_next_nodes`` also :meth:`_carry_next_nodes`. Returns the nodes carried."""
+        if not self.opt.repair.carry_next_nodes:
+            self.topo.pos[c] = new
+            self._rebuild_junction(c)
+            return []
+        first = self._first_lengths(c, bi)
+        delta = new - self.topo.pos[c]
         self.topo.pos[c] = new
         self._rebuild_junction(c)
-        moved = float(np.linalg.norm(new - sk.points[c]))
-        self.fixes.append(f"moved junction node {c} by {moved:.3g} along its branch to node {int(br.nodes[0] if c == br.nodes[-1] else br.nodes[-1])}")
-        return True
+        return self._carry_next_nodes(c, bi, delta, first)
+
+
+    def _first_lengths(self, c: int, bi: int) -> dict:
+        """Length of the first segment of each branch of junction ``c`` but ``bi``, by its next node."""
+        out = {}
+        for bj, side in self.topo.junctions[c].ends:
+            if bj == bi:
+                continue
+            nodes = self.topo.branches[bj].nodes
+            nb = int(nodes[1] if side == 0 else nodes[-2])
+            out[nb] = float(np.linalg.norm(self.topo.pos[nb] - self.topo.pos[c]))
+        return out
+
+
+    def _carry_next_nodes(self, c: int, bi: int, delta: np.ndarray, first: dict) -> list:
+        """Move by ``delta`` (the junction's own move) each plain next node of junction
+        ``c``'s other branches that its move brought closer and now within the reach of the
+        junction's half-sections along that branch.
+
+        Moving a junction away from a close neighbour (:meth:`separate_junctions`) can
+        walk it into another of its branches: that branch's first segment becomes a stub
+        shorter than the half-sections' reach, its first cross-section stands inside the
+        junction and the boundary-layer blocks between them collapse onto the wall (s1
+        g0016 extracted: junction 3 moved 1.82, 0.40 from node 54, 180 inverted
+        elements). Carried along, the node keeps the first segment's length and
+        direction; the branch's second segment gives up the room instead. A node is
+        carried only where it stays ``CARRY_DEPTH`` of its radius inside the wall and
+        within ``CARRY_BOUND`` radii of its skeleton point (the junction's own bounds)."""
+        sk = self.topo.sk
+        deg = sk.degrees
+        carried = []
+        for bj, side in self.topo.junctions[c].ends:
+            if bj == bi:
+                continue
+            nodes = self.topo.branches[bj].nodes
+            nb = int(nodes[1] if side == 0 else nodes[-2])
+            L = float(np.linalg.norm(self.topo.pos[nb] - self.topo.pos[c]))
+            if deg[nb] != 2 or nb not in first or L >= first[nb] or L >= self._junction_reach(bj, side):
+                continue
+            to = self.topo.pos[nb] + delta
+            if np.linalg.norm(to - sk.points[nb]) > CARRY_BOUND * sk.radii[nb]:
+                continue
+            if float(np.asarray(self.sdf(to[None]))[0]) < CARRY_DEPTH * sk.radii[nb]:
+                continue
+            self.topo.pos[nb] = to
+            carried.append(nb)
+        if carried:
+            self._rebuild_junction(c)
+        return carried
 
 
     def _rebuild_branches(self):

@@ -65,6 +65,7 @@ class RepairOptions:
     stub_within_reach: bool = False  # a side branch is a stub only when it ends within REACH_RADII of its own radii past its junction's radius (:mod:`.stubs`; off: wherever it ends within its junction's half-sections)
     poor_block_sj: float = 0.0  # valid blocks whose least corner scaled Jacobian is below this get the invalid-block repairs, kept where they help (:mod:`.poor`; 0: never)
     dent_sections: int = 2  # rounds of cross-sections added halfway along segments whose layer blocks fold on the wall (:mod:`.dents`; 0: none)
+    carry_next_nodes: bool = False  # a junction moved apart from a close neighbour takes along the next node of another branch it would bring within its half-sections (:meth:`~.junctions._Junctions._carry_next_nodes`; opt-in)
     work_budget: int = 160  # assemblies of the whole structure one build may do over its fixes and tries (0: unbounded)
 
 

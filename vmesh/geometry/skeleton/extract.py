@@ -79,6 +79,7 @@ class ExtractionSettings:
     junction_clearance: float = 1.5
     end_depth: float = 0.5
     smoothing: float = 0.5
+    ridge_slope: float = 0.0  # thin again anchored at flat ridges the skeleton leaves out (:func:`~.thin.unexplained_ridge_anchors`; 0: off)
 
 
 def surface_genus(vertices: np.ndarray, faces: np.ndarray) -> int | None:
@@ -136,7 +137,7 @@ def _voxel_size(sdf, bounds, min_radius, surface, caps, settings: ExtractionSett
     return spacing
 
 
-def _voxel_branch_graph(sdf, bounds, spacing: float, tick, stats: dict, timings: dict) -> BranchGraph:
+def _voxel_branch_graph(sdf, bounds, spacing: float, tick, stats: dict, timings: dict, ridge_slope: float = 0.0) -> BranchGraph:
     """Stages 1-3: voxelise, thin and trace into a raw branch graph."""
     with _timed(timings, "voxelise"):
         grid = grid_for_bounds(bounds, spacing)
@@ -146,7 +147,7 @@ def _voxel_branch_graph(sdf, bounds, spacing: float, tick, stats: dict, timings:
         stats["inside_voxels"] = int(mask.sum())
     with _timed(timings, "thin"):
         tick(0.5, f"thinning {stats['inside_voxels']} inside voxels")
-        ijk = voxel_skeleton(mask, sdf, grid)
+        ijk = voxel_skeleton(mask, sdf, grid, ridge_slope=ridge_slope)
         del mask
         stats["skeleton_voxels"] = int(len(ijk))
     if len(ijk) == 0:
@@ -287,7 +288,7 @@ def extract_skeleton(
     bounds = tuple(np.asarray(b, float) for b in bounds)
     with _timed(timings, "radius_estimate"):
         spacing = _voxel_size(sdf, bounds, min_radius, surface, caps, settings, tick, stats)
-    graph = _voxel_branch_graph(sdf, bounds, spacing, tick, stats, timings)
+    graph = _voxel_branch_graph(sdf, bounds, spacing, tick, stats, timings, settings.ridge_slope)
 
     with _timed(timings, "clean"):
         tick(0.75, "cleaning the skeleton graph")

@@ -81,7 +81,7 @@ def simple_points(codes: np.ndarray) -> np.ndarray:
 
 
 
-def thin_to_curves(mask: np.ndarray, distance: np.ndarray, step: float, keep_end_above: float) -> np.ndarray:
+def thin_to_curves(mask: np.ndarray, distance: np.ndarray, step: float, keep_end_above: float, keep=None) -> np.ndarray:
     """Distance-ordered homotopic thinning of a voxel mask to one-voxel-wide curves.
 
     Voxels are peeled in order of increasing distance to the wall (levels
@@ -103,6 +103,8 @@ def thin_to_curves(mask: np.ndarray, distance: np.ndarray, step: float, keep_end
         Distance between peeling levels.
     keep_end_above : float
         Curve ends at least this far from the wall are kept.
+    keep : bool array, shape ``(mask.sum(),)``, optional
+        Voxels never removed (anchors: the skeleton reaches them), in ``distance``'s order.
 
     Returns
     -------
@@ -118,6 +120,7 @@ def thin_to_curves(mask: np.ndarray, distance: np.ndarray, step: float, keep_end
     distance = np.asarray(distance, float)
     order = np.argsort(distance, kind="stable")
     voxels, distance = voxels[order], distance[order]
+    kept = np.zeros(len(voxels), bool) if keep is None else np.asarray(keep, bool)[order]
     ijk = np.stack(np.unravel_index(voxels, shape), axis=1)
     parity = (ijk[:, 0] % 2) * 4 + (ijk[:, 1] % 2) * 2 + (ijk[:, 2] % 2)
     bits = np.left_shift(np.uint32(1), np.arange(26, dtype=np.uint32))
@@ -146,7 +149,7 @@ def thin_to_curves(mask: np.ndarray, distance: np.ndarray, step: float, keep_end
                 codes = np.bitwise_or.reduce(np.where(nb, bits[None, :], np.uint32(0)), axis=1)
                 count = nb.sum(axis=1)
                 curve_end = (count == 1) & (distance[cand] >= keep_end_above)
-                remove = simple_points(codes) & ~curve_end & (count > 0)
+                remove = simple_points(codes) & ~curve_end & (count > 0) & ~kept[cand]
                 alive[lin[remove]] = 0
                 removed += int(remove.sum())
             pool = pool[alive[voxels[pool]] == 1]
@@ -158,7 +161,67 @@ def thin_to_curves(mask: np.ndarray, distance: np.ndarray, step: float, keep_end
 
 
 
-def voxel_skeleton(mask: np.ndarray, sdf: SdfFunction, grid: "VoxelGrid") -> np.ndarray:
+def flat_ridge_voxels(mask: np.ndarray, distance: np.ndarray, slope: float, keep_end_above: float) -> np.ndarray:
+    """Which inside voxels (``np.flatnonzero(mask)`` order) lie on a flat ridge of the
+    distance: at least ``keep_end_above`` from the wall, and no neighbour's distance higher
+    by more than ``slope`` times the step to it (``distance`` and steps in voxels; a voxel
+    outside counts as distance 0). Along a vessel's axis the distance is flat; off it, it
+    falls about one for one towards the wall."""
+    inside = np.flatnonzero(mask)
+    grid = np.zeros(mask.size)
+    grid[inside] = distance
+    strides = np.array([mask.shape[1] * mask.shape[2], mask.shape[2], 1], dtype=np.int64)
+    step = np.linalg.norm(_OFFSETS26, axis=1)
+    higher = np.max((grid[inside[:, None] + (_OFFSETS26 @ strides)[None, :]] - distance[:, None]) / step[None, :], axis=1)
+    return (higher <= slope) & (distance >= keep_end_above)
+
+
+def unexplained_ridge_anchors(mask: np.ndarray, distance: np.ndarray, thin: np.ndarray, ridge: np.ndarray) -> np.ndarray:
+    """One anchor voxel per 26-connected patch of flat-ridge voxels (``ridge``) that lies
+    outside every inscribed ball of the skeleton ``thin`` and beside it (its nearest skeleton
+    voxel not a curve end: past an end lies the vessel's own end, which the end placement
+    reaches): the patch's voxel farthest from the skeleton. In ``np.flatnonzero(mask)``
+    order; ``distance`` in voxels.
+
+    A short stub on a wider parent has no local maximum of the distance (it rises all the
+    way from the stub's end into the parent), so the distance-ordered thinning peels its
+    end as fast as its sides and the stub goes as a bump before its axis is a curve with an
+    end to protect (s0 g0010 extracted: a stub of radius 2.4 voxels, 3.9 voxels past its
+    parent's wall; docs/coverage.md h26/pair). Its axis is a flat ridge all the same, and
+    one the skeleton's balls leave out: anchored, the thinning keeps a curve to it."""
+    from scipy import ndimage
+    from scipy.spatial import cKDTree
+
+    inside = np.argwhere(mask)
+    anchors = np.zeros(len(inside), bool)
+    skel = np.argwhere(thin)
+    cand = np.flatnonzero(ridge)
+    if len(skel) == 0 or len(cand) == 0:
+        return anchors
+    skel_d = distance[np.searchsorted(np.flatnonzero(mask), np.ravel_multi_index(skel.T, mask.shape))]
+    tree = cKDTree(skel)
+    near, near_index = tree.query(inside[cand])
+    reach = float(skel_d.max())
+    covered = np.array([any(np.linalg.norm(skel[q] - p) <= skel_d[q] for q in tree.query_ball_point(p, reach)) for p in inside[cand]], bool)
+    # beyond a curve end (its nearest skeleton voxel an end) lies a vessel's own end, which
+    # the end placement reaches; only a ridge beside the skeleton is a side protrusion
+    beside = np.array([len(tree.query_ball_point(q, 1.8)) - 1 for q in skel[near_index]]) >= 2  # 26-neighbours within 1.8 voxels
+    left_out = ~covered & beside
+    out = cand[left_out]
+    if len(out) == 0:
+        return anchors
+    patch = np.zeros(mask.shape, bool)
+    patch[tuple(inside[out].T)] = True
+    labels, n = ndimage.label(patch, structure=np.ones((3, 3, 3)))
+    lab = labels[tuple(inside[out].T)]
+    far = near[left_out]
+    for k in range(1, n + 1):
+        sel = np.flatnonzero(lab == k)
+        anchors[out[sel[np.argmax(far[sel])]]] = True
+    return anchors
+
+
+def voxel_skeleton(mask: np.ndarray, sdf: SdfFunction, grid: "VoxelGrid", ridge_slope: float = 0.0) -> np.ndarray:
     """Indices ``(k, 3)`` of the curve skeleton of ``mask``.
 
     The mask is cropped to its bounding box (plus a one-voxel margin), cavities
@@ -181,5 +244,11 @@ def voxel_skeleton(mask: np.ndarray, sdf: SdfFunction, grid: "VoxelGrid") -> np.
     inside = np.argwhere(crop) + lo - 1  # C order = np.flatnonzero order
     distance = evaluate_sdf(sdf, grid.points(inside))
     thin = thin_to_curves(crop, distance, step=0.5 * grid.spacing, keep_end_above=grid.spacing)
+    if ridge_slope > 0:
+        # opt-in: thin again, anchored at the flat ridges the first skeleton's balls leave out
+        ridge = flat_ridge_voxels(crop, distance / grid.spacing, ridge_slope, 1.0)
+        anchors = unexplained_ridge_anchors(crop, distance / grid.spacing, thin, ridge)
+        if anchors.any():
+            thin = thin_to_curves(crop, distance, step=0.5 * grid.spacing, keep_end_above=grid.spacing, keep=anchors)
     return np.argwhere(thin).astype(np.int64) + lo - 1
 
