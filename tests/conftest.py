@@ -17,7 +17,18 @@ from data_synthetic.generate import CASES as SYNTHETIC_CASES  # noqa: E402  (eve
 def compiled_kernels():
     """Compile (or load) vmesh's numba kernels once, in this process, before any test
     starts CLI runs or Dask workers: on a fresh checkout those would otherwise all compile
-    the same kernels at once and write numba's cache beside the sources together."""
+    the same kernels at once and write numba's cache beside the sources together.
+
+    When the optimiser's kernels are not cached (a fresh clone, or new kernel sources), first
+    ``vmesh compile``'s own pass (the default chain on a small tube, the optimiser's kernels in
+    a background child meanwhile): without it the optimiser's, the worst pass's and the ray
+    crossings' kernels were compiled by the first Dask workers, each of the two on its own
+    (session 26: ~20 s CPU each). With them cached the pass is left out: it would only load
+    kernels the tests load anyway, and cost the fast lane ~1 s CPU."""
+    from vmesh.commands.compile import compile_kernels, optimiser_cached
+
+    if not optimiser_cached():
+        compile_kernels()
     import numpy as np
 
     from vmesh.geometry.quality import hex8_scaled_jacobian

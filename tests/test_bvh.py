@@ -91,17 +91,32 @@ def test_decimation_to_tolerance_reaches_it(real_path):
 
 
 def _brute_force_lines(v, f, o, d, reach):
-    """Nearest two-sided line crossing by testing every triangle (Möller–Trumbore in numpy)."""
-    a, e1, e2 = v[f[:, 0]], v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
-    p = np.cross(d[:, None], e2[None])
-    det = np.einsum("tk,ntk->nt", e1, p)
-    s = o[:, None] - a[None]
-    u = np.einsum("ntk,ntk->nt", s, p) / det
-    q = np.cross(s, e1[None])
-    w = np.einsum("nk,ntk->nt", d, q) / det
-    t = np.einsum("tk,ntk->nt", e2, q) / det
-    ok = (u >= 0) & (u <= 1) & (w >= 0) & (u + w <= 1) & (np.abs(t) <= reach[:, None])
-    return np.where(ok, t, np.nan)
+    """Nearest two-sided line crossing by testing every triangle (Möller–Trumbore in numpy).
+
+    Only the (line, triangle) pairs whose bounding boxes overlap are solved: a crossing within
+    ``reach`` lies in both boxes, so the others cannot cross. The full (lines, triangles, 3)
+    temporaries of every pair cost ~6 s CPU for 2000 lines on 10,000 triangles."""
+    tri = v[f]
+    lo_t, hi_t = tri.min(axis=1), tri.max(axis=1)
+    pad = 1e-9 * np.abs(v).max()  # boxes touching within rounding still count
+    lo_l, hi_l = np.minimum(o - reach[:, None] * d, o + reach[:, None] * d) - pad, np.maximum(o - reach[:, None] * d, o + reach[:, None] * d) + pad
+    overlap = np.ones((len(o), len(f)), bool)
+    for k in range(3):
+        overlap &= (lo_l[:, None, k] <= hi_t[None, :, k]) & (hi_l[:, None, k] >= lo_t[None, :, k])
+    line, face = np.nonzero(overlap)
+    a, e1, e2 = tri[face, 0], tri[face, 1] - tri[face, 0], tri[face, 2] - tri[face, 0]
+    dl = d[line]
+    p = np.cross(dl, e2)
+    det = np.einsum("ik,ik->i", e1, p)
+    s = o[line] - a
+    u = np.einsum("ik,ik->i", s, p) / det
+    q = np.cross(s, e1)
+    w = np.einsum("ik,ik->i", dl, q) / det
+    t = np.einsum("ik,ik->i", e2, q) / det
+    ok = (u >= 0) & (u <= 1) & (w >= 0) & (u + w <= 1) & (np.abs(t) <= reach[line])
+    out = np.full((len(o), len(f)), np.nan)
+    out[line[ok], face[ok]] = t[ok]
+    return out
 
 
 @pytest.mark.slow

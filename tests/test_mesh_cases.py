@@ -216,12 +216,22 @@ def test_real_thoracic_aorta_junction_is_valid(real_path):
     assert (d > 1e-6 * surface.diagonal).mean() < 0.001
 
 
+AORTA_CENTERLINE = ("aorta_simvascular_demo.vtp", "aorta_simvascular_demo_centerlines.vtp")
+
+
+@pytest.fixture(scope="module")
+def aorta_centerline_run(real_path):
+    """The default chain on the SimVascular aorta with its centerline: one run shared by the
+    bifurcation test below and ``test_default_chain_on_real_case`` (each ran it, ~8 s CPU)."""
+    return run_default(*map(real_path, AORTA_CENTERLINE))
+
+
 @pytest.mark.slow
-def test_real_aorta_centerline_bifurcation_quality(real_path):
+def test_real_aorta_centerline_bifurcation_quality(aorta_centerline_run):
     """The SimVascular centerline splits the iliacs about 1.6 radii before they part: the
     boundary-layer blocks of the junction's half cross-sections were slivers down to the
     carina (min scaled Jacobian 0.026). clean_skeleton moves the junction to where they part."""
-    ctx = run_default(real_path("aorta_simvascular_demo.vtp"), real_path("aorta_simvascular_demo_centerlines.vtp"))
+    ctx = aorta_centerline_run
     sj = ctx.mesh.cell_data["scaled_jacobian"]
     assert sj.min() >= 0.2 and sj.mean() > 0.85
 
@@ -240,10 +250,13 @@ REAL_RUNS = [
 
 @pytest.mark.slow
 @pytest.mark.parametrize("surface_name,centerline_name", REAL_RUNS, ids=[f"{s.split('.')[0]}-{'centerline' if c else 'extracted'}" for s, c in REAL_RUNS])
-def test_default_chain_on_real_case(real_path, surface_name, centerline_name):
+def test_default_chain_on_real_case(real_path, request, surface_name, centerline_name):
     """Every real surface, with its centerline where it has one and with an extracted
     skeleton: valid, conforming, watertight, wall nodes on the fine surface, open ends named."""
-    ctx = run_default(real_path(surface_name), real_path(centerline_name) if centerline_name else None)
+    if (surface_name, centerline_name) == AORTA_CENTERLINE:
+        ctx = request.getfixturevalue("aorta_centerline_run")
+    else:
+        ctx = run_default(real_path(surface_name), real_path(centerline_name) if centerline_name else None)
     sj = check_mesh(ctx)
     assert sj.mean() > 0.85
     if surface_name.startswith("coarctation"):
