@@ -53,6 +53,14 @@ def test_a_sibling_that_parts_before_the_middle_stays():
     assert reroot_backwards_siblings(sk, a, b, case.distance) is None
 
 
+def test_a_sibling_as_thick_as_the_link_stays():
+    """A branch as thick as the link whose tube runs fused with it past the middle is an
+    ordinary daughter (:data:`~vmesh.geometry.blocks.reroot.THIN_SHARE`), not re-rooted."""
+    case = retrograde_branch(1.8, back=45.0, phi=160.0, ratio=1.0)
+    sk, a, b = _separated(case)
+    assert reroot_backwards_siblings(sk, a, b, case.distance) is None
+
+
 #: the link 1.8 parent radii, the thin branch 45 degrees back (as the generator's kissing
 #: tube, s1 g0016 given): its axis leaves the link's lumen at its first node past the
 #: middle, its tube one node later; re-rooted through the axis' node the build fails

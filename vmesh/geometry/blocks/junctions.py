@@ -10,11 +10,11 @@ from .options import JUNCTION, _Candidates, _Junction
 from ..skeleton.graph import polyline_at
 from .prep import split_nonplanar_junctions
 
-# bounds of a next node carried along by a moved junction (_carry_next_nodes): those of
-# the junction's own move in separate_junctions (1.5 node radii from its skeleton point,
-# 0.4 of its radius inside the wall)
-CARRY_BOUND = 1.5
-CARRY_DEPTH = 0.4
+# how far separate_junctions may move a junction (and _carry_next_nodes a next node it
+# takes along): within MOVE_BOUND node radii of its skeleton point, and MOVE_DEPTH of its
+# radius inside the wall, so that it stays in the lumen the skeleton put it in
+MOVE_BOUND = 1.5
+MOVE_DEPTH = 0.4
 
 
 class _Junctions:
@@ -175,9 +175,9 @@ class _Junctions:
             other = int(br.nodes[-1] if side == 0 else br.nodes[0])
             w = cs.unit(self.topo.pos[c] - self.topo.pos[other])
             new = self.topo.pos[c] + 0.5 * rb * w
-            if np.linalg.norm(new - sk.points[c]) > 1.5 * sk.radii[c]:
+            if np.linalg.norm(new - sk.points[c]) > MOVE_BOUND * sk.radii[c]:
                 continue
-            if float(np.asarray(self.sdf(new[None]))[0]) < 0.4 * sk.radii[c]:
+            if float(np.asarray(self.sdf(new[None]))[0]) < MOVE_DEPTH * sk.radii[c]:
                 continue
             old_pos, old_j = self.topo.pos.copy(), self.topo.junctions[c]
             carried = []
@@ -193,8 +193,8 @@ class _Junctions:
                 best = (gain, c, new, carried)
         if best is None or best[0] <= 1e-9 * rb:
             return False
-        _, c, new, carried = best
-        self._moved_junction(c, bi, new)
+        _, c, new, _ = best
+        carried = self._moved_junction(c, bi, new)
         moved = float(np.linalg.norm(new - sk.points[c]))
         self.fixes.append(f"moved junction node {c} by {moved:.3g} along its branch to node {int(br.nodes[0] if c == br.nodes[-1] else br.nodes[-1])}"
                           + (f", taking along its next node(s) {carried}" if carried else ""))
@@ -239,8 +239,8 @@ class _Junctions:
         g0016 extracted: junction 3 moved 1.82, 0.40 from node 54, 180 inverted
         elements). Carried along, the node keeps the first segment's length and
         direction; the branch's second segment gives up the room instead. A node is
-        carried only where it stays ``CARRY_DEPTH`` of its radius inside the wall and
-        within ``CARRY_BOUND`` radii of its skeleton point (the junction's own bounds)."""
+        carried only where it stays ``MOVE_DEPTH`` of its radius inside the wall and
+        within ``MOVE_BOUND`` radii of its skeleton point (the junction's own bounds)."""
         sk = self.topo.sk
         deg = sk.degrees
         carried = []
@@ -253,9 +253,9 @@ class _Junctions:
             if deg[nb] != 2 or nb not in first or L >= first[nb] or L >= self._junction_reach(bj, side):
                 continue
             to = self.topo.pos[nb] + delta
-            if np.linalg.norm(to - sk.points[nb]) > CARRY_BOUND * sk.radii[nb]:
+            if np.linalg.norm(to - sk.points[nb]) > MOVE_BOUND * sk.radii[nb]:
                 continue
-            if float(np.asarray(self.sdf(to[None]))[0]) < CARRY_DEPTH * sk.radii[nb]:
+            if float(np.asarray(self.sdf(to[None]))[0]) < MOVE_DEPTH * sk.radii[nb]:
                 continue
             self.topo.pos[nb] = to
             carried.append(nb)

@@ -42,6 +42,11 @@ REROOT_PAST_MIDDLE = 0.5
 #: but whose tube runs fused past it is not offered (s1 g0016 given: axis out at node 47,
 #: 1.37 along a link of 2.84; tube clear at node 48, 1.76; docs/junctions.md h26/backwards)
 TUBE_CLEARANCE = 1.0
+#: a backwards sibling is a thin branch: its radius at most this share of the link's
+#: (median) radius. Two daughters of one junction, of like radii and a small angle apart,
+#: run with their tubes fused past the middle of a short link too, and are an ordinary
+#: bifurcation, not a branch of the other junction
+THIN_SHARE = 0.6
 
 
 def _link_path(sk: Skeleton, paths: list, a: int, b: int) -> np.ndarray | None:
@@ -49,7 +54,7 @@ def _link_path(sk: Skeleton, paths: list, a: int, b: int) -> np.ndarray | None:
 
 
 def _backwards_sibling(sk: Skeleton, paths: list, link: np.ndarray, end: int):
-    """At the link's end ``end``: a sibling whose first node lies inside the link's lumen
+    """At the link's end ``end``: a thin sibling (``THIN_SHARE``) whose first node lies inside the link's lumen
     and which leaves the lumen past the link's middle from ``end``, judged by its *tube*:
     a node is inside while its axis lies closer to the link's axis than the link's radius
     plus its own (``TUBE_CLEARANCE``). Returns (the sibling's nodes from ``end``, the
@@ -58,10 +63,13 @@ def _backwards_sibling(sk: Skeleton, paths: list, link: np.ndarray, end: int):
     seg_len = np.linalg.norm(P[1:] - P[:-1], axis=1)
     arc = np.r_[0.0, np.cumsum(seg_len)]
     from_end = 0.0 if int(link[0]) == end else arc[-1]
+    thin = THIN_SHARE * float(np.median(sk.radii[link]))
     for p in paths:
         if p is link or len(p) < 3 or end not in (int(p[0]), int(p[-1])):
             continue
         nodes = p if int(p[0]) == end else p[::-1]
+        if sk.radii[nodes[1]] > thin:
+            continue
         X = sk.points[nodes[1:-1]]
         shape = (len(X), len(seg_len))
         _, t, d = closest_on_segments(X, np.broadcast_to(P[:-1], shape + (3,)), np.broadcast_to(P[1:], shape + (3,)),
