@@ -16,6 +16,7 @@ tree-cotree decomposition tells for every non-tree edge at once.
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, dijkstra
@@ -67,17 +68,13 @@ def _edges(faces: np.ndarray):
     return np.stack([ukey // n, ukey % n], axis=1), pair_faces, (ukey, n)
 
 
-def _tree_depth(parent: np.ndarray) -> np.ndarray:
-    """Depth of every node of a forest given by ``parent`` (-1 at roots), by pointer jumping."""
-    depth = (parent >= 0).astype(np.int64)
-    up = parent.copy()
-    while np.any(up >= 0):
-        has = up >= 0
-        depth[has] += depth[up[has]]
-        nxt = np.full_like(up, -1)
-        nxt[has] = up[up[has]]
-        up = nxt
-    return depth
+@nb.njit(cache=True)
+def _subtree_xor(order: np.ndarray, parent: np.ndarray, mark: np.ndarray) -> None:
+    """XOR every node's ``mark`` into its parent's, leaves first (``order``: parents before
+    children), so that each node ends with the XOR over its subtree."""
+    for i in range(len(order) - 1, 0, -1):
+        node = order[i]
+        mark[parent[node]] ^= mark[node]
 
 
 class LoopSearch:
@@ -129,14 +126,7 @@ class LoopSearch:
         bits = np.left_shift(np.int64(1), np.arange(len(left), dtype=np.int64))
         np.bitwise_xor.at(mark, self.edge_faces[left, 0], bits)
         np.bitwise_xor.at(mark, self.edge_faces[left, 1], bits)
-        fpred = np.where(fpred < 0, -1, fpred)
-        depth = _tree_depth(fpred)
-        by_depth = np.argsort(-depth, kind="stable")
-        levels = np.split(by_depth, np.flatnonzero(np.diff(depth[by_depth])) + 1)
-        for level in levels:
-            level = level[fpred[level] >= 0]
-            if len(level):
-                np.bitwise_xor.at(mark, fpred[level], mark[level])
+        _subtree_xor(order.astype(np.int64), fpred, mark)
         nonsep = np.r_[left, cotree_edge[mark[kids] != 0]]
         if len(nonsep) == 0:
             return np.inf, None
