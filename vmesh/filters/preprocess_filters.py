@@ -177,7 +177,7 @@ def _check_point(inlet_point):
         Parameter(
             "cut_handles",
             "bool",
-            False,
+            True,
             "Cut out thin strands of outside material that cross the lumen (segmentation artefacts that make the surface a torus: "
             "a handle whose shortest non-separating loop goes round the strand with lumen all round it) and fill the wall where "
             "they stood, with a warning naming each. A real loop of vessels is kept (its short loop goes round the lumen). "
@@ -191,7 +191,7 @@ def _check_point(inlet_point):
     updates=("caps",),
     category="preprocessing",
 )
-def repair_surface(ctx, merge_tolerance, keep, orient, fill_holes, debris_area, hole_wall_beyond=False, cut_handles=False):
+def repair_surface(ctx, merge_tolerance, keep, orient, fill_holes, debris_area, hole_wall_beyond=False, cut_handles=True):
     """Repair the input surface and report what was removed or flipped.
 
     Open surfaces are oriented outward by their volume relative to the centroid (an
