@@ -48,9 +48,11 @@ LUMEN_ALL_ROUND = 0.75
 THINNER_THAN_LUMEN = 0.5
 
 
-def genus(faces: np.ndarray) -> int:
-    """Genus of a connected orientable triangle surface (open ends counted as holes)."""
-    return (2 - euler_characteristic(faces) - len(boundary_loops(faces))) // 2
+def genus(faces: np.ndarray, loops: list | None = None) -> int:
+    """Genus of a connected orientable triangle surface (open ends, its boundary ``loops``
+    when given, counted as holes: ``2 - chi - b = 2 g``)."""
+    loops = boundary_loops(faces) if loops is None else loops
+    return (2 - euler_characteristic(faces) - len(loops)) // 2
 
 
 def _edges(faces: np.ndarray):
@@ -278,7 +280,8 @@ def cut_thin_handles(vertices: np.ndarray, faces: np.ndarray):
     While the surface (one connected piece, open ends allowed) has a handle, its shortest
     non-separating loop is found; if the loop goes round a strand with lumen all round it
     (:func:`lumen_all_round`), the strand's faces (:func:`strand_vertices`) are removed and
-    the two holes left in the wall are filled with faired patches. The first shortest loop
+    the holes left in the wall are filled with faired patches (the cut is kept only if the
+    genus drops by one and no hole stays open). The first shortest loop
     that goes round the lumen instead (a real loop of vessels) ends the search.
 
     Returns
@@ -297,7 +300,8 @@ def cut_thin_handles(vertices: np.ndarray, faces: np.ndarray):
         return v, f, origin, cuts
     for _ in range(MAX_GENUS):
         loops = boundary_loops(f)
-        if (2 - euler_characteristic(f) - len(loops)) // 2 < 1:
+        handles = genus(f, loops)
+        if handles < 1:
             break
         cv, cf = _closed(v, f, loops)
         if _edges(cf)[0] is None:  # not a manifold surface: no cut
@@ -321,11 +325,13 @@ def cut_thin_handles(vertices: np.ndarray, faces: np.ndarray):
             break
         nf = len(fk)
         v2, f2, _ = fill_holes(v, fk, holes)
-        if (2 - euler_characteristic(f2) - len(boundary_loops(f2))) // 2 != (2 - euler_characteristic(f) - len(loops)) // 2 - 1:
+        loops2 = boundary_loops(f2)
+        if len(loops2) != len(loops) or genus(f2, loops2) != handles - 1:  # not the handle alone
             break
         centre, radius, _ = loop_frame(v, loop)
         cuts.append({"loop_length": float(length), "radius": float(radius), "center": centre.tolist(), "strand_vertices": int(len(strand))})
         origin = np.r_[origin[keep], np.full(len(f2) - nf, -1)]
         v, f = v2, f2
-    v, f, _ = remove_unreferenced_vertices(v, f)
+    if cuts:
+        v, f, _ = remove_unreferenced_vertices(v, f)
     return v, f, origin, cuts
