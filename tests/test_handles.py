@@ -70,6 +70,40 @@ def test_a_ring_of_lumen_is_kept():
     assert not cuts and len(f2) == len(f) and np.array_equal(origin, np.arange(len(f)))
 
 
+def _loop_class(search, loop):
+    """XOR of the edge classes round a closed vertex loop."""
+    ids = search._edge_ids(loop, np.roll(loop, -1))
+    return int(np.bitwise_xor.reduce(search.edge_class[ids]))
+
+
+def test_edge_classes_tell_handle_loops_from_separating_ones():
+    v, f = _torus(n=24, m=8)
+    search = handles.LoopSearch(v, f)
+    assert np.count_nonzero(search.edge_class) > 0
+    for face in f[:50]:  # a triangle's boundary separates: class 0
+        assert _loop_class(search, face) == 0
+    length, loop = search.through(0)
+    assert np.isfinite(length) and _loop_class(search, loop) != 0
+
+
+@pytest.mark.parametrize("surface", ["torus", "pillar"])
+def test_the_search_bounded_by_a_shorter_loop_finds_the_same_loops(surface, pillar):
+    """Early decision: a seed's search stops at half the shortest loop found so far; any
+    shorter loop through it is still found, none shorter is made up."""
+    v, f = _torus(n=24, m=8) if surface == "torus" else pillar
+    search = handles.LoopSearch(v, f)
+    for s in handles.farthest_points(v, 6):
+        length, loop = search.through(int(s))
+        bounded, loop2 = search.through(int(s), shorter_than=1.01 * length)
+        assert bounded == length and np.array_equal(loop, loop2)
+        below, _ = search.through(int(s), shorter_than=0.99 * length)
+        assert below >= length
+    # the whole search gives the loop it gave seed by seed (the minimum, first seed on ties)
+    seeds = handles.farthest_points(v, handles.SEARCH_SEEDS)
+    each = min((search.through(int(s)) for s in seeds), key=lambda t: t[0])
+    assert search._shortest_of(seeds, np.inf, None)[0] == each[0]
+
+
 def test_a_plain_tube_is_left_alone():
     v, f = pillar_surface(h=1.0, strand=False)
     v2, f2, origin, cuts = handles.cut_thin_handles(v, f)

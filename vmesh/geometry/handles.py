@@ -79,6 +79,44 @@ def _subtree_xor(order: np.ndarray, parent: np.ndarray, mark: np.ndarray) -> Non
         mark[parent[node]] ^= mark[node]
 
 
+@nb.njit(cache=True)
+def _shortest_nonseparating(pred, dist, indptr, indices, csr_edge, edge_class, edges, length):
+    """The non-tree edge whose fundamental cycle in the shortest-path tree ``pred`` is
+    shortest among those of non-zero homology class: ``(length, edge)``, ``(inf, -1)`` if
+    none. A vertex's class is the XOR of ``edge_class`` along its tree path (set from the
+    root down); an edge ``ab`` closes a cycle of class ``H[a] ^ H[b] ^ class(ab)`` (zero
+    for the tree's own edges). Unreached vertices (``dist`` inf) take no part."""
+    nv = len(pred)
+    H = np.zeros(nv, np.int64)
+    done = np.zeros(nv, np.bool_)
+    stack = np.empty(nv, np.int64)
+    for v in range(nv):
+        if done[v] or not np.isfinite(dist[v]):
+            continue
+        k, x = 0, v
+        while not done[x] and pred[x] >= 0:
+            stack[k] = x
+            k += 1
+            x = pred[x]
+        done[x] = True  # the root (class 0) or a vertex already set
+        h = H[x]
+        for i in range(k - 1, -1, -1):
+            y = stack[i]
+            for j in range(indptr[y], indptr[y + 1]):
+                if indices[j] == pred[y]:
+                    h ^= edge_class[csr_edge[j]]
+                    break
+            H[y] = h
+            done[y] = True
+    best, arg = np.inf, -1
+    for e in range(len(edges)):
+        a, b = edges[e, 0], edges[e, 1]
+        t = dist[a] + dist[b] + length[e]
+        if t < best and (H[a] ^ H[b] ^ edge_class[e]) != 0:
+            best, arg = t, e
+    return best, arg
+
+
 class LoopSearch:
     """Shortest non-separating loops of a closed manifold triangle surface."""
 
@@ -86,22 +124,31 @@ class LoopSearch:
         """``heavy_from``: vertices from this index on close open ends (a fan each); loops
         keep off them (their edges weigh ``FAN_WEIGHT`` times their length)."""
         self.v, self.f = vertices, faces
-        self.edges, self.edge_faces, (self.keys, self.n) = _edges(faces)
+        self.edges, self.edge_faces, keys = _edges(faces)
+        self.edge_class = None
+        if self.edges is None:  # not a closed manifold surface: no loop search
+            return
+        self.keys, self.n = keys
         self.heavy_from = len(vertices) if heavy_from is None else heavy_from
         self.length = np.linalg.norm(vertices[self.edges[:, 0]] - vertices[self.edges[:, 1]], axis=1)
         self.length[self.edges.max(axis=1) >= self.heavy_from] *= FAN_WEIGHT
         nv = len(vertices)
         a, b = self.edges[:, 0], self.edges[:, 1]
-        self.graph = sp.csr_matrix((np.r_[self.length, self.length], (np.r_[a, b], np.r_[b, a])), shape=(nv, nv))
+        ids = np.arange(1, len(self.edges) + 1)  # + 1: no stored zero
+        by_id = sp.csr_matrix((np.r_[ids, ids], (np.r_[a, b], np.r_[b, a])), shape=(nv, nv))
+        self.csr_edge = by_id.data.astype(np.int64) - 1  # the edge of every stored entry
+        self.graph = sp.csr_matrix((self.length[self.csr_edge], by_id.indices, by_id.indptr), shape=(nv, nv))
+        self.edge_class = self._homology_classes()
 
     def _edge_ids(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         lo, hi = np.minimum(a, b), np.maximum(a, b)
         return np.searchsorted(self.keys, lo * self.n + hi)
 
-    def through(self, source: int):
-        """``(length, loop vertices)`` of the shortest non-separating loop through (or from)
-        ``source``; ``(inf, None)`` on a sphere."""
-        dist, pred = dijkstra(self.graph, indices=source, return_predecessors=True)
+    def _homology_classes(self) -> np.ndarray | None:
+        """Every edge's Z2 homology class as bits of an int64 (a cocycle basis: a closed
+        loop's class is the XOR over its edges), from one tree-cotree decomposition; None
+        on a sphere or with more than ``MAX_GENUS`` handles."""
+        _, pred = dijkstra(self.graph, indices=0, return_predecessors=True)
         pred = pred.astype(np.int64)
         child = np.flatnonzero(pred >= 0)
         in_tree = np.zeros(len(self.edges), bool)
@@ -122,26 +169,46 @@ class LoopSearch:
         in_cotree[cotree_edge] = True
         left = np.flatnonzero(~in_tree & ~in_cotree)  # 2 * genus edges: a homology basis
         if len(left) == 0 or len(left) > 2 * MAX_GENUS:
-            return np.inf, None
+            return None
         # each cotree edge's cycle is the sum of the basis loops whose edge leaves its subtree
         mark = np.zeros(nf, np.int64)
         bits = np.left_shift(np.int64(1), np.arange(len(left), dtype=np.int64))
         np.bitwise_xor.at(mark, self.edge_faces[left, 0], bits)
         np.bitwise_xor.at(mark, self.edge_faces[left, 1], bits)
         _subtree_xor(order.astype(np.int64), fpred, mark)
-        nonsep = np.r_[left, cotree_edge[mark[kids] != 0]]
-        if len(nonsep) == 0:
+        edge_class = np.zeros(len(self.edges), np.int64)  # tree edges: 0
+        edge_class[left] = bits
+        edge_class[cotree_edge] = mark[kids]
+        return edge_class
+
+    def through(self, source: int, shorter_than: float = np.inf):
+        """``(length, loop vertices)`` of the shortest non-separating loop through (or from)
+        ``source``; ``(inf, None)`` on a sphere. Only loops shorter than ``shorter_than``
+        are looked for: every vertex of such a loop lies within half of it from
+        ``source``, so the shortest paths stop there (a longer loop may still be returned)."""
+        if self.edge_class is None:
             return np.inf, None
-        a, b = self.edges[nonsep, 0], self.edges[nonsep, 1]
-        total = dist[a] + dist[b] + self.length[nonsep]
-        best = int(np.argmin(total))
-        return float(total[best]), _cycle(pred, int(a[best]), int(b[best]))
+        limit = 0.5 * shorter_than * (1 + 1e-9) if np.isfinite(shorter_than) else np.inf
+        dist, pred = dijkstra(self.graph, indices=source, return_predecessors=True, limit=limit)
+        pred = pred.astype(np.int64)
+        total, edge = _shortest_nonseparating(pred, dist, self.graph.indptr, self.graph.indices, self.csr_edge, self.edge_class, self.edges, self.length)
+        if edge < 0:
+            return np.inf, None
+        return float(total), _cycle(pred, int(self.edges[edge, 0]), int(self.edges[edge, 1]))
+
+    def _shortest_of(self, seeds, length: float, loop):
+        """The first shortest loop through ``seeds`` if shorter than ``length`` (each seed's
+        search stops at half the shortest loop so far), else ``(length, loop)``."""
+        for s in seeds:
+            l2, loop2 = self.through(int(s), length)
+            if l2 < length:
+                length, loop = l2, loop2
+        return length, loop
 
     def shortest(self, seeds: np.ndarray):
         """The shortest non-separating loop through ``seeds``, shortened from its own
         vertices; ``(length, loop)``."""
-        found = [self.through(int(s)) for s in seeds]
-        length, loop = min(found, key=lambda t: t[0])
+        length, loop = self._shortest_of(seeds, np.inf, None)
         tried = set(int(s) for s in seeds)
         while loop is not None:
             fresh = np.array([u for u in loop.tolist() if u not in tried])
@@ -149,8 +216,8 @@ class LoopSearch:
                 break
             pick = fresh[np.linspace(0, len(fresh) - 1, min(REFINE_SEEDS, len(fresh))).astype(int)]
             tried.update(int(s) for s in pick)
-            l2, loop2 = min((self.through(int(s)) for s in pick), key=lambda t: t[0])
-            if not l2 < length - 1e-9:
+            l2, loop2 = self._shortest_of(pick, length - 1e-9, None)
+            if loop2 is None:
                 break
             length, loop = l2, loop2
         return length, loop
@@ -304,9 +371,9 @@ def cut_thin_handles(vertices: np.ndarray, faces: np.ndarray):
         if handles < 1:
             break
         cv, cf = _closed(v, f, loops)
-        if _edges(cf)[0] is None:  # not a manifold surface: no cut
-            break
         search = LoopSearch(cv, cf, heavy_from=len(v))
+        if search.edges is None:  # not a manifold surface: no cut
+            break
         length, loop = search.shortest(farthest_points(v, SEARCH_SEEDS))
         if loop is None or np.any(loop >= len(v)):
             break
