@@ -148,8 +148,8 @@ class LoopSearch:
         """Every edge's Z2 homology class as bits of an int64 (a cocycle basis: a closed
         loop's class is the XOR over its edges), from one tree-cotree decomposition; None
         on a sphere or with more than ``MAX_GENUS`` handles."""
-        _, pred = dijkstra(self.graph, indices=0, return_predecessors=True)
-        pred = pred.astype(np.int64)
+        _, pred = breadth_first_order(self.graph, 0, directed=False, return_predecessors=True)
+        pred = pred.astype(np.int64)  # any spanning tree gives the same classes of loops
         child = np.flatnonzero(pred >= 0)
         in_tree = np.zeros(len(self.edges), bool)
         in_tree[self._edge_ids(child, pred[child])] = True
