@@ -174,6 +174,15 @@ def _check_point(inlet_point):
         Parameter("orient", "bool", True, "Make neighbouring faces agree on orientation, then turn each piece outward (positive enclosed volume)."),
         Parameter("fill_holes", "bool", True, "Close holes in the wall (boundary loops whose surrounding faces lie nearly in the loop's plane, unlike open ends) with a patch faired into the wall, with a warning naming each; open ends are left to cap_open_ends."),
         Parameter("debris_area", "float", 1e-3, "Dropped pieces smaller than this fraction of the kept piece's area are debris: only counted, not named in a warning.", unit="× kept area", min=0.0, max=1.0),
+        Parameter(
+            "cut_handles",
+            "bool",
+            True,
+            "Cut out thin strands of outside material that cross the lumen (segmentation artefacts that make the surface a torus: "
+            "a handle whose shortest non-separating loop goes round the strand with lumen all round it) and fill the wall where "
+            "they stood, with a warning naming each. A real loop of vessels is kept (its short loop goes round the lumen). "
+            "Genus-0 surfaces are left as they are (docs/junctions.md, h26/handle).",
+        ),
         Parameter("hole_wall_beyond", "bool", False, "Count a loop as a hole only when the wall also goes on past it on two opposite sides, so that a vessel's open end whose rim is bevelled into a flange (the wall flaring out in the end plane, as at the ends of short or narrow vessels) stays an open end. Off by default: some surfaces that mesh with such an end filled then fail elsewhere (docs/junctions.md)."),
     ],
     reads=("surface",),
@@ -182,7 +191,7 @@ def _check_point(inlet_point):
     updates=("caps",),
     category="preprocessing",
 )
-def repair_surface(ctx, merge_tolerance, keep, orient, fill_holes, debris_area, hole_wall_beyond=False):
+def repair_surface(ctx, merge_tolerance, keep, orient, fill_holes, debris_area, hole_wall_beyond=False, cut_handles=True):
     """Repair the input surface and report what was removed or flipped.
 
     Open surfaces are oriented outward by their volume relative to the centroid (an
@@ -195,6 +204,8 @@ def repair_surface(ctx, merge_tolerance, keep, orient, fill_holes, debris_area, 
     )
     if len(f) == 0:
         raise InputError("no faces left after removing degenerate and duplicate faces", _surface_name(ctx))
+    if cut_handles and orient and not report.non_orientable:
+        v, f, data = _cut_handles(ctx, v, f, data)
     ctx.surface = SurfaceMesh(v, f, name=s.name, face_data=data)
     info = report.as_dict()
     ctx.report.sections["repair"] = info
@@ -223,6 +234,26 @@ def repair_surface(ctx, merge_tolerance, keep, orient, fill_holes, debris_area, 
     if ctx.caps:
         ctx.caps = None
         ctx.warn("caps were dropped: run cap_open_ends or detect_caps after repair_surface")
+
+
+def _cut_handles(ctx, v, f, data):
+    """Cut the thin handles through the lumen out of the repaired surface (report section
+    ``handles``, a warning naming the largest); patches get 0 in every face array."""
+    from ..geometry.handles import cut_thin_handles
+
+    v, f, origin, cuts = cut_thin_handles(v, f)
+    ctx.report.sections["handles"] = cuts
+    if not cuts:
+        return v, f, data
+    data = {k: np.where((origin >= 0).reshape(-1, *[1] * (a.ndim - 1)), a[np.maximum(origin, 0)], 0).astype(a.dtype) for k, a in data.items()}
+    widest = max(cuts, key=lambda c: c["radius"])
+    ctx.count(cut_handles=len(cuts))
+    ctx.warn(
+        f"cut {len(cuts)} thin handle(s) through the lumen (strands of outside material, the thickest "
+        f"{2 * widest['radius']:.3g} across at ({', '.join(f'{x:.4g}' for x in widest['center'])})) and filled the wall "
+        f"where they stood: check the input surface there (repair_surface.cut_handles=false keeps them)"
+    )
+    return v, f, data
 
 
 def _report_dropped_components(ctx, report) -> None:
