@@ -235,9 +235,8 @@ class _Junctions:
         Moving a junction away from a close neighbour (:meth:`separate_junctions`) can
         walk it into another of its branches: that branch's first segment becomes a stub
         shorter than the half-sections' reach, its first cross-section stands inside the
-        junction and the boundary-layer blocks between them collapse onto the wall (s1
-        g0016 extracted: junction 3 moved 1.82, 0.40 from node 54, 180 inverted
-        elements). Carried along, the node keeps the first segment's length and
+        junction and the boundary-layer blocks between them collapse onto the wall
+        (docs/junctions.md, two overlapping junctions). Carried along, the node keeps the first segment's length and
         direction; the branch's second segment gives up the room instead. A node is
         carried only where it stays ``MOVE_DEPTH`` of its radius inside the wall and
         within ``MOVE_BOUND`` radii of its skeleton point (the junction's own bounds)."""

@@ -10,17 +10,13 @@ link where A's branches do, so T is A's branch: it leaves A through its first no
 tube clears the link's lumen, past a new node at the middle of its new first segment
 moved to the deepest point of its section. The builder's last try, opt-in
 (``reroot_backwards``): it builds the generated configuration
-(``tests/test_reroot.py``). The sibling is judged by its tube, not its axis: s1 g0016
-given's kissing tube leaves the lumen with its axis just before the link's middle and
-with its tube past it, and re-rooted through its first tube-clear node its blocks build
-and cover the pair's wall (docs/junctions.md h26/backwards). On s1 g0012 given a valid
-structure needs the new node where the extraction's medial axis puts it (0.14 away),
-which no rule here finds. Where the
-deepest point fails, the builder tries the new node at ring placements around the
-section's centre (:func:`section_placements`, the far junction then on the link's chord),
-each on a share of a budget: s1 g0012 given builds at one of them, and its mesh then folds
-at the 4-junction and at the given tree's 5-junction (docs/junctions.md h25/builder,
-h26/backwards).
+(``tests/test_reroot.py``). The sibling is judged by its tube, not its axis: a kissing
+tube may leave the lumen with its axis before the link's middle and with its tube past
+it; re-rooted through its first tube-clear node its blocks build and cover the pair's
+wall. Where the deepest point fails, the builder tries the new node at ring placements
+around the section's centre (:func:`section_placements`, the far junction then on the
+link's chord), each on a share of a budget (docs/junctions.md, the re-rooted branch's
+placements).
 """
 
 from __future__ import annotations
@@ -39,8 +35,7 @@ REROOT_PAST_MIDDLE = 0.5
 #: a sibling's node counts as inside the link's lumen while its axis lies within the link's
 #: radius plus this share of its own radius: 1, its tube still overlaps the lumen. By the
 #: axis alone (0) a kissing tube whose axis leaves the lumen just before the link's middle
-#: but whose tube runs fused past it is not offered (s1 g0016 given: axis out at node 47,
-#: 1.37 along a link of 2.84; tube clear at node 48, 1.76; docs/junctions.md h26/backwards)
+#: but whose tube runs fused past it would not be offered
 TUBE_CLEARANCE = 1.0
 #: a backwards sibling is a thin branch: its radius at most this share of the link's
 #: (median) radius. Two daughters of one junction, of like radii and a small angle apart,

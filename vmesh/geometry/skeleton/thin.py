@@ -10,6 +10,8 @@ vessels aligned with the grid.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from .probe import _OFFSETS26, SdfFunction, evaluate_sdf
@@ -186,8 +188,7 @@ def unexplained_ridge_anchors(mask: np.ndarray, distance: np.ndarray, thin: np.n
     A short stub on a wider parent has no local maximum of the distance (it rises all the
     way from the stub's end into the parent), so the distance-ordered thinning peels its
     end as fast as its sides and the stub goes as a bump before its axis is a curve with an
-    end to protect (s0 g0010 extracted: a stub of radius 2.4 voxels, 3.9 voxels past its
-    parent's wall; docs/coverage.md h26/pair). Its axis is a flat ridge all the same, and
+    end to protect (docs/coverage.md, ridge anchors). Its axis is a flat ridge all the same, and
     one the skeleton's balls leave out: anchored, the thinning keeps a curve to it."""
     from scipy import ndimage
     from scipy.spatial import cKDTree
@@ -202,22 +203,27 @@ def unexplained_ridge_anchors(mask: np.ndarray, distance: np.ndarray, thin: np.n
     tree = cKDTree(skel)
     near, near_index = tree.query(inside[cand])
     reach = float(skel_d.max())
-    covered = np.array([any(np.linalg.norm(skel[q] - p) <= skel_d[q] for q in tree.query_ball_point(p, reach)) for p in inside[cand]], bool)
+    # inside a ball: some skeleton voxel within its own distance (pairs within the largest)
+    balls = tree.query_ball_point(inside[cand], reach)
+    owner = np.repeat(np.arange(len(cand)), [len(b) for b in balls])
+    q = np.fromiter(itertools.chain.from_iterable(balls), np.int64, len(owner))
+    within = np.linalg.norm(skel[q] - inside[cand][owner], axis=1) <= skel_d[q]
+    covered = np.bincount(owner[within], minlength=len(cand)) > 0
     # beyond a curve end (its nearest skeleton voxel an end) lies a vessel's own end, which
     # the end placement reaches; only a ridge beside the skeleton is a side protrusion
-    beside = np.array([len(tree.query_ball_point(q, 1.8)) - 1 for q in skel[near_index]]) >= 2  # 26-neighbours within 1.8 voxels
+    beside = tree.query_ball_point(skel[near_index], 1.8, return_length=True) - 1 >= 2  # 26-neighbours within 1.8 voxels
     left_out = ~covered & beside
     out = cand[left_out]
     if len(out) == 0:
         return anchors
     patch = np.zeros(mask.shape, bool)
     patch[tuple(inside[out].T)] = True
-    labels, n = ndimage.label(patch, structure=np.ones((3, 3, 3)))
+    labels, _ = ndimage.label(patch, structure=np.ones((3, 3, 3)))
     lab = labels[tuple(inside[out].T)]
-    far = near[left_out]
-    for k in range(1, n + 1):
-        sel = np.flatnonzero(lab == k)
-        anchors[out[sel[np.argmax(far[sel])]]] = True
+    # per patch, its voxel farthest from the skeleton (the first of each label, far first)
+    order = np.lexsort((-near[left_out], lab))
+    first = order[np.r_[True, lab[order][1:] != lab[order][:-1]]]
+    anchors[out[first]] = True
     return anchors
 
 
