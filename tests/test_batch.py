@@ -480,3 +480,18 @@ def test_python_api_local_cluster(tmp_path):
         # a changed parameter is not a finished row
         changed = batch.run(rows, "default", out=tmp_path / "out", client=client, overrides={"mesh_transfinite.element_length": 0.7, "compute_quality.histogram": ""}, progress=False)
         assert changed.n_resumed == 0 and changed.n_ok == 2
+
+
+def test_an_unreachable_scheduler_leaves_no_output(tmp_path):
+    """Nothing ran: no output folder made for a summary of pending rows (a folder that
+    was there keeps its earlier summary)."""
+    manifest = [{"surface": str(SURFACE), "skeleton": str(SKELETON), "name": "y"}]
+    out = tmp_path / "out"
+    with pytest.raises(vmesh.errors.VmeshError, match="cannot reach the Dask scheduler"):
+        batch.run(manifest, out=out, scheduler=f"tcp://127.0.0.1:{_free_port()}", connect_timeout=2, progress=False)
+    assert not out.exists()
+    out.mkdir()
+    (out / "summary.csv").write_text("earlier\n")
+    with pytest.raises(vmesh.errors.VmeshError, match="cannot reach the Dask scheduler"):
+        batch.run(manifest, out=out, scheduler=f"tcp://127.0.0.1:{_free_port()}", connect_timeout=2, progress=False)
+    assert (out / "summary.csv").read_text() == "earlier\n"

@@ -132,4 +132,7 @@ def test_cli_case_errors_write_nothing(y_run, tmp_path, capsys):
     assert "--case writes an OpenFOAM case: add --format openfoam" in capsys.readouterr().err
     assert main(["export", str(y_run), "--format", "openfoam", "--case", "steady", "--to-units", "m", "--inlet-velocity", "-1"]) == 2
     assert "--inlet-velocity -1.0 must be positive" in capsys.readouterr().err
+    # a flow-case option without --case would do nothing: refused, not ignored
+    assert main(["export", str(y_run), "--format", "msh", "--iterations", "50"]) == 2
+    assert "--iterations set(s) up an OpenFOAM flow case: add --case steady|transient --format openfoam" in capsys.readouterr().err
     assert sorted(p.name for p in y_run.iterdir()) == before

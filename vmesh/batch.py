@@ -373,6 +373,7 @@ def run(manifest, chain="default", out=None, *, client=None, scheduler: str | No
     out = Path(out).resolve()
     if out.exists() and not out.is_dir():
         raise InputError("output folder is a file", out)
+    created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:  # no permission, a read-only or virtual file system
@@ -390,7 +391,7 @@ def run(manifest, chain="default", out=None, *, client=None, scheduler: str | No
     say = _progress(progress, len(tasks))
     if rows:
         say({"resumed_rows": len(rows)}, len(rows))
-    interrupted = False
+    interrupted = unreachable = False
     stop = _InterruptFlag()
     try:
         if pending:
@@ -399,12 +400,23 @@ def run(manifest, chain="default", out=None, *, client=None, scheduler: str | No
     except KeyboardInterrupt:
         interrupted = True
         raise
+    except _Unreachable:
+        # nothing ran: an earlier summary stays as it was, a folder this call made goes
+        unreachable = True
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
     finally:
-        csv_path, pq_path = _write_summary(tasks, rows, out, manifest, parquet, final=True)
-        if not interrupted:
-            shutil.rmtree(out / STAGING, ignore_errors=True)  # leftovers of lost workers
+        if not unreachable:
+            csv_path, pq_path = _write_summary(tasks, rows, out, manifest, parquet, final=True)
+            if not interrupted:
+                shutil.rmtree(out / STAGING, ignore_errors=True)  # leftovers of lost workers
         say(None, len(rows))
     return BatchResult([rows.get(t.name) or _pending_row(t) for t in tasks], out, csv_path, pq_path, time.perf_counter() - t_start, interrupted)
+
+
+class _Unreachable(VmeshError):
+    """The batch's scheduler could not be reached: no row ran."""
 
 
 class _InterruptFlag:
@@ -453,7 +465,7 @@ def _run_pending(pending, rows, out, client, scheduler, workers, retries, cache_
             try:
                 client = own_client = Client(scheduler, timeout=connect_timeout)
             except (OSError, TimeoutError) as exc:
-                raise VmeshError(f"cannot reach the Dask scheduler at {scheduler} ({type(exc).__name__}: {exc})") from None
+                raise _Unreachable(f"cannot reach the Dask scheduler at {scheduler} ({type(exc).__name__}: {exc})") from None
             if workers:
                 client.wait_for_workers(int(workers), timeout=connect_timeout)
         else:

@@ -144,7 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("run", help="run a filter chain on a surface")
     s.add_argument("chain", help="chain file (.toml) or preset name, e.g. 'default'")
     s.add_argument("-i", "--input", required=False, help="input surface (stl, obj, ply, vtp, vtk, vtu, off)")
-    s.add_argument("-s", "--skeleton", help="centerline file (json, swc, vtp, vtk, csv); extracted when absent")
+    s.add_argument("-s", "--skeleton", help="centerline file (json, swc, vtp, vtk, csv, ply); extracted when absent")
     s.add_argument("--set", action="append", metavar="FILTER.PARAM=VALUE", help="override a parameter (repeatable)")
     s.add_argument("-o", "--out", help="output folder (without it the chain runs and prints its quality, but writes nothing)")
     s.add_argument("--units", choices=("mm", "cm", "m"), help="length unit of the input (default: m if the surface's diagonal is below 2, else mm; stated in report.json)")

@@ -25,7 +25,7 @@ def add_arguments(p) -> None:
     p.add_argument("--scheduler", metavar="ADDRESS", help="submit to a running Dask scheduler (tcp://host:8786) instead of a local cluster")
     p.add_argument("--workers", type=int, metavar="N", help="local cluster: N worker processes (default: one per core); with --scheduler: wait for N workers")
     p.add_argument("--set", action="append", metavar="FILTER.PARAM=VALUE", help="override a parameter in every row (repeatable; manifest columns win)")
-    p.add_argument("--retries", type=int, default=1, metavar="N", help="extra attempts of a failed row (default: 1)")
+    p.add_argument("--retries", type=int, default=1, metavar="N", help="extra attempts of a failed row (default: 1; rows that fail on their input are not retried)")
     p.add_argument("--cache-entries", type=int, default=2, metavar="N", help="preprocessed surfaces + signed distances each worker keeps (default: 2)")
     p.add_argument("--no-parquet", action="store_true", help="write summary.csv only (summary.parquet needs pyarrow)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")

@@ -35,10 +35,10 @@ def add_arguments(p) -> None:
     p.add_argument("--to-units", choices=("m", "cm", "mm", "um"), help="convert lengths from the run's units (report.json 'units') to these")
     p.add_argument("--scale", type=float, metavar="F", help="multiply every coordinate by F instead (units then unknown unless --to-units names them)")
     p.add_argument("--case", choices=("steady", "transient"), help="openfoam: also write 0/, constant/ and system/ for simpleFoam (steady) or pimpleFoam (transient); needs metres")
-    p.add_argument("--inlet-velocity", type=float, default=0.1, metavar="U", help="--case: speed into every inlet patch, m/s (default 0.1)")
-    p.add_argument("--nu", type=float, default=3.3e-6, metavar="NU", help="--case: kinematic viscosity, m^2/s (default 3.3e-6, blood)")
-    p.add_argument("--iterations", type=int, default=1000, metavar="N", help="--case steady: simpleFoam iterations (default 1000)")
-    p.add_argument("--end-time", type=float, default=1.0, metavar="T", help="--case transient: pimpleFoam end time, s (default 1)")
+    p.add_argument("--inlet-velocity", type=float, metavar="U", help="--case: speed into every inlet patch, m/s (default 0.1)")
+    p.add_argument("--nu", type=float, metavar="NU", help="--case: kinematic viscosity, m^2/s (default 3.3e-6, blood)")
+    p.add_argument("--iterations", type=int, metavar="N", help="--case steady: simpleFoam iterations (default 1000)")
+    p.add_argument("--end-time", type=float, metavar="T", help="--case transient: pimpleFoam end time, s (default 1)")
 
 
 def run(args) -> int:
@@ -87,14 +87,21 @@ def _flow_case(args, run_dir, targets):
     """The :class:`FlowCase` of ``--case`` (checked before anything is written), or None."""
     from ..io.openfoam_case import FlowCase
 
+    given = {name: value for name, value in (("--inlet-velocity", args.inlet_velocity), ("--nu", args.nu),
+                                             ("--iterations", args.iterations), ("--end-time", args.end_time)) if value is not None}
     if args.case is None:
+        if given:  # an option that would do nothing is refused, not ignored
+            raise ParameterError(f"{', '.join(given)} set(s) up an OpenFOAM flow case: add --case steady|transient --format openfoam", run_dir)
         return None
     if not any(fmt != "meshlab" and fmt.name == "openfoam" for fmt, _ in targets):
         raise ParameterError("--case writes an OpenFOAM case: add --format openfoam", run_dir)
-    for name, value in (("--inlet-velocity", args.inlet_velocity), ("--nu", args.nu), ("--iterations", args.iterations), ("--end-time", args.end_time)):
+    for name, value in given.items():
         if not value > 0:
             raise ParameterError(f"{name} {value} must be positive", run_dir)
-    return FlowCase(kind=args.case, inlet_velocity=args.inlet_velocity, nu=args.nu, iterations=args.iterations, end_time=args.end_time)
+    defaults = FlowCase(kind=args.case)
+    pick = lambda value, default: default if value is None else value  # noqa: E731
+    return FlowCase(kind=args.case, inlet_velocity=pick(args.inlet_velocity, defaults.inlet_velocity), nu=pick(args.nu, defaults.nu),
+                    iterations=pick(args.iterations, defaults.iterations), end_time=pick(args.end_time, defaults.end_time))
 
 
 def _in_units(mesh, run_dir: Path, args):
