@@ -17,6 +17,7 @@ import numpy as np
 
 from .. import preprocess as pre
 from ..errors import InputError, ParameterError
+from ..preload import LATER_STEPS
 from ..registry import Parameter, register_filter
 from ..surface import SurfaceMesh
 
@@ -420,7 +421,9 @@ def detect_caps(ctx, angle_tolerance, min_crease_angle, min_roundness, min_faces
     ctx.report.sections["caps"] = [c.as_dict() for c in ctx.caps]
     ctx.count(caps=len(ctx.caps))
     if not ctx.caps:
-        ctx.warn("no flat caps found (rounded ends?): the mesh's open ends will be named from the skeleton's endpoints, the widest one inlet")
+        # the naming is news only where a mesh follows (not to `vmesh skeleton`)
+        meshed = any(step.filter == "mesh_transfinite" for step in LATER_STEPS.get())
+        ctx.warn("no flat caps found (rounded ends?)" + (": the mesh's open ends will be named from the skeleton's endpoints, the widest one inlet" if meshed else ""))
 
 
 @register_filter(
