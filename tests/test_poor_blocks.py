@@ -101,10 +101,12 @@ def test_fill_summary_of_a_straight_cylinder_is_valid_at_every_resolution():
 
 def test_optimised_summary_lifts_a_sheared_section_but_holds_the_faces_it_shares():
     """The optimised judge (``poor_block_optimised``): the blocks filled at the default
-    resolution and optimised as ``mesh_transfinite`` does. A straight O-grid cylinder stays
-    as good as its raw fill; a leaned section's blocks (raw least 0.44) are lifted well above
-    their raw fill, every element valid, and the blocks of the two segments beside the lean
-    alone, their faces shared with the rest held, are lifted no higher than the whole."""
+    resolution and optimised as ``mesh_transfinite`` does, with the blocks around them
+    free. A straight O-grid cylinder stays as good as its raw fill; a leaned section's
+    blocks (raw least 0.44) are lifted well above their raw fill, every element valid; the
+    blocks of the two segments beside the lean, judged alone with their neighbours
+    optimised with them (only the neighbours' outer faces held), end valid and no higher
+    than the whole."""
     from cylinder_blocks import cylinder_blocks, project_cylinder
 
     from vmesh.geometry.blocks.poor import fill_summary, optimised_summary

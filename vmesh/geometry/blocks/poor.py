@@ -17,6 +17,7 @@ import numpy as np
 
 from ...blocks import BlockStructure, scaled_corner_jacobians
 from ...errors import MeshingError
+from ..quality import hex8_scaled_jacobian
 from .checks import FILL_CHECKS, filled
 
 #: Rounds of :meth:`_PoorBlocks.lift_poor_blocks`, one segment each: each is one or two
@@ -39,6 +40,9 @@ TRIAL_LOG: list | None = None
 #: threshold and light-pass goal as ``mesh_transfinite`` runs them by default
 #: (``untangle_below`` 0.3, ``light_pass_below`` 0.95; the untangler's smoothing up to 0.5).
 OPTIMISED_UNTANGLE_BELOW, OPTIMISED_SMOOTH_BELOW, OPTIMISED_LIGHT_BELOW = 0.3, 0.5, 0.95
+#: ... and its worst pass (max-min steps below the smoothing goal, then the light pass
+#: again): ``worst_pass_sweeps`` 60 and ``light_pass_ratio_floor`` 0.3, the defaults.
+WORST_SWEEPS, WORST_RATIO_FLOOR = 60, 0.3
 
 #: How much the optimised least element of the moved blocks must rise for a round to be
 #: kept by the optimised judge (the optimiser's own step tolerance is far smaller; below
@@ -75,15 +79,20 @@ def optimised_summary(blocks: BlockStructure, subset: np.ndarray, project, dista
     """Least and mean scaled Jacobian of the elements of the blocks ``subset`` filled at
     the default chain's resolution (the first of :data:`~.checks.FILL_CHECKS`) and then
     optimised as ``mesh_transfinite`` optimises a mesh (untangling and smoothing below
-    :data:`OPTIMISED_UNTANGLE_BELOW` / :data:`OPTIMISED_SMOOTH_BELOW`, then the light pass
-    to :data:`OPTIMISED_LIGHT_BELOW`), the nodes on the subset's faces shared with blocks
-    outside it held (wall nodes slide on the wall), so the optimiser is given no freedom
-    the whole mesh would not give it. ``(-inf, -inf)`` where the subset is empty."""
-    from ..optimize import optimise
+    :data:`OPTIMISED_UNTANGLE_BELOW` / :data:`OPTIMISED_SMOOTH_BELOW`, the light pass to
+    :data:`OPTIMISED_LIGHT_BELOW`, the worst pass and the light pass again). The blocks sharing a corner with ``subset`` are
+    filled and optimised with them, so the subset's own faces are free as in the whole mesh;
+    only the outer faces of that ring are held (wall nodes slide on the wall). ``(-inf,
+    -inf)`` where the subset is empty."""
+    from ..optimize import _node_kinds, optimise
+    from ..optimize.worst import lift_worst
 
+    subset = np.asarray(subset, np.int64)
     if not len(subset):
         return -np.inf, -np.inf
-    sm, _ = next(filled(blocks, subset, project, distance, intersect_lines, (FILL_CHECKS[0],)))
+    ring = np.flatnonzero(np.isin(blocks.hexes, blocks.hexes[subset]).any(axis=1))  # subset and its neighbours
+    sm, _ = next(filled(blocks, ring, project, distance, intersect_lines, (FILL_CHECKS[0],)))
+    own = np.isin(ring[sm.cell_block], subset)
     h = NORMAL_STEP * float(np.median(blocks.block_radius[subset]))
 
     def normals(x):  # the signed distance's gradient by central differences
@@ -94,9 +103,14 @@ def optimised_summary(blocks: BlockStructure, subset: np.ndarray, project, dista
     wall = np.asarray(sm.on_wall, bool)
     X, _ = optimise(sm.points, sm.cells, 1, wall=wall, wall_normals=normals, project=project, untangle_below=OPTIMISED_UNTANGLE_BELOW,
                     smooth_below=OPTIMISED_SMOOTH_BELOW, max_fraction=1.0)
-    X, info = optimise(X, sm.cells, 1, wall=wall, wall_normals=normals, project=project, untangle_below=0.0, smooth_below=OPTIMISED_LIGHT_BELOW)
-    after = info["after"]
-    return float(after["min"]), float(after["mean"])
+    X, _ = optimise(X, sm.cells, 1, wall=wall, wall_normals=normals, project=project, untangle_below=0.0, smooth_below=OPTIMISED_LIGHT_BELOW)
+    q = hex8_scaled_jacobian(X, sm.cells)
+    if 0 < q.min() < OPTIMISED_SMOOTH_BELOW:  # the worst pass, which sets the minimum of s0 g0006 given, s1 g0008 extracted
+        kind, normal, height = _node_kinds(sm.cells, len(X), wall, project, normals, None, None, None, True)
+        if lift_worst(X, sm.cells, OPTIMISED_SMOOTH_BELOW, kind, normal, height, project, normals, sweeps=WORST_SWEEPS, ratio_floor=WORST_RATIO_FLOOR):
+            X, _ = optimise(X, sm.cells, 1, wall=wall, wall_normals=normals, project=project, untangle_below=0.0, smooth_below=OPTIMISED_LIGHT_BELOW)
+    q = hex8_scaled_jacobian(X, sm.cells[own])
+    return float(q.min()), float(q.mean())
 
 
 def shortfall(sj: np.ndarray, floor: float) -> float:
