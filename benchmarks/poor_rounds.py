@@ -6,10 +6,12 @@ moved, least and mean element, before and after (what a fill-judged lift would s
 ``--mesh`` the rest of the chain runs and the mesh's least and mean scaled Jacobian are
 printed, so a criterion can be compared with the run's result.
 
-    PYTHONPATH=$PWD python3 benchmarks/poor_rounds.py SURFACE [--skeleton FILE] --prefix /tmp/x.pkl [--floor 0.3] [--mesh] [--json OUT]
+    PYTHONPATH=$PWD python3 benchmarks/poor_rounds.py SURFACE [--skeleton FILE] --prefix /tmp/x.pkl [--floor 0.3] [--mesh] [--optimised] [--json OUT]
 
 The chain's steps before ``build_block_structure`` run once and are pickled to ``--prefix``
-(reused when it exists: remove it for other inputs). docs/optimiser.md, h25/minima.
+(reused when it exists: remove it for other inputs). With ``--optimised`` the rounds are judged by
+the moved blocks' optimised fill (``poor_block_optimised``), printed under each trial.
+docs/optimiser.md, h25/minima and h26/minima.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ def main(argv=None) -> int:
     ap.add_argument("--prefix", required=True, help="pickle of the context before build_block_structure (written when missing)")
     ap.add_argument("--floor", type=float, default=0.3, help="build_block_structure.poor_block_sj")
     ap.add_argument("--mesh", action="store_true", help="run mesh_transfinite and compute_quality too")
+    ap.add_argument("--optimised", action="store_true", help="judge the rounds by the moved blocks' optimised fill (build_block_structure.poor_block_optimised)")
     ap.add_argument("--json", help="write the trials (and the mesh's quality) here")
     a = ap.parse_args(argv)
 
@@ -40,7 +43,8 @@ def main(argv=None) -> int:
     from vmesh.io.skeleton import read_skeleton
     from vmesh.io.surface import read_surface
 
-    chain = FilterChain.load("default").with_overrides({**C.BENCH_OVERRIDES, "build_block_structure.poor_block_sj": a.floor})
+    chain = FilterChain.load("default").with_overrides({**C.BENCH_OVERRIDES, "build_block_structure.poor_block_sj": a.floor,
+                                                      "build_block_structure.poor_block_optimised": a.optimised})
     names = [s.filter for s in chain.steps]
     path = Path(a.prefix)
     if path.is_file():
@@ -62,6 +66,9 @@ def main(argv=None) -> int:
         sf = "%.2f -> %s" % (t["shortfall"][0], "-" if t["shortfall"][1] is None else "%.2f" % t["shortfall"][1])
         fill = f"{t['fill_before']} -> {t['fill_after']}" if "moved" in t else "(not built or invalid)"
         print(f"{str(t['nodes']):8s} {t['repair']:20s} {str(t['kept']):5s} {lb:16s} {sf:16s} {t.get('moved', '-')!s:6s} {fill}")
+        if t.get("optimised"):
+            o = t["optimised"]
+            print(f"{'':8s} optimised fill of {o['moved']} moved block(s): {o.get('before')} -> {o.get('after')}")
     if a.mesh:
         from vmesh.geometry.quality import scaled_jacobian
 

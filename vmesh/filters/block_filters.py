@@ -51,6 +51,7 @@ from ..registry import Parameter, register_filter
         Parameter("reroot_backwards", "bool", False, "After every other try failed: where a junction's thin branch leaves backwards and runs inside the lumen of the branch to a close neighbour junction until past its middle (its tube, not only its axis), re-root it at that neighbour (through its first node whose tube clears that lumen) and build again on a budget of its own; taken only where the blocks still cover the pair's wall; where the re-rooted branch's new first node at the deepest point of its section fails, 16 ring placements around the section's centre are tried, each on an eighth of a budget (opt-in: failing runs take up to four times as long, each crowded pair tried getting a work budget of its own and its ring two more; docs/junctions.md)."),
         Parameter("poor_block_sj", "float", 0.0, "Valid blocks whose least corner scaled Jacobian is below this get, segment by segment, first the extra margin the fix loop gave their junction ends back (sections moved half a radius towards the junction), then the repairs of invalid blocks (sections moved from junctions, half-planes re-rotated, planes straightened, cores shrunk), round by round, each round kept only where the poor blocks get better and no block falls below the least before (0: never; a block's fill cannot be better than the block: docs/optimiser.md h24/minima).", min=0.0, max=1.0),
         Parameter("carry_next_nodes", "bool", False, "Where the fix loop moves a junction away from a close neighbour junction and the move brings the next node of another of its branches within its half cross-sections (that branch's first segment a stub: its boundary-layer blocks collapse onto the wall), move that node by the same step (at most 1.5 of its radii from its skeleton point, 0.4 of its radius inside the wall; opt-in: not measured over the corpora, docs/junctions.md h26/pair)."),
+        Parameter("poor_block_optimised", "bool", False, "Judge poor_block_sj's rounds by the blocks they move, filled at the default resolution and optimised as mesh_transfinite optimises (untangling, light pass; the faces shared with other blocks held): a round is kept where their least element rises and their mean does not fall, instead of by the blocks' corner scaled Jacobians (opt-in; docs/optimiser.md h26/minima)."),
         Parameter("work_budget", "int", 160, "Most assemblies of the whole block structure over all fix rounds and changed skeletons (each costs time in proportion to the tree); a structure still invalid then fails with the usual error (0: no budget). With bend_drops > 0 its rounds share one more such budget.", min=0, max=10000),
     ],
     reads=("skeleton", "sdf"),
@@ -63,7 +64,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
                           dome_depth, dome_max_retreat, max_fix_rounds, check_wall_projection, junction_centre=1.0, dome_keep=0.0,
                           relieve_wall_folds=True, work_budget=160, own_territory=True, junction_lean=1.0, cut_contacts=True,
                           choose_lean=False, dent_sections=2, saddle_split=0.5, stub_within_reach=False, short_end_rays=0.5,
-                          bend_drops=0, reroot_backwards=False, poor_block_sj=0.0, centre_sections=0.0, carry_next_nodes=False):
+                          bend_drops=0, reroot_backwards=False, poor_block_sj=0.0, centre_sections=0.0, carry_next_nodes=False, poor_block_optimised=False):
     """One O-grid cross-section per skeleton node (a core of a x b blocks, a ring and a
     boundary-layer ring whose outer corners are found on the wall by ray casting in the
     section plane), half cross-sections on half-planes through each junction's axis shared
@@ -89,7 +90,8 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
                         short_end_rays=short_end_rays),
         repair=RepairOptions(split_nonplanar=split_nonplanar, max_fix_rounds=max_fix_rounds, relieve_wall_folds=relieve_wall_folds,
                              work_budget=work_budget, dent_sections=dent_sections, stub_within_reach=stub_within_reach,
-                             poor_block_sj=poor_block_sj, carry_next_nodes=carry_next_nodes),
+                             poor_block_sj=poor_block_sj, carry_next_nodes=carry_next_nodes,
+                             poor_block_optimised=poor_block_optimised),
         last=LastTryOptions(bend_drops=bend_drops, reroot_backwards=reroot_backwards),
     )
     sdf = ctx.sdf  # a vmesh.geometry.surface_query.SurfaceQuery

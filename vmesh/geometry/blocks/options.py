@@ -64,6 +64,7 @@ class RepairOptions:
     relieve_wall_folds: bool = True  # re-place junction sections where boundary-layer blocks would fold (fill-judged)
     stub_within_reach: bool = False  # a side branch is a stub only when it ends within REACH_RADII of its own radii past its junction's radius (:mod:`.stubs`; off: wherever it ends within its junction's half-sections)
     poor_block_sj: float = 0.0  # valid blocks whose least corner scaled Jacobian is below this get the invalid-block repairs, kept where they help (:mod:`.poor`; 0: never)
+    poor_block_optimised: bool = False  # judge poor_block_sj's rounds by the optimised fill of the blocks they move (:func:`.poor.optimised_summary`: least up, mean not down) instead of the corners
     dent_sections: int = 2  # rounds of cross-sections added halfway along segments whose layer blocks fold on the wall (:mod:`.dents`; 0: none)
     carry_next_nodes: bool = False  # a junction moved apart from a close neighbour takes along the next node of another branch it would bring within its half-sections (:meth:`~.junctions._Junctions._carry_next_nodes`; opt-in)
     work_budget: int = 160  # assemblies of the whole structure one build may do over its fixes and tries (0: unbounded)

@@ -17,7 +17,8 @@ import numpy as np
 
 from ...blocks import BlockStructure, scaled_corner_jacobians
 from ...errors import MeshingError
-from .checks import filled
+from ..quality import hex8_scaled_jacobian
+from .checks import FILL_CHECKS, filled
 
 #: Rounds of :meth:`_PoorBlocks.lift_poor_blocks`, one segment each: each is one or two
 #: assemblies of the whole structure (one per repair tried: 16 at most, a tenth of the
@@ -34,6 +35,23 @@ POOR_PROGRESS = 1e-3
 #: it was kept, the structure's least block and shortfall before and after, and the raw fill
 #: (:func:`fill_summary`) of the blocks the trial moved (:func:`moved_blocks`) before and after.
 TRIAL_LOG: list | None = None
+
+#: The optimised judge (``repair.poor_block_optimised``): the mesh optimiser's untangling
+#: threshold and light-pass goal as ``mesh_transfinite`` runs them by default
+#: (``untangle_below`` 0.3, ``light_pass_below`` 0.95; the untangler's smoothing up to 0.5).
+OPTIMISED_UNTANGLE_BELOW, OPTIMISED_SMOOTH_BELOW, OPTIMISED_LIGHT_BELOW = 0.3, 0.5, 0.95
+#: ... and its worst pass (max-min steps below the smoothing goal, then the light pass
+#: again): ``worst_pass_sweeps`` 60 and ``light_pass_ratio_floor`` 0.3, the defaults.
+WORST_SWEEPS, WORST_RATIO_FLOOR = 60, 0.3
+
+#: How much the optimised least element of the moved blocks must rise for a round to be
+#: kept by the optimised judge (the optimiser's own step tolerance is far smaller; below
+#: this the round is noise for the run's minimum).
+OPTIMISED_GAIN = 1e-3
+
+#: Finite-difference step (x the blocks' median radius) of the wall normals the optimised
+#: judge's wall nodes slide along (the builder is given the signed distance, not its gradient).
+NORMAL_STEP = 1e-3
 
 
 def block_scaled_jacobians(blocks: BlockStructure) -> np.ndarray:
@@ -55,6 +73,44 @@ def fill_summary(blocks: BlockStructure, subset: np.ndarray, project, distance, 
     least and the mean scaled Jacobian of the elements of the blocks ``subset``, filled as
     :func:`~.checks.fill_quality` fills them (transfinite, without untangling)."""
     return np.array([(float(sj.min()), float(sj.mean())) for _, sj in filled(blocks, subset, project, distance, intersect_lines, refinement)])
+
+
+def optimised_summary(blocks: BlockStructure, subset: np.ndarray, project, distance, intersect_lines=None) -> tuple[float, float]:
+    """Least and mean scaled Jacobian of the elements of the blocks ``subset`` filled at
+    the default chain's resolution (the first of :data:`~.checks.FILL_CHECKS`) and then
+    optimised as ``mesh_transfinite`` optimises a mesh (untangling and smoothing below
+    :data:`OPTIMISED_UNTANGLE_BELOW` / :data:`OPTIMISED_SMOOTH_BELOW`, the light pass to
+    :data:`OPTIMISED_LIGHT_BELOW`, the worst pass and the light pass again). The blocks sharing a corner with ``subset`` are
+    filled and optimised with them, so the subset's own faces are free as in the whole mesh;
+    only the outer faces of that ring are held (wall nodes slide on the wall). ``(-inf,
+    -inf)`` where the subset is empty."""
+    from ..optimize import _node_kinds, optimise
+    from ..optimize.worst import lift_worst
+
+    subset = np.asarray(subset, np.int64)
+    if not len(subset):
+        return -np.inf, -np.inf
+    ring = np.flatnonzero(np.isin(blocks.hexes, blocks.hexes[subset]).any(axis=1))  # subset and its neighbours
+    sm, _ = next(filled(blocks, ring, project, distance, intersect_lines, (FILL_CHECKS[0],)))
+    own = np.isin(ring[sm.cell_block], subset)
+    h = NORMAL_STEP * float(np.median(blocks.block_radius[subset]))
+
+    def normals(x):  # the signed distance's gradient by central differences
+        x = np.asarray(x, float)
+        g = np.stack([np.asarray(distance(x + h * e)) - np.asarray(distance(x - h * e)) for e in np.eye(3)], axis=1)
+        return g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-300)
+
+    wall = np.asarray(sm.on_wall, bool)
+    X, _ = optimise(sm.points, sm.cells, 1, wall=wall, wall_normals=normals, project=project, untangle_below=OPTIMISED_UNTANGLE_BELOW,
+                    smooth_below=OPTIMISED_SMOOTH_BELOW, max_fraction=1.0)
+    X, _ = optimise(X, sm.cells, 1, wall=wall, wall_normals=normals, project=project, untangle_below=0.0, smooth_below=OPTIMISED_LIGHT_BELOW)
+    q = hex8_scaled_jacobian(X, sm.cells)
+    if 0 < q.min() < OPTIMISED_SMOOTH_BELOW:  # the worst pass, which sets the minimum of s0 g0006 given, s1 g0008 extracted
+        kind, normal, height = _node_kinds(sm.cells, len(X), wall, project, normals, None, None, None, True)
+        if lift_worst(X, sm.cells, OPTIMISED_SMOOTH_BELOW, kind, normal, height, project, normals, sweeps=WORST_SWEEPS, ratio_floor=WORST_RATIO_FLOOR):
+            X, _ = optimise(X, sm.cells, 1, wall=wall, wall_normals=normals, project=project, untangle_below=0.0, smooth_below=OPTIMISED_LIGHT_BELOW)
+    q = hex8_scaled_jacobian(X, sm.cells[own])
+    return float(q.min()), float(q.mean())
 
 
 def shortfall(sj: np.ndarray, floor: float) -> float:
@@ -102,10 +158,16 @@ class _PoorBlocks:
                 except MeshingError:  # a placement that cannot be built: refused, the kept rounds stay
                     trial = None
                 new = block_scaled_jacobians(trial) if trial is not None else None
-                refuse = (trial is None or self.built.corners.min() <= 0 or new.min() < sj.min() - 1e-9
-                          or shortfall(new, floor) > shortfall(sj, floor) * (1.0 - POOR_PROGRESS))
+                judged = None
+                if trial is None or self.built.corners.min() <= 0:
+                    refuse = True
+                elif self.opt.repair.poor_block_optimised:  # the moved blocks' optimised fill
+                    judged = self._optimised_judgement(blocks, trial)
+                    refuse = not judged["kept"]
+                else:
+                    refuse = new.min() < sj.min() - 1e-9 or shortfall(new, floor) > shortfall(sj, floor) * (1.0 - POOR_PROGRESS)
                 if TRIAL_LOG is not None:
-                    self._log_trial(key, repair, blocks, trial, sj, new, floor, not refuse)
+                    self._log_trial(key, repair, blocks, trial, sj, new, floor, not refuse, judged)
                 if refuse:
                     self._restore_state(saved)
                     continue
@@ -128,10 +190,25 @@ class _PoorBlocks:
         """:meth:`~.repair._Repair.fix` of the poor blocks ``group``, as if they were invalid."""
         return self.fix(group, self.built.corners)
 
-    def _log_trial(self, key, repair, blocks, trial, sj, new, floor, kept) -> None:
-        """Append one trial's record to :data:`TRIAL_LOG` (see there)."""
+    def _optimised_judgement(self, before: BlockStructure, after: BlockStructure) -> dict:
+        """Judge a lift round by the optimised fill (:func:`optimised_summary`) of the blocks
+        it moved: kept where their least element rises by :data:`OPTIMISED_GAIN` and their
+        mean does not fall. The raw fill and the corners predict the run's minimum poorly at
+        junctions (docs/optimiser.md, h25/minima): the optimiser opens the raw folds, and what
+        it cannot open is what the run keeps. Returns ``{"moved", "before", "after", "kept"}``."""
+        moved = moved_blocks(before, after)
+        if moved is None or not len(moved):
+            return {"moved": None if moved is None else 0, "kept": False}
+        args = (self.project, self.sdf, self.intersect_lines)
+        was, now = optimised_summary(before, moved, *args), optimised_summary(after, moved, *args)
+        kept = now[0] >= was[0] + OPTIMISED_GAIN and now[1] >= was[1]
+        return {"moved": int(len(moved)), "before": [round(v, 4) for v in was], "after": [round(v, 4) for v in now], "kept": bool(kept)}
+
+    def _log_trial(self, key, repair, blocks, trial, sj, new, floor, kept, judged=None) -> None:
+        """Append one trial's record to :data:`TRIAL_LOG` (see there); ``judged``: the
+        optimised judge's record (:meth:`_optimised_judgement`), where it judged."""
         row = {"segment": [int(k) for k in key], "nodes": [int(n) for n in self.topo.branches[key[0]].nodes[key[1]:key[1] + 2]],
-               "repair": repair.__name__, "kept": bool(kept), "built": trial is not None,
+               "repair": repair.__name__, "kept": bool(kept), "built": trial is not None, "optimised": judged,
                "least_block": [float(sj.min()), None if new is None else float(new.min())],
                "shortfall": [shortfall(sj, floor), None if new is None else shortfall(new, floor)]}
         fillable = trial is not None and self.project is not None and self.built.corners.min() > 0  # a fill needs the projector
