@@ -366,18 +366,7 @@ def run(manifest, chain="default", out=None, *, client=None, scheduler: str | No
         chain = manifest.chain or "default"
     chain = chain if isinstance(chain, FilterChain) else FilterChain.load(chain)
     tasks = prepare(manifest, chain, overrides)
-    if out is None:
-        if manifest.path is None:
-            raise InputError("give an output folder (out=...)")
-        out = manifest.path.resolve().parent / f"{manifest.path.stem}_out"
-    out = Path(out).resolve()
-    if out.exists() and not out.is_dir():
-        raise InputError("output folder is a file", out)
-    created = not out.exists()
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:  # no permission, a read-only or virtual file system
-        raise InputError(f"cannot create the output folder: {exc.strerror or exc}", out) from None
+    out, created = _output_folder(out, manifest)
 
     t_start = time.perf_counter()
     rows: dict[str, dict] = {}
@@ -413,6 +402,24 @@ def run(manifest, chain="default", out=None, *, client=None, scheduler: str | No
                 shutil.rmtree(out / STAGING, ignore_errors=True)  # leftovers of lost workers
         say(None, len(rows))
     return BatchResult([rows.get(t.name) or _pending_row(t) for t in tasks], out, csv_path, pq_path, time.perf_counter() - t_start, interrupted)
+
+
+def _output_folder(out, manifest: Manifest) -> tuple[Path, bool]:
+    """The batch's output folder (default: beside the manifest), made if missing; and
+    whether this call made it."""
+    if out is None:
+        if manifest.path is None:
+            raise InputError("give an output folder (out=...)")
+        out = manifest.path.resolve().parent / f"{manifest.path.stem}_out"
+    out = Path(out).resolve()
+    if out.exists() and not out.is_dir():
+        raise InputError("output folder is a file", out)
+    created = not out.exists()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # no permission, a read-only or virtual file system
+        raise InputError(f"cannot create the output folder: {exc.strerror or exc}", out) from None
+    return out, created
 
 
 class _Unreachable(VmeshError):

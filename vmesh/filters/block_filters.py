@@ -127,8 +127,7 @@ def build_block_structure(ctx, blocks_around, core_size, layer_thickness, plane_
     ctx.blocks = blocks
     info = blocks.info
     ctx.count(
-        blocks=blocks.n_blocks,
-        vertices=len(blocks.vertices),
+        blocks=blocks.n_blocks, vertices=len(blocks.vertices),
         junctions=len(info.get("junctions", {})),
         max_twist_deg=float(info.get("max_twist_deg", 0.0)),
         fixes=len(info.get("fixes", [])),
