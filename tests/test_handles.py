@@ -133,3 +133,12 @@ def test_the_pillar_vessel_meshes_valid_with_the_handle_cut():
     # no part of the wall left out (the patches where the strand stood lie a little off the
     # mesh: 1.7 % of the wall within the check's tolerance; the plain tube 0 %)
     assert cover["missing_parts"] == 0 and cover["uncovered_share"] < 0.05 and cover["volume_ratio"] > 0.95
+
+
+def test_warm_up_compiles_the_loop_search_kernels():
+    """``vmesh compile`` (its tube has no handle) warms the loop search on a torus: no cut,
+    both kernels compiled or loaded."""
+    from vmesh.geometry import handles
+
+    handles.warm_up()
+    assert handles._shortest_nonseparating.signatures and handles._subtree_xor.signatures

@@ -150,6 +150,9 @@ def compile_kernels(progress: bool = False) -> tuple[float, int]:
     say("loading the optimiser's and the surface queries' parallel variants")
     warm_up()  # the optimiser's parallel variants (the tube's colours are all small)
     _warm_parallel_queries(surface)  # loaded: the child ran them after the optimiser's
+    from ..geometry.handles import warm_up as warm_handles
+
+    warm_handles()  # repair_surface's loop search, run only on vessels with loops
     return time.perf_counter() - t0, _compiled_count()
 
 
