@@ -105,7 +105,7 @@ def optimised_summary(blocks: BlockStructure, subset: np.ndarray, project, dista
                     smooth_below=OPTIMISED_SMOOTH_BELOW, max_fraction=1.0)
     X, _ = optimise(X, sm.cells, 1, wall=wall, wall_normals=normals, project=project, untangle_below=0.0, smooth_below=OPTIMISED_LIGHT_BELOW)
     q = hex8_scaled_jacobian(X, sm.cells)
-    if 0 < q.min() < OPTIMISED_SMOOTH_BELOW:  # the worst pass, which sets the minimum of s0 g0006 given, s1 g0008 extracted
+    if 0 < q.min() < OPTIMISED_SMOOTH_BELOW:  # the worst pass: it sets the run's minimum at poor junction columns
         kind, normal, height = _node_kinds(sm.cells, len(X), wall, project, normals, None, None, None, True)
         if lift_worst(X, sm.cells, OPTIMISED_SMOOTH_BELOW, kind, normal, height, project, normals, sweeps=WORST_SWEEPS, ratio_floor=WORST_RATIO_FLOOR):
             X, _ = optimise(X, sm.cells, 1, wall=wall, wall_normals=normals, project=project, untangle_below=0.0, smooth_below=OPTIMISED_LIGHT_BELOW)
