@@ -34,7 +34,6 @@ class _Junctions:
             return u, (None, f"two of its branches are only {np.degrees(gap):.0f} degrees apart around the junction axis (less than min_branch_gap = {opt.junction.min_branch_gap:g})")
         return u, None
 
-
     def split_if_needed(self):
         """With ``split_nonplanar``: split n-furcations (4+ branches) that are too far from planar
         into chains of 3-junctions. Other problems are reported by :meth:`build_junctions`."""
@@ -55,7 +54,6 @@ class _Junctions:
             self.warn(f"split non-planar junction node(s) {split} into 3-junctions")
             self.check_skeleton()
 
-
     def _branch_direction(self, bi: int, side: int, length: float) -> np.ndarray:
         """Unit direction from a branch end (its current position) to the point ``length``
         further along the branch's nodes (at least its first neighbour)."""
@@ -66,7 +64,6 @@ class _Junctions:
         s = np.array([max(min(length, arc[-1]), arc[1])])
         target, _ = polyline_at(P, arc, s, np.zeros((len(P), 1)))
         return cs.unit(target[0] - self.topo.pos[nodes[0]])
-
 
     def build_junctions(self, nodes=None):
         """Junction axes, neighbour order and separators (from the current positions), for
@@ -119,7 +116,6 @@ class _Junctions:
                 dirs=d[order], separator=sep, gap=gap, psi=np.zeros(len(lst)), ends=[lst[i] for i in order],
             )
 
-
     def _junction_centre(self, c: int, u, p, q, sep) -> np.ndarray:
         """Point of the junction's common line (the half-sections' spine).
 
@@ -147,13 +143,11 @@ class _Junctions:
             return o
         return x
 
-
     def _slack(self, bi: int) -> float:
         """Room left on a branch between two junctions once both half-sections are in."""
         br = self.topo.branches[bi]
         L = float(np.linalg.norm(self.topo.pos[br.nodes[-1]] - self.topo.pos[br.nodes[0]])) if len(br.nodes) == 2 else br.arc[-1]
         return L - self._junction_reach(bi, 0) - self._junction_reach(bi, 1)
-
 
     def separate_junctions(self, bi: int) -> bool:
         """Move one end junction of a branch between two junctions away from the other.
@@ -200,7 +194,6 @@ class _Junctions:
                           + (f", taking along its next node(s) {carried}" if carried else ""))
         return True
 
-
     def _moved_junction(self, c: int, bi: int, new: np.ndarray) -> list:
         """Put junction ``c`` at ``new`` (away along branch ``bi``) and rebuild it; with
         ``carry_next_nodes`` also :meth:`_carry_next_nodes`. Returns the nodes carried."""
@@ -214,7 +207,6 @@ class _Junctions:
         self._rebuild_junction(c)
         return self._carry_next_nodes(c, bi, delta, first)
 
-
     def _first_lengths(self, c: int, bi: int) -> dict:
         """Length of the first segment of each branch of junction ``c`` but ``bi``, by its next node."""
         out = {}
@@ -226,7 +218,6 @@ class _Junctions:
             out[nb] = float(np.linalg.norm(self.topo.pos[nb] - self.topo.pos[c]))
         return out
 
-
     def _carry_next_nodes(self, c: int, bi: int, delta: np.ndarray, first: dict) -> list:
         """Move by ``delta`` (the junction's own move) each plain next node of junction
         ``c``'s other branches that its move brought closer and now within the reach of the
@@ -236,8 +227,9 @@ class _Junctions:
         walk it into another of its branches: that branch's first segment becomes a stub
         shorter than the half-sections' reach, its first cross-section stands inside the
         junction and the boundary-layer blocks between them collapse onto the wall
-        (docs/junctions.md, two overlapping junctions). Carried along, the node keeps the first segment's length and
-        direction; the branch's second segment gives up the room instead. A node is
+        (docs/junctions.md, two overlapping junctions). Carried along, the node keeps the
+        first segment's length and direction; the branch's second segment gives up the room
+        instead. A node is
         carried only where it stays ``MOVE_DEPTH`` of its radius inside the wall and
         within ``MOVE_BOUND`` radii of its skeleton point (the junction's own bounds)."""
         sk = self.topo.sk
@@ -262,11 +254,9 @@ class _Junctions:
             self._rebuild_junction(c)
         return carried
 
-
     def _rebuild_branches(self):
         self.make_branches()
         self.classify_ends()
-
 
     def _rebuild_junction(self, c: int):
         self._rebuild_branches()
@@ -284,7 +274,6 @@ class _Junctions:
             other = br.kinds[1 - side]
             room[h] = (0.45 if other == JUNCTION else 0.8) * L if len(br.nodes) > 2 else 0.85 * L
         return room
-
 
     def _half_rays(self, j: _Junction, sdirs: np.ndarray, seps=None) -> np.ndarray:
         """Ray lengths (k, nr) of half-sections with in-plane directions ``sdirs`` (k, 3) at
@@ -311,13 +300,11 @@ class _Junctions:
         R[:, cs.ray_index(t, np.pi)] = spine[1]
         return R
 
-
     def leans(self, j: _Junction) -> bool:
         """Whether the half-sections of ``j`` lean (:meth:`_leaned`): an n-furcation whose
         branches leave its plane unalike, with ``junction_lean`` on and not in ``local.planar``."""
         return (self.opt.junction.junction_lean > 0 and len(j.neighbors) >= 4 and j.node not in self.local.planar
                 and float(np.ptp(j.dirs @ j.u)) > 1e-6)
-
 
     def _leaned(self, j: _Junction, sdirs: np.ndarray, seps: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """In-plane directions (k, n, 3) of half-sections ``sdirs`` (k, 3) at separators
@@ -352,11 +339,9 @@ class _Junctions:
         delta = dmax * np.tanh(kappa[:, None] * cot / dmax)
         return np.cos(delta)[..., None] * sdirs[:, None, :] + np.sin(delta)[..., None] * t0[:, None, :]
 
-
     def spine_rays(self, j: _Junction) -> np.ndarray:
         o = np.repeat(j.center[None, :], 2, axis=0)
         return self.cast(o, np.stack([j.u, -j.u]), np.full(2, j.radius))
-
 
     def _half_vertices(self, j: _Junction, sdirs: np.ndarray, R: np.ndarray, core=None, layer=None, seps=None) -> np.ndarray:
         """Vertices (k, nv, 3) of half-sections: the template in each half-plane, each vertex
@@ -375,7 +360,6 @@ class _Junctions:
         h_s = np.einsum("knj,kj->kn", rel, sdirs)
         s = self._leaned(j, sdirs, seps, np.arctan2(np.abs(h_s), h_u))
         return j.center + h_u[..., None] * j.u + h_s[..., None] * s
-
 
     def choose_rotations(self, nodes=None):
         opt = self.opt
@@ -422,7 +406,6 @@ class _Junctions:
             j.cand = _Candidates(psi=psi, cost=cost, reach=reach_a.max(axis=2), pick=pick)  # reach: (m, ncand, m)
             j.psi = psi[np.arange(m), pick]
 
-
     def _junction_end(self, bi: int, side: int):
         """The junction at one end of a branch, and that end's place ``h`` among its
         ordered neighbours: the half-planes next to the end are separators ``h - 1`` and ``h``."""
@@ -430,7 +413,6 @@ class _Junctions:
         j = self.topo.junctions[int(br.nodes[0] if side == 0 else br.nodes[-1])]
         h = next(h for h, e in enumerate(j.ends) if e == (bi, side))
         return j, h, ((h - 1) % len(j.neighbors), h)
-
 
     def _junction_reach(self, bi: int, side: int) -> float:
         """How far the half-sections of the junction at a branch's end reach along it."""
