@@ -22,6 +22,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, dijkstra
 
 from .bvh import TriangleBVH
+from .sdf import ray_winding_numbers
 from .topology import boundary_loops, euler_characteristic
 
 # Seeds of the loop search (farthest-point sampled vertices): a loop of length L is found
@@ -249,15 +250,6 @@ def farthest_points(points: np.ndarray, k: int) -> np.ndarray:
     return np.array(chosen)
 
 
-def winding_numbers(tree, points: np.ndarray) -> np.ndarray:
-    """Winding number of a closed outward surface (its :class:`TriangleBVH` ``tree``) at
-    ``points``: the median of the signed crossings of three rays (1 inside, 0 outside)."""
-    from .ray_crossings import crossings
-
-    ways = np.array([[0.5773, 0.5774, 0.5774], [-0.8018, 0.2673, 0.5345], [0.2182, -0.8729, 0.4364]])
-    return np.median(np.stack([crossings(tree, points, np.broadcast_to(w, points.shape)) for w in ways]), axis=0)
-
-
 def loop_frame(vertices: np.ndarray, loop: np.ndarray):
     """Centre, radius (mean distance of the loop's vertices from their centre) and axis
     (the normal of the loop's best plane) of a closed vertex loop."""
@@ -285,7 +277,7 @@ def lumen_all_round(vertices: np.ndarray, tree, loop: np.ndarray) -> tuple[bool,
     centre, radius, _ = loop_frame(vertices, loop)
     ways = sphere_directions(AROUND)
     pushed = centre + radius * (ways[:, None, :] * np.asarray(PUSH_RADII)[None, :, None])
-    wn = winding_numbers(tree, np.vstack([centre[None], pushed.reshape(-1, 3)]))
+    wn = ray_winding_numbers(tree, np.vstack([centre[None], pushed.reshape(-1, 3)]))
     share = float(np.mean(np.any(wn[1:].reshape(AROUND, -1) > 0.5, axis=1)))
     return bool(wn[0] < 0.5 and share >= LUMEN_ALL_ROUND), share
 

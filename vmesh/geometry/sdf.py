@@ -60,6 +60,17 @@ SIGN_METHODS = ("auto", "pseudonormal", "winding_number")
 _WINDING_RAYS = tuple(np.array(d) / np.linalg.norm(d) for d in ((1.0, 2.0**0.5, 3.0**0.5), (-(5.0**0.5), 1.0, 7.0**0.5), (3.0**0.5, -(11.0**0.5), -1.0)))
 
 
+def ray_winding_numbers(tree, points: np.ndarray) -> np.ndarray:
+    """Winding number ``(n,)`` of the closed, consistently oriented surface of ``tree`` (a
+    :class:`~vmesh.geometry.bvh.TriangleBVH`) at ``points``: the median over the three fixed
+    directions ``_WINDING_RAYS`` of the signed ray crossings, so that one ray through an edge
+    or a vertex does not change it."""
+    from .ray_crossings import crossings
+
+    counts = np.stack([crossings(tree, points, np.broadcast_to(d, points.shape)) for d in _WINDING_RAYS])
+    return np.median(counts, axis=0)
+
+
 def morton_order(points: np.ndarray, bits: int = 16) -> np.ndarray:
     """Permutation sorting ``points`` along a Z-order (Morton) curve (see :func:`vmesh.geometry.bvh.morton_order`)."""
     return _bvh.morton_order(points, bits=bits)
@@ -412,11 +423,7 @@ class SignedDistance(SurfaceQueries):
         edge or a vertex (counted twice or not at all) does not change it. On such a surface
         it equals the generalised winding number rounded, without libigl (whose import and
         tree over the fine surface were ~0.14 s CPU of the ICA's ``build_sdf``, docs/speed.md)."""
-        p = _as_points(points)
-        from .ray_crossings import crossings
-
-        counts = np.stack([crossings(self._tree, p, np.broadcast_to(d, p.shape)) for d in _WINDING_RAYS])
-        return np.median(counts, axis=0)
+        return ray_winding_numbers(self._tree, _as_points(points))
 
     def intersect_lines(self, points, directions, reach, side=None) -> tuple[np.ndarray, np.ndarray]:
         """Move points along lines to the nearest crossing with the surface.
