@@ -25,7 +25,6 @@ import ast
 import contextvars
 import functools
 import importlib
-import importlib.util
 import inspect
 import sys
 

@@ -23,7 +23,7 @@ from scipy.sparse.csgraph import breadth_first_order, dijkstra
 
 from .bvh import TriangleBVH
 from .sdf import ray_winding_numbers
-from .topology import boundary_loops, euler_characteristic
+from .topology import boundary_loops, euler_characteristic, face_normals
 
 # Seeds of the loop search (farthest-point sampled vertices): a loop of length L is found
 # from the seed nearest it as a loop of at most L + 2 * spacing, then shortened from the
@@ -284,7 +284,7 @@ def lumen_all_round(vertices: np.ndarray, tree, loop: np.ndarray) -> tuple[bool,
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Unit area-weighted vertex normals."""
-    fn = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]])
+    fn = face_normals(vertices, faces, normalize=False)
     n = np.zeros_like(vertices)
     for k in range(3):
         np.add.at(n, faces[:, k], fn)
